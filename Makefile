@@ -1,0 +1,62 @@
+# Foresight — the two commands of the README are `make demo` and `make test`.
+# Both run `make setup` first, which installs what is missing (scripts/setup.sh) and is
+# cheap when nothing is.
+
+SHELL := /bin/bash
+FORESIGHT_CACHE ?= $(HOME)/.cache/foresight
+# Build outputs live outside the clone so CI runs and fresh clones reuse them; cargo's
+# fingerprints make that safe. Override with CARGO_TARGET_DIR=... as usual.
+CARGO_TARGET_DIR ?= $(FORESIGHT_CACHE)/target
+export CARGO_TARGET_DIR FORESIGHT_CACHE
+
+# build/env.mk is written by scripts/setup.sh (LIBTORCH and the rpath for its libraries).
+-include build/env.mk
+export LIBTORCH FORESIGHT_TORCH_RPATH FORESIGHT_TORCH_CUDA
+# torch-sys' own check reads torch's version through Python; setup.sh checks it instead.
+export LIBTORCH_BYPASS_VERSION_CHECK := 1
+
+CARGO ?= cargo
+BIN := $(CARGO_TARGET_DIR)/release
+
+.PHONY: setup build demo test lint fmt bench bench-loop clean help
+
+help:
+	@echo "make demo   - run the main job on the simulated arm (installs what it needs)"
+	@echo "make test   - run every check and test (installs what it needs)"
+	@echo "make bench  - criterion benchmarks (medians in README)"
+
+setup:
+	@bash scripts/setup.sh
+
+build: setup
+	$(MAKE) --no-print-directory _build
+
+_build:
+	$(CARGO) build --release --workspace --bins
+
+demo: setup
+	$(MAKE) --no-print-directory _build
+	@bash scripts/demo.sh "$(BIN)"
+
+test: setup
+	$(MAKE) --no-print-directory _test
+
+_test:
+	$(CARGO) fmt --all --check
+	$(CARGO) clippy --release --workspace --all-targets -- -D warnings
+	$(CARGO) build --release --workspace --bins
+	$(CARGO) test --release --workspace --no-fail-fast
+	@bash scripts/ci-bench-loop.sh "$(BIN)"
+
+lint: setup
+	$(CARGO) fmt --all --check
+	$(CARGO) clippy --release --workspace --all-targets -- -D warnings
+
+fmt:
+	$(CARGO) fmt --all
+
+bench: setup
+	$(CARGO) bench -p rt-core
+
+clean:
+	$(CARGO) clean

@@ -1,0 +1,2 @@
+//! The `perception` binary.
+fn main() {}

@@ -1,0 +1,31 @@
+//! Command-line parsing and dispatch of the `rt-core` binary. Each subcommand is one module
+//! that owns its arguments (`clap::Args`) and a `run` function returning an exit code.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod twin;
+
+/// Foresight's real-time core.
+#[derive(Debug, Parser)]
+#[command(name = "rt-core", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Query the digital twin (kinematics, distances, rollouts); prints one JSON object.
+    #[command(subcommand)]
+    Twin(twin::TwinCommand),
+}
+
+/// Parses the command line and runs the chosen subcommand.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Twin(cmd) => twin::run(cmd),
+    }
+}

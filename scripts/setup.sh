@@ -1,0 +1,86 @@
+#!/usr/bin/env bash
+# Installs everything Foresight needs to build and run, from the package registries only.
+# Idempotent: each step checks before it acts, so `make setup` is cheap the second time.
+#
+# What it installs:
+#   1. Debian packages: clang/libclang (bindgen + the opencv binding generator), OpenCV 4.6
+#      headers and libraries, pkg-config, iproute2 (network namespaces for the ROS 2 and
+#      xArm SDK tests).
+#   2. A Python virtual environment holding torch==2.13.0, which ships the libtorch that
+#      the `tch 0.26` crate links against (tch cannot download libtorch here).
+#      TORCH_VARIANT=cpu (default): torch without its CUDA dependency wheels, plus the two
+#      small CUDA runtime wheels libtorch_cpu.so still needs (≈1.2 GB instead of ≈4.7 GB).
+#      TORCH_VARIANT=cuda: the full wheel with its CUDA libraries, for GPU training.
+#   3. build/env.mk: the LIBTORCH path that the Makefile exports to every cargo call, so
+#      that torch-sys is never rebuilt because a variable changed.
+#
+# Caches live outside the clone (FORESIGHT_CACHE, default ~/.cache/foresight) so that
+# repeated CI runs reuse them; nothing depends on them existing.
+set -euo pipefail
+
+here=$(cd "$(dirname "$0")/.." && pwd)
+cache=${FORESIGHT_CACHE:-$HOME/.cache/foresight}
+variant=${TORCH_VARIANT:-cpu}
+torch_version=2.13.0
+venv="$cache/venv-torch-$torch_version-$variant"
+
+say() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
+
+# ---- 1. Debian packages ------------------------------------------------------------------
+apt_pkgs=(clang libclang-dev libopencv-dev pkg-config iproute2 python3-venv)
+missing=()
+for p in "${apt_pkgs[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  say "installing Debian packages: ${missing[*]}"
+  sudo=""; [ "$(id -u)" -eq 0 ] || sudo="sudo"
+  $sudo apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+else
+  say "Debian packages present"
+fi
+
+# ---- 2. Python venv with torch ---------------------------------------------------------------
+py=${PYTHON:-python3}
+if [ ! -x "$venv/bin/python" ]; then
+  say "creating virtual environment $venv"
+  mkdir -p "$cache"
+  "$py" -m venv "$venv"
+  "$venv/bin/python" -m pip install -q --upgrade pip
+fi
+have=$("$venv/bin/python" - <<'PY' 2>/dev/null || true
+import importlib.metadata as m
+try: print(m.version("torch"))
+except Exception: pass
+PY
+)
+if [ "${have%%+*}" != "$torch_version" ]; then
+  say "installing torch==$torch_version ($variant) into the venv (a few minutes the first time)"
+  if [ "$variant" = "cuda" ]; then
+    "$venv/bin/python" -m pip install -q "torch==$torch_version"
+  else
+    "$venv/bin/python" -m pip install -q --no-deps "torch==$torch_version" \
+      nvidia-cuda-runtime==13.0.96 nvidia-cuda-cupti==13.0.85
+  fi
+else
+  say "torch $have present"
+fi
+torch_dir=$(echo "$venv"/lib/python3*/site-packages/torch)
+[ -f "$torch_dir/lib/libtorch_cpu.so" ] || { echo "setup: $torch_dir has no lib/libtorch_cpu.so" >&2; exit 1; }
+# tch skips its own version check when LIBTORCH is set: check it here.
+got=$(sed -n "s/^__version__ = '\(.*\)'/\1/p" "$torch_dir/version.py")
+[ "${got%%+*}" = "$torch_version" ] || { echo "setup: torch at $torch_dir is $got, tch 0.26 needs $torch_version" >&2; exit 1; }
+# Directories holding the CUDA runtime libraries that libtorch_cpu.so needs at load time.
+nvidia_libs=$(find "$venv"/lib/python3*/site-packages/nvidia -maxdepth 3 -type d -name lib 2>/dev/null | sort | tr '\n' ':' | sed 's/:$//')
+
+# ---- 3. build/env.mk ---------------------------------------------------------------------------
+mkdir -p "$here/build"
+cat > "$here/build/env.mk.tmp" <<MK
+# Written by scripts/setup.sh; do not edit.
+FORESIGHT_VENV := $venv
+LIBTORCH := $torch_dir
+FORESIGHT_TORCH_RPATH := $torch_dir/lib:$nvidia_libs
+MK
+mv "$here/build/env.mk.tmp" "$here/build/env.mk"
+say "ready (LIBTORCH=$torch_dir)"

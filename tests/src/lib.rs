@@ -1,0 +1,1 @@
+//! Helpers shared by Foresight's system tests.
