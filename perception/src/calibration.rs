@@ -1,0 +1,448 @@
+//! Calibration: ties the image to the twin's frame through the taped workspace rectangle.
+//!
+//! Four workspace-corner pixels (given, or found from the tape with
+//! [`find_workspace_corners`]) plus the rectangle's size give
+//! - a homography from image pixels to table coordinates (OpenCV `getPerspectiveTransform`),
+//!   used for the rectified top view and for depth-less table positions, and
+//! - the camera pose (OpenCV `solvePnP`, IPPE for planar targets, with the known
+//!   intrinsics), used with depth to map any pixel to a 3D point in the twin's frame.
+//!
+//! Saved to and loaded from TOML ([`CalibrationFile`]); loading validates everything and
+//! rejects a calibration whose corners do not reproject within [`MAX_REPROJECTION_ERROR_PX`].
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Matrix3, Rotation3, Vector3};
+use opencv::core::{Mat, Point2d, Point2f, Point3d, Vector};
+use opencv::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::{CameraModel, CameraPose, Intrinsics};
+use crate::workspace::WorkspaceRect;
+
+/// Largest accepted mean reprojection error of the four corners (px).
+pub const MAX_REPROJECTION_ERROR_PX: f64 = 2.0;
+
+/// Why a calibration could not be loaded, built or saved.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationError {
+    /// The file could not be read or written.
+    #[error("calibration file {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// Malformed TOML.
+    #[error("malformed calibration file {path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// What the parser said.
+        message: String,
+    },
+    /// Values out of range or geometrically inconsistent.
+    #[error("invalid calibration: {0}")]
+    Invalid(String),
+    /// OpenCV failed.
+    #[error("OpenCV failed during calibration: {0}")]
+    OpenCv(#[from] opencv::Error),
+}
+
+/// What a calibration file holds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationFile {
+    /// Intrinsics of the (rectified) colour and depth images.
+    pub intrinsics: Intrinsics,
+    /// The taped rectangle in the twin's frame.
+    pub workspace: WorkspaceRect,
+    /// Pixels of the corners, in [`WorkspaceRect::corners_xy_m`] order.
+    pub corners_px: [[f64; 2]; 4],
+    /// Scale of the rectified top view (px per metre).
+    #[serde(default = "default_rectified_px_per_m")]
+    pub rectified_px_per_m: f64,
+}
+
+fn default_rectified_px_per_m() -> f64 {
+    1000.0
+}
+
+/// A validated calibration, ready to map pixels to the world.
+#[derive(Debug, Clone)]
+pub struct Calibration {
+    /// What was loaded.
+    pub file: CalibrationFile,
+    /// Intrinsics and the solved camera pose.
+    pub model: CameraModel,
+    /// Image pixel → table (x, y) in metres, homogeneous.
+    pub pixel_to_table: Matrix3<f64>,
+    /// Mean distance between the given corners and the corners reprojected with the pose (px).
+    pub reprojection_error_px: f64,
+}
+
+impl Calibration {
+    /// Validates `file` and solves the homography and the camera pose.
+    ///
+    /// # Errors
+    /// [`CalibrationError::Invalid`] for bad numbers, a degenerate quadrilateral, a pose that
+    /// puts the camera below the table or a reprojection error above
+    /// [`MAX_REPROJECTION_ERROR_PX`]; [`CalibrationError::OpenCv`] when OpenCV fails.
+    pub fn new(file: CalibrationFile) -> Result<Self, CalibrationError> {
+        file.intrinsics.validate().map_err(CalibrationError::Invalid)?;
+        file.workspace.validate().map_err(CalibrationError::Invalid)?;
+        if !(file.rectified_px_per_m.is_finite() && (10.0..=10_000.0).contains(&file.rectified_px_per_m)) {
+            return Err(CalibrationError::Invalid(format!(
+                "rectified_px_per_m = {} must be in 10..=10000",
+                file.rectified_px_per_m
+            )));
+        }
+        let (w, h) = (f64::from(file.intrinsics.width_px), f64::from(file.intrinsics.height_px));
+        for (i, c) in file.corners_px.iter().enumerate() {
+            if !(c[0].is_finite() && c[1].is_finite() && (0.0..w).contains(&c[0]) && (0.0..h).contains(&c[1])) {
+                return Err(CalibrationError::Invalid(format!(
+                    "corners_px[{i}] = {c:?} lies outside the {w}x{h} image"
+                )));
+            }
+        }
+        if !is_convex_quad(&file.corners_px) {
+            return Err(CalibrationError::Invalid(format!(
+                "corners_px {:?} do not form a convex quadrilateral (wrong order or a misplaced corner?)",
+                file.corners_px
+            )));
+        }
+        let table = file.workspace.corners_xy_m();
+        let src: Vector<Point2f> = file.corners_px.iter().map(|c| Point2f::new(c[0] as f32, c[1] as f32)).collect();
+        let dst: Vector<Point2f> = table.iter().map(|c| Point2f::new(c[0] as f32, c[1] as f32)).collect();
+        let hm = opencv::imgproc::get_perspective_transform(&src, &dst, opencv::core::DECOMP_LU)?;
+        let pixel_to_table = mat3_from_cv(&hm)?;
+
+        let z = file.workspace.table_height_m;
+        let object: Vector<Point3d> = table.iter().map(|c| Point3d::new(c[0], c[1], z)).collect();
+        let image: Vector<Point2d> = file.corners_px.iter().map(|c| Point2d::new(c[0], c[1])).collect();
+        let k = file.intrinsics;
+        let camera_matrix = Mat::from_slice_2d(&[
+            [k.fx_px, 0.0, k.cx_px],
+            [0.0, k.fy_px, k.cy_px],
+            [0.0, 0.0, 1.0],
+        ])?;
+        let mut rvec = Mat::default();
+        let mut tvec = Mat::default();
+        let ok = opencv::calib3d::solve_pnp(
+            &object,
+            &image,
+            &camera_matrix,
+            &Mat::default(),
+            &mut rvec,
+            &mut tvec,
+            false,
+            opencv::calib3d::SOLVEPNP_IPPE,
+        )?;
+        if !ok {
+            return Err(CalibrationError::Invalid("solvePnP found no camera pose for these corners".into()));
+        }
+        let r = vec3_from_cv(&rvec)?;
+        let t = vec3_from_cv(&tvec)?;
+        let pose = CameraPose {
+            rotation: Rotation3::from_scaled_axis(r),
+            translation_m: t,
+        };
+        let model = CameraModel { intrinsics: k, pose };
+        if pose.eye_m().z <= z {
+            return Err(CalibrationError::Invalid(format!(
+                "the solved camera lies below the table (z = {:.3} m): are the corners in the documented order?",
+                pose.eye_m().z
+            )));
+        }
+        let mut err = 0.0;
+        for (c, px) in table.iter().zip(file.corners_px.iter()) {
+            let (p, _) = model
+                .project([c[0], c[1], z])
+                .ok_or_else(|| CalibrationError::Invalid("a workspace corner lies behind the camera".into()))?;
+            err += ((p[0] - px[0]).powi(2) + (p[1] - px[1]).powi(2)).sqrt() / 4.0;
+        }
+        if err > MAX_REPROJECTION_ERROR_PX {
+            return Err(CalibrationError::Invalid(format!(
+                "corners reproject with a mean error of {err:.2} px (> {MAX_REPROJECTION_ERROR_PX} px): intrinsics and corners disagree"
+            )));
+        }
+        Ok(Self {
+            file,
+            model,
+            pixel_to_table,
+            reprojection_error_px: err,
+        })
+    }
+
+    /// Loads and validates a calibration file.
+    ///
+    /// # Errors
+    /// See [`Calibration::new`]; plus I/O and TOML errors.
+    pub fn load(path: &Path) -> Result<Self, CalibrationError> {
+        let text = std::fs::read_to_string(path).map_err(|source| CalibrationError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let file: CalibrationFile = toml::from_str(&text).map_err(|e| CalibrationError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        Self::new(file).map_err(|e| match e {
+            CalibrationError::Invalid(m) => CalibrationError::Invalid(format!("{}: {m}", path.display())),
+            other => other,
+        })
+    }
+
+    /// Writes the calibration file (TOML).
+    ///
+    /// # Errors
+    /// [`CalibrationError::Io`].
+    pub fn save(&self, path: &Path) -> Result<(), CalibrationError> {
+        let text = toml::to_string_pretty(&self.file).map_err(|e| CalibrationError::Invalid(e.to_string()))?;
+        let header = format!(
+            "# Foresight perception calibration. Corner order: (xmin,ymin), (xmin,ymax), (xmax,ymax), (xmax,ymin).\n\
+             # Solved camera centre: {:?} m; mean corner reprojection error {:.3} px.\n",
+            self.model.pose.eye_m().as_slice(),
+            self.reprojection_error_px
+        );
+        std::fs::write(path, header + &text).map_err(|source| CalibrationError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    }
+
+    /// Table coordinates (x, y) in metres of an image pixel, through the homography.
+    pub fn pixel_to_table_m(&self, u_px: f64, v_px: f64) -> [f64; 2] {
+        let p = self.pixel_to_table * Vector3::new(u_px, v_px, 1.0);
+        [p.x / p.z, p.y / p.z]
+    }
+
+    /// The homography from image pixels to the rectified top view (rows along +x from the
+    /// workspace's `xmin` edge, columns along +y from its `ymin` edge).
+    pub fn rectify_homography(&self) -> Matrix3<f64> {
+        let s = self.file.rectified_px_per_m;
+        let [x0, y0] = self.file.workspace.min_xy_m;
+        // table (x, y) → rectified (col, row) = ((y - y0) s, (x - x0) s)
+        let table_to_rect = Matrix3::new(0.0, s, -y0 * s, s, 0.0, -x0 * s, 0.0, 0.0, 1.0);
+        table_to_rect * self.pixel_to_table
+    }
+
+    /// Size of the rectified top view (width, height) in px.
+    pub fn rectified_size_px(&self) -> (i32, i32) {
+        let s = self.file.rectified_px_per_m;
+        let ws = self.file.workspace.size_m;
+        ((ws[1] * s).round() as i32, (ws[0] * s).round() as i32)
+    }
+
+    /// Warps a colour image to the rectified top view of the workspace.
+    ///
+    /// # Errors
+    /// OpenCV errors.
+    pub fn rectify(&self, bgr: &Mat) -> Result<Mat, CalibrationError> {
+        let h = self.rectify_homography();
+        let hm = Mat::from_slice_2d(&[
+            [h[(0, 0)], h[(0, 1)], h[(0, 2)]],
+            [h[(1, 0)], h[(1, 1)], h[(1, 2)]],
+            [h[(2, 0)], h[(2, 1)], h[(2, 2)]],
+        ])?;
+        let (w, hh) = self.rectified_size_px();
+        let mut out = Mat::default();
+        opencv::imgproc::warp_perspective(
+            bgr,
+            &mut out,
+            &hm,
+            opencv::core::Size::new(w, hh),
+            opencv::imgproc::INTER_LINEAR,
+            opencv::core::BORDER_CONSTANT,
+            opencv::core::Scalar::all(0.0),
+        )?;
+        Ok(out)
+    }
+}
+
+fn mat3_from_cv(m: &Mat) -> Result<Matrix3<f64>, CalibrationError> {
+    let mut out = Matrix3::zeros();
+    for r in 0..3 {
+        for c in 0..3 {
+            out[(r, c)] = *m.at_2d::<f64>(r as i32, c as i32)?;
+        }
+    }
+    Ok(out)
+}
+
+fn vec3_from_cv(m: &Mat) -> Result<Vector3<f64>, CalibrationError> {
+    let d = m.data_typed::<f64>()?;
+    if d.len() != 3 {
+        return Err(CalibrationError::Invalid(format!("solvePnP returned {} values for a 3-vector", d.len())));
+    }
+    Ok(Vector3::new(d[0], d[1], d[2]))
+}
+
+fn is_convex_quad(c: &[[f64; 2]; 4]) -> bool {
+    let mut sign = 0.0;
+    for i in 0..4 {
+        let a = c[i];
+        let b = c[(i + 1) % 4];
+        let d = c[(i + 2) % 4];
+        let cross = (b[0] - a[0]) * (d[1] - b[1]) - (b[1] - a[1]) * (d[0] - b[0]);
+        if cross.abs() < 1.0 {
+            return false;
+        }
+        if sign == 0.0 {
+            sign = cross.signum();
+        } else if cross.signum() != sign {
+            return false;
+        }
+    }
+    true
+}
+
+/// HSV range (OpenCV scale: H 0..180, S and V 0..255), inclusive.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HsvRange {
+    /// Lower bound.
+    pub hsv_min: [u8; 3],
+    /// Upper bound.
+    pub hsv_max: [u8; 3],
+}
+
+/// The default tape colour range (the synthetic camera's yellow-orange tape).
+pub const DEFAULT_TAPE_HSV: HsvRange = HsvRange {
+    hsv_min: [15, 120, 60],
+    hsv_max: [35, 255, 255],
+};
+
+/// Finds the four outer corners of the taped rectangle in a BGR image, sub-pixel, in
+/// [`WorkspaceRect::corners_xy_m`] order for a camera in front of the robot looking back at
+/// it (image top-left, top-right, bottom-right, bottom-left).
+///
+/// Steps: tape-colour mask; largest outer contour; a 4-gon by `approxPolyDP`; each side
+/// refined by a least-squares line through the contour points near it, moved out by half a
+/// pixel (contour points are the centres of the outermost tape pixels); adjacent lines
+/// intersected.
+///
+/// # Errors
+/// [`CalibrationError::Invalid`] when no 4-sided tape outline is found.
+pub fn find_workspace_corners(bgr: &Mat, tape: HsvRange) -> Result<[[f64; 2]; 4], CalibrationError> {
+    use opencv::imgproc;
+    let mut hsv = Mat::default();
+    imgproc::cvt_color(bgr, &mut hsv, imgproc::COLOR_BGR2HSV, 0)?;
+    let mut mask = Mat::default();
+    let lo = opencv::core::Scalar::new(
+        f64::from(tape.hsv_min[0]),
+        f64::from(tape.hsv_min[1]),
+        f64::from(tape.hsv_min[2]),
+        0.0,
+    );
+    let hi = opencv::core::Scalar::new(
+        f64::from(tape.hsv_max[0]),
+        f64::from(tape.hsv_max[1]),
+        f64::from(tape.hsv_max[2]),
+        0.0,
+    );
+    opencv::core::in_range(&hsv, &lo, &hi, &mut mask)?;
+    let mut contours: Vector<Vector<opencv::core::Point>> = Vector::new();
+    imgproc::find_contours(
+        &mask,
+        &mut contours,
+        imgproc::RETR_EXTERNAL,
+        imgproc::CHAIN_APPROX_NONE,
+        opencv::core::Point::new(0, 0),
+    )?;
+    let mut best: Option<(f64, Vector<opencv::core::Point>)> = None;
+    for c in contours {
+        let area = imgproc::contour_area(&c, false)?;
+        if best.as_ref().is_none_or(|(a, _)| area > *a) {
+            best = Some((area, c));
+        }
+    }
+    let (area, contour) = best.ok_or_else(|| CalibrationError::Invalid("no tape-coloured pixels in the image".into()))?;
+    if area < 1000.0 {
+        return Err(CalibrationError::Invalid(format!(
+            "the largest tape-coloured region covers only {area:.0} px²: is the taped rectangle in view?"
+        )));
+    }
+    let mut approx: Vector<opencv::core::Point> = Vector::new();
+    let perimeter = imgproc::arc_length(&contour, true)?;
+    imgproc::approx_poly_dp(&contour, &mut approx, 0.02 * perimeter, true)?;
+    if approx.len() != 4 {
+        return Err(CalibrationError::Invalid(format!(
+            "the tape outline has {} corners, expected 4 (occluded corner?)",
+            approx.len()
+        )));
+    }
+    let rough: Vec<[f64; 2]> = approx.iter().map(|p| [f64::from(p.x), f64::from(p.y)]).collect();
+    let centroid = [
+        rough.iter().map(|p| p[0]).sum::<f64>() / 4.0,
+        rough.iter().map(|p| p[1]).sum::<f64>() / 4.0,
+    ];
+    let pts: Vec<[f64; 2]> = contour.iter().map(|p| [f64::from(p.x), f64::from(p.y)]).collect();
+    // Lines as (normal n, offset d) with n·p = d, n pointing away from the centroid.
+    let mut lines = Vec::with_capacity(4);
+    for i in 0..4 {
+        let a = rough[i];
+        let b = rough[(i + 1) % 4];
+        let len = ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt();
+        let dir = [(b[0] - a[0]) / len, (b[1] - a[1]) / len];
+        let nrm = [-dir[1], dir[0]];
+        let near: Vec<[f64; 2]> = pts
+            .iter()
+            .copied()
+            .filter(|p| {
+                let s = (p[0] - a[0]) * dir[0] + (p[1] - a[1]) * dir[1];
+                let dist = ((p[0] - a[0]) * nrm[0] + (p[1] - a[1]) * nrm[1]).abs();
+                s > 0.1 * len && s < 0.9 * len && dist < 4.0
+            })
+            .collect();
+        if near.len() < 10 {
+            return Err(CalibrationError::Invalid(format!("side {i} of the tape outline is too short to fit")));
+        }
+        let (mut n, mut d) = fit_line(&near);
+        if n[0] * centroid[0] + n[1] * centroid[1] > d {
+            n = [-n[0], -n[1]];
+            d = -d;
+        }
+        lines.push((n, d + 0.5));
+    }
+    let mut corners = [[0.0; 2]; 4];
+    for (i, corner) in corners.iter_mut().enumerate() {
+        let (n1, d1) = lines[(i + 3) % 4];
+        let (n2, d2) = lines[i];
+        let det = n1[0] * n2[1] - n1[1] * n2[0];
+        if det.abs() < 1e-9 {
+            return Err(CalibrationError::Invalid("two tape sides are parallel".into()));
+        }
+        *corner = [(d1 * n2[1] - d2 * n1[1]) / det, (n1[0] * d2 - n2[0] * d1) / det];
+    }
+    Ok(order_image_corners(corners))
+}
+
+/// Total-least-squares line through points: unit normal `n` and offset `d` with `n·p = d`.
+fn fit_line(p: &[[f64; 2]]) -> ([f64; 2], f64) {
+    let n = p.len() as f64;
+    let mx = p.iter().map(|q| q[0]).sum::<f64>() / n;
+    let my = p.iter().map(|q| q[1]).sum::<f64>() / n;
+    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+    for q in p {
+        let (dx, dy) = (q[0] - mx, q[1] - my);
+        sxx += dx * dx;
+        sxy += dx * dy;
+        syy += dy * dy;
+    }
+    // Direction = principal eigenvector; normal is perpendicular to it.
+    let theta = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+    let nrm = [-theta.sin(), theta.cos()];
+    (nrm, nrm[0] * mx + nrm[1] * my)
+}
+
+/// Orders four image points as top-left, top-right, bottom-right, bottom-left.
+pub fn order_image_corners(c: [[f64; 2]; 4]) -> [[f64; 2]; 4] {
+    let mut by_y = c;
+    by_y.sort_by(|a, b| a[1].total_cmp(&b[1]));
+    let (mut top, mut bottom) = ([by_y[0], by_y[1]], [by_y[2], by_y[3]]);
+    top.sort_by(|a, b| a[0].total_cmp(&b[0]));
+    bottom.sort_by(|a, b| a[0].total_cmp(&b[0]));
+    [top[0], top[1], bottom[1], bottom[0]]
+}

@@ -1,0 +1,358 @@
+//! The classical colour detector, the default of the demo: per-class HSV thresholds
+//! (configurable in TOML), depth-edge splitting, connected components, and 3D measurement of
+//! each blob with the calibration.
+//!
+//! Per frame: BGR→HSV once (inside the image region where the workspace and anything
+//! standing on it can appear, when a calibration is given), then per class `inRange`, removal
+//! of mask pixels on depth discontinuities (so two objects that touch in the image but not in
+//! space become two blobs), `connectedComponentsWithStats`, and [`measure_blob`] on every
+//! blob large enough. All buffers are kept between frames.
+
+use std::path::{Path, PathBuf};
+
+use opencv::core::{CV_32S, Mat, Rect, Scalar};
+use opencv::imgproc;
+use opencv::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::calibration::Calibration;
+use crate::detection::{Detection, ObjectKind};
+use crate::frame::{Frame, FrameError};
+use crate::measure::{Blob, MeasureScratch, measure_blob};
+
+/// One colour class.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ColourClass {
+    /// A name for logs.
+    pub name: String,
+    /// What objects of this colour are.
+    pub kind: ObjectKind,
+    /// Lower HSV bound (OpenCV scale: H 0..180, S, V 0..255), inclusive.
+    pub hsv_min: [u8; 3],
+    /// Upper HSV bound, inclusive.
+    pub hsv_max: [u8; 3],
+}
+
+/// The colour detector's configuration (TOML).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ColourDetectorConfig {
+    /// Smallest blob kept (px).
+    pub min_area_px: u32,
+    /// Neighbouring mask pixels whose depths differ by more than this are split (m).
+    pub depth_edge_m: f32,
+    /// Tallest object expected (m): bounds the image region searched when calibrated.
+    pub max_object_height_m: f64,
+    /// The classes.
+    #[serde(rename = "class")]
+    pub classes: Vec<ColourClass>,
+}
+
+impl Default for ColourDetectorConfig {
+    fn default() -> Self {
+        Self {
+            min_area_px: 150,
+            depth_edge_m: 0.03,
+            max_object_height_m: 0.5,
+            classes: vec![
+                ColourClass {
+                    name: "green goal cube".into(),
+                    kind: ObjectKind::Goal,
+                    hsv_min: [45, 100, 40],
+                    hsv_max: [80, 255, 255],
+                },
+                ColourClass {
+                    name: "blue obstacle box".into(),
+                    kind: ObjectKind::Obstacle,
+                    hsv_min: [95, 100, 40],
+                    hsv_max: [125, 255, 255],
+                },
+            ],
+        }
+    }
+}
+
+/// Why a detector configuration was rejected.
+#[derive(Debug, thiserror::Error)]
+pub enum DetectorConfigError {
+    /// The file could not be read.
+    #[error("cannot read detector config {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// Malformed TOML or bad values.
+    #[error("invalid detector config {path}: {message}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What was wrong.
+        message: String,
+    },
+}
+
+impl ColourDetectorConfig {
+    /// Checks the values.
+    ///
+    /// # Errors
+    /// A message naming the first bad value.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.classes.is_empty() {
+            return Err("at least one [[class]] is needed".into());
+        }
+        if self.min_area_px == 0 {
+            return Err("min_area_px must be > 0".into());
+        }
+        if !(self.depth_edge_m.is_finite() && self.depth_edge_m > 0.0) {
+            return Err(format!("depth_edge_m = {} must be > 0", self.depth_edge_m));
+        }
+        if !(self.max_object_height_m.is_finite() && self.max_object_height_m > 0.0) {
+            return Err(format!("max_object_height_m = {} must be > 0", self.max_object_height_m));
+        }
+        for c in &self.classes {
+            if c.hsv_min[0] > 180 || c.hsv_max[0] > 180 {
+                return Err(format!("class {:?}: hue is 0..=180 in OpenCV's scale", c.name));
+            }
+            if (0..3).any(|i| c.hsv_min[i] > c.hsv_max[i]) {
+                return Err(format!("class {:?}: hsv_min {:?} exceeds hsv_max {:?}", c.name, c.hsv_min, c.hsv_max));
+            }
+        }
+        Ok(())
+    }
+
+    /// Loads and validates a TOML file.
+    ///
+    /// # Errors
+    /// [`DetectorConfigError`].
+    pub fn load(path: &Path) -> Result<Self, DetectorConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| DetectorConfigError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let invalid = |message: String| DetectorConfigError::Invalid {
+            path: path.to_path_buf(),
+            message,
+        };
+        let c: Self = toml::from_str(&text).map_err(|e| invalid(e.to_string()))?;
+        c.validate().map_err(invalid)?;
+        Ok(c)
+    }
+}
+
+/// Why detection failed on a frame.
+#[derive(Debug, thiserror::Error)]
+pub enum DetectError {
+    /// The frame was unusable.
+    #[error(transparent)]
+    Frame(#[from] FrameError),
+    /// OpenCV failed.
+    #[error("OpenCV: {0}")]
+    OpenCv(#[from] opencv::Error),
+    /// The model could not run.
+    #[error("model: {0}")]
+    Model(String),
+}
+
+/// The colour detector with its reusable buffers.
+pub struct ColourDetector {
+    config: ColourDetectorConfig,
+    hsv: Mat,
+    mask: Mat,
+    labels: Mat,
+    stats: Mat,
+    centroids: Mat,
+    scratch: MeasureScratch,
+}
+
+impl ColourDetector {
+    /// A detector with a validated configuration.
+    ///
+    /// # Errors
+    /// The validation message.
+    pub fn new(config: ColourDetectorConfig) -> Result<Self, String> {
+        config.validate()?;
+        Ok(Self {
+            config,
+            hsv: Mat::default(),
+            mask: Mat::default(),
+            labels: Mat::default(),
+            stats: Mat::default(),
+            centroids: Mat::default(),
+            scratch: MeasureScratch::default(),
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &ColourDetectorConfig {
+        &self.config
+    }
+
+    /// The image region searched: with a calibration, the bounding box of the workspace at
+    /// table height and at `max_object_height_m` above it (plus a margin); else everything.
+    pub fn search_region(&self, width_px: i32, height_px: i32, calibration: Option<&Calibration>) -> Rect {
+        let full = Rect::new(0, 0, width_px, height_px);
+        let Some(cal) = calibration else { return full };
+        let ws = cal.file.workspace;
+        let (mut u0, mut v0, mut u1, mut v1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+        for c in ws.corners_xy_m() {
+            for z in [ws.table_height_m, ws.table_height_m + self.config.max_object_height_m] {
+                let Some((p, _)) = cal.model.project([c[0], c[1], z]) else { return full };
+                u0 = u0.min(p[0]);
+                v0 = v0.min(p[1]);
+                u1 = u1.max(p[0]);
+                v1 = v1.max(p[1]);
+            }
+        }
+        let margin = 8.0;
+        let x0 = ((u0 - margin).floor().max(0.0) as i32).min(width_px - 1);
+        let y0 = ((v0 - margin).floor().max(0.0) as i32).min(height_px - 1);
+        let x1 = ((u1 + margin).ceil() as i32).clamp(x0 + 1, width_px);
+        let y1 = ((v1 + margin).ceil() as i32).clamp(y0 + 1, height_px);
+        Rect::new(x0, y0, x1 - x0, y1 - y0)
+    }
+
+    /// Detects objects in `frame`. With a calibration and depth, every detection carries its
+    /// position and size in the twin's frame; with a calibration but no depth, the table
+    /// point under the blob (through the homography) and the footprint width; without a
+    /// calibration, zeros.
+    ///
+    /// # Errors
+    /// [`DetectError`] for a bad frame or an OpenCV failure.
+    pub fn detect(&mut self, frame: &Frame, calibration: Option<&Calibration>) -> Result<Vec<Detection>, DetectError> {
+        frame.validate()?;
+        let (w, h) = (frame.bgr.cols(), frame.bgr.rows());
+        if let Some(cal) = calibration {
+            let k = cal.file.intrinsics;
+            if k.width_px as i32 != w || k.height_px as i32 != h {
+                return Err(FrameError::BadColour(format!(
+                    "the image is {w}x{h} but the calibration is for {}x{}",
+                    k.width_px, k.height_px
+                ))
+                .into());
+            }
+        }
+        let roi = self.search_region(w, h, calibration);
+        let view = Mat::roi(&frame.bgr, roi)?;
+        imgproc::cvt_color(&view, &mut self.hsv, imgproc::COLOR_BGR2HSV, 0)?;
+        let depth: Option<&[f32]> = match &frame.depth_m {
+            Some(d) => Some(d.data_typed::<f32>()?),
+            None => None,
+        };
+        let mut out = Vec::new();
+        for ci in 0..self.config.classes.len() {
+            let class = &self.config.classes[ci];
+            let lo = Scalar::new(f64::from(class.hsv_min[0]), f64::from(class.hsv_min[1]), f64::from(class.hsv_min[2]), 0.0);
+            let hi = Scalar::new(f64::from(class.hsv_max[0]), f64::from(class.hsv_max[1]), f64::from(class.hsv_max[2]), 0.0);
+            let kind = class.kind;
+            opencv::core::in_range(&self.hsv, &lo, &hi, &mut self.mask)?;
+            if let Some(depth) = depth {
+                cut_depth_edges(&mut self.mask, depth, w as usize, roi, self.config.depth_edge_m)?;
+            }
+            let n = imgproc::connected_components_with_stats(
+                &self.mask,
+                &mut self.labels,
+                &mut self.stats,
+                &mut self.centroids,
+                4,
+                CV_32S,
+            )?;
+            let labels = self.labels.data_typed::<i32>()?;
+            let rw = roi.width as usize;
+            for comp in 1..n {
+                let area = *self.stats.at_2d::<i32>(comp, imgproc::CC_STAT_AREA)?;
+                if area < self.config.min_area_px as i32 {
+                    continue;
+                }
+                let bbox = [
+                    *self.stats.at_2d::<i32>(comp, imgproc::CC_STAT_LEFT)? + roi.x,
+                    *self.stats.at_2d::<i32>(comp, imgproc::CC_STAT_TOP)? + roi.y,
+                    *self.stats.at_2d::<i32>(comp, imgproc::CC_STAT_WIDTH)?,
+                    *self.stats.at_2d::<i32>(comp, imgproc::CC_STAT_HEIGHT)?,
+                ];
+                let member = |x: i32, y: i32| labels[(y - roi.y) as usize * rw + (x - roi.x) as usize] == comp;
+                let blob = Blob {
+                    bbox_px: bbox,
+                    member: &member,
+                };
+                let det = match (calibration, depth) {
+                    (Some(cal), Some(depth)) => {
+                        let Some(m) = measure_blob(
+                            &blob,
+                            depth,
+                            w as usize,
+                            &cal.model,
+                            cal.file.workspace.table_height_m,
+                            &mut self.scratch,
+                        ) else {
+                            continue;
+                        };
+                        Detection {
+                            kind,
+                            confidence: m.valid_fraction.clamp(0.0, 1.0),
+                            bbox_px: bbox,
+                            position_m: m.position_m,
+                            size_m: m.size_m,
+                        }
+                    }
+                    (Some(cal), None) => table_footprint(kind, bbox, cal),
+                    (None, _) => Detection {
+                        kind,
+                        confidence: 1.0,
+                        bbox_px: bbox,
+                        position_m: [0.0; 3],
+                        size_m: [0.0; 3],
+                    },
+                };
+                out.push(det);
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// Without depth: the table point under the middle of the blob's bottom edge, and the
+/// bottom edge's width on the table as a square footprint (height unknown: 0).
+fn table_footprint(kind: ObjectKind, bbox: [i32; 4], cal: &Calibration) -> Detection {
+    let [x, y, w, h] = bbox.map(f64::from);
+    let bottom = y + h - 1.0;
+    let left = cal.pixel_to_table_m(x, bottom);
+    let right = cal.pixel_to_table_m(x + w - 1.0, bottom);
+    let mid = cal.pixel_to_table_m(x + w / 2.0, bottom);
+    let width = ((left[0] - right[0]).powi(2) + (left[1] - right[1]).powi(2)).sqrt();
+    Detection {
+        kind,
+        confidence: 0.5,
+        bbox_px: bbox,
+        position_m: [mid[0], mid[1], cal.file.workspace.table_height_m],
+        size_m: [width, width, 0.0],
+    }
+}
+
+/// Clears mask pixels whose right or lower neighbour (also in the mask) lies more than
+/// `edge_m` away in depth, so blobs separate at occlusion boundaries.
+fn cut_depth_edges(mask: &mut Mat, depth: &[f32], width_px: usize, roi: Rect, edge_m: f32) -> Result<(), opencv::Error> {
+    let rw = roi.width as usize;
+    let rh = roi.height as usize;
+    let m = mask.data_typed_mut::<u8>()?;
+    for y in 0..rh {
+        let drow = (y + roi.y as usize) * width_px + roi.x as usize;
+        for x in 0..rw {
+            let i = y * rw + x;
+            if m[i] == 0 {
+                continue;
+            }
+            let d = depth[drow + x];
+            if x + 1 < rw && m[i + 1] != 0 && (depth[drow + x + 1] - d).abs() > edge_m {
+                m[i] = 0;
+                continue;
+            }
+            if y + 1 < rh && m[i + rw] != 0 && (depth[drow + width_px + x] - d).abs() > edge_m {
+                m[i] = 0;
+            }
+        }
+    }
+    Ok(())
+}

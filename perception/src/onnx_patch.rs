@@ -1,0 +1,431 @@
+//! Makes a stock YOLOv8 ONNX export runnable by OpenCV 4.6's DNN module, by editing the
+//! model's protobuf directly (a tiny reader/writer of the protobuf wire format, no codegen).
+//!
+//! The problem: the stock head multiplies the decoded boxes `[1, 4, N]` by a strides
+//! constant of shape `[1, N]` (`dbox * self.strides`). OpenCV before 4.7 turns a `Mul` by a
+//! constant into a `Scale` layer, which needs the constant to cover a contiguous run of the
+//! input's axes starting at axis 1 — `[N]` against `[4, N]` does not — so `forward()` fails.
+//!
+//! The fix, for any stock export (any image size, class count or opset): such a `Mul` —
+//! a constant of shape `[1, N]`, `N > 1`, whose output is the first input of the `Concat`
+//! that produces a graph output — becomes an `Identity`, and the strides are returned as
+//! [`PatchedModel::box_scale`]; the decoder multiplies the four box rows of the output by
+//! them, which is exactly what the removed node computed. A model with no such node is
+//! passed through untouched.
+
+/// Why a model could not be read or patched.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum OnnxPatchError {
+    /// The bytes are not a well-formed protobuf message.
+    #[error("not a valid ONNX protobuf: {0}")]
+    Malformed(&'static str),
+    /// The message has no graph.
+    #[error("the ONNX model has no graph")]
+    NoGraph,
+    /// The strides constant is not stored as 32-bit floats.
+    #[error("the broadcast constant `{0}` is not a float32 tensor; this model cannot be run by OpenCV 4.6")]
+    UnsupportedConstant(String),
+}
+
+/// The result of [`patch_for_opencv`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct PatchedModel {
+    /// The (possibly rewritten) model bytes.
+    pub onnx: Vec<u8>,
+    /// Per-anchor factors the decoder must apply to the four box rows, when a strides
+    /// `Mul` was removed.
+    pub box_scale: Option<Vec<f32>>,
+    /// Names of the nodes rewritten.
+    pub rewritten_nodes: Vec<String>,
+}
+
+// ---- protobuf wire format ----
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Value<'a> {
+    Varint(u64),
+    Fixed64,
+    Bytes(&'a [u8]),
+    Fixed32(u32),
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Field<'a> {
+    num: u32,
+    value: Value<'a>,
+    raw: &'a [u8],
+}
+
+fn read_varint(buf: &[u8], pos: &mut usize) -> Result<u64, OnnxPatchError> {
+    let mut v = 0u64;
+    for shift in (0..64).step_by(7) {
+        let b = *buf.get(*pos).ok_or(OnnxPatchError::Malformed("truncated varint"))?;
+        *pos += 1;
+        v |= u64::from(b & 0x7f) << shift;
+        if b & 0x80 == 0 {
+            return Ok(v);
+        }
+    }
+    Err(OnnxPatchError::Malformed("varint too long"))
+}
+
+fn parse(buf: &[u8]) -> Result<Vec<Field<'_>>, OnnxPatchError> {
+    let mut out = Vec::new();
+    let mut pos = 0;
+    while pos < buf.len() {
+        let start = pos;
+        let key = read_varint(buf, &mut pos)?;
+        let num = u32::try_from(key >> 3).map_err(|_| OnnxPatchError::Malformed("field number too large"))?;
+        if num == 0 {
+            return Err(OnnxPatchError::Malformed("field number 0"));
+        }
+        let value = match key & 7 {
+            0 => Value::Varint(read_varint(buf, &mut pos)?),
+            1 => {
+                pos = pos.checked_add(8).filter(|&p| p <= buf.len()).ok_or(OnnxPatchError::Malformed("truncated fixed64"))?;
+                Value::Fixed64
+            }
+            2 => {
+                let len = usize::try_from(read_varint(buf, &mut pos)?).map_err(|_| OnnxPatchError::Malformed("length too large"))?;
+                let end = pos.checked_add(len).filter(|&e| e <= buf.len()).ok_or(OnnxPatchError::Malformed("truncated bytes"))?;
+                let b = &buf[pos..end];
+                pos = end;
+                Value::Bytes(b)
+            }
+            5 => {
+                let b = buf.get(pos..pos + 4).ok_or(OnnxPatchError::Malformed("truncated fixed32"))?;
+                pos += 4;
+                Value::Fixed32(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            }
+            _ => return Err(OnnxPatchError::Malformed("unsupported wire type")),
+        };
+        out.push(Field {
+            num,
+            value,
+            raw: &buf[start..pos],
+        });
+    }
+    Ok(out)
+}
+
+fn write_varint(out: &mut Vec<u8>, mut v: u64) {
+    loop {
+        let b = (v & 0x7f) as u8;
+        v >>= 7;
+        if v == 0 {
+            out.push(b);
+            return;
+        }
+        out.push(b | 0x80);
+    }
+}
+
+fn write_bytes_field(out: &mut Vec<u8>, num: u32, bytes: &[u8]) {
+    write_varint(out, (u64::from(num) << 3) | 2);
+    write_varint(out, bytes.len() as u64);
+    out.extend_from_slice(bytes);
+}
+
+fn bytes_of<'a>(f: &Field<'a>) -> Option<&'a [u8]> {
+    match f.value {
+        Value::Bytes(b) => Some(b),
+        _ => None,
+    }
+}
+
+fn string_of(f: &Field<'_>) -> String {
+    bytes_of(f).map(|b| String::from_utf8_lossy(b).into_owned()).unwrap_or_default()
+}
+
+// ---- ONNX messages (only the fields used) ----
+
+struct Tensor {
+    dims: Vec<i64>,
+    data_type: u64,
+    floats: Option<Vec<f32>>,
+}
+
+fn parse_tensor(buf: &[u8]) -> Result<(String, Tensor), OnnxPatchError> {
+    let mut name = String::new();
+    let mut dims = Vec::new();
+    let mut data_type = 0;
+    let mut float_data = Vec::new();
+    let mut raw = None;
+    for f in parse(buf)? {
+        match (f.num, f.value) {
+            (1, Value::Varint(v)) => dims.push(v as i64),
+            (1, Value::Bytes(b)) => {
+                let mut p = 0;
+                while p < b.len() {
+                    dims.push(read_varint(b, &mut p)? as i64);
+                }
+            }
+            (2, Value::Varint(v)) => data_type = v,
+            (4, Value::Fixed32(v)) => float_data.push(f32::from_bits(v)),
+            (4, Value::Bytes(b)) => {
+                float_data.extend(b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])));
+            }
+            (8, _) => name = string_of(&f),
+            (9, Value::Bytes(b)) => raw = Some(b),
+            _ => {}
+        }
+    }
+    let floats = if data_type != 1 {
+        None
+    } else if let Some(r) = raw {
+        Some(r.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+    } else {
+        Some(float_data)
+    };
+    Ok((name, Tensor { dims, data_type, floats }))
+}
+
+struct Node<'a> {
+    raw_payload: &'a [u8],
+    name: String,
+    op_type: String,
+    inputs: Vec<String>,
+    outputs: Vec<String>,
+    /// For `Constant` nodes: the `value` tensor.
+    constant: Option<Tensor>,
+}
+
+fn parse_node(buf: &[u8]) -> Result<Node<'_>, OnnxPatchError> {
+    let mut n = Node {
+        raw_payload: buf,
+        name: String::new(),
+        op_type: String::new(),
+        inputs: Vec::new(),
+        outputs: Vec::new(),
+        constant: None,
+    };
+    for f in parse(buf)? {
+        match f.num {
+            1 => n.inputs.push(string_of(&f)),
+            2 => n.outputs.push(string_of(&f)),
+            3 => n.name = string_of(&f),
+            4 => n.op_type = string_of(&f),
+            5 => {
+                // AttributeProto: name = 1, t = 5.
+                if let Some(b) = bytes_of(&f) {
+                    let attr = parse(b)?;
+                    let is_value = attr.iter().any(|a| a.num == 1 && string_of(a) == "value");
+                    if is_value {
+                        if let Some(t) = attr.iter().find(|a| a.num == 5).and_then(bytes_of) {
+                            n.constant = Some(parse_tensor(t)?.1);
+                        }
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(n)
+}
+
+/// Rewrites the node as `Identity(input)`.
+fn identity_node(node: &Node<'_>, keep_input: &str) -> Result<Vec<u8>, OnnxPatchError> {
+    let mut out = Vec::with_capacity(node.raw_payload.len());
+    let mut input_written = false;
+    for f in parse(node.raw_payload)? {
+        match f.num {
+            1 => {
+                if !input_written {
+                    write_bytes_field(&mut out, 1, keep_input.as_bytes());
+                    input_written = true;
+                }
+            }
+            4 => write_bytes_field(&mut out, 4, b"Identity"),
+            5 => {} // a Mul has no attributes we need
+            _ => out.extend_from_slice(f.raw),
+        }
+    }
+    Ok(out)
+}
+
+/// Applies the rewrite described in the module docs.
+///
+/// # Errors
+/// [`OnnxPatchError`] for bytes that are not an ONNX model, or a strides constant stored
+/// in a type other than float32.
+pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
+    let fields = parse(model)?;
+    let graph_field = fields.iter().find(|f| f.num == 7).ok_or(OnnxPatchError::NoGraph)?;
+    let graph = bytes_of(graph_field).ok_or(OnnxPatchError::NoGraph)?;
+    let gfields = parse(graph)?;
+    let mut constants: std::collections::HashMap<String, Tensor> = std::collections::HashMap::new();
+    let mut nodes = Vec::new();
+    let mut graph_outputs = Vec::new();
+    for f in &gfields {
+        match f.num {
+            1 => nodes.push(parse_node(bytes_of(f).ok_or(OnnxPatchError::Malformed("node is not a message"))?)?),
+            5 => {
+                let (name, t) = parse_tensor(bytes_of(f).ok_or(OnnxPatchError::Malformed("initializer is not a message"))?)?;
+                constants.insert(name, t);
+            }
+            12 => {
+                // ValueInfoProto: name = 1
+                if let Some(b) = bytes_of(f) {
+                    if let Some(nf) = parse(b)?.iter().find(|x| x.num == 1) {
+                        graph_outputs.push(string_of(nf));
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    for n in &mut nodes {
+        if n.op_type == "Constant" {
+            if let (Some(t), Some(o)) = (n.constant.take(), n.outputs.first()) {
+                constants.insert(o.clone(), t);
+            }
+        }
+    }
+    let mut replace: Vec<(usize, Vec<u8>)> = Vec::new();
+    let mut box_scale = None;
+    let mut rewritten = Vec::new();
+    for (i, n) in nodes.iter().enumerate() {
+        if n.op_type != "Mul" || n.inputs.len() != 2 || n.outputs.len() != 1 {
+            continue;
+        }
+        let Some(ci) = (0..2).find(|&k| constants.get(&n.inputs[k]).is_some_and(|t| t.dims.len() == 2 && t.dims[0] == 1 && t.dims[1] > 1)) else {
+            continue;
+        };
+        let var = &n.inputs[1 - ci];
+        if constants.contains_key(var) {
+            continue;
+        }
+        let out = &n.outputs[0];
+        let feeds_output_concat = nodes.iter().any(|c| {
+            c.op_type == "Concat" && c.inputs.first() == Some(out) && c.outputs.iter().any(|o| graph_outputs.contains(o))
+        });
+        if !feeds_output_concat {
+            continue;
+        }
+        let t = &constants[&n.inputs[ci]];
+        let floats = t
+            .floats
+            .clone()
+            .filter(|f| f.len() as i64 == t.dims[1])
+            .ok_or_else(|| OnnxPatchError::UnsupportedConstant(format!("{} (data type {})", n.inputs[ci], t.data_type)))?;
+        replace.push((i, identity_node(n, var)?));
+        rewritten.push(if n.name.is_empty() { out.clone() } else { n.name.clone() });
+        box_scale = Some(floats);
+    }
+    if replace.is_empty() {
+        return Ok(PatchedModel {
+            onnx: model.to_vec(),
+            box_scale: None,
+            rewritten_nodes: rewritten,
+        });
+    }
+    let mut new_graph = Vec::with_capacity(graph.len());
+    let mut node_idx = 0;
+    for f in &gfields {
+        if f.num == 1 {
+            if let Some((_, bytes)) = replace.iter().find(|(i, _)| *i == node_idx) {
+                write_bytes_field(&mut new_graph, 1, bytes);
+            } else {
+                new_graph.extend_from_slice(f.raw);
+            }
+            node_idx += 1;
+        } else {
+            new_graph.extend_from_slice(f.raw);
+        }
+    }
+    let mut new_model = Vec::with_capacity(model.len());
+    for f in &fields {
+        if f.num == 7 {
+            write_bytes_field(&mut new_model, 7, &new_graph);
+        } else {
+            new_model.extend_from_slice(f.raw);
+        }
+    }
+    Ok(PatchedModel {
+        onnx: new_model,
+        box_scale,
+        rewritten_nodes: rewritten,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn node(inputs: &[&str], output: &str, op: &str) -> Vec<u8> {
+        let mut n = Vec::new();
+        for i in inputs {
+            write_bytes_field(&mut n, 1, i.as_bytes());
+        }
+        write_bytes_field(&mut n, 2, output.as_bytes());
+        write_bytes_field(&mut n, 3, format!("{op}_{output}").as_bytes());
+        write_bytes_field(&mut n, 4, op.as_bytes());
+        n
+    }
+
+    fn tensor(name: &str, dims: &[i64], data: &[f32]) -> Vec<u8> {
+        let mut t = Vec::new();
+        let mut packed = Vec::new();
+        for d in dims {
+            write_varint(&mut packed, *d as u64);
+        }
+        write_bytes_field(&mut t, 1, &packed);
+        write_varint(&mut t, 2 << 3);
+        write_varint(&mut t, 1);
+        write_bytes_field(&mut t, 8, name.as_bytes());
+        let raw: Vec<u8> = data.iter().flat_map(|f| f.to_le_bytes()).collect();
+        write_bytes_field(&mut t, 9, &raw);
+        t
+    }
+
+    fn model(with_strides: bool) -> Vec<u8> {
+        let mut g = Vec::new();
+        if with_strides {
+            write_bytes_field(&mut g, 1, &node(&["boxes", "strides"], "dbox", "Mul"));
+        } else {
+            write_bytes_field(&mut g, 1, &node(&["boxes"], "dbox", "Identity"));
+        }
+        write_bytes_field(&mut g, 1, &node(&["dbox", "cls"], "output0", "Concat"));
+        write_bytes_field(&mut g, 5, &tensor("strides", &[1, 3], &[8.0, 16.0, 32.0]));
+        let mut vi = Vec::new();
+        write_bytes_field(&mut vi, 1, b"output0");
+        write_bytes_field(&mut g, 12, &vi);
+        let mut m = Vec::new();
+        write_varint(&mut m, 1 << 3);
+        write_varint(&mut m, 7); // ir_version
+        write_bytes_field(&mut m, 7, &g);
+        m
+    }
+
+    #[test]
+    fn the_strides_mul_becomes_identity_and_its_constant_the_box_scale() {
+        let p = patch_for_opencv(&model(true)).unwrap();
+        assert_eq!(p.box_scale.as_deref(), Some(&[8.0f32, 16.0, 32.0][..]));
+        assert_eq!(p.rewritten_nodes, vec!["Mul_dbox".to_string()]);
+        // The rewritten model parses, has an Identity with one input, and nothing else changed.
+        let f = parse(&p.onnx).unwrap();
+        let g = parse(bytes_of(f.iter().find(|f| f.num == 7).unwrap()).unwrap()).unwrap();
+        let n = parse_node(bytes_of(&g[0]).unwrap()).unwrap();
+        assert_eq!(n.op_type, "Identity");
+        assert_eq!(n.inputs, vec!["boxes".to_string()]);
+        assert_eq!(n.outputs, vec!["dbox".to_string()]);
+        assert_eq!(g[1].raw, parse(bytes_of(&parse(&model(true)).unwrap()[1]).unwrap()).unwrap()[1].raw);
+        // Patching again finds nothing more to do.
+        let again = patch_for_opencv(&p.onnx).unwrap();
+        assert!(again.box_scale.is_none());
+        assert_eq!(again.onnx, p.onnx);
+    }
+
+    #[test]
+    fn models_without_the_broadcast_pass_through_and_garbage_is_refused() {
+        let m = model(false);
+        let p = patch_for_opencv(&m).unwrap();
+        assert_eq!(p.onnx, m);
+        assert!(p.box_scale.is_none());
+        assert!(matches!(patch_for_opencv(b"\x0a\xff\xff"), Err(OnnxPatchError::Malformed(_))));
+        assert_eq!(patch_for_opencv(&[0x08, 0x07]), Err(OnnxPatchError::NoGraph));
+        let mut big = Vec::new();
+        write_varint(&mut big, u64::MAX);
+        assert!(read_varint(&big, &mut 0).is_ok());
+    }
+}

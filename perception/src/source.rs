@@ -1,0 +1,259 @@
+//! Frame sources: the synthetic camera playing a world script, image files / folders /
+//! videos, and ROS 2 topics ([`crate::ros2_source`]). A source hands out one [`Frame`] per
+//! call; a bad frame is an error for that frame only — the next call moves on.
+
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+use std::time::Instant;
+
+use opencv::prelude::*;
+use shm_schemas::scene_file::{SceneFile, WorldScript};
+
+use crate::frame::{Frame, FrameError, monotonic_now_ns, read_colour, read_depth};
+use crate::synthetic::{ScriptedCamera, SyntheticCamera};
+
+/// Where frames come from, as given on the command line.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SourceSpec {
+    /// `synthetic:WORLD.toml` (a world script, or a single scene file).
+    Synthetic(PathBuf),
+    /// `file:PATH` (an image, a folder of images, or a video).
+    File(PathBuf),
+    /// `ros2` (ZED wrapper topics by default).
+    Ros2,
+}
+
+impl FromStr for SourceSpec {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if let Some(p) = s.strip_prefix("synthetic:") {
+            return Ok(Self::Synthetic(p.into()));
+        }
+        if let Some(p) = s.strip_prefix("file:") {
+            return Ok(Self::File(p.into()));
+        }
+        if s == "ros2" {
+            return Ok(Self::Ros2);
+        }
+        Err(format!("unknown source {s:?}: use synthetic:WORLD.toml, file:PATH or ros2"))
+    }
+}
+
+/// Why a source could not be opened or a frame obtained.
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    /// Opening failed.
+    #[error("cannot open source: {0}")]
+    Open(String),
+    /// This frame was bad; the source goes on.
+    #[error(transparent)]
+    Frame(#[from] FrameError),
+    /// A transport failure.
+    #[error("source failed: {0}")]
+    Failed(String),
+}
+
+/// Anything that yields frames.
+pub trait FrameSource {
+    /// The next frame, `Ok(None)` at the end of a finite source, or an error for this
+    /// frame only.
+    ///
+    /// # Errors
+    /// [`SourceError`].
+    fn next_frame(&mut self) -> Result<Option<Frame>, SourceError>;
+}
+
+/// The synthetic camera following a world script in real time (or frame-count time).
+pub struct SyntheticSource {
+    /// The camera and the script.
+    pub scripted: ScriptedCamera,
+    start: Option<Instant>,
+    sequence: u64,
+    /// When set, script time is `frame index / rate` instead of wall-clock time.
+    pub fixed_step_s: Option<f64>,
+    /// Index of the script step shown by the last frame.
+    pub last_step: usize,
+}
+
+impl SyntheticSource {
+    /// Loads the camera and a world script (or a single scene file).
+    ///
+    /// # Errors
+    /// [`SourceError::Open`].
+    pub fn open(camera: &Path, world: &Path) -> Result<Self, SourceError> {
+        let cam = SyntheticCamera::load(camera).map_err(|e| SourceError::Open(e.to_string()))?;
+        let script = match WorldScript::load(world) {
+            Ok(s) => s,
+            Err(script_err) => match SceneFile::load(world) {
+                Ok(scene) => WorldScript::single(scene),
+                Err(_) => return Err(SourceError::Open(script_err.to_string())),
+            },
+        };
+        Ok(Self {
+            scripted: ScriptedCamera { camera: cam, script },
+            start: None,
+            sequence: 0,
+            fixed_step_s: None,
+            last_step: 0,
+        })
+    }
+}
+
+impl FrameSource for SyntheticSource {
+    fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
+        let start = *self.start.get_or_insert_with(Instant::now);
+        let t_s = match self.fixed_step_s {
+            Some(dt) => self.sequence as f64 * dt,
+            None => start.elapsed().as_secs_f64(),
+        };
+        let capture = monotonic_now_ns();
+        let (step, _, rendered) = self.scripted.render_at(t_s);
+        self.last_step = step;
+        self.sequence += 1;
+        Ok(Some(Frame::from_rendered(&rendered, self.sequence, capture)?))
+    }
+}
+
+const VIDEO_EXTENSIONS: [&str; 6] = ["mp4", "avi", "mkv", "mov", "webm", "m4v"];
+const IMAGE_EXTENSIONS: [&str; 7] = ["png", "jpg", "jpeg", "bmp", "tif", "tiff", "webp"];
+
+/// The depth file that goes with colour image `X.ext`: `X.depth.tiff` or `X.depth.png`.
+pub fn depth_companion(colour: &Path) -> Option<PathBuf> {
+    let stem = colour.file_stem()?.to_string_lossy().into_owned();
+    let dir = colour.parent().unwrap_or(Path::new("."));
+    ["tiff", "tif", "png"]
+        .iter()
+        .map(|e| dir.join(format!("{stem}.depth.{e}")))
+        .find(|p| p.is_file())
+}
+
+/// Images (with optional depth companions) or a video.
+pub enum FileSource {
+    /// A list of colour images played once in order.
+    Images {
+        /// The colour images.
+        paths: Vec<PathBuf>,
+        /// Next index.
+        next: usize,
+        /// Frames handed out.
+        sequence: u64,
+    },
+    /// A video file.
+    Video {
+        /// OpenCV's reader.
+        capture: opencv::videoio::VideoCapture,
+        /// Frames handed out.
+        sequence: u64,
+    },
+}
+
+impl FileSource {
+    /// Opens an image, a folder of images (sorted by name, depth companions skipped), or a
+    /// video.
+    ///
+    /// # Errors
+    /// [`SourceError::Open`].
+    pub fn open(path: &Path) -> Result<Self, SourceError> {
+        let ext = |p: &Path| p.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+        if path.is_dir() {
+            let mut paths: Vec<PathBuf> = std::fs::read_dir(path)
+                .map_err(|e| SourceError::Open(format!("{}: {e}", path.display())))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| IMAGE_EXTENSIONS.contains(&ext(p).as_str()))
+                .filter(|p| !p.file_stem().is_some_and(|s| s.to_string_lossy().ends_with(".depth")))
+                .collect();
+            paths.sort();
+            if paths.is_empty() {
+                return Err(SourceError::Open(format!("{}: no images in the folder", path.display())));
+            }
+            return Ok(Self::Images { paths, next: 0, sequence: 0 });
+        }
+        if !path.is_file() {
+            return Err(SourceError::Open(format!("{}: no such file or folder", path.display())));
+        }
+        if VIDEO_EXTENSIONS.contains(&ext(path).as_str()) {
+            let capture = opencv::videoio::VideoCapture::from_file(path, opencv::videoio::CAP_ANY)
+                .map_err(|e| SourceError::Open(format!("{}: {}", path.display(), e.message)))?;
+            if !capture.is_opened().unwrap_or(false) {
+                return Err(SourceError::Open(format!("{}: OpenCV cannot open this video", path.display())));
+            }
+            return Ok(Self::Video { capture, sequence: 0 });
+        }
+        Ok(Self::Images {
+            paths: vec![path.to_path_buf()],
+            next: 0,
+            sequence: 0,
+        })
+    }
+}
+
+impl FrameSource for FileSource {
+    fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
+        match self {
+            Self::Images { paths, next, sequence } => {
+                let Some(path) = paths.get(*next).cloned() else { return Ok(None) };
+                *next += 1;
+                *sequence += 1;
+                let capture = monotonic_now_ns();
+                let bgr = read_colour(&path)?;
+                let depth_m = match depth_companion(&path) {
+                    Some(d) => Some(read_depth(&d)?),
+                    None => None,
+                };
+                let f = Frame {
+                    sequence: *sequence,
+                    capture_time_ns: capture,
+                    bgr,
+                    depth_m,
+                };
+                f.validate()?;
+                Ok(Some(f))
+            }
+            Self::Video { capture, sequence } => {
+                let mut bgr = opencv::core::Mat::default();
+                let ok = capture.read(&mut bgr).map_err(|e| SourceError::Failed(e.message))?;
+                if !ok || bgr.empty() {
+                    return Ok(None);
+                }
+                *sequence += 1;
+                Ok(Some(Frame {
+                    sequence: *sequence,
+                    capture_time_ns: monotonic_now_ns(),
+                    bgr,
+                    depth_m: None,
+                }))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn source_specs_parse() {
+        assert_eq!("synthetic:w.toml".parse::<SourceSpec>().unwrap(), SourceSpec::Synthetic("w.toml".into()));
+        assert_eq!("file:/a/b".parse::<SourceSpec>().unwrap(), SourceSpec::File("/a/b".into()));
+        assert_eq!("ros2".parse::<SourceSpec>().unwrap(), SourceSpec::Ros2);
+        assert!("camera0".parse::<SourceSpec>().unwrap_err().contains("unknown source"));
+    }
+
+    #[test]
+    fn a_corrupt_image_fails_alone_and_the_folder_goes_on() {
+        let dir = std::env::temp_dir().join(format!("foresight-src-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("a.png"), b"not a png").unwrap();
+        let img = opencv::core::Mat::new_rows_cols_with_default(32, 48, opencv::core::CV_8UC3, opencv::core::Scalar::all(9.0)).unwrap();
+        opencv::imgcodecs::imwrite(dir.join("b.png"), &img, &opencv::core::Vector::new()).unwrap();
+        let mut s = FileSource::open(&dir).unwrap();
+        let e = s.next_frame().unwrap_err();
+        assert!(e.to_string().contains("a.png") && e.to_string().contains("corrupt"), "{e}");
+        let f = s.next_frame().unwrap().unwrap();
+        assert_eq!((f.bgr.cols(), f.bgr.rows()), (48, 32));
+        assert_eq!(f.sequence, 2);
+        assert!(s.next_frame().unwrap().is_none());
+        assert!(FileSource::open(&dir.join("nope")).is_err());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
