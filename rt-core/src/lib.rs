@@ -4,3 +4,4 @@
 //! library for its training environments, so training and lookahead share one task.
 
 #![deny(clippy::unwrap_used)]
+pub mod twin;
