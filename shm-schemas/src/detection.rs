@@ -1,0 +1,171 @@
+//! [`DetectionFrame`]: what perception saw in one camera frame (perception → rt-core).
+
+use iceoryx2::prelude::ZeroCopySend;
+
+use crate::error::{SchemaError, count_within, finite_f32};
+use crate::scene_file::MAX_SCENE_EXTENT_M;
+
+/// Most objects one frame can carry.
+pub const MAX_DETECTIONS: usize = 16;
+
+/// What a detected object is. Stored as a `u8` in [`DetectedObject::class`]; convert with
+/// `ObjectClass::try_from(byte)` (never transmute).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum ObjectClass {
+    /// The goal cube the arm should reach.
+    Goal = 1,
+    /// An obstacle box the arm must avoid.
+    Obstacle = 2,
+}
+
+impl TryFrom<u8> for ObjectClass {
+    type Error = SchemaError;
+    fn try_from(value: u8) -> Result<Self, SchemaError> {
+        match value {
+            1 => Ok(Self::Goal),
+            2 => Ok(Self::Obstacle),
+            _ => Err(SchemaError::BadEnum {
+                field: "class",
+                value: u32::from(value),
+            }),
+        }
+    }
+}
+
+/// One detected object, as an axis-aligned box in the twin's frame (the robot base frame,
+/// metres, z up).
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[repr(C)]
+#[type_name("foresight::DetectedObject.v1")]
+pub struct DetectedObject {
+    /// Identifier that stays the same for the same physical object across frames
+    /// (assigned by perception's tracker; 0 = untracked).
+    pub object_id: u32,
+    /// [`ObjectClass`] as a byte.
+    pub class: u8,
+    /// Reserved, zero.
+    pub reserved: [u8; 3],
+    /// Detector confidence in [0, 1].
+    pub confidence: f32,
+    /// Box centre in the base frame (m).
+    pub center_m: [f32; 3],
+    /// Full box extents along x, y, z (m), each > 0.
+    pub size_m: [f32; 3],
+}
+
+const _: () = assert!(size_of::<DetectedObject>() == 36);
+
+impl DetectedObject {
+    /// A new object of the given class.
+    pub fn new(
+        object_id: u32,
+        class: ObjectClass,
+        confidence: f32,
+        center_m: [f32; 3],
+        size_m: [f32; 3],
+    ) -> Self {
+        Self {
+            object_id,
+            class: class as u8,
+            reserved: [0; 3],
+            confidence,
+            center_m,
+            size_m,
+        }
+    }
+
+    /// The class, checked.
+    ///
+    /// # Errors
+    /// [`SchemaError::BadEnum`] for an unknown class byte.
+    pub fn class(&self) -> Result<ObjectClass, SchemaError> {
+        ObjectClass::try_from(self.class)
+    }
+
+    /// Checks one object: valid class, finite numbers, confidence in [0, 1], positive
+    /// sizes, centre within [`MAX_SCENE_EXTENT_M`].
+    ///
+    /// # Errors
+    /// The first [`SchemaError`] found.
+    pub fn validate(&self) -> Result<(), SchemaError> {
+        self.class()?;
+        finite_f32("confidence", &[self.confidence])?;
+        finite_f32("center_m", &self.center_m)?;
+        finite_f32("size_m", &self.size_m)?;
+        if !(0.0..=1.0).contains(&self.confidence) {
+            return Err(SchemaError::OutOfRange {
+                field: "confidence",
+            });
+        }
+        if self
+            .size_m
+            .iter()
+            .any(|s| *s <= 0.0 || f64::from(*s) > MAX_SCENE_EXTENT_M)
+        {
+            return Err(SchemaError::OutOfRange { field: "size_m" });
+        }
+        if self
+            .center_m
+            .iter()
+            .any(|c| f64::from(c.abs()) > MAX_SCENE_EXTENT_M)
+        {
+            return Err(SchemaError::OutOfRange { field: "center_m" });
+        }
+        Ok(())
+    }
+}
+
+/// The objects perception found in one camera frame.
+///
+/// `capture_time_ns` is `CLOCK_MONOTONIC` of the machine all Foresight processes run on
+/// (shared by every process), taken when the frame was captured, so consumers can compute
+/// detection age and end-to-end latency directly.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[repr(C)]
+#[type_name("foresight::DetectionFrame.v1")]
+pub struct DetectionFrame {
+    /// Increases by one per published frame of one camera.
+    pub sequence: u64,
+    /// Capture time, `CLOCK_MONOTONIC` (ns).
+    pub capture_time_ns: u64,
+    /// Which camera produced the frame.
+    pub camera_id: u32,
+    /// Number of valid entries at the front of `objects` (≤ [`MAX_DETECTIONS`]).
+    pub count: u32,
+    /// The objects; entries at and beyond `count` are ignored.
+    pub objects: [DetectedObject; MAX_DETECTIONS],
+}
+
+const _: () = assert!(size_of::<DetectionFrame>() == 24 + 36 * MAX_DETECTIONS);
+
+impl DetectionFrame {
+    /// Schema version carried as a service attribute.
+    pub const SCHEMA_VERSION: u32 = 1;
+
+    /// The valid objects (the first `count`, clamped to the capacity).
+    pub fn objects(&self) -> &[DetectedObject] {
+        let n = (self.count as usize).min(MAX_DETECTIONS);
+        &self.objects[..n]
+    }
+
+    /// Appends an object; returns `false` (and changes nothing) when the frame is full.
+    pub fn push(&mut self, object: DetectedObject) -> bool {
+        let n = self.count as usize;
+        if n >= MAX_DETECTIONS {
+            return false;
+        }
+        self.objects[n] = object;
+        self.count += 1;
+        true
+    }
+
+    /// Checks the count and every valid object.
+    ///
+    /// # Errors
+    /// The first [`SchemaError`] found.
+    pub fn validate(&self) -> Result<(), SchemaError> {
+        count_within("count", self.count, MAX_DETECTIONS)?;
+        self.objects().iter().try_for_each(DetectedObject::validate)
+    }
+}

@@ -1,0 +1,296 @@
+//! Service names, the [`ShmMessage`] trait that binds each payload to its service, schema
+//! version and queue settings, and the helpers every process uses to open ports the same
+//! way: [`open_publisher`], [`open_subscriber`], [`create_node`].
+//!
+//! Each service carries the attribute `foresight.schema_version = <N>`; the helpers create
+//! the service with it or, when it exists, *require* it, so a process built against another
+//! schema refuses to connect ([`ShmOpenError::SchemaMismatch`]) instead of misreading
+//! memory. The payload's type name (`foresight::<Name>.v<N>`) is checked by iceoryx2 too.
+//!
+//! ```no_run
+//! use iceoryx2::prelude::*;
+//! use shm_schemas::{DetectionFrame, services};
+//! let (node, _cleanup) = services::create_node::<ipc::Service>("perception").unwrap();
+//! let publisher = services::open_publisher::<DetectionFrame, _>(&node, "run42").unwrap();
+//! let subscriber = services::open_subscriber::<DetectionFrame, _>(&node, "run42").unwrap();
+//! # let _ = (publisher, subscriber);
+//! ```
+
+use core::fmt::Debug;
+
+use iceoryx2::node::{CleanupState, Node, NodeBuilder, NodeCreationFailure};
+use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
+use iceoryx2::port::subscriber::{Subscriber, SubscriberCreateError};
+use iceoryx2::prelude::{AttributeVerifier, NodeName, ServiceName, ZeroCopySend};
+use iceoryx2::service::Service;
+use iceoryx2::service::attribute::{AttributeKey, AttributeValue};
+use iceoryx2::service::builder::publish_subscribe::{
+    PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+};
+
+use crate::error::SchemaError;
+use crate::{DetectionFrame, PolicyBlob, RetrainProgress, RetrainRequest, RobotState, TwinVerdict};
+
+/// Detections, perception → rt-core ([`DetectionFrame`]).
+pub const DETECTIONS: &str = "foresight/detections";
+/// Policies, learner → rt-core ([`PolicyBlob`]).
+pub const POLICIES: &str = "foresight/policies";
+/// Retrain requests, rt-core → learner ([`RetrainRequest`]).
+pub const RETRAIN_REQUESTS: &str = "foresight/retrain_requests";
+/// Retrain progress, learner → anyone ([`RetrainProgress`]).
+pub const RETRAIN_PROGRESS: &str = "foresight/retrain_progress";
+/// Robot state and cycle statistics, rt-core → anyone ([`RobotState`]).
+pub const ROBOT_STATE: &str = "foresight/robot_state";
+/// Lookahead verdicts, rt-core → anyone ([`TwinVerdict`]).
+pub const TWIN_VERDICTS: &str = "foresight/twin_verdicts";
+
+/// The attribute key that carries the schema version.
+pub const SCHEMA_VERSION_KEY: &str = "foresight.schema_version";
+
+/// The full service name: `<prefix>/<base>`, or `base` when `prefix` is empty. The
+/// launcher gives every run a unique prefix so parallel runs and tests never meet.
+pub fn service_name(prefix: &str, base: &str) -> String {
+    let prefix = prefix.trim_end_matches('/');
+    if prefix.is_empty() {
+        base.to_owned()
+    } else {
+        format!("{prefix}/{base}")
+    }
+}
+
+/// Queue settings of a service. Every opener uses the same values (iceoryx2 refuses to
+/// open a service with fewer resources than requested).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct QueueSettings {
+    /// Samples a late subscriber receives on connect.
+    pub history_size: usize,
+    /// Samples a subscriber can hold unread (the oldest is overwritten when full).
+    pub subscriber_buffer: usize,
+    /// Most publishers.
+    pub max_publishers: usize,
+    /// Most subscribers.
+    pub max_subscribers: usize,
+}
+
+/// A payload type bound to its service: name, schema version, queue settings, validation.
+pub trait ShmMessage: Debug + ZeroCopySend + Sized + 'static {
+    /// Base service name (one of the constants of this module).
+    const SERVICE: &'static str;
+    /// Schema version, carried as the `foresight.schema_version` attribute.
+    const SCHEMA_VERSION: u32;
+    /// Queue settings.
+    const QUEUE: QueueSettings;
+    /// The type's `validate()`.
+    ///
+    /// # Errors
+    /// The first [`SchemaError`] found.
+    fn validate_message(&self) -> Result<(), SchemaError>;
+}
+
+const LATEST: QueueSettings = QueueSettings {
+    history_size: 1,
+    subscriber_buffer: 4,
+    max_publishers: 2,
+    max_subscribers: 8,
+};
+
+const EVENTS: QueueSettings = QueueSettings {
+    history_size: 1,
+    subscriber_buffer: 16,
+    max_publishers: 2,
+    max_subscribers: 8,
+};
+
+macro_rules! message {
+    ($ty:ty, $service:expr, $queue:expr) => {
+        impl ShmMessage for $ty {
+            const SERVICE: &'static str = $service;
+            const SCHEMA_VERSION: u32 = <$ty>::SCHEMA_VERSION;
+            const QUEUE: QueueSettings = $queue;
+            fn validate_message(&self) -> Result<(), SchemaError> {
+                self.validate()
+            }
+        }
+    };
+}
+
+message!(DetectionFrame, DETECTIONS, LATEST);
+message!(
+    PolicyBlob,
+    POLICIES,
+    QueueSettings {
+        history_size: 1,
+        subscriber_buffer: 2,
+        max_publishers: 2,
+        max_subscribers: 4,
+    }
+);
+message!(RetrainRequest, RETRAIN_REQUESTS, EVENTS);
+message!(RetrainProgress, RETRAIN_PROGRESS, EVENTS);
+message!(RobotState, ROBOT_STATE, LATEST);
+message!(TwinVerdict, TWIN_VERDICTS, EVENTS);
+
+/// Why a port could not be opened.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum ShmOpenError {
+    /// The prefixed service name is not a valid iceoryx2 service name.
+    #[error("invalid service name for `{0}` (prefix too long or malformed)")]
+    InvalidName(&'static str),
+    /// The service exists with another schema version or payload type: a process of a
+    /// different build created it. Refusing to connect.
+    #[error(
+        "service `{0}` exists with a different schema version or payload type; refusing to connect"
+    )]
+    SchemaMismatch(&'static str),
+    /// The service could not be opened or created for another reason.
+    #[error("cannot open or create service `{service}`: {error:?}")]
+    Service {
+        /// Base service name.
+        service: &'static str,
+        /// What iceoryx2 said.
+        error: PublishSubscribeOpenOrCreateError,
+    },
+    /// The publisher port could not be created.
+    #[error("cannot create a publisher on `{service}`: {error:?}")]
+    Publisher {
+        /// Base service name.
+        service: &'static str,
+        /// What iceoryx2 said.
+        error: PublisherCreateError,
+    },
+    /// The subscriber port could not be created.
+    #[error("cannot create a subscriber on `{service}`: {error:?}")]
+    Subscriber {
+        /// Base service name.
+        service: &'static str,
+        /// What iceoryx2 said.
+        error: SubscriberCreateError,
+    },
+}
+
+/// The attribute verifier every opener uses: requires `foresight.schema_version = version`
+/// (and defines it when the service is created).
+///
+/// # Errors
+/// [`ShmOpenError::InvalidName`] if iceoryx2 refuses the attribute (cannot happen for the
+/// fixed key and a decimal value).
+pub fn schema_verifier(
+    service: &'static str,
+    version: u32,
+) -> Result<AttributeVerifier, ShmOpenError> {
+    let key = AttributeKey::try_from(SCHEMA_VERSION_KEY)
+        .map_err(|_| ShmOpenError::InvalidName(service))?;
+    let value = AttributeValue::try_from(version.to_string().as_str())
+        .map_err(|_| ShmOpenError::InvalidName(service))?;
+    AttributeVerifier::new()
+        .require(&key, &value)
+        .map_err(|_| ShmOpenError::InvalidName(service))
+}
+
+/// Opens (or creates) the service of `T` under `prefix` with the schema attribute
+/// required and the type's queue settings.
+///
+/// # Errors
+/// [`ShmOpenError`].
+pub fn open_service<T: ShmMessage, S: Service>(
+    node: &Node<S>,
+    prefix: &str,
+) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<S, T, ()>, ShmOpenError>
+{
+    open_service_with_version::<T, S>(node, prefix, T::SCHEMA_VERSION)
+}
+
+/// As [`open_service`] with an explicit schema version (for tests of the refusal path).
+///
+/// # Errors
+/// [`ShmOpenError`].
+pub fn open_service_with_version<T: ShmMessage, S: Service>(
+    node: &Node<S>,
+    prefix: &str,
+    version: u32,
+) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<S, T, ()>, ShmOpenError>
+{
+    let full = service_name(prefix, T::SERVICE);
+    let name = ServiceName::new(&full).map_err(|_| ShmOpenError::InvalidName(T::SERVICE))?;
+    let verifier = schema_verifier(T::SERVICE, version)?;
+    let q = T::QUEUE;
+    node.service_builder(&name)
+        .publish_subscribe::<T>()
+        .history_size(q.history_size)
+        .subscriber_max_buffer_size(q.subscriber_buffer)
+        .max_publishers(q.max_publishers)
+        .max_subscribers(q.max_subscribers)
+        .enable_safe_overflow(true)
+        .open_or_create_with_attributes(&verifier)
+        .map_err(|error| match error {
+            PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+                PublishSubscribeOpenError::IncompatibleAttributes
+                | PublishSubscribeOpenError::IncompatibleTypes,
+            ) => ShmOpenError::SchemaMismatch(T::SERVICE),
+            error => ShmOpenError::Service {
+                service: T::SERVICE,
+                error,
+            },
+        })
+}
+
+/// A publisher of `T` on `<prefix>/<T::SERVICE>` (see [`open_service`]).
+///
+/// # Errors
+/// [`ShmOpenError`].
+pub fn open_publisher<T: ShmMessage, S: Service>(
+    node: &Node<S>,
+    prefix: &str,
+) -> Result<Publisher<S, T, ()>, ShmOpenError> {
+    open_service::<T, S>(node, prefix)?
+        .publisher_builder()
+        .create()
+        .map_err(|error| ShmOpenError::Publisher {
+            service: T::SERVICE,
+            error,
+        })
+}
+
+/// A subscriber of `T` on `<prefix>/<T::SERVICE>` (see [`open_service`]).
+///
+/// # Errors
+/// [`ShmOpenError`].
+pub fn open_subscriber<T: ShmMessage, S: Service>(
+    node: &Node<S>,
+    prefix: &str,
+) -> Result<Subscriber<S, T, ()>, ShmOpenError> {
+    open_service::<T, S>(node, prefix)?
+        .subscriber_builder()
+        .create()
+        .map_err(|error| ShmOpenError::Subscriber {
+            service: T::SERVICE,
+            error,
+        })
+}
+
+/// Why a node could not be created.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum NodeCreateError {
+    /// The name is not a valid node name.
+    #[error("invalid node name")]
+    InvalidName,
+    /// iceoryx2 could not create the node.
+    #[error("cannot create the iceoryx2 node: {0:?}")]
+    Create(NodeCreationFailure),
+}
+
+/// Creates a named node and then removes the stale resources (shared memory, service
+/// registrations) of every dead node — a crashed earlier run must never stop a restart.
+/// Returns the node and how many dead nodes were cleaned (and how many could not be).
+///
+/// # Errors
+/// [`NodeCreateError`].
+pub fn create_node<S: Service>(name: &str) -> Result<(Node<S>, CleanupState), NodeCreateError> {
+    let name = NodeName::new(name).map_err(|_| NodeCreateError::InvalidName)?;
+    let node = NodeBuilder::new()
+        .name(&name)
+        .create::<S>()
+        .map_err(NodeCreateError::Create)?;
+    let cleanup = node.try_cleanup_dead_nodes();
+    Ok((node, cleanup))
+}
