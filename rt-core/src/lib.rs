@@ -4,4 +4,5 @@
 //! library for its training environments, so training and lookahead share one task.
 
 #![deny(clippy::unwrap_used)]
+pub mod runtime;
 pub mod twin;
