@@ -1,0 +1,14 @@
+//! `xarm-sim`'s library side: a simulated xArm5 control box that speaks the controller
+//! protocol on the command and report ports, integrates servo targets within the joint
+//! limits and 180°/s, and checks the arm against a ground-truth scene with the twin's
+//! geometry (a contact raises error 31 and stops the arm, like the real controller).
+//!
+//! [`controller::Controller`] is the pure state machine; [`server::SimServer`] binds the
+//! sockets and runs the threads; [`world::World`] is the ground truth.
+
+pub mod controller;
+pub mod server;
+pub mod world;
+
+pub use controller::Controller;
+pub use server::{SimError, SimOptions, SimPorts, SimServer, SimSummary};
