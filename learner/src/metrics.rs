@@ -1,0 +1,216 @@
+//! Per-run metrics: one CSV row per PPO iteration (rewritten atomically, so a reader or a
+//! crash never sees a torn file) and a PNG reward curve drawn with plotters.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use crate::checkpoint::{CheckpointError, write_atomic};
+use crate::ppo::{EvalResult, IterStats};
+
+/// One CSV row.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MetricsRow {
+    /// Training statistics of the iteration.
+    pub iter: IterStats,
+    /// Seconds since the run started.
+    pub wall_s: f64,
+    /// Environment steps per second over the iteration (rollout + update).
+    pub steps_per_s: f64,
+    /// Evaluation, when one ran after this iteration.
+    pub eval: Option<EvalResult>,
+}
+
+/// The rows of one run.
+#[derive(Debug, Clone, Default)]
+pub struct MetricsLog {
+    /// Rows in order.
+    pub rows: Vec<MetricsRow>,
+}
+
+/// CSV header.
+pub const HEADER: &str = "steps,iteration,wall_s,episodes,mean_return,success_rate,collision_rate,policy_loss,value_loss,entropy,approx_kl,clip_fraction,steps_per_s,eval_success_rate,eval_collision_rate,eval_mean_return";
+
+fn num(x: f64) -> String {
+    if x.is_finite() {
+        format!("{x:.6}")
+    } else {
+        String::new()
+    }
+}
+
+impl MetricsLog {
+    /// The CSV text.
+    pub fn to_csv(&self) -> String {
+        let mut s = String::from(HEADER);
+        s.push('\n');
+        for r in &self.rows {
+            let i = &r.iter;
+            let (es, ec, er) = r
+                .eval
+                .map_or((String::new(), String::new(), String::new()), |e| {
+                    (
+                        num(e.success_rate),
+                        num(e.collision_rate),
+                        num(e.mean_return),
+                    )
+                });
+            let _ = writeln!(
+                s,
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{es},{ec},{er}",
+                i.steps,
+                i.iteration,
+                num(r.wall_s),
+                i.episodes,
+                num(i.mean_return),
+                num(i.success_rate),
+                num(i.collision_rate),
+                num(i.policy_loss),
+                num(i.value_loss),
+                num(i.entropy),
+                num(i.approx_kl),
+                num(i.clip_fraction),
+                num(r.steps_per_s),
+            );
+        }
+        s
+    }
+
+    /// Writes the CSV atomically.
+    ///
+    /// # Errors
+    /// [`CheckpointError::Io`].
+    pub fn write_csv(&self, path: &Path) -> Result<(), CheckpointError> {
+        write_atomic(path, self.to_csv().as_bytes())
+    }
+
+    /// Draws the reward curve (training mean return and evaluation return over steps, and
+    /// success rates below) into a PNG.
+    ///
+    /// # Errors
+    /// A message from plotters.
+    pub fn plot(&self, path: &Path, title: &str) -> Result<(), String> {
+        let train: Vec<(f64, f64)> = self
+            .rows
+            .iter()
+            .filter(|r| r.iter.mean_return.is_finite())
+            .map(|r| (r.iter.steps as f64, r.iter.mean_return))
+            .collect();
+        let eval: Vec<(f64, f64)> = self
+            .rows
+            .iter()
+            .filter_map(|r| r.eval.map(|e| (r.iter.steps as f64, e.mean_return)))
+            .collect();
+        let succ: Vec<(f64, f64)> = self
+            .rows
+            .iter()
+            .filter_map(|r| r.eval.map(|e| (r.iter.steps as f64, e.success_rate)))
+            .collect();
+        if train.is_empty() {
+            return Ok(());
+        }
+        let x_max = train.iter().map(|p| p.0).fold(1.0, f64::max);
+        let ys = train.iter().chain(&eval).map(|p| p.1);
+        let (mut y_min, mut y_max) =
+            ys.fold((f64::MAX, f64::MIN), |(a, b), y| (a.min(y), b.max(y)));
+        if y_max - y_min < 1e-6 {
+            y_min -= 1.0;
+            y_max += 1.0;
+        }
+        let pad = (y_max - y_min) * 0.05;
+        let tmp = path.with_extension("tmp.png");
+        {
+            let root = BitMapBackend::new(&tmp, (900, 600)).into_drawing_area();
+            root.fill(&WHITE).map_err(|e| e.to_string())?;
+            let (top, bottom) = root.split_vertically(400);
+            let mut c = ChartBuilder::on(&top)
+                .caption(title, ("sans-serif", 22))
+                .margin(10)
+                .x_label_area_size(30)
+                .y_label_area_size(60)
+                .build_cartesian_2d(0.0..x_max, (y_min - pad)..(y_max + pad))
+                .map_err(|e| e.to_string())?;
+            c.configure_mesh()
+                .y_desc("episode return")
+                .draw()
+                .map_err(|e| e.to_string())?;
+            c.draw_series(LineSeries::new(train, &BLUE))
+                .map_err(|e| e.to_string())?
+                .label("training (mean of finished episodes)")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+            c.draw_series(LineSeries::new(eval.clone(), RED.stroke_width(2)))
+                .map_err(|e| e.to_string())?
+                .label("evaluation (deterministic)")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+            c.configure_series_labels()
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .position(SeriesLabelPosition::LowerRight)
+                .draw()
+                .map_err(|e| e.to_string())?;
+            let mut c2 = ChartBuilder::on(&bottom)
+                .margin(10)
+                .x_label_area_size(30)
+                .y_label_area_size(60)
+                .build_cartesian_2d(0.0..x_max, 0.0..1.05)
+                .map_err(|e| e.to_string())?;
+            c2.configure_mesh()
+                .x_desc("environment steps")
+                .y_desc("eval success")
+                .draw()
+                .map_err(|e| e.to_string())?;
+            c2.draw_series(LineSeries::new(succ, GREEN.stroke_width(2)))
+                .map_err(|e| e.to_string())?;
+            root.present().map_err(|e| e.to_string())?;
+        }
+        std::fs::rename(&tmp, path).map_err(|e| e.to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_has_a_row_per_iteration_and_empty_cells_without_eval() {
+        let mut log = MetricsLog::default();
+        for k in 1..=3u64 {
+            log.rows.push(MetricsRow {
+                iter: IterStats {
+                    steps: k * 100,
+                    iteration: k,
+                    mean_return: k as f64,
+                    ..Default::default()
+                },
+                wall_s: k as f64,
+                steps_per_s: 100.0,
+                eval: (k == 2).then_some(EvalResult {
+                    episodes: 4,
+                    success_rate: 0.5,
+                    collision_rate: 0.25,
+                    mean_return: 3.0,
+                }),
+            });
+        }
+        let csv = log.to_csv();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(lines.len(), 4);
+        let ncol = HEADER.split(',').count();
+        assert!(lines.iter().all(|l| l.split(',').count() == ncol));
+        assert!(
+            lines[2].ends_with("0.500000,0.250000,3.000000"),
+            "{}",
+            lines[2]
+        );
+        assert!(lines[1].ends_with(",,,"));
+        let dir = std::env::temp_dir().join(format!("learner-metrics-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        log.write_csv(&dir.join("m.csv")).unwrap();
+        assert_eq!(std::fs::read_to_string(dir.join("m.csv")).unwrap(), csv);
+        log.plot(&dir.join("r.png"), "test").unwrap();
+        let png = std::fs::read(dir.join("r.png")).unwrap();
+        assert_eq!(&png[1..4], b"PNG");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
