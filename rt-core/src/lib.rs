@@ -4,5 +4,6 @@
 //! library for its training environments, so training and lookahead share one task.
 
 #![deny(clippy::unwrap_used)]
+pub mod policy;
 pub mod runtime;
 pub mod twin;
