@@ -19,16 +19,49 @@ pub fn annotate(bgr: &Mat, detections: &[Detection]) -> Result<Mat, opencv::Erro
             ObjectKind::Obstacle => Scalar::new(0.0, 0.0, 255.0, 0.0),
         };
         let [x, y, w, h] = d.bbox_px;
-        imgproc::rectangle(&mut out, Rect::new(x, y, w, h), colour, 2, imgproc::LINE_8, 0)?;
+        imgproc::rectangle(
+            &mut out,
+            Rect::new(x, y, w, h),
+            colour,
+            2,
+            imgproc::LINE_8,
+            0,
+        )?;
         let lines = [
             format!("{} {:.2}", d.kind.name(), d.confidence),
-            format!("at ({:.3}, {:.3}, {:.3}) m", d.position_m[0], d.position_m[1], d.position_m[2]),
-            format!("size {:.3} x {:.3} x {:.3} m", d.size_m[0], d.size_m[1], d.size_m[2]),
+            format!(
+                "at ({:.3}, {:.3}, {:.3}) m",
+                d.position_m[0], d.position_m[1], d.position_m[2]
+            ),
+            format!(
+                "size {:.3} x {:.3} x {:.3} m",
+                d.size_m[0], d.size_m[1], d.size_m[2]
+            ),
         ];
         for (i, text) in lines.iter().enumerate() {
             let org = Point::new(x, (y - 6 - 16 * (2 - i as i32)).max(12));
-            imgproc::put_text(&mut out, text, org, imgproc::FONT_HERSHEY_SIMPLEX, 0.45, Scalar::all(0.0), 3, imgproc::LINE_AA, false)?;
-            imgproc::put_text(&mut out, text, org, imgproc::FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, imgproc::LINE_AA, false)?;
+            imgproc::put_text(
+                &mut out,
+                text,
+                org,
+                imgproc::FONT_HERSHEY_SIMPLEX,
+                0.45,
+                Scalar::all(0.0),
+                3,
+                imgproc::LINE_AA,
+                false,
+            )?;
+            imgproc::put_text(
+                &mut out,
+                text,
+                org,
+                imgproc::FONT_HERSHEY_SIMPLEX,
+                0.45,
+                colour,
+                1,
+                imgproc::LINE_AA,
+                false,
+            )?;
         }
     }
     Ok(out)
@@ -41,7 +74,10 @@ pub fn annotate(bgr: &Mat, detections: &[Detection]) -> Result<Mat, opencv::Erro
 pub fn write_image(path: &std::path::Path, image: &Mat) -> Result<(), String> {
     match opencv::imgcodecs::imwrite(path, image, &Vector::new()) {
         Ok(true) => Ok(()),
-        Ok(false) => Err(format!("cannot write {}: the encoder refused", path.display())),
+        Ok(false) => Err(format!(
+            "cannot write {}: the encoder refused",
+            path.display()
+        )),
         Err(e) => Err(format!("cannot write {}: {}", path.display(), e.message)),
     }
 }

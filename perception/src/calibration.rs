@@ -90,17 +90,30 @@ impl Calibration {
     /// puts the camera below the table or a reprojection error above
     /// [`MAX_REPROJECTION_ERROR_PX`]; [`CalibrationError::OpenCv`] when OpenCV fails.
     pub fn new(file: CalibrationFile) -> Result<Self, CalibrationError> {
-        file.intrinsics.validate().map_err(CalibrationError::Invalid)?;
-        file.workspace.validate().map_err(CalibrationError::Invalid)?;
-        if !(file.rectified_px_per_m.is_finite() && (10.0..=10_000.0).contains(&file.rectified_px_per_m)) {
+        file.intrinsics
+            .validate()
+            .map_err(CalibrationError::Invalid)?;
+        file.workspace
+            .validate()
+            .map_err(CalibrationError::Invalid)?;
+        if !(file.rectified_px_per_m.is_finite()
+            && (10.0..=10_000.0).contains(&file.rectified_px_per_m))
+        {
             return Err(CalibrationError::Invalid(format!(
                 "rectified_px_per_m = {} must be in 10..=10000",
                 file.rectified_px_per_m
             )));
         }
-        let (w, h) = (f64::from(file.intrinsics.width_px), f64::from(file.intrinsics.height_px));
+        let (w, h) = (
+            f64::from(file.intrinsics.width_px),
+            f64::from(file.intrinsics.height_px),
+        );
         for (i, c) in file.corners_px.iter().enumerate() {
-            if !(c[0].is_finite() && c[1].is_finite() && (0.0..w).contains(&c[0]) && (0.0..h).contains(&c[1])) {
+            if !(c[0].is_finite()
+                && c[1].is_finite()
+                && (0.0..w).contains(&c[0])
+                && (0.0..h).contains(&c[1]))
+            {
                 return Err(CalibrationError::Invalid(format!(
                     "corners_px[{i}] = {c:?} lies outside the {w}x{h} image"
                 )));
@@ -113,14 +126,25 @@ impl Calibration {
             )));
         }
         let table = file.workspace.corners_xy_m();
-        let src: Vector<Point2f> = file.corners_px.iter().map(|c| Point2f::new(c[0] as f32, c[1] as f32)).collect();
-        let dst: Vector<Point2f> = table.iter().map(|c| Point2f::new(c[0] as f32, c[1] as f32)).collect();
+        let src: Vector<Point2f> = file
+            .corners_px
+            .iter()
+            .map(|c| Point2f::new(c[0] as f32, c[1] as f32))
+            .collect();
+        let dst: Vector<Point2f> = table
+            .iter()
+            .map(|c| Point2f::new(c[0] as f32, c[1] as f32))
+            .collect();
         let hm = opencv::imgproc::get_perspective_transform(&src, &dst, opencv::core::DECOMP_LU)?;
         let pixel_to_table = mat3_from_cv(&hm)?;
 
         let z = file.workspace.table_height_m;
         let object: Vector<Point3d> = table.iter().map(|c| Point3d::new(c[0], c[1], z)).collect();
-        let image: Vector<Point2d> = file.corners_px.iter().map(|c| Point2d::new(c[0], c[1])).collect();
+        let image: Vector<Point2d> = file
+            .corners_px
+            .iter()
+            .map(|c| Point2d::new(c[0], c[1]))
+            .collect();
         let k = file.intrinsics;
         let camera_matrix = Mat::from_slice_2d(&[
             [k.fx_px, 0.0, k.cx_px],
@@ -140,7 +164,9 @@ impl Calibration {
             opencv::calib3d::SOLVEPNP_IPPE,
         )?;
         if !ok {
-            return Err(CalibrationError::Invalid("solvePnP found no camera pose for these corners".into()));
+            return Err(CalibrationError::Invalid(
+                "solvePnP found no camera pose for these corners".into(),
+            ));
         }
         let r = vec3_from_cv(&rvec)?;
         let t = vec3_from_cv(&tvec)?;
@@ -148,7 +174,10 @@ impl Calibration {
             rotation: Rotation3::from_scaled_axis(r),
             translation_m: t,
         };
-        let model = CameraModel { intrinsics: k, pose };
+        let model = CameraModel {
+            intrinsics: k,
+            pose,
+        };
         if pose.eye_m().z <= z {
             return Err(CalibrationError::Invalid(format!(
                 "the solved camera lies below the table (z = {:.3} m): are the corners in the documented order?",
@@ -157,9 +186,9 @@ impl Calibration {
         }
         let mut err = 0.0;
         for (c, px) in table.iter().zip(file.corners_px.iter()) {
-            let (p, _) = model
-                .project([c[0], c[1], z])
-                .ok_or_else(|| CalibrationError::Invalid("a workspace corner lies behind the camera".into()))?;
+            let (p, _) = model.project([c[0], c[1], z]).ok_or_else(|| {
+                CalibrationError::Invalid("a workspace corner lies behind the camera".into())
+            })?;
             err += ((p[0] - px[0]).powi(2) + (p[1] - px[1]).powi(2)).sqrt() / 4.0;
         }
         if err > MAX_REPROJECTION_ERROR_PX {
@@ -189,7 +218,9 @@ impl Calibration {
             message: e.to_string(),
         })?;
         Self::new(file).map_err(|e| match e {
-            CalibrationError::Invalid(m) => CalibrationError::Invalid(format!("{}: {m}", path.display())),
+            CalibrationError::Invalid(m) => {
+                CalibrationError::Invalid(format!("{}: {m}", path.display()))
+            }
             other => other,
         })
     }
@@ -199,7 +230,8 @@ impl Calibration {
     /// # Errors
     /// [`CalibrationError::Io`].
     pub fn save(&self, path: &Path) -> Result<(), CalibrationError> {
-        let text = toml::to_string_pretty(&self.file).map_err(|e| CalibrationError::Invalid(e.to_string()))?;
+        let text = toml::to_string_pretty(&self.file)
+            .map_err(|e| CalibrationError::Invalid(e.to_string()))?;
         let header = format!(
             "# Foresight perception calibration. Corner order: (xmin,ymin), (xmin,ymax), (xmax,ymax), (xmax,ymin).\n\
              # Solved camera centre: {:?} m; mean corner reprojection error {:.3} px.\n",
@@ -274,7 +306,10 @@ fn mat3_from_cv(m: &Mat) -> Result<Matrix3<f64>, CalibrationError> {
 fn vec3_from_cv(m: &Mat) -> Result<Vector3<f64>, CalibrationError> {
     let d = m.data_typed::<f64>()?;
     if d.len() != 3 {
-        return Err(CalibrationError::Invalid(format!("solvePnP returned {} values for a 3-vector", d.len())));
+        return Err(CalibrationError::Invalid(format!(
+            "solvePnP returned {} values for a 3-vector",
+            d.len()
+        )));
     }
     Ok(Vector3::new(d[0], d[1], d[2]))
 }
@@ -318,14 +353,18 @@ pub const DEFAULT_TAPE_HSV: HsvRange = HsvRange {
 /// [`WorkspaceRect::corners_xy_m`] order for a camera in front of the robot looking back at
 /// it (image top-left, top-right, bottom-right, bottom-left).
 ///
-/// Steps: tape-colour mask; largest outer contour; a 4-gon by `approxPolyDP`; each side
+/// Steps: tape-colour mask; largest outer contour; its convex hull (which bridges stretches
+/// of tape hidden by objects); a 4-gon by `approxPolyDP`; each side
 /// refined by a least-squares line through the contour points near it, moved out by half a
 /// pixel (contour points are the centres of the outermost tape pixels); adjacent lines
 /// intersected.
 ///
 /// # Errors
 /// [`CalibrationError::Invalid`] when no 4-sided tape outline is found.
-pub fn find_workspace_corners(bgr: &Mat, tape: HsvRange) -> Result<[[f64; 2]; 4], CalibrationError> {
+pub fn find_workspace_corners(
+    bgr: &Mat,
+    tape: HsvRange,
+) -> Result<[[f64; 2]; 4], CalibrationError> {
     use opencv::imgproc;
     let mut hsv = Mat::default();
     imgproc::cvt_color(bgr, &mut hsv, imgproc::COLOR_BGR2HSV, 0)?;
@@ -358,27 +397,37 @@ pub fn find_workspace_corners(bgr: &Mat, tape: HsvRange) -> Result<[[f64; 2]; 4]
             best = Some((area, c));
         }
     }
-    let (area, contour) = best.ok_or_else(|| CalibrationError::Invalid("no tape-coloured pixels in the image".into()))?;
+    let (area, contour) = best
+        .ok_or_else(|| CalibrationError::Invalid("no tape-coloured pixels in the image".into()))?;
     if area < 1000.0 {
         return Err(CalibrationError::Invalid(format!(
             "the largest tape-coloured region covers only {area:.0} px²: is the taped rectangle in view?"
         )));
     }
+    // The convex hull bridges stretches of tape hidden behind objects standing in front.
+    let mut hull: Vector<opencv::core::Point> = Vector::new();
+    imgproc::convex_hull(&contour, &mut hull, false, true)?;
     let mut approx: Vector<opencv::core::Point> = Vector::new();
-    let perimeter = imgproc::arc_length(&contour, true)?;
-    imgproc::approx_poly_dp(&contour, &mut approx, 0.02 * perimeter, true)?;
+    let perimeter = imgproc::arc_length(&hull, true)?;
+    imgproc::approx_poly_dp(&hull, &mut approx, 0.02 * perimeter, true)?;
     if approx.len() != 4 {
         return Err(CalibrationError::Invalid(format!(
             "the tape outline has {} corners, expected 4 (occluded corner?)",
             approx.len()
         )));
     }
-    let rough: Vec<[f64; 2]> = approx.iter().map(|p| [f64::from(p.x), f64::from(p.y)]).collect();
+    let rough: Vec<[f64; 2]> = approx
+        .iter()
+        .map(|p| [f64::from(p.x), f64::from(p.y)])
+        .collect();
     let centroid = [
         rough.iter().map(|p| p[0]).sum::<f64>() / 4.0,
         rough.iter().map(|p| p[1]).sum::<f64>() / 4.0,
     ];
-    let pts: Vec<[f64; 2]> = contour.iter().map(|p| [f64::from(p.x), f64::from(p.y)]).collect();
+    let pts: Vec<[f64; 2]> = contour
+        .iter()
+        .map(|p| [f64::from(p.x), f64::from(p.y)])
+        .collect();
     // Lines as (normal n, offset d) with n·p = d, n pointing away from the centroid.
     let mut lines = Vec::with_capacity(4);
     for i in 0..4 {
@@ -397,7 +446,9 @@ pub fn find_workspace_corners(bgr: &Mat, tape: HsvRange) -> Result<[[f64; 2]; 4]
             })
             .collect();
         if near.len() < 10 {
-            return Err(CalibrationError::Invalid(format!("side {i} of the tape outline is too short to fit")));
+            return Err(CalibrationError::Invalid(format!(
+                "side {i} of the tape outline is too short to fit"
+            )));
         }
         let (mut n, mut d) = fit_line(&near);
         if n[0] * centroid[0] + n[1] * centroid[1] > d {
@@ -412,9 +463,14 @@ pub fn find_workspace_corners(bgr: &Mat, tape: HsvRange) -> Result<[[f64; 2]; 4]
         let (n2, d2) = lines[i];
         let det = n1[0] * n2[1] - n1[1] * n2[0];
         if det.abs() < 1e-9 {
-            return Err(CalibrationError::Invalid("two tape sides are parallel".into()));
+            return Err(CalibrationError::Invalid(
+                "two tape sides are parallel".into(),
+            ));
         }
-        *corner = [(d1 * n2[1] - d2 * n1[1]) / det, (n1[0] * d2 - n2[0] * d1) / det];
+        *corner = [
+            (d1 * n2[1] - d2 * n1[1]) / det,
+            (n1[0] * d2 - n2[0] * d1) / det,
+        ];
     }
     Ok(order_image_corners(corners))
 }

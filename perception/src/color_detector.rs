@@ -110,14 +110,23 @@ impl ColourDetectorConfig {
             return Err(format!("depth_edge_m = {} must be > 0", self.depth_edge_m));
         }
         if !(self.max_object_height_m.is_finite() && self.max_object_height_m > 0.0) {
-            return Err(format!("max_object_height_m = {} must be > 0", self.max_object_height_m));
+            return Err(format!(
+                "max_object_height_m = {} must be > 0",
+                self.max_object_height_m
+            ));
         }
         for c in &self.classes {
             if c.hsv_min[0] > 180 || c.hsv_max[0] > 180 {
-                return Err(format!("class {:?}: hue is 0..=180 in OpenCV's scale", c.name));
+                return Err(format!(
+                    "class {:?}: hue is 0..=180 in OpenCV's scale",
+                    c.name
+                ));
             }
             if (0..3).any(|i| c.hsv_min[i] > c.hsv_max[i]) {
-                return Err(format!("class {:?}: hsv_min {:?} exceeds hsv_max {:?}", c.name, c.hsv_min, c.hsv_max));
+                return Err(format!(
+                    "class {:?}: hsv_min {:?} exceeds hsv_max {:?}",
+                    c.name, c.hsv_min, c.hsv_max
+                ));
             }
         }
         Ok(())
@@ -192,14 +201,29 @@ impl ColourDetector {
 
     /// The image region searched: with a calibration, the bounding box of the workspace at
     /// table height and at `max_object_height_m` above it (plus a margin); else everything.
-    pub fn search_region(&self, width_px: i32, height_px: i32, calibration: Option<&Calibration>) -> Rect {
+    pub fn search_region(
+        &self,
+        width_px: i32,
+        height_px: i32,
+        calibration: Option<&Calibration>,
+    ) -> Rect {
         let full = Rect::new(0, 0, width_px, height_px);
         let Some(cal) = calibration else { return full };
         let ws = cal.file.workspace;
-        let (mut u0, mut v0, mut u1, mut v1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+        let (mut u0, mut v0, mut u1, mut v1) = (
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        );
         for c in ws.corners_xy_m() {
-            for z in [ws.table_height_m, ws.table_height_m + self.config.max_object_height_m] {
-                let Some((p, _)) = cal.model.project([c[0], c[1], z]) else { return full };
+            for z in [
+                ws.table_height_m,
+                ws.table_height_m + self.config.max_object_height_m,
+            ] {
+                let Some((p, _)) = cal.model.project([c[0], c[1], z]) else {
+                    return full;
+                };
                 u0 = u0.min(p[0]);
                 v0 = v0.min(p[1]);
                 u1 = u1.max(p[0]);
@@ -221,7 +245,11 @@ impl ColourDetector {
     ///
     /// # Errors
     /// [`DetectError`] for a bad frame or an OpenCV failure.
-    pub fn detect(&mut self, frame: &Frame, calibration: Option<&Calibration>) -> Result<Vec<Detection>, DetectError> {
+    pub fn detect(
+        &mut self,
+        frame: &Frame,
+        calibration: Option<&Calibration>,
+    ) -> Result<Vec<Detection>, DetectError> {
         frame.validate()?;
         let (w, h) = (frame.bgr.cols(), frame.bgr.rows());
         if let Some(cal) = calibration {
@@ -244,12 +272,28 @@ impl ColourDetector {
         let mut out = Vec::new();
         for ci in 0..self.config.classes.len() {
             let class = &self.config.classes[ci];
-            let lo = Scalar::new(f64::from(class.hsv_min[0]), f64::from(class.hsv_min[1]), f64::from(class.hsv_min[2]), 0.0);
-            let hi = Scalar::new(f64::from(class.hsv_max[0]), f64::from(class.hsv_max[1]), f64::from(class.hsv_max[2]), 0.0);
+            let lo = Scalar::new(
+                f64::from(class.hsv_min[0]),
+                f64::from(class.hsv_min[1]),
+                f64::from(class.hsv_min[2]),
+                0.0,
+            );
+            let hi = Scalar::new(
+                f64::from(class.hsv_max[0]),
+                f64::from(class.hsv_max[1]),
+                f64::from(class.hsv_max[2]),
+                0.0,
+            );
             let kind = class.kind;
             opencv::core::in_range(&self.hsv, &lo, &hi, &mut self.mask)?;
             if let Some(depth) = depth {
-                cut_depth_edges(&mut self.mask, depth, w as usize, roi, self.config.depth_edge_m)?;
+                cut_depth_edges(
+                    &mut self.mask,
+                    depth,
+                    w as usize,
+                    roi,
+                    self.config.depth_edge_m,
+                )?;
             }
             let n = imgproc::connected_components_with_stats(
                 &self.mask,
@@ -272,7 +316,9 @@ impl ColourDetector {
                     *self.stats.at_2d::<i32>(comp, imgproc::CC_STAT_WIDTH)?,
                     *self.stats.at_2d::<i32>(comp, imgproc::CC_STAT_HEIGHT)?,
                 ];
-                let member = |x: i32, y: i32| labels[(y - roi.y) as usize * rw + (x - roi.x) as usize] == comp;
+                let member = |x: i32, y: i32| {
+                    labels[(y - roi.y) as usize * rw + (x - roi.x) as usize] == comp
+                };
                 let blob = Blob {
                     bbox_px: bbox,
                     member: &member,
@@ -333,7 +379,13 @@ fn table_footprint(kind: ObjectKind, bbox: [i32; 4], cal: &Calibration) -> Detec
 
 /// Clears mask pixels whose right or lower neighbour (also in the mask) lies more than
 /// `edge_m` away in depth, so blobs separate at occlusion boundaries.
-fn cut_depth_edges(mask: &mut Mat, depth: &[f32], width_px: usize, roi: Rect, edge_m: f32) -> Result<(), opencv::Error> {
+fn cut_depth_edges(
+    mask: &mut Mat,
+    depth: &[f32],
+    width_px: usize,
+    roi: Rect,
+    edge_m: f32,
+) -> Result<(), opencv::Error> {
     let rw = roi.width as usize;
     let rh = roi.height as usize;
     let m = mask.data_typed_mut::<u8>()?;

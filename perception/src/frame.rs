@@ -46,13 +46,18 @@ pub struct Frame {
 
 /// `CLOCK_MONOTONIC` now (ns), the clock every Foresight process on the machine shares.
 pub fn monotonic_now_ns() -> u64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
     // SAFETY: `ts` is a valid, writable timespec; CLOCK_MONOTONIC is always supported on Linux.
     let rc = unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
     if rc != 0 {
         return 0;
     }
-    (ts.tv_sec as u64).saturating_mul(1_000_000_000).saturating_add(ts.tv_nsec as u64)
+    (ts.tv_sec as u64)
+        .saturating_mul(1_000_000_000)
+        .saturating_add(ts.tv_nsec as u64)
 }
 
 impl Frame {
@@ -71,11 +76,16 @@ impl Frame {
             )));
         }
         if !self.bgr.is_continuous() {
-            return Err(FrameError::BadColour("the image is not stored contiguously".into()));
+            return Err(FrameError::BadColour(
+                "the image is not stored contiguously".into(),
+            ));
         }
         if let Some(d) = &self.depth_m {
             if d.typ() != CV_32FC1 || !d.is_continuous() {
-                return Err(FrameError::BadDepth(format!("expected contiguous CV_32FC1 metres, got type {}", d.typ())));
+                return Err(FrameError::BadDepth(format!(
+                    "expected contiguous CV_32FC1 metres, got type {}",
+                    d.typ()
+                )));
             }
             if d.rows() != self.bgr.rows() || d.cols() != self.bgr.cols() {
                 return Err(FrameError::BadDepth(format!(
@@ -94,9 +104,14 @@ impl Frame {
     ///
     /// # Errors
     /// OpenCV allocation errors.
-    pub fn from_rendered(r: &RenderedFrame, sequence: u64, capture_time_ns: u64) -> Result<Self, FrameError> {
+    pub fn from_rendered(
+        r: &RenderedFrame,
+        sequence: u64,
+        capture_time_ns: u64,
+    ) -> Result<Self, FrameError> {
         let (w, h) = (r.width_px as i32, r.height_px as i32);
-        let bgr = Mat::new_rows_cols_with_bytes::<opencv::core::Vec3b>(h, w, &r.bgr)?.try_clone()?;
+        let bgr =
+            Mat::new_rows_cols_with_bytes::<opencv::core::Vec3b>(h, w, &r.bgr)?.try_clone()?;
         let depth = Mat::new_rows_cols_with_data::<f32>(h, w, &r.depth_m)?.try_clone()?;
         Ok(Self {
             sequence,
@@ -122,7 +137,9 @@ pub fn read_colour(path: &Path) -> Result<Mat, FrameError> {
     let m = opencv::imgcodecs::imread(path, opencv::imgcodecs::IMREAD_COLOR)
         .map_err(|e| read(e.to_string()))?;
     if m.empty() {
-        return Err(read("not a decodable image (corrupt or unsupported format)".into()));
+        return Err(read(
+            "not a decodable image (corrupt or unsupported format)".into(),
+        ));
     }
     Ok(m)
 }
@@ -143,7 +160,9 @@ pub fn read_depth(path: &Path) -> Result<Mat, FrameError> {
     let m = opencv::imgcodecs::imread(path, opencv::imgcodecs::IMREAD_UNCHANGED)
         .map_err(|e| read(e.to_string()))?;
     if m.empty() {
-        return Err(read("not a decodable depth image (corrupt or unsupported format)".into()));
+        return Err(read(
+            "not a decodable depth image (corrupt or unsupported format)".into(),
+        ));
     }
     match m.typ() {
         t if t == CV_32FC1 => Ok(m),

@@ -35,10 +35,16 @@ impl Intrinsics {
     pub fn validate(&self) -> Result<(), String> {
         for (name, v) in [("fx_px", self.fx_px), ("fy_px", self.fy_px)] {
             if !(v.is_finite() && v > 1.0) {
-                return Err(format!("intrinsics.{name} = {v} must be a finite focal length > 1 px"));
+                return Err(format!(
+                    "intrinsics.{name} = {v} must be a finite focal length > 1 px"
+                ));
             }
         }
-        if self.width_px < 16 || self.height_px < 16 || self.width_px > 16384 || self.height_px > 16384 {
+        if self.width_px < 16
+            || self.height_px < 16
+            || self.width_px > 16384
+            || self.height_px > 16384
+        {
             return Err(format!(
                 "intrinsics image size {}x{} must be within 16..16384 px",
                 self.width_px, self.height_px
@@ -46,17 +52,25 @@ impl Intrinsics {
         }
         let (w, h) = (f64::from(self.width_px), f64::from(self.height_px));
         if !(self.cx_px.is_finite() && self.cx_px > 0.0 && self.cx_px < w) {
-            return Err(format!("intrinsics.cx_px = {} must lie inside the image width {w}", self.cx_px));
+            return Err(format!(
+                "intrinsics.cx_px = {} must lie inside the image width {w}",
+                self.cx_px
+            ));
         }
         if !(self.cy_px.is_finite() && self.cy_px > 0.0 && self.cy_px < h) {
-            return Err(format!("intrinsics.cy_px = {} must lie inside the image height {h}", self.cy_px));
+            return Err(format!(
+                "intrinsics.cy_px = {} must lie inside the image height {h}",
+                self.cy_px
+            ));
         }
         Ok(())
     }
 
     /// The 3×3 camera matrix `K`.
     pub fn matrix(&self) -> Matrix3<f64> {
-        Matrix3::new(self.fx_px, 0.0, self.cx_px, 0.0, self.fy_px, self.cy_px, 0.0, 0.0, 1.0)
+        Matrix3::new(
+            self.fx_px, 0.0, self.cx_px, 0.0, self.fy_px, self.cy_px, 0.0, 0.0, 1.0,
+        )
     }
 }
 
@@ -80,7 +94,9 @@ impl CameraPose {
         let up = Vector3::z();
         let right = forward.cross(&up);
         if forward.norm() < 1e-6 || right.norm() < 1e-6 * forward.norm() {
-            return Err(format!("cannot look from {eye_m:?} at {target_m:?}: degenerate or vertical view"));
+            return Err(format!(
+                "cannot look from {eye_m:?} at {target_m:?}: degenerate or vertical view"
+            ));
         }
         let f = forward.normalize();
         let r = right.normalize();
@@ -126,7 +142,10 @@ impl CameraModel {
             return None;
         }
         let k = &self.intrinsics;
-        Some(([k.fx_px * c.x / c.z + k.cx_px, k.fy_px * c.y / c.z + k.cy_px], c.z))
+        Some((
+            [k.fx_px * c.x / c.z + k.cx_px, k.fy_px * c.y / c.z + k.cy_px],
+            c.z,
+        ))
     }
 
     /// Back-projects pixel `(u, v)` at depth `depth_m` (camera z) to a world point.
@@ -164,7 +183,10 @@ mod tests {
     fn look_at_centres_the_target_and_keeps_up_up() {
         let m = model();
         let (px, depth) = m.project([0.4, 0.0, 0.0]).unwrap();
-        assert!((px[0] - 640.0).abs() < 1e-9 && (px[1] - 360.0).abs() < 1e-9, "{px:?}");
+        assert!(
+            (px[0] - 640.0).abs() < 1e-9 && (px[1] - 360.0).abs() < 1e-9,
+            "{px:?}"
+        );
         assert!((depth - (0.8f64.powi(2) * 2.0).sqrt()).abs() < 1e-9);
         // A point higher in the world appears higher (smaller v) in the image.
         let (hi, _) = m.project([0.4, 0.0, 0.2]).unwrap();

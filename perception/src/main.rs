@@ -6,7 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use perception::annotate::{annotate, write_image};
-use perception::calibration::{Calibration, CalibrationFile, DEFAULT_TAPE_HSV, HsvRange, find_workspace_corners};
+use perception::calibration::{
+    Calibration, CalibrationFile, DEFAULT_TAPE_HSV, HsvRange, find_workspace_corners,
+};
 use perception::color_detector::{ColourDetector, ColourDetectorConfig};
 use perception::detection::DetectionReport;
 use perception::frame::{Frame, read_colour, read_depth, write_depth};
@@ -27,7 +29,10 @@ fn asset(name: &str) -> PathBuf {
 }
 
 #[derive(Parser)]
-#[command(name = "perception", about = "Foresight perception: camera frames to goal/obstacle boxes in the twin's frame")]
+#[command(
+    name = "perception",
+    about = "Foresight perception: camera frames to goal/obstacle boxes in the twin's frame"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -182,7 +187,12 @@ fn load_world(path: &Path) -> Result<WorldScript> {
         Err(e) => SceneFile::load(path)
             .map(WorldScript::single)
             .map_err(|_| anyhow::anyhow!("{e}"))
-            .with_context(|| format!("{} is neither a world script nor a scene file", path.display())),
+            .with_context(|| {
+                format!(
+                    "{} is neither a world script nor a scene file",
+                    path.display()
+                )
+            }),
     }
 }
 
@@ -199,11 +209,18 @@ fn synthetic_calibration(cam: &SyntheticCamera, scene: &SceneFile) -> Result<Cal
     })?)
 }
 
-fn load_detector(detector: Option<&Path>, model: Option<&Path>, labels: Option<&Path>) -> Result<Detector> {
+fn load_detector(
+    detector: Option<&Path>,
+    model: Option<&Path>,
+    labels: Option<&Path>,
+) -> Result<Detector> {
     if let (Some(m), Some(l)) = (model, labels) {
         let y = YoloDetector::load(m, l, YoloConfig::default())?;
         if !y.rewritten_nodes.is_empty() {
-            tracing::info!("patched for OpenCV 4.6: {:?} (strides applied after inference)", y.rewritten_nodes);
+            tracing::info!(
+                "patched for OpenCV 4.6: {:?} (strides applied after inference)",
+                y.rewritten_nodes
+            );
         }
         return Ok(Detector::Yolo(Box::new(y)));
     }
@@ -211,20 +228,34 @@ fn load_detector(detector: Option<&Path>, model: Option<&Path>, labels: Option<&
         Some(p) => ColourDetectorConfig::load(p)?,
         None => {
             let p = asset("colour_detector.toml");
-            if p.is_file() { ColourDetectorConfig::load(&p)? } else { ColourDetectorConfig::default() }
+            if p.is_file() {
+                ColourDetectorConfig::load(&p)?
+            } else {
+                ColourDetectorConfig::default()
+            }
         }
     };
-    Ok(Detector::Colour(ColourDetector::new(cfg).map_err(anyhow::Error::msg)?))
+    Ok(Detector::Colour(
+        ColourDetector::new(cfg).map_err(anyhow::Error::msg)?,
+    ))
 }
 
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
-        Command::Render { scene, at_s, camera, out } => {
-            let cam = SyntheticCamera::load(&camera.unwrap_or_else(|| asset("synthetic_camera.toml")))?;
+        Command::Render {
+            scene,
+            at_s,
+            camera,
+            out,
+        } => {
+            let cam =
+                SyntheticCamera::load(&camera.unwrap_or_else(|| asset("synthetic_camera.toml")))?;
             let world = load_world(&scene)?;
             let (_, s) = world.scene_at(at_s);
             let r = cam.render(s);
@@ -250,8 +281,10 @@ fn main() -> Result<()> {
             rectified,
         } => {
             let cam_path = camera.unwrap_or_else(|| asset("synthetic_camera.toml"));
-            let text = std::fs::read_to_string(&cam_path).with_context(|| format!("reading {}", cam_path.display()))?;
-            let value: toml::Table = toml::from_str(&text).with_context(|| format!("parsing {}", cam_path.display()))?;
+            let text = std::fs::read_to_string(&cam_path)
+                .with_context(|| format!("reading {}", cam_path.display()))?;
+            let value: toml::Table =
+                toml::from_str(&text).with_context(|| format!("parsing {}", cam_path.display()))?;
             let intrinsics: Intrinsics = value
                 .get("intrinsics")
                 .cloned()
@@ -259,7 +292,11 @@ fn main() -> Result<()> {
                 .try_into()
                 .with_context(|| format!("[intrinsics] of {}", cam_path.display()))?;
             let mut ws: Option<WorkspaceRect> = match value.get("workspace") {
-                Some(w) => Some(w.clone().try_into().with_context(|| format!("[workspace] of {}", cam_path.display()))?),
+                Some(w) => Some(
+                    w.clone()
+                        .try_into()
+                        .with_context(|| format!("[workspace] of {}", cam_path.display()))?,
+                ),
                 None => None,
             };
             if let (Some(m), Some(s)) = (&workspace_min, &workspace_size) {
@@ -269,20 +306,29 @@ fn main() -> Result<()> {
                     table_height_m: table_height.unwrap_or(0.0),
                 });
             }
-            let mut ws = ws.context("no workspace: give --workspace-min and --workspace-size or a [workspace] table")?;
+            let mut ws = ws.context(
+                "no workspace: give --workspace-min and --workspace-size or a [workspace] table",
+            )?;
             if let Some(t) = table_height {
                 ws.table_height_m = t;
             }
             let bgr = read_colour(&image)?;
             let corners_px = match corners {
                 Some(c) => {
-                    let pts: Vec<[f64; 2]> = c.split_whitespace().map(|p| pair(p, "--corners")).collect::<Result<_>>()?;
-                    <[[f64; 2]; 4]>::try_from(pts).map_err(|v| anyhow::anyhow!("--corners: expected 4 points, got {}", v.len()))?
+                    let pts: Vec<[f64; 2]> = c
+                        .split_whitespace()
+                        .map(|p| pair(p, "--corners"))
+                        .collect::<Result<_>>()?;
+                    <[[f64; 2]; 4]>::try_from(pts).map_err(|v| {
+                        anyhow::anyhow!("--corners: expected 4 points, got {}", v.len())
+                    })?
                 }
                 None => {
                     let tape = match tape_hsv {
                         Some(s) => {
-                            let (a, b) = s.split_once('-').context("--tape-hsv: expected \"h,s,v-h,s,v\"")?;
+                            let (a, b) = s
+                                .split_once('-')
+                                .context("--tape-hsv: expected \"h,s,v-h,s,v\"")?;
                             HsvRange {
                                 hsv_min: triple_u8(a, "--tape-hsv")?,
                                 hsv_max: triple_u8(b, "--tape-hsv")?,
@@ -353,13 +399,18 @@ fn main() -> Result<()> {
                 bail!("--rate {rate}: must be in (0, 1000] Hz");
             }
             let det = load_detector(detector.as_deref(), model.as_deref(), labels.as_deref())?;
-            let (mut src, default_cal): (Box<dyn FrameSource>, Option<Calibration>) = match &source {
+            let (mut src, default_cal): (Box<dyn FrameSource>, Option<Calibration>) = match &source
+            {
                 SourceSpec::Synthetic(world) => {
-                    let mut s = SyntheticSource::open(&camera.unwrap_or_else(|| asset("synthetic_camera.toml")), world)?;
+                    let mut s = SyntheticSource::open(
+                        &camera.unwrap_or_else(|| asset("synthetic_camera.toml")),
+                        world,
+                    )?;
                     if fixed_step {
                         s.fixed_step_s = Some(1.0 / rate);
                     }
-                    let cal = synthetic_calibration(&s.scripted.camera, &s.scripted.script.steps[0].1)?;
+                    let cal =
+                        synthetic_calibration(&s.scripted.camera, &s.scripted.script.steps[0].1)?;
                     (Box::new(s), Some(cal))
                 }
                 SourceSpec::File(p) => (Box::new(FileSource::open(p)?), None),
@@ -368,7 +419,10 @@ fn main() -> Result<()> {
                         Some(p) => perception::ros2_source::Ros2Topics::load(p)?,
                         None => perception::ros2_source::Ros2Topics::default(),
                     };
-                    (Box::new(perception::ros2_source::Ros2Source::open(&topics)?), None)
+                    (
+                        Box::new(perception::ros2_source::Ros2Source::open(&topics)?),
+                        None,
+                    )
                 }
             };
             let calibration = match (calibration, default_cal) {
@@ -395,7 +449,8 @@ fn main() -> Result<()> {
                 publisher,
             };
             tracing::info!(?source, prefix, rate, "publishing DetectionFrames");
-            let stats = perception::pipeline::run(src.as_mut(), &mut pipeline, rate, frames, &|| false)?;
+            let stats =
+                perception::pipeline::run(src.as_mut(), &mut pipeline, rate, frames, &|| false)?;
             tracing::info!(?stats, "done");
             println!(
                 "{{\"frames\":{},\"published\":{},\"bad_frames\":{},\"failed\":{}}}",
@@ -405,4 +460,3 @@ fn main() -> Result<()> {
     }
     Ok(())
 }
-

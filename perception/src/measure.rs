@@ -94,16 +94,30 @@ pub fn measure_blob(
     // Footprint from the points near the top: reuse tmp for x, then y.
     let trim = if n > 400 { 0.002 } else { 0.0 };
     tmp.clear();
-    tmp.extend(xs.iter().zip(zs.iter()).filter(|(_, z)| **z >= top_z - band).map(|(x, _)| *x));
+    tmp.extend(
+        xs.iter()
+            .zip(zs.iter())
+            .filter(|(_, z)| **z >= top_z - band)
+            .map(|(x, _)| *x),
+    );
     if tmp.len() < MIN_POINTS / 2 {
         return None;
     }
     let (x0, x1) = (percentile(tmp, trim), percentile(tmp, 1.0 - trim));
     tmp.clear();
-    tmp.extend(ys.iter().zip(zs.iter()).filter(|(_, z)| **z >= top_z - band).map(|(y, _)| *y));
+    tmp.extend(
+        ys.iter()
+            .zip(zs.iter())
+            .filter(|(_, z)| **z >= top_z - band)
+            .map(|(y, _)| *y),
+    );
     let (y0, y1) = (percentile(tmp, trim), percentile(tmp, 1.0 - trim));
     Some(Measurement {
-        position_m: [(x0 + x1) / 2.0, (y0 + y1) / 2.0, table_height_m + height / 2.0],
+        position_m: [
+            (x0 + x1) / 2.0,
+            (y0 + y1) / 2.0,
+            table_height_m + height / 2.0,
+        ],
         size_m: [(x1 - x0).max(0.002), (y1 - y0).max(0.002), height],
         valid_fraction: n as f32 / members.max(1) as f32,
     })
@@ -147,6 +161,16 @@ mod tests {
             bbox_px: [0, 0, 16, 16],
             member: &all,
         };
-        assert!(measure_blob(&blob, &depth, 16, &model, 0.0, &mut MeasureScratch::default()).is_none());
+        assert!(
+            measure_blob(
+                &blob,
+                &depth,
+                16,
+                &model,
+                0.0,
+                &mut MeasureScratch::default()
+            )
+            .is_none()
+        );
     }
 }

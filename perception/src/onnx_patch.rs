@@ -23,7 +23,9 @@ pub enum OnnxPatchError {
     #[error("the ONNX model has no graph")]
     NoGraph,
     /// The strides constant is not stored as 32-bit floats.
-    #[error("the broadcast constant `{0}` is not a float32 tensor; this model cannot be run by OpenCV 4.6")]
+    #[error(
+        "the broadcast constant `{0}` is not a float32 tensor; this model cannot be run by OpenCV 4.6"
+    )]
     UnsupportedConstant(String),
 }
 
@@ -59,7 +61,9 @@ struct Field<'a> {
 fn read_varint(buf: &[u8], pos: &mut usize) -> Result<u64, OnnxPatchError> {
     let mut v = 0u64;
     for shift in (0..64).step_by(7) {
-        let b = *buf.get(*pos).ok_or(OnnxPatchError::Malformed("truncated varint"))?;
+        let b = *buf
+            .get(*pos)
+            .ok_or(OnnxPatchError::Malformed("truncated varint"))?;
         *pos += 1;
         v |= u64::from(b & 0x7f) << shift;
         if b & 0x80 == 0 {
@@ -75,25 +79,35 @@ fn parse(buf: &[u8]) -> Result<Vec<Field<'_>>, OnnxPatchError> {
     while pos < buf.len() {
         let start = pos;
         let key = read_varint(buf, &mut pos)?;
-        let num = u32::try_from(key >> 3).map_err(|_| OnnxPatchError::Malformed("field number too large"))?;
+        let num = u32::try_from(key >> 3)
+            .map_err(|_| OnnxPatchError::Malformed("field number too large"))?;
         if num == 0 {
             return Err(OnnxPatchError::Malformed("field number 0"));
         }
         let value = match key & 7 {
             0 => Value::Varint(read_varint(buf, &mut pos)?),
             1 => {
-                pos = pos.checked_add(8).filter(|&p| p <= buf.len()).ok_or(OnnxPatchError::Malformed("truncated fixed64"))?;
+                pos = pos
+                    .checked_add(8)
+                    .filter(|&p| p <= buf.len())
+                    .ok_or(OnnxPatchError::Malformed("truncated fixed64"))?;
                 Value::Fixed64
             }
             2 => {
-                let len = usize::try_from(read_varint(buf, &mut pos)?).map_err(|_| OnnxPatchError::Malformed("length too large"))?;
-                let end = pos.checked_add(len).filter(|&e| e <= buf.len()).ok_or(OnnxPatchError::Malformed("truncated bytes"))?;
+                let len = usize::try_from(read_varint(buf, &mut pos)?)
+                    .map_err(|_| OnnxPatchError::Malformed("length too large"))?;
+                let end = pos
+                    .checked_add(len)
+                    .filter(|&e| e <= buf.len())
+                    .ok_or(OnnxPatchError::Malformed("truncated bytes"))?;
                 let b = &buf[pos..end];
                 pos = end;
                 Value::Bytes(b)
             }
             5 => {
-                let b = buf.get(pos..pos + 4).ok_or(OnnxPatchError::Malformed("truncated fixed32"))?;
+                let b = buf
+                    .get(pos..pos + 4)
+                    .ok_or(OnnxPatchError::Malformed("truncated fixed32"))?;
                 pos += 4;
                 Value::Fixed32(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
             }
@@ -134,7 +148,9 @@ fn bytes_of<'a>(f: &Field<'a>) -> Option<&'a [u8]> {
 }
 
 fn string_of(f: &Field<'_>) -> String {
-    bytes_of(f).map(|b| String::from_utf8_lossy(b).into_owned()).unwrap_or_default()
+    bytes_of(f)
+        .map(|b| String::from_utf8_lossy(b).into_owned())
+        .unwrap_or_default()
 }
 
 // ---- ONNX messages (only the fields used) ----
@@ -163,7 +179,10 @@ fn parse_tensor(buf: &[u8]) -> Result<(String, Tensor), OnnxPatchError> {
             (2, Value::Varint(v)) => data_type = v,
             (4, Value::Fixed32(v)) => float_data.push(f32::from_bits(v)),
             (4, Value::Bytes(b)) => {
-                float_data.extend(b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])));
+                float_data.extend(
+                    b.chunks_exact(4)
+                        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+                );
             }
             (8, _) => name = string_of(&f),
             (9, Value::Bytes(b)) => raw = Some(b),
@@ -173,11 +192,22 @@ fn parse_tensor(buf: &[u8]) -> Result<(String, Tensor), OnnxPatchError> {
     let floats = if data_type != 1 {
         None
     } else if let Some(r) = raw {
-        Some(r.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+        Some(
+            r.chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect(),
+        )
     } else {
         Some(float_data)
     };
-    Ok((name, Tensor { dims, data_type, floats }))
+    Ok((
+        name,
+        Tensor {
+            dims,
+            data_type,
+            floats,
+        },
+    ))
 }
 
 struct Node<'a> {
@@ -250,7 +280,10 @@ fn identity_node(node: &Node<'_>, keep_input: &str) -> Result<Vec<u8>, OnnxPatch
 /// in a type other than float32.
 pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
     let fields = parse(model)?;
-    let graph_field = fields.iter().find(|f| f.num == 7).ok_or(OnnxPatchError::NoGraph)?;
+    let graph_field = fields
+        .iter()
+        .find(|f| f.num == 7)
+        .ok_or(OnnxPatchError::NoGraph)?;
     let graph = bytes_of(graph_field).ok_or(OnnxPatchError::NoGraph)?;
     let gfields = parse(graph)?;
     let mut constants: std::collections::HashMap<String, Tensor> = std::collections::HashMap::new();
@@ -258,9 +291,13 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
     let mut graph_outputs = Vec::new();
     for f in &gfields {
         match f.num {
-            1 => nodes.push(parse_node(bytes_of(f).ok_or(OnnxPatchError::Malformed("node is not a message"))?)?),
+            1 => nodes.push(parse_node(
+                bytes_of(f).ok_or(OnnxPatchError::Malformed("node is not a message"))?,
+            )?),
             5 => {
-                let (name, t) = parse_tensor(bytes_of(f).ok_or(OnnxPatchError::Malformed("initializer is not a message"))?)?;
+                let (name, t) = parse_tensor(
+                    bytes_of(f).ok_or(OnnxPatchError::Malformed("initializer is not a message"))?,
+                )?;
                 constants.insert(name, t);
             }
             12 => {
@@ -288,7 +325,11 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
         if n.op_type != "Mul" || n.inputs.len() != 2 || n.outputs.len() != 1 {
             continue;
         }
-        let Some(ci) = (0..2).find(|&k| constants.get(&n.inputs[k]).is_some_and(|t| t.dims.len() == 2 && t.dims[0] == 1 && t.dims[1] > 1)) else {
+        let Some(ci) = (0..2).find(|&k| {
+            constants
+                .get(&n.inputs[k])
+                .is_some_and(|t| t.dims.len() == 2 && t.dims[0] == 1 && t.dims[1] > 1)
+        }) else {
             continue;
         };
         let var = &n.inputs[1 - ci];
@@ -297,7 +338,9 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
         }
         let out = &n.outputs[0];
         let feeds_output_concat = nodes.iter().any(|c| {
-            c.op_type == "Concat" && c.inputs.first() == Some(out) && c.outputs.iter().any(|o| graph_outputs.contains(o))
+            c.op_type == "Concat"
+                && c.inputs.first() == Some(out)
+                && c.outputs.iter().any(|o| graph_outputs.contains(o))
         });
         if !feeds_output_concat {
             continue;
@@ -307,9 +350,18 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
             .floats
             .clone()
             .filter(|f| f.len() as i64 == t.dims[1])
-            .ok_or_else(|| OnnxPatchError::UnsupportedConstant(format!("{} (data type {})", n.inputs[ci], t.data_type)))?;
+            .ok_or_else(|| {
+                OnnxPatchError::UnsupportedConstant(format!(
+                    "{} (data type {})",
+                    n.inputs[ci], t.data_type
+                ))
+            })?;
         replace.push((i, identity_node(n, var)?));
-        rewritten.push(if n.name.is_empty() { out.clone() } else { n.name.clone() });
+        rewritten.push(if n.name.is_empty() {
+            out.clone()
+        } else {
+            n.name.clone()
+        });
         box_scale = Some(floats);
     }
     if replace.is_empty() {
@@ -409,7 +461,10 @@ mod tests {
         assert_eq!(n.op_type, "Identity");
         assert_eq!(n.inputs, vec!["boxes".to_string()]);
         assert_eq!(n.outputs, vec!["dbox".to_string()]);
-        assert_eq!(g[1].raw, parse(bytes_of(&parse(&model(true)).unwrap()[1]).unwrap()).unwrap()[1].raw);
+        assert_eq!(
+            g[1].raw,
+            parse(bytes_of(&parse(&model(true)).unwrap()[1]).unwrap()).unwrap()[1].raw
+        );
         // Patching again finds nothing more to do.
         let again = patch_for_opencv(&p.onnx).unwrap();
         assert!(again.box_scale.is_none());
@@ -422,8 +477,14 @@ mod tests {
         let p = patch_for_opencv(&m).unwrap();
         assert_eq!(p.onnx, m);
         assert!(p.box_scale.is_none());
-        assert!(matches!(patch_for_opencv(b"\x0a\xff\xff"), Err(OnnxPatchError::Malformed(_))));
-        assert_eq!(patch_for_opencv(&[0x08, 0x07]), Err(OnnxPatchError::NoGraph));
+        assert!(matches!(
+            patch_for_opencv(b"\x0a\xff\xff"),
+            Err(OnnxPatchError::Malformed(_))
+        ));
+        assert_eq!(
+            patch_for_opencv(&[0x08, 0x07]),
+            Err(OnnxPatchError::NoGraph)
+        );
         let mut big = Vec::new();
         write_varint(&mut big, u64::MAX);
         assert!(read_varint(&big, &mut 0).is_ok());

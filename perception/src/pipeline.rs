@@ -28,7 +28,11 @@ impl Detector {
     ///
     /// # Errors
     /// [`DetectError`].
-    pub fn detect(&mut self, frame: &Frame, calibration: Option<&Calibration>) -> Result<Vec<Detection>, DetectError> {
+    pub fn detect(
+        &mut self,
+        frame: &Frame,
+        calibration: Option<&Calibration>,
+    ) -> Result<Vec<Detection>, DetectError> {
         match self {
             Self::Colour(d) => d.detect(frame, calibration),
             Self::Yolo(d) => d.detect(frame, calibration),
@@ -145,7 +149,14 @@ pub fn run(
                             .iter()
                             .map(|o| format!(
                                 "#{} class {} at ({:.3}, {:.3}, {:.3}) size ({:.3}, {:.3}, {:.3})",
-                                o.object_id, o.class, o.center_m[0], o.center_m[1], o.center_m[2], o.size_m[0], o.size_m[1], o.size_m[2]
+                                o.object_id,
+                                o.class,
+                                o.center_m[0],
+                                o.center_m[1],
+                                o.center_m[2],
+                                o.size_m[0],
+                                o.size_m[1],
+                                o.size_m[2]
                             ))
                             .collect::<Vec<_>>()
                             .join("; ")

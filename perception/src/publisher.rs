@@ -36,7 +36,12 @@ fn class_of(kind: ObjectKind) -> ObjectClass {
 
 /// Builds the frame: the first [`MAX_DETECTIONS`] objects (goal first), sizes clamped to
 /// at least 1 mm so a flat blob stays a valid box.
-pub fn to_frame(sequence: u64, capture_time_ns: u64, camera_id: u32, objects: &[TrackedObject]) -> DetectionFrame {
+pub fn to_frame(
+    sequence: u64,
+    capture_time_ns: u64,
+    camera_id: u32,
+    objects: &[TrackedObject],
+) -> DetectionFrame {
     let mut f = DetectionFrame {
         sequence,
         capture_time_ns,
@@ -83,13 +88,22 @@ impl DetectionPublisher {
     ///
     /// # Errors
     /// [`PublishError`].
-    pub fn publish(&mut self, capture_time_ns: u64, objects: &[TrackedObject]) -> Result<DetectionFrame, PublishError> {
+    pub fn publish(
+        &mut self,
+        capture_time_ns: u64,
+        objects: &[TrackedObject],
+    ) -> Result<DetectionFrame, PublishError> {
         self.sequence += 1;
         let frame = to_frame(self.sequence, capture_time_ns, self.camera_id, objects);
         frame.validate()?;
-        let sample = self.publisher.loan_uninit().map_err(|e| PublishError::Send(format!("{e:?}")))?;
+        let sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(|e| PublishError::Send(format!("{e:?}")))?;
         let sample = sample.write_payload(frame);
-        sample.send().map_err(|e| PublishError::Send(format!("{e:?}")))?;
+        sample
+            .send()
+            .map_err(|e| PublishError::Send(format!("{e:?}")))?;
         Ok(frame)
     }
 
@@ -128,7 +142,12 @@ mod tests {
         assert_eq!(f.objects()[0].class().unwrap(), ObjectClass::Goal);
         assert_eq!(f.objects()[1].object_id, 9);
         f.validate().unwrap();
-        let many: Vec<TrackedObject> = (0..40).map(|i| TrackedObject { id: i + 1, ..objs[1] }).collect();
+        let many: Vec<TrackedObject> = (0..40)
+            .map(|i| TrackedObject {
+                id: i + 1,
+                ..objs[1]
+            })
+            .collect();
         assert_eq!(to_frame(1, 0, 0, &many).count as usize, MAX_DETECTIONS);
     }
 }

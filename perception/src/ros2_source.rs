@@ -13,7 +13,10 @@ use std::time::{Duration, Instant};
 use opencv::core::{CV_8UC3, CV_8UC4, CV_16UC1, CV_32FC1, Mat};
 use opencv::prelude::*;
 use ros2_client::dds::rustdds::DomainParticipantBuilder;
-use ros2_client::{Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, QosProfile, Subscription};
+use ros2_client::{
+    Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, QosProfile,
+    Subscription,
+};
 use serde::{Deserialize, Serialize};
 
 use crate::frame::{Frame, FrameError, monotonic_now_ns};
@@ -145,7 +148,8 @@ impl Ros2Topics {
     /// # Errors
     /// [`SourceError::Open`].
     pub fn load(path: &Path) -> Result<Self, SourceError> {
-        let text = std::fs::read_to_string(path).map_err(|e| SourceError::Open(format!("{}: {e}", path.display())))?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| SourceError::Open(format!("{}: {e}", path.display())))?;
         toml::from_str(&text).map_err(|e| SourceError::Open(format!("{}: {e}", path.display())))
     }
 }
@@ -186,7 +190,12 @@ pub fn node(context: &Context, name: &str) -> Result<Node, SourceError> {
         .map_err(|e| SourceError::Open(format!("ROS 2 node: {e:?}")))
 }
 
-fn topic(node: &mut Node, name: &str, pkg: &str, ty: &str) -> Result<ros2_client::dds::rustdds::Topic, SourceError> {
+fn topic(
+    node: &mut Node,
+    name: &str,
+    pkg: &str,
+    ty: &str,
+) -> Result<ros2_client::dds::rustdds::Topic, SourceError> {
     let n = Name::parse(name).map_err(|e| SourceError::Open(format!("topic {name:?}: {e:?}")))?;
     node.create_topic(&n, MessageTypeName::new(pkg, ty), &qos())
         .map_err(|e| SourceError::Open(format!("topic {name:?}: {e:?}")))
@@ -198,16 +207,21 @@ fn topic(node: &mut Node, name: &str, pkg: &str, ty: &str) -> Result<ros2_client
 /// [`SourceError::Open`].
 pub fn image_publisher(node: &mut Node, name: &str) -> Result<Publisher<Image>, SourceError> {
     let t = topic(node, name, "sensor_msgs", "Image")?;
-    node.create_publisher(&t, None).map_err(|e| SourceError::Open(format!("{e:?}")))
+    node.create_publisher(&t, None)
+        .map_err(|e| SourceError::Open(format!("{e:?}")))
 }
 
 /// Creates a publisher of camera info.
 ///
 /// # Errors
 /// [`SourceError::Open`].
-pub fn camera_info_publisher(node: &mut Node, name: &str) -> Result<Publisher<CameraInfo>, SourceError> {
+pub fn camera_info_publisher(
+    node: &mut Node,
+    name: &str,
+) -> Result<Publisher<CameraInfo>, SourceError> {
     let t = topic(node, name, "sensor_msgs", "CameraInfo")?;
-    node.create_publisher(&t, None).map_err(|e| SourceError::Open(format!("{e:?}")))
+    node.create_publisher(&t, None)
+        .map_err(|e| SourceError::Open(format!("{e:?}")))
 }
 
 /// Converts a `sensor_msgs/Image` to a BGR `Mat`.
@@ -220,7 +234,11 @@ pub fn colour_from_msg(msg: &Image) -> Result<Mat, FrameError> {
         "rgb8" => (3, CV_8UC3, Some(opencv::imgproc::COLOR_RGB2BGR)),
         "bgra8" => (4, CV_8UC4, Some(opencv::imgproc::COLOR_BGRA2BGR)),
         "rgba8" => (4, CV_8UC4, Some(opencv::imgproc::COLOR_RGBA2BGR)),
-        e => return Err(FrameError::BadColour(format!("unsupported colour encoding {e:?}"))),
+        e => {
+            return Err(FrameError::BadColour(format!(
+                "unsupported colour encoding {e:?}"
+            )));
+        }
     };
     let m = image_mat(msg, channels, 1, cv_type).map_err(FrameError::BadColour)?;
     match code {
@@ -251,7 +269,9 @@ pub fn depth_from_msg(msg: &Image) -> Result<Mat, FrameError> {
             }
             Ok(out)
         }
-        e => Err(FrameError::BadDepth(format!("unsupported depth encoding {e:?}"))),
+        e => Err(FrameError::BadDepth(format!(
+            "unsupported depth encoding {e:?}"
+        ))),
     }
 }
 
@@ -272,7 +292,13 @@ fn image_mat(msg: &Image, channels: usize, bytes_per: usize, cv_type: i32) -> Re
             msg.data.len()
         ));
     }
-    let mut m = Mat::new_rows_cols_with_default(h as i32, w as i32, cv_type, opencv::core::Scalar::all(0.0)).map_err(|e| e.message)?;
+    let mut m = Mat::new_rows_cols_with_default(
+        h as i32,
+        w as i32,
+        cv_type,
+        opencv::core::Scalar::all(0.0),
+    )
+    .map_err(|e| e.message)?;
     let dst = m.data_bytes_mut().map_err(|e| e.message)?;
     for y in 0..h {
         dst[y * row..(y + 1) * row].copy_from_slice(&msg.data[y * step..y * step + row]);
@@ -309,9 +335,15 @@ impl Ros2Source {
         let t_depth = topic(&mut node, &topics.depth, "sensor_msgs", "Image")?;
         let t_info = topic(&mut node, &topics.camera_info, "sensor_msgs", "CameraInfo")?;
         let sub_err = |e| SourceError::Open(format!("ROS 2 subscription: {e:?}"));
-        let colour = node.create_subscription::<Image>(&t_colour, None).map_err(sub_err)?;
-        let depth = node.create_subscription::<Image>(&t_depth, None).map_err(sub_err)?;
-        let info = node.create_subscription::<CameraInfo>(&t_info, None).map_err(sub_err)?;
+        let colour = node
+            .create_subscription::<Image>(&t_colour, None)
+            .map_err(sub_err)?;
+        let depth = node
+            .create_subscription::<Image>(&t_depth, None)
+            .map_err(sub_err)?;
+        let info = node
+            .create_subscription::<CameraInfo>(&t_info, None)
+            .map_err(sub_err)?;
         Ok(Self {
             _context: ctx,
             _node: node,
@@ -364,9 +396,16 @@ impl FrameSource for Ros2Source {
         }
         let capture = monotonic_now_ns();
         // Give a depth image of the same stamp a moment to arrive.
-        let Some(colour) = colour else { return Ok(None) };
+        let Some(colour) = colour else {
+            return Ok(None);
+        };
         let wait_depth = Instant::now() + Duration::from_millis(50);
-        while self.latest_depth.as_ref().is_none_or(|d| d.header.stamp != colour.header.stamp) && Instant::now() < wait_depth {
+        while self
+            .latest_depth
+            .as_ref()
+            .is_none_or(|d| d.header.stamp != colour.header.stamp)
+            && Instant::now() < wait_depth
+        {
             std::thread::sleep(Duration::from_millis(1));
             self.drain_side_topics();
         }
@@ -405,10 +444,26 @@ mod tests {
         assert_eq!((m.cols(), m.rows()), (3, 2));
         let px = m.at_2d::<opencv::core::Vec3b>(1, 0).unwrap();
         assert_eq!([px[0], px[1], px[2]], [12, 11, 10]);
-        let short = Image { data: vec![0; 5], ..img.clone() };
-        assert!(colour_from_msg(&short).unwrap_err().to_string().contains("bytes"));
-        let odd = Image { encoding: "yuv422".into(), ..img };
-        assert!(colour_from_msg(&odd).unwrap_err().to_string().contains("unsupported"));
+        let short = Image {
+            data: vec![0; 5],
+            ..img.clone()
+        };
+        assert!(
+            colour_from_msg(&short)
+                .unwrap_err()
+                .to_string()
+                .contains("bytes")
+        );
+        let odd = Image {
+            encoding: "yuv422".into(),
+            ..img
+        };
+        assert!(
+            colour_from_msg(&odd)
+                .unwrap_err()
+                .to_string()
+                .contains("unsupported")
+        );
         let depth = Image {
             height: 1,
             width: 2,

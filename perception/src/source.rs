@@ -35,7 +35,9 @@ impl FromStr for SourceSpec {
         if s == "ros2" {
             return Ok(Self::Ros2);
         }
-        Err(format!("unknown source {s:?}: use synthetic:WORLD.toml, file:PATH or ros2"))
+        Err(format!(
+            "unknown source {s:?}: use synthetic:WORLD.toml, file:PATH or ros2"
+        ))
     }
 }
 
@@ -90,7 +92,10 @@ impl SyntheticSource {
             },
         };
         Ok(Self {
-            scripted: ScriptedCamera { camera: cam, script },
+            scripted: ScriptedCamera {
+                camera: cam,
+                script,
+            },
             start: None,
             sequence: 0,
             fixed_step_s: None,
@@ -110,7 +115,11 @@ impl FrameSource for SyntheticSource {
         let (step, _, rendered) = self.scripted.render_at(t_s);
         self.last_step = step;
         self.sequence += 1;
-        Ok(Some(Frame::from_rendered(&rendered, self.sequence, capture)?))
+        Ok(Some(Frame::from_rendered(
+            &rendered,
+            self.sequence,
+            capture,
+        )?))
     }
 }
 
@@ -154,30 +163,53 @@ impl FileSource {
     /// # Errors
     /// [`SourceError::Open`].
     pub fn open(path: &Path) -> Result<Self, SourceError> {
-        let ext = |p: &Path| p.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+        let ext = |p: &Path| {
+            p.extension()
+                .map(|e| e.to_string_lossy().to_ascii_lowercase())
+                .unwrap_or_default()
+        };
         if path.is_dir() {
             let mut paths: Vec<PathBuf> = std::fs::read_dir(path)
                 .map_err(|e| SourceError::Open(format!("{}: {e}", path.display())))?
                 .filter_map(|e| e.ok().map(|e| e.path()))
                 .filter(|p| IMAGE_EXTENSIONS.contains(&ext(p).as_str()))
-                .filter(|p| !p.file_stem().is_some_and(|s| s.to_string_lossy().ends_with(".depth")))
+                .filter(|p| {
+                    !p.file_stem()
+                        .is_some_and(|s| s.to_string_lossy().ends_with(".depth"))
+                })
                 .collect();
             paths.sort();
             if paths.is_empty() {
-                return Err(SourceError::Open(format!("{}: no images in the folder", path.display())));
+                return Err(SourceError::Open(format!(
+                    "{}: no images in the folder",
+                    path.display()
+                )));
             }
-            return Ok(Self::Images { paths, next: 0, sequence: 0 });
+            return Ok(Self::Images {
+                paths,
+                next: 0,
+                sequence: 0,
+            });
         }
         if !path.is_file() {
-            return Err(SourceError::Open(format!("{}: no such file or folder", path.display())));
+            return Err(SourceError::Open(format!(
+                "{}: no such file or folder",
+                path.display()
+            )));
         }
         if VIDEO_EXTENSIONS.contains(&ext(path).as_str()) {
             let capture = opencv::videoio::VideoCapture::from_file(path, opencv::videoio::CAP_ANY)
                 .map_err(|e| SourceError::Open(format!("{}: {}", path.display(), e.message)))?;
             if !capture.is_opened().unwrap_or(false) {
-                return Err(SourceError::Open(format!("{}: OpenCV cannot open this video", path.display())));
+                return Err(SourceError::Open(format!(
+                    "{}: OpenCV cannot open this video",
+                    path.display()
+                )));
             }
-            return Ok(Self::Video { capture, sequence: 0 });
+            return Ok(Self::Video {
+                capture,
+                sequence: 0,
+            });
         }
         Ok(Self::Images {
             paths: vec![path.to_path_buf()],
@@ -190,8 +222,14 @@ impl FileSource {
 impl FrameSource for FileSource {
     fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
         match self {
-            Self::Images { paths, next, sequence } => {
-                let Some(path) = paths.get(*next).cloned() else { return Ok(None) };
+            Self::Images {
+                paths,
+                next,
+                sequence,
+            } => {
+                let Some(path) = paths.get(*next).cloned() else {
+                    return Ok(None);
+                };
                 *next += 1;
                 *sequence += 1;
                 let capture = monotonic_now_ns();
@@ -211,7 +249,9 @@ impl FrameSource for FileSource {
             }
             Self::Video { capture, sequence } => {
                 let mut bgr = opencv::core::Mat::default();
-                let ok = capture.read(&mut bgr).map_err(|e| SourceError::Failed(e.message))?;
+                let ok = capture
+                    .read(&mut bgr)
+                    .map_err(|e| SourceError::Failed(e.message))?;
                 if !ok || bgr.empty() {
                     return Ok(None);
                 }
@@ -233,10 +273,21 @@ mod tests {
 
     #[test]
     fn source_specs_parse() {
-        assert_eq!("synthetic:w.toml".parse::<SourceSpec>().unwrap(), SourceSpec::Synthetic("w.toml".into()));
-        assert_eq!("file:/a/b".parse::<SourceSpec>().unwrap(), SourceSpec::File("/a/b".into()));
+        assert_eq!(
+            "synthetic:w.toml".parse::<SourceSpec>().unwrap(),
+            SourceSpec::Synthetic("w.toml".into())
+        );
+        assert_eq!(
+            "file:/a/b".parse::<SourceSpec>().unwrap(),
+            SourceSpec::File("/a/b".into())
+        );
         assert_eq!("ros2".parse::<SourceSpec>().unwrap(), SourceSpec::Ros2);
-        assert!("camera0".parse::<SourceSpec>().unwrap_err().contains("unknown source"));
+        assert!(
+            "camera0"
+                .parse::<SourceSpec>()
+                .unwrap_err()
+                .contains("unknown source")
+        );
     }
 
     #[test]
@@ -244,11 +295,20 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("foresight-src-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(dir.join("a.png"), b"not a png").unwrap();
-        let img = opencv::core::Mat::new_rows_cols_with_default(32, 48, opencv::core::CV_8UC3, opencv::core::Scalar::all(9.0)).unwrap();
+        let img = opencv::core::Mat::new_rows_cols_with_default(
+            32,
+            48,
+            opencv::core::CV_8UC3,
+            opencv::core::Scalar::all(9.0),
+        )
+        .unwrap();
         opencv::imgcodecs::imwrite(dir.join("b.png"), &img, &opencv::core::Vector::new()).unwrap();
         let mut s = FileSource::open(&dir).unwrap();
         let e = s.next_frame().unwrap_err();
-        assert!(e.to_string().contains("a.png") && e.to_string().contains("corrupt"), "{e}");
+        assert!(
+            e.to_string().contains("a.png") && e.to_string().contains("corrupt"),
+            "{e}"
+        );
         let f = s.next_frame().unwrap().unwrap();
         assert_eq!((f.bgr.cols(), f.bgr.rows()), (48, 32));
         assert_eq!(f.sequence, 2);

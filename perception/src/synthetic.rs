@@ -162,13 +162,19 @@ impl SyntheticCamera {
         config.intrinsics.validate()?;
         config.workspace.validate()?;
         if !(config.tape_width_m.is_finite() && config.tape_width_m >= 0.0) {
-            return Err(format!("tape_width_m = {} must be ≥ 0", config.tape_width_m));
+            return Err(format!(
+                "tape_width_m = {} must be ≥ 0",
+                config.tape_width_m
+            ));
         }
         if config.tape_width_m * 2.0 >= config.workspace.size_m[0].min(config.workspace.size_m[1]) {
             return Err("the tape is wider than half the workspace".into());
         }
         if !(config.table_half_extent_m.is_finite() && config.table_half_extent_m > 0.0) {
-            return Err(format!("table_half_extent_m = {} must be > 0", config.table_half_extent_m));
+            return Err(format!(
+                "table_half_extent_m = {} must be > 0",
+                config.table_half_extent_m
+            ));
         }
         let pose = CameraPose::look_at(config.pose.eye_m, config.pose.target_m)?;
         Ok(Self {
@@ -185,15 +191,17 @@ impl SyntheticCamera {
     /// # Errors
     /// [`SyntheticCameraLoadError`] for an unreadable file, malformed TOML or bad values.
     pub fn load(path: &Path) -> Result<Self, SyntheticCameraLoadError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SyntheticCameraLoadError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|source| SyntheticCameraLoadError::Io {
+                path: path.to_path_buf(),
+                source,
+            })?;
         let invalid = |message: String| SyntheticCameraLoadError::Invalid {
             path: path.to_path_buf(),
             message,
         };
-        let config: SyntheticCameraConfig = toml::from_str(&text).map_err(|e| invalid(e.to_string()))?;
+        let config: SyntheticCameraConfig =
+            toml::from_str(&text).map_err(|e| invalid(e.to_string()))?;
         Self::new(config).map_err(invalid)
     }
 
@@ -224,8 +232,16 @@ impl SyntheticCamera {
         let g = &scene.goal;
         let half = g.size_m / 2.0;
         solids.push(Solid {
-            min: [g.center_m[0] - half, g.center_m[1] - half, g.center_m[2] - half],
-            max: [g.center_m[0] + half, g.center_m[1] + half, g.center_m[2] + half],
+            min: [
+                g.center_m[0] - half,
+                g.center_m[1] - half,
+                g.center_m[2] - half,
+            ],
+            max: [
+                g.center_m[0] + half,
+                g.center_m[1] + half,
+                g.center_m[2] + half,
+            ],
             label: LABEL_GOAL,
             bgr: pal.goal_bgr,
         });
@@ -239,7 +255,8 @@ impl SyntheticCamera {
             solids.push(Solid {
                 min,
                 max,
-                label: LABEL_OBSTACLE0.saturating_add(u8::try_from(i).unwrap_or(u8::MAX - LABEL_OBSTACLE0)),
+                label: LABEL_OBSTACLE0
+                    .saturating_add(u8::try_from(i).unwrap_or(u8::MAX - LABEL_OBSTACLE0)),
                 bgr: pal.obstacle_bgr,
             });
         }
@@ -279,10 +296,15 @@ impl SyntheticCamera {
                     if t > 0.0 {
                         let x = o[0] + t * d[0];
                         let y = o[1] + t * d[1];
-                        if (x - centre[0]).abs() <= table_half && (y - centre[1]).abs() <= table_half {
+                        if (x - centre[0]).abs() <= table_half
+                            && (y - centre[1]).abs() <= table_half
+                        {
                             best_t = t;
                             let inside = x >= wx0 && x <= wx1 && y >= wy0 && y <= wy1;
-                            let inner = x >= wx0 + tape && x <= wx1 - tape && y >= wy0 + tape && y <= wy1 - tape;
+                            let inner = x >= wx0 + tape
+                                && x <= wx1 - tape
+                                && y >= wy0 + tape
+                                && y <= wy1 - tape;
                             if inside && !inner {
                                 hit_label = LABEL_TAPE;
                                 hit_bgr = pal.tape_bgr;
@@ -380,7 +402,8 @@ mod tests {
     use std::path::Path;
 
     pub(crate) fn camera() -> SyntheticCamera {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/perception/synthetic_camera.toml");
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../assets/perception/synthetic_camera.toml");
         SyntheticCamera::load(&path).unwrap()
     }
 
@@ -403,14 +426,18 @@ mod tests {
         let (u, v) = (px[0].round() as usize, px[1].round() as usize);
         let i = v * f.width_px + u;
         assert_eq!(f.label[i], LABEL_OBSTACLE0);
-        let p = cam.model.unproject(u as f64, v as f64, f64::from(f.depth_m[i]));
+        let p = cam
+            .model
+            .unproject(u as f64, v as f64, f64::from(f.depth_m[i]));
         assert!((p[2] - 0.10).abs() < 1e-5, "{p:?}");
         // A table pixel well away from everything.
         let (px, _) = cam.model.project([0.5, 0.0, 0.0]).unwrap();
         let (u, v) = (px[0].round() as usize, px[1].round() as usize);
         let i = v * f.width_px + u;
         assert_eq!(f.label[i], LABEL_TABLE);
-        let p = cam.model.unproject(u as f64, v as f64, f64::from(f.depth_m[i]));
+        let p = cam
+            .model
+            .unproject(u as f64, v as f64, f64::from(f.depth_m[i]));
         assert!(p[2].abs() < 1e-5, "{p:?}");
     }
 
@@ -421,8 +448,14 @@ mod tests {
         let corners = cam.workspace_corners_px(&s).unwrap();
         let k = cam.config.intrinsics;
         for c in corners {
-            assert!(c[0] > 10.0 && c[0] < f64::from(k.width_px) - 10.0, "{corners:?}");
-            assert!(c[1] > 10.0 && c[1] < f64::from(k.height_px) - 10.0, "{corners:?}");
+            assert!(
+                c[0] > 10.0 && c[0] < f64::from(k.width_px) - 10.0,
+                "{corners:?}"
+            );
+            assert!(
+                c[1] > 10.0 && c[1] < f64::from(k.height_px) - 10.0,
+                "{corners:?}"
+            );
         }
         // Image order: top-left, top-right, bottom-right, bottom-left.
         assert!(corners[0][0] < corners[1][0] && corners[3][0] < corners[2][0]);
@@ -441,7 +474,11 @@ mod tests {
     fn bad_camera_files_are_rejected_with_the_reason() {
         let mut c = camera().config;
         c.tape_width_m = 1.0;
-        assert!(SyntheticCamera::new(c.clone()).unwrap_err().contains("tape"));
+        assert!(
+            SyntheticCamera::new(c.clone())
+                .unwrap_err()
+                .contains("tape")
+        );
         c.tape_width_m = 0.02;
         c.pose.target_m = c.pose.eye_m;
         assert!(SyntheticCamera::new(c).unwrap_err().contains("degenerate"));

@@ -1,7 +1,7 @@
 //! Stable object ids across frames and debouncing of what is reported.
 //!
-//! Detections are matched to tracks of the same class by nearest position (greedy, within
-//! `match_gate_m`). A new object is reported once it has been seen in `persist_frames`
+//! Detections are matched to tracks of the same class by nearest position on the table
+//! (greedy, within `match_gate_m`). A new object is reported once it has been seen in `persist_frames`
 //! consecutive frames; a lost one is dropped after `persist_frames` misses. A reported
 //! object's position or size changes only when the new measurement differs from the
 //! reported one by more than `noise_tolerance_m` for `persist_frames` consecutive frames, or
@@ -15,7 +15,7 @@ use crate::detection::{Detection, ObjectKind};
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrackerConfig {
-    /// Largest distance between a detection and the track it continues (m).
+    /// Largest distance on the table (x, y) between a detection and the track it continues (m).
     pub match_gate_m: f64,
     /// Frames a new object, a lost object or a small change must persist to count.
     pub persist_frames: u32,
@@ -94,8 +94,10 @@ pub struct Tracker {
     pairs: Vec<(f64, usize, usize)>,
 }
 
-fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+/// Distance on the table (x, y): a box swapped for a taller one moves its centre up, not
+/// across, and must stay the same object.
+fn dist_xy(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
 }
 
 fn max_dev(a: &([f64; 3], [f64; 3]), b: &([f64; 3], [f64; 3])) -> f64 {
@@ -127,7 +129,7 @@ impl Tracker {
         for (ti, t) in self.tracks.iter().enumerate() {
             for (di, d) in detections.iter().enumerate() {
                 if d.kind == t.kind {
-                    let e = dist(&t.latest.0, &d.position_m);
+                    let e = dist_xy(&t.latest.0, &d.position_m);
                     if e <= cfg.match_gate_m {
                         self.pairs.push((e, ti, di));
                     }
@@ -285,7 +287,10 @@ mod tests {
         let id = t.objects()[0].id;
         let mut moved = o.clone();
         moved.position_m[1] += 0.02;
-        assert!(!t.update(std::slice::from_ref(&moved)), "one frame is not enough");
+        assert!(
+            !t.update(std::slice::from_ref(&moved)),
+            "one frame is not enough"
+        );
         assert!(t.update(std::slice::from_ref(&moved)));
         assert!((t.objects()[0].position_m[1] - 0.02).abs() < 1e-12);
         // The small box is swapped for a tall one at the same place: counts at once.
@@ -321,15 +326,19 @@ mod tests {
         let objs = t.objects();
         assert_eq!(objs.len(), 2, "{objs:?}");
         assert_ne!(objs[0].id, objs[1].id);
-        assert!(Tracker::new(TrackerConfig {
-            persist_frames: 0,
-            ..TrackerConfig::default()
-        })
-        .is_err());
-        assert!(Tracker::new(TrackerConfig {
-            jump_m: 0.001,
-            ..TrackerConfig::default()
-        })
-        .is_err());
+        assert!(
+            Tracker::new(TrackerConfig {
+                persist_frames: 0,
+                ..TrackerConfig::default()
+            })
+            .is_err()
+        );
+        assert!(
+            Tracker::new(TrackerConfig {
+                jump_m: 0.001,
+                ..TrackerConfig::default()
+            })
+            .is_err()
+        );
     }
 }

@@ -31,14 +31,31 @@ impl WorkspaceRect {
     /// # Errors
     /// A message naming the first bad value.
     pub fn validate(&self) -> Result<(), String> {
-        if self.min_xy_m.iter().any(|v| !v.is_finite() || v.abs() > 3.0) {
-            return Err(format!("workspace.min_xy_m = {:?} must be finite and within ±3 m", self.min_xy_m));
+        if self
+            .min_xy_m
+            .iter()
+            .any(|v| !v.is_finite() || v.abs() > 3.0)
+        {
+            return Err(format!(
+                "workspace.min_xy_m = {:?} must be finite and within ±3 m",
+                self.min_xy_m
+            ));
         }
-        if self.size_m.iter().any(|v| !(v.is_finite() && *v > 0.01 && *v < 3.0)) {
-            return Err(format!("workspace.size_m = {:?}: each side must be in (0.01, 3) m", self.size_m));
+        if self
+            .size_m
+            .iter()
+            .any(|v| !(v.is_finite() && *v > 0.01 && *v < 3.0))
+        {
+            return Err(format!(
+                "workspace.size_m = {:?}: each side must be in (0.01, 3) m",
+                self.size_m
+            ));
         }
         if !(self.table_height_m.is_finite() && self.table_height_m.abs() < 3.0) {
-            return Err(format!("workspace.table_height_m = {} must be finite and within ±3 m", self.table_height_m));
+            return Err(format!(
+                "workspace.table_height_m = {} must be finite and within ±3 m",
+                self.table_height_m
+            ));
         }
         Ok(())
     }

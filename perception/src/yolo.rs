@@ -118,7 +118,14 @@ impl Letterbox {
 /// Decodes a `[1, 4 + C, N]` output (row-major `channels × n`): best class per anchor,
 /// threshold, optional per-anchor box scale (see [`crate::onnx_patch`]), back to original
 /// pixels through the letterbox.
-pub fn decode(output: &[f32], channels: usize, n: usize, threshold: f32, box_scale: Option<&[f32]>, lb: Letterbox) -> Vec<RawBox> {
+pub fn decode(
+    output: &[f32],
+    channels: usize,
+    n: usize,
+    threshold: f32,
+    box_scale: Option<&[f32]>,
+    lb: Letterbox,
+) -> Vec<RawBox> {
     let mut out = Vec::new();
     if channels <= 4 || output.len() < channels * n {
         return out;
@@ -171,7 +178,10 @@ pub fn nms(mut boxes: Vec<RawBox>, iou_threshold: f32) -> Vec<RawBox> {
     boxes.sort_by(|a, b| b.score.total_cmp(&a.score));
     let mut kept: Vec<RawBox> = Vec::new();
     for b in boxes {
-        if kept.iter().all(|k| k.class != b.class || iou(&k.xyxy, &b.xyxy) <= iou_threshold) {
+        if kept
+            .iter()
+            .all(|k| k.class != b.class || iou(&k.xyxy, &b.xyxy) <= iou_threshold)
+        {
             kept.push(b);
         }
     }
@@ -242,11 +252,21 @@ impl YoloDetector {
     /// # Errors
     /// [`YoloLoadError`].
     pub fn load(model: &Path, labels: &Path, config: YoloConfig) -> Result<Self, YoloLoadError> {
-        if config.input_size_px < 32 || config.input_size_px % 32 != 0 || config.input_size_px > 4096 {
-            return Err(YoloLoadError::Config(format!("input_size_px = {} must be a multiple of 32 in 32..=4096", config.input_size_px)));
+        if config.input_size_px < 32
+            || config.input_size_px % 32 != 0
+            || config.input_size_px > 4096
+        {
+            return Err(YoloLoadError::Config(format!(
+                "input_size_px = {} must be a multiple of 32 in 32..=4096",
+                config.input_size_px
+            )));
         }
-        if !(0.0..=1.0).contains(&config.confidence_threshold) || !(0.0..=1.0).contains(&config.nms_iou) {
-            return Err(YoloLoadError::Config("confidence_threshold and nms_iou must be in [0, 1]".into()));
+        if !(0.0..=1.0).contains(&config.confidence_threshold)
+            || !(0.0..=1.0).contains(&config.nms_iou)
+        {
+            return Err(YoloLoadError::Config(
+                "confidence_threshold and nms_iou must be in [0, 1]".into(),
+            ));
         }
         let bytes = std::fs::read(model).map_err(|source| YoloLoadError::Io {
             path: model.to_path_buf(),
@@ -263,8 +283,10 @@ impl YoloDetector {
         };
         let buf: Vector<u8> = Vector::from_slice(&patched.onnx);
         let mut net = dnn::read_net_from_onnx_buffer(&buf).map_err(|e| unrunnable(e.message))?;
-        net.set_preferable_backend(dnn::DNN_BACKEND_OPENCV).map_err(|e| unrunnable(e.message))?;
-        net.set_preferable_target(dnn::DNN_TARGET_CPU).map_err(|e| unrunnable(e.message))?;
+        net.set_preferable_backend(dnn::DNN_BACKEND_OPENCV)
+            .map_err(|e| unrunnable(e.message))?;
+        net.set_preferable_target(dnn::DNN_TARGET_CPU)
+            .map_err(|e| unrunnable(e.message))?;
         let mut det = Self {
             net,
             config,
@@ -276,8 +298,13 @@ impl YoloDetector {
             blob: Mat::default(),
             scratch: MeasureScratch::default(),
         };
-        let probe = Mat::new_rows_cols_with_default(config.input_size_px, config.input_size_px, opencv::core::CV_8UC3, Scalar::all(114.0))
-            .map_err(|e| unrunnable(e.message))?;
+        let probe = Mat::new_rows_cols_with_default(
+            config.input_size_px,
+            config.input_size_px,
+            opencv::core::CV_8UC3,
+            Scalar::all(114.0),
+        )
+        .map_err(|e| unrunnable(e.message))?;
         let (channels, n, _) = det.infer(&probe).map_err(|e| unrunnable(e.to_string()))?;
         if channels != 4 + det.labels.len() {
             return Err(unrunnable(format!(
@@ -287,7 +314,10 @@ impl YoloDetector {
         }
         if let Some(s) = &det.box_scale {
             if s.len() != n {
-                return Err(unrunnable(format!("strides constant has {} entries for {n} anchors", s.len())));
+                return Err(unrunnable(format!(
+                    "strides constant has {} entries for {n} anchors",
+                    s.len()
+                )));
             }
         }
         Ok(det)
@@ -300,7 +330,14 @@ impl YoloDetector {
         let lb = Letterbox::new(bgr.cols(), bgr.rows(), s);
         let nw = (bgr.cols() as f32 * lb.scale).round() as i32;
         let nh = (bgr.rows() as f32 * lb.scale).round() as i32;
-        opencv::imgproc::resize(bgr, &mut self.resized, Size::new(nw, nh), 0.0, 0.0, opencv::imgproc::INTER_LINEAR)?;
+        opencv::imgproc::resize(
+            bgr,
+            &mut self.resized,
+            Size::new(nw, nh),
+            0.0,
+            0.0,
+            opencv::imgproc::INTER_LINEAR,
+        )?;
         let (px, py) = (lb.pad_x as i32, lb.pad_y as i32);
         opencv::core::copy_make_border(
             &self.resized,
@@ -312,14 +349,24 @@ impl YoloDetector {
             opencv::core::BORDER_CONSTANT,
             Scalar::all(114.0),
         )?;
-        let input = dnn::blob_from_image(&self.padded, 1.0 / 255.0, Size::new(s, s), Scalar::default(), true, false, opencv::core::CV_32F)?;
+        let input = dnn::blob_from_image(
+            &self.padded,
+            1.0 / 255.0,
+            Size::new(s, s),
+            Scalar::default(),
+            true,
+            false,
+            opencv::core::CV_32F,
+        )?;
         self.net.set_input(&input, "", 1.0, Scalar::default())?;
         self.blob = self.net.forward_single("")?;
         let sizes = self.blob.mat_size();
         let dims: Vec<i32> = sizes.iter().copied().collect();
         match dims.as_slice() {
             [1, c, n] if *c > 4 && *n > 0 => Ok((*c as usize, *n as usize, lb)),
-            other => Err(DetectError::Model(format!("expected an output of shape [1, 4 + classes, N], got {other:?}"))),
+            other => Err(DetectError::Model(format!(
+                "expected an output of shape [1, 4 + classes, N], got {other:?}"
+            ))),
         }
     }
 
@@ -327,12 +374,23 @@ impl YoloDetector {
     ///
     /// # Errors
     /// [`DetectError`].
-    pub fn detect(&mut self, frame: &Frame, calibration: Option<&Calibration>) -> Result<Vec<Detection>, DetectError> {
+    pub fn detect(
+        &mut self,
+        frame: &Frame,
+        calibration: Option<&Calibration>,
+    ) -> Result<Vec<Detection>, DetectError> {
         frame.validate()?;
         let (channels, n, lb) = self.infer(&frame.bgr)?;
         let out = self.blob.data_typed::<f32>()?;
         let boxes = nms(
-            decode(out, channels, n, self.config.confidence_threshold, self.box_scale.as_deref(), lb),
+            decode(
+                out,
+                channels,
+                n,
+                self.config.confidence_threshold,
+                self.box_scale.as_deref(),
+                lb,
+            ),
             self.config.nms_iou,
         );
         let (w, h) = (frame.bgr.cols(), frame.bgr.rows());
@@ -342,7 +400,9 @@ impl YoloDetector {
         };
         let mut dets = Vec::new();
         for b in boxes {
-            let Some(kind) = self.labels.get(b.class).and_then(|l| l.1) else { continue };
+            let Some(kind) = self.labels.get(b.class).and_then(|l| l.1) else {
+                continue;
+            };
             let x0 = (b.xyxy[0].round() as i32).clamp(0, w - 1);
             let y0 = (b.xyxy[1].round() as i32).clamp(0, h - 1);
             let x1 = (b.xyxy[2].round() as i32).clamp(x0 + 1, w);
@@ -357,8 +417,18 @@ impl YoloDetector {
             };
             if let (Some(cal), Some(depth)) = (calibration, depth) {
                 let all = |_: i32, _: i32| true;
-                let blob = Blob { bbox_px: bbox, member: &all };
-                if let Some(m) = measure_blob(&blob, depth, w as usize, &cal.model, cal.file.workspace.table_height_m, &mut self.scratch) {
+                let blob = Blob {
+                    bbox_px: bbox,
+                    member: &all,
+                };
+                if let Some(m) = measure_blob(
+                    &blob,
+                    depth,
+                    w as usize,
+                    &cal.model,
+                    cal.file.workspace.table_height_m,
+                    &mut self.scratch,
+                ) {
                     det.position_m = m.position_m;
                     det.size_m = m.size_m;
                 }
@@ -397,7 +467,11 @@ mod tests {
         set(&mut out, 0, [10.0, 20.0, 4.0, 2.0], [0.9, 0.1]);
         set(&mut out, 1, [50.0, 50.0, 10.0, 10.0], [0.1, 0.2]);
         set(&mut out, 2, [30.0, 40.0, 2.0, 2.0], [0.3, 0.6]);
-        let lb = Letterbox { scale: 0.5, pad_x: 0.0, pad_y: 140.0 };
+        let lb = Letterbox {
+            scale: 0.5,
+            pad_x: 0.0,
+            pad_y: 140.0,
+        };
         let boxes = decode(&out, 6, n, 0.25, Some(&[8.0, 8.0, 16.0]), lb);
         assert_eq!(boxes.len(), 2);
         assert_eq!(boxes[0].class, 0);
@@ -410,12 +484,27 @@ mod tests {
 
     #[test]
     fn nms_is_class_aware() {
-        let b = |class, score, x: f32| RawBox { class, score, xyxy: [x, 0.0, x + 10.0, 10.0] };
-        let kept = nms(vec![b(0, 0.5, 1.0), b(0, 0.9, 0.0), b(1, 0.8, 0.0), b(0, 0.7, 50.0)], 0.45);
+        let b = |class, score, x: f32| RawBox {
+            class,
+            score,
+            xyxy: [x, 0.0, x + 10.0, 10.0],
+        };
+        let kept = nms(
+            vec![
+                b(0, 0.5, 1.0),
+                b(0, 0.9, 0.0),
+                b(1, 0.8, 0.0),
+                b(0, 0.7, 50.0),
+            ],
+            0.45,
+        );
         assert_eq!(kept.len(), 3);
         assert_eq!(kept[0].score, 0.9);
         assert!(kept.iter().any(|k| k.class == 1));
-        assert!(!kept.iter().any(|k| k.score == 0.5), "overlapping same-class box survived");
+        assert!(
+            !kept.iter().any(|k| k.score == 0.5),
+            "overlapping same-class box survived"
+        );
         assert!((iou(&[0.0, 0.0, 10.0, 10.0], &[5.0, 0.0, 15.0, 10.0]) - 1.0 / 3.0).abs() < 1e-6);
     }
 
@@ -424,14 +513,28 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("foresight-labels-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let p = dir.join("l.txt");
-        std::fs::write(&p, "# classes\ngoal\ncube: goal\nbox: obstacle\nhand: ignore\n").unwrap();
+        std::fs::write(
+            &p,
+            "# classes\ngoal\ncube: goal\nbox: obstacle\nhand: ignore\n",
+        )
+        .unwrap();
         let l = read_labels(&p).unwrap();
         assert_eq!(l.len(), 4);
         assert_eq!(l[1], ("cube".to_string(), Some(ObjectKind::Goal)));
         assert_eq!(l[3].1, None);
         std::fs::write(&p, "person\n").unwrap();
-        assert!(read_labels(&p).unwrap_err().to_string().contains("needs a kind"));
-        assert!(read_labels(&dir.join("missing.txt")).unwrap_err().to_string().contains("cannot read"));
+        assert!(
+            read_labels(&p)
+                .unwrap_err()
+                .to_string()
+                .contains("needs a kind")
+        );
+        assert!(
+            read_labels(&dir.join("missing.txt"))
+                .unwrap_err()
+                .to_string()
+                .contains("cannot read")
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 }

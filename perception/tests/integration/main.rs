@@ -1,0 +1,4 @@
+//! perception's integration tests (one binary, one module per concern).
+
+mod accuracy;
+mod common;
