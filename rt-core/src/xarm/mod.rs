@@ -11,6 +11,7 @@
 
 pub mod codec;
 pub mod codes;
+pub mod driver;
 pub mod limits;
 pub mod report;
 pub mod sim;

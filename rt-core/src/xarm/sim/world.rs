@@ -83,6 +83,11 @@ impl World {
         Ok(())
     }
 
+    /// The robot model's home posture (rad).
+    pub fn home(&self) -> [f64; 5] {
+        self.model.home()
+    }
+
     /// Name of the scene in force ("" when none).
     pub fn scene_name(&self) -> &str {
         &self.scene_name
