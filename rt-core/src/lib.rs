@@ -7,3 +7,4 @@
 pub mod policy;
 pub mod runtime;
 pub mod twin;
+pub mod xarm;
