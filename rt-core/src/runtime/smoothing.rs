@@ -179,7 +179,13 @@ impl PlanSmoother {
                 if !last && t_s >= t_end - 1e-9 {
                     break;
                 }
-                let r = ruckig.update(&mut input, &mut output);
+                let mut r = ruckig.update(&mut input, &mut output);
+                if !matches!(r, RuckigResult::Working | RuckigResult::Finished) {
+                    // Some pass-through velocities have no time-optimal profile from the
+                    // current state (Ruckig -110): pass this waypoint at rest instead.
+                    input.target_velocity = vec![0.0; DOF];
+                    r = ruckig.update(&mut input, &mut output);
+                }
                 let done = match r {
                     RuckigResult::Working => false,
                     RuckigResult::Finished => true,

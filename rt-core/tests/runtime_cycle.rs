@@ -1,0 +1,187 @@
+//! Scenario tests of the cycle and the twin worker together (toy twin, in-process arm,
+//! manual clock): following an approved plan, hot-swaps that join only after a passing
+//! lookahead, revocation and controlled stops, stale inputs, a lost link, determinism.
+
+#[path = "runtime_common.rs"]
+mod common;
+
+use std::sync::atomic::Ordering;
+
+use common::{Rig, START, TARGET_A, TARGET_B};
+use rt_core::runtime::cycle::{Mode, StopReason};
+use rt_core::runtime::shield::ShieldModel;
+use rt_core::runtime::toy::ToyArm;
+use rt_core::runtime::twin_thread::TwinEvent;
+
+#[test]
+fn an_approved_plan_is_followed_to_the_policy_target_and_the_arm_rests() {
+    let mut rig = Rig::new();
+    rig.run(10);
+    assert_eq!(rig.mode(), Mode::Idle, "no policy, no plan");
+    rig.policy(1, TARGET_A);
+    rig.run(2500);
+    assert_eq!(rig.approvals().len(), 1, "{:?}", rig.events);
+    assert_eq!(rig.mode(), Mode::Idle);
+    assert!(
+        Rig::near(&rig.arm_q(), &TARGET_A, 0.03),
+        "{:?}",
+        rig.arm_q()
+    );
+    let r = rig.cycle.report();
+    assert_eq!(r.stops, 0);
+    assert!(r.cmd.dq_rad_s.iter().all(|v| *v == 0.0));
+    // every command respected the velocity limit
+    for w in rig.reports.windows(2) {
+        for j in 0..5 {
+            let v = (w[1].cmd.q_rad[j] - w[0].cmd.q_rad[j]) / 0.004;
+            assert!(
+                v.abs() <= rig.cfg.limits.max_velocity_rad_s[j] + 1e-6,
+                "{v}"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_hot_swap_joins_the_running_plan_only_after_its_lookahead_passes() {
+    let mut rig = Rig::new();
+    rig.policy(1, TARGET_A);
+    rig.run(150);
+    assert_eq!(rig.mode(), Mode::Following);
+    let before = rig.cycle.report().plans_taken;
+    // A policy whose episode leaves the joint limits fails verification: the arm keeps
+    // executing plan 1.
+    rig.policy(2, [0.0, 2.5, 0.0, 0.0, 0.0]);
+    rig.run(5);
+    assert!(
+        rig.events
+            .iter()
+            .any(|e| matches!(e, TwinEvent::PlanRejected { policy_id: 2, .. })),
+        "{:?}",
+        rig.events
+    );
+    assert_eq!(
+        rig.cycle.report().plans_taken,
+        before,
+        "a refused policy changed the plan"
+    );
+    assert_eq!(rig.cycle.report().policy_id, 1);
+    // A good policy: plan approved, joins the running one, the arm ends at its target.
+    rig.policy(3, TARGET_B);
+    rig.run(3);
+    let joined: Vec<_> = rig.approvals().into_iter().filter(|a| a.1 == 3).collect();
+    assert_eq!(joined.len(), 1, "{:?}", rig.events);
+    assert!(joined[0].2, "the swap should join the running plan");
+    rig.run(3000);
+    assert_eq!(rig.cycle.report().policy_id, 3);
+    assert_eq!(rig.cycle.report().stops, 0, "the join must be continuous");
+    assert!(
+        Rig::near(&rig.arm_q(), &TARGET_B, 0.03),
+        "{:?}",
+        rig.arm_q()
+    );
+    // continuity: no command jumped more than the velocity limit allows
+    for w in rig.reports.windows(2) {
+        for j in 0..5 {
+            let v = (w[1].cmd.q_rad[j] - w[0].cmd.q_rad[j]) / 0.004;
+            assert!(
+                v.abs() <= rig.cfg.limits.max_velocity_rad_s[j] + 1e-6,
+                "jump {v}"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_scene_change_that_makes_the_plan_unsafe_stops_the_arm_and_requests_retraining() {
+    let mut rig = Rig::new();
+    rig.policy(1, TARGET_A);
+    rig.run(100);
+    assert_eq!(rig.mode(), Mode::Following);
+    // Put a box where the plan passes later.
+    let wp = {
+        let mut la = rt_core::runtime::toy::ToyLookahead::default();
+        let mut wps = Vec::new();
+        use rt_core::runtime::twin_thread::Lookahead;
+        la.lookahead(
+            rig.twin.policy().expect("policy"),
+            &rig.scene,
+            &START,
+            &mut wps,
+        );
+        wps[wps.len() * 2 / 3]
+    };
+    rig.scene
+        .push_obstacle(ToyArm.tcp_position_m(&wp), [0.08; 3]);
+    let retrains_before = rig.retrains();
+    rig.run(300);
+    assert!(
+        rig.events
+            .iter()
+            .any(|e| matches!(e, TwinEvent::Revoked { plan_id: 1, .. })),
+        "{:?}",
+        rig.events
+    );
+    assert_eq!(rig.mode(), Mode::Stopped);
+    assert_eq!(rig.cycle.report().stop_reason, StopReason::Revoked);
+    assert!(rig.retrains() > retrains_before, "no retrain request");
+    let at_stop = rig.arm_q();
+    rig.run(500);
+    assert_eq!(
+        rig.mode(),
+        Mode::Stopped,
+        "resumed without a fresh approved plan"
+    );
+    assert!(Rig::near(&rig.arm_q(), &at_stop, 1e-9));
+    // A retrained policy that is safe in the new scene resumes from the stopped pose.
+    rig.scene = rt_core::runtime::toy::ToyScene::empty();
+    rig.policy(2, TARGET_B);
+    rig.run(3000);
+    assert!(Rig::near(&rig.arm_q(), &TARGET_B, 0.03));
+}
+
+#[test]
+fn stale_detections_stop_the_arm_and_it_resumes_only_with_a_fresh_plan() {
+    let mut rig = Rig::new();
+    rig.policy(1, TARGET_A);
+    rig.run(100);
+    assert_eq!(rig.mode(), Mode::Following);
+    rig.detections_on = false;
+    rig.run(200); // 0.8 s > 0.5 s
+    assert_eq!(rig.mode(), Mode::Stopped);
+    assert_eq!(rig.cycle.report().stop_reason, StopReason::StaleDetection);
+    rig.detections_on = true;
+    rig.run(2500);
+    assert!(rig.approvals().len() >= 2, "{:?}", rig.approvals());
+    assert!(Rig::near(&rig.arm_q(), &TARGET_A, 0.03));
+}
+
+#[test]
+fn a_lost_link_brings_the_command_to_a_controlled_stop() {
+    let mut rig = Rig::new();
+    rig.policy(1, TARGET_A);
+    rig.run(150);
+    let conn = rig.cycle.link().connection();
+    conn.store(false, Ordering::Release);
+    rig.run(300);
+    assert_eq!(rig.mode(), Mode::Stopped);
+    assert_eq!(rig.cycle.report().stop_reason, StopReason::LinkLost);
+    let r = rig.cycle.report();
+    assert!(r.cmd.dq_rad_s.iter().all(|v| *v == 0.0));
+}
+
+#[test]
+fn runs_are_deterministic_under_the_manual_clock() {
+    let run = || {
+        let mut rig = Rig::new();
+        rig.policy(1, TARGET_A);
+        rig.run(200);
+        rig.policy(2, TARGET_B);
+        rig.run(800);
+        rig.reports
+            .iter()
+            .map(|r| (r.mode, r.plan_id, r.cmd.q_rad))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(run(), run());
+}
