@@ -19,8 +19,14 @@ use super::{ACT_DIM, DOF, Joints, OBS_DIM};
 /// Capacity of a waypoint buffer: the longest episode a task file may configure.
 pub const MAX_EPISODE_STEPS: usize = 256;
 
-/// Tries before scene sampling gives up on a constraint.
-const SAMPLE_TRIES: usize = 64;
+/// Goals tried before scene sampling gives up on placing a box.
+const GOAL_TRIES: usize = 64;
+
+/// Box placements tried per goal.
+const BOX_TRIES: usize = 8;
+
+/// IK iterations for the arm's posture at the goal when sampling scenes.
+const GOAL_IK_ITERATIONS: u32 = 200;
 
 /// The raw reward terms of one step (before the weights).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -333,61 +339,73 @@ impl TwinEnv {
 
     /// A random scene for training: a goal in the sampling ranges (at least
     /// `min_goal_distance_m` from the start TCP) and one box of `class` placed between the
-    /// start TCP and the goal, clear of the goal cube and of the robot at its start posture.
+    /// start TCP and the goal, clear of the goal cube, at least `d_thre_m` from the robot at
+    /// its start posture and `d_thre_m / 2` from the robot at the goal (so every sampled
+    /// scene can be solved). If no placement fits after 64 goals × 8 placements the scene
+    /// has no box. Deterministic for a given RNG state.
     pub fn sample_scene<R: Rng + ?Sized>(&self, rng: &mut R, class: ObstacleClass) -> Scene {
         let s = &self.cfg.sampling;
         let start = self.start_tcp_m;
-        let mut goal_xy = [0.0; 2];
-        for _ in 0..SAMPLE_TRIES {
-            goal_xy = [uniform(rng, s.goal_x_m), uniform(rng, s.goal_y_m)];
-            let dx = goal_xy[0] - start.x;
-            let dy = goal_xy[1] - start.y;
-            if (dx * dx + dy * dy).sqrt() >= s.min_goal_distance_m {
-                break;
-            }
-        }
-        let goal = Goal {
-            center_m: [goal_xy[0], goal_xy[1], s.table_height_m + s.goal_size_m / 2.0],
-            size_m: s.goal_size_m,
-        };
-        let mut scene = Scene::empty(s.table_height_m, goal);
         let sizes = match class {
             ObstacleClass::Small => self.cfg.obstacles.small,
             ObstacleClass::Large => self.cfg.obstacles.large,
         };
         let start_poses = self.model.fk(&self.model.home());
-        let dir = [goal_xy[0] - start.x, goal_xy[1] - start.y];
-        let len = (dir[0] * dir[0] + dir[1] * dir[1]).sqrt().max(1e-9);
-        let (ux, uy) = (dir[0] / len, dir[1] / len);
-        for _ in 0..SAMPLE_TRIES {
-            let f = uniform(rng, s.obstacle_fraction);
-            let lat = uniform(rng, s.obstacle_lateral_m);
-            let sx = uniform(rng, sizes.footprint_m);
-            let sy = uniform(rng, sizes.footprint_m);
-            let h = uniform(rng, sizes.height_m);
-            let b = BoxObstacle {
-                center_m: [
-                    start.x + f * dir[0] - uy * lat,
-                    start.y + f * dir[1] + ux * lat,
-                    s.table_height_m + h / 2.0,
-                ],
-                size_m: [sx, sy, h],
-            };
-            let gap_x = (b.center_m[0] - goal.center_m[0]).abs() - (sx + goal.size_m) / 2.0;
-            let gap_y = (b.center_m[1] - goal.center_m[1]).abs() - (sy + goal.size_m) / 2.0;
-            if gap_x.max(gap_y) < s.goal_clearance_m {
+        let margin = self.cfg.reward.d_thre_m;
+        let mut scene = Scene::empty(s.table_height_m, self.scene.goal);
+        for _ in 0..GOAL_TRIES {
+            let goal_xy = [uniform(rng, s.goal_x_m), uniform(rng, s.goal_y_m)];
+            let dir = [goal_xy[0] - start.x, goal_xy[1] - start.y];
+            let len = (dir[0] * dir[0] + dir[1] * dir[1]).sqrt();
+            if len < s.min_goal_distance_m.max(1e-6) {
                 continue;
             }
-            scene.obstacles.clear();
-            let _ = scene.obstacles.push(b);
-            if !self
-                .geometry
-                .in_contact(&start_poses, &scene, self.cfg.reward.d_thre_m)
-            {
-                return scene;
+            let goal = Goal {
+                center_m: [goal_xy[0], goal_xy[1], s.table_height_m + s.goal_size_m / 2.0],
+                size_m: s.goal_size_m,
+            };
+            scene = Scene::empty(s.table_height_m, goal);
+            // The arm at the goal: a box must leave room for it (the xArm5 is a planar
+            // linkage in the plane of joint 1, so a tall box in that plane, nearer than the
+            // goal, makes the goal unreachable).
+            let goal_target = scene.goal_target_m(self.cfg.success.goal_hover_m);
+            let at_goal =
+                self.ik
+                    .solve_with(&self.model, &goal_target, &self.model.home(), GOAL_IK_ITERATIONS);
+            if !at_goal.reached {
+                continue;
             }
+            let goal_poses = self.model.fk(&at_goal.joints);
+            let (ux, uy) = (dir[0] / len, dir[1] / len);
+            for _ in 0..BOX_TRIES {
+                let f = uniform(rng, s.obstacle_fraction);
+                let lat = uniform(rng, s.obstacle_lateral_m);
+                let sx = uniform(rng, sizes.footprint_m);
+                let sy = uniform(rng, sizes.footprint_m);
+                let h = uniform(rng, sizes.height_m);
+                let b = BoxObstacle {
+                    center_m: [
+                        start.x + f * dir[0] - uy * lat,
+                        start.y + f * dir[1] + ux * lat,
+                        s.table_height_m + h / 2.0,
+                    ],
+                    size_m: [sx, sy, h],
+                };
+                let gap_x = (b.center_m[0] - goal.center_m[0]).abs() - (sx + goal.size_m) / 2.0;
+                let gap_y = (b.center_m[1] - goal.center_m[1]).abs() - (sy + goal.size_m) / 2.0;
+                if gap_x.max(gap_y) < s.goal_clearance_m {
+                    continue;
+                }
+                scene.obstacles.clear();
+                let _ = scene.obstacles.push(b);
+                if !self.geometry.in_contact(&start_poses, &scene, margin)
+                    && !self.geometry.in_contact(&goal_poses, &scene, margin / 2.0)
+                {
+                    return scene;
+                }
+            }
+            scene.obstacles.clear();
         }
-        scene.obstacles.clear();
         scene
     }
 }

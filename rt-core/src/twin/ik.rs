@@ -8,6 +8,9 @@ use serde::{Deserialize, Serialize};
 use super::model::RobotModel;
 use super::{DOF, Joints};
 
+/// Damping² of the pseudo-inverse inside the null-space projector (m²).
+const PROJECTOR_DAMPING2: f64 = 1e-8;
+
 /// Settings of the IK solver.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -129,7 +132,13 @@ impl IkSolver {
             let j_pinv = j.transpose() * inv; // 5×3
             let mut dq: Vector5<f64> = j_pinv * err;
             if self.cfg.nullspace_gain > 0.0 {
-                let null = Matrix5::identity() - j_pinv * j;
+                // The projector uses a nearly undamped pseudo-inverse, so the pull does not
+                // leak into the task space (with the damped one it leaves a residual error).
+                let jjt_exact = j * j.transpose() + Matrix3::identity() * PROJECTOR_DAMPING2;
+                let Some(inv_exact) = jjt_exact.try_inverse() else {
+                    break;
+                };
+                let null = Matrix5::identity() - j.transpose() * inv_exact * j;
                 let pull = Vector5::from_fn(|i, _| self.home[i] - q[i]) * self.cfg.nullspace_gain;
                 dq += null * pull;
             }

@@ -23,9 +23,9 @@ pub const JERK_LIMIT_RAD_S3: f64 = 500.0;
 /// radii (m). The capsules additionally extend one radius past each cylinder end.
 pub const COLLISION_MARGIN_M: f64 = 0.010;
 
-/// Home posture used when nothing else is configured (rad): TCP about 0.3 m in front of
+/// Home posture used when nothing else is configured (rad): TCP about 0.30 m in front of
 /// the base and 0.25 m above the table, flange pointing down.
-pub const DEFAULT_HOME_RAD: Joints = [0.0, -0.2618, -0.5236, 0.7854, 0.0];
+pub const DEFAULT_HOME_RAD: Joints = [0.0, -0.383, -0.371, 0.855, 0.0];
 
 /// Longest link name kept (bytes).
 const NAME_CAPACITY: usize = 32;
