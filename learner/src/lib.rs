@@ -16,8 +16,11 @@
 pub mod adam;
 pub mod checkpoint;
 pub mod env;
+pub mod export;
 pub mod metrics;
 pub mod net;
 pub mod normalize;
 pub mod ppo;
 pub mod run;
+pub mod service;
+pub mod twin_env;

@@ -1,0 +1,293 @@
+//! The retraining service (`learner serve`): subscribes to [`RetrainRequest`]s over
+//! iceoryx2; for each, resumes PPO from the base checkpoint on the reported scene (with
+//! randomisation around it and a share of the old distribution), stops when the evaluation
+//! on the reported scene succeeds (≥ 95 %, no contact, return converged) or a step/time
+//! budget runs out, and publishes the best policy as a validated [`PolicyBlob`] plus
+//! [`RetrainProgress`] along the way. Requests that arrive during training are coalesced:
+//! the running training is abandoned and the latest request is trained instead.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use iceoryx2::prelude::*;
+use rt_core::twin::Scene;
+use shm_schemas::services;
+use shm_schemas::{PolicyBlob, RetrainPhase, RetrainProgress, RetrainRequest};
+
+use crate::checkpoint::{self, Checkpoint};
+use crate::export;
+use crate::ppo::{EvalResult, Trainer};
+use crate::run::{RunOptions, StopReason, SuccessRule, train};
+use crate::twin_env::{Jitter, RetrainSampler, TwinTask};
+
+/// Arguments of `learner serve`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ServeArgs {
+    /// Base checkpoint: a run directory (its best.ckpt) or a checkpoint file.
+    #[arg(long)]
+    pub checkpoint: PathBuf,
+    /// Service-name prefix (unique per run/test).
+    #[arg(long, default_value = "")]
+    pub prefix: String,
+    /// Task configuration.
+    #[arg(long, default_value = "assets/task.toml")]
+    pub task: PathBuf,
+    /// Where retraining runs write checkpoints, metrics and plots (default: a `retrain`
+    /// folder beside the base checkpoint).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Step budget per request.
+    #[arg(long, default_value_t = 100_000)]
+    pub max_steps: u64,
+    /// Wall-time budget per request (s).
+    #[arg(long, default_value_t = 30.0)]
+    pub time_budget_s: f64,
+    /// Evaluate every this many steps.
+    #[arg(long, default_value_t = 8_192)]
+    pub eval_every: u64,
+    /// Evaluation episodes (the reported scene and lightly jittered variants).
+    #[arg(long, default_value_t = 20)]
+    pub eval_episodes: usize,
+    /// Share of training episodes from the old (pre-training) distribution.
+    #[arg(long, default_value_t = 0.3)]
+    pub old_share: f64,
+    /// Exit after answering this many requests (0: serve forever).
+    #[arg(long, default_value_t = 0)]
+    pub max_requests: u64,
+    /// Rollout worker threads (0 = the checkpoint's setting).
+    #[arg(long, default_value_t = 0)]
+    pub workers: usize,
+}
+
+/// A policy id for a checkpoint: FNV-1a of its weights and step count, never 0.
+pub fn policy_id_for(ck: &Checkpoint) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |b: &[u8]| {
+        for x in b {
+            h ^= u64::from(*x);
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    };
+    for w in &ck.theta {
+        eat(&w.to_le_bytes());
+    }
+    eat(&ck.meta.steps.to_le_bytes());
+    eat(&ck.meta.task_hash.to_le_bytes());
+    h.max(1)
+}
+
+fn progress(
+    req: &RetrainRequest,
+    phase: RetrainPhase,
+    steps: u64,
+    ret: f64,
+    succ: f64,
+    t0: Instant,
+    policy_id: u64,
+) -> RetrainProgress {
+    RetrainProgress {
+        request_id: req.request_id,
+        steps_done: steps,
+        published_policy_id: policy_id,
+        mean_return: if ret.is_finite() { ret } else { 0.0 },
+        success_rate: succ,
+        wall_time_s: t0.elapsed().as_secs_f64(),
+        phase: phase as u8,
+        reserved: [0; 7],
+    }
+}
+
+/// Runs the service until `max_requests` are answered (or forever, or until SIGINT/SIGTERM).
+///
+/// # Errors
+/// Setup failures (task, checkpoint, iceoryx2); per-request failures are logged and the
+/// service carries on.
+pub fn serve(args: &ServeArgs, device: tch::Device) -> anyhow::Result<()> {
+    let env = TwinTask::load(&args.task, None)?;
+    let hash = env.task_hash();
+    let mut base_path = checkpoint::resolve(&args.checkpoint);
+    let base = Checkpoint::load(&base_path)?;
+    if base.meta.task_hash != hash {
+        tracing::warn!(
+            "base checkpoint task hash {:#x} differs from {}'s {hash:#x}: blobs will carry {hash:#x}",
+            base.meta.task_hash,
+            args.task.display()
+        );
+    }
+    let out_root = args.out.clone().unwrap_or_else(|| {
+        base_path
+            .parent()
+            .map_or_else(|| PathBuf::from("retrain"), |p| p.join("retrain"))
+    });
+    let (node, _) = services::create_node::<ipc::Service>("learner")
+        .map_err(|e| anyhow::anyhow!("iceoryx2 node: {e}"))?;
+    let requests = services::open_subscriber::<RetrainRequest, _>(&node, &args.prefix)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let blobs = services::open_publisher::<PolicyBlob, _>(&node, &args.prefix)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let progress_pub = services::open_publisher::<RetrainProgress, _>(&node, &args.prefix)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    tracing::info!(prefix = %args.prefix, base = %base_path.display(), "learner serve: waiting for retrain requests");
+
+    let drain = |latest: &mut Option<RetrainRequest>| {
+        while let Ok(Some(s)) = requests.receive() {
+            let r: RetrainRequest = *s.payload();
+            match r.validate() {
+                Ok(()) => *latest = Some(r),
+                Err(e) => tracing::warn!("rejected retrain request: {e}"),
+            }
+        }
+    };
+    let mut answered = 0u64;
+    let mut pending: Option<RetrainRequest> = None;
+    loop {
+        if pending.is_none() {
+            drain(&mut pending);
+        }
+        let Some(req) = pending.take() else {
+            if node.wait(Duration::from_millis(20)).is_err() {
+                break;
+            }
+            continue;
+        };
+        if req.task_config_hash != 0 && req.task_config_hash != hash {
+            tracing::warn!(
+                request = req.request_id,
+                "request for task hash {:#x}, serving {hash:#x}: training anyway",
+                req.task_config_hash
+            );
+        }
+        let scene = match Scene::from_file(&req.scene()) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::warn!(request = req.request_id, "unusable scene: {e:?}");
+                continue;
+            }
+        };
+        let t0 = Instant::now();
+        tracing::info!(
+            request = req.request_id,
+            obstacles = scene.obstacles.len(),
+            "retraining"
+        );
+        let base = Checkpoint::load(&base_path)?;
+        let mut cfg = base.meta.ppo.clone();
+        if args.workers > 0 {
+            cfg.workers = args.workers;
+        }
+        let mut trainer =
+            Trainer::new(cfg, env.clone(), base.meta.seed, device).map_err(anyhow::Error::msg)?;
+        base.restore(&mut trainer)?;
+        let sampler = RetrainSampler::new(&env, scene, Jitter::default(), args.old_share);
+        let eval_scenes = sampler.eval_scenes(args.eval_episodes, req.request_id);
+        let out_dir = out_root.join(format!("request-{}", req.request_id));
+        let _ = std::fs::remove_dir_all(&out_dir);
+        let opts = RunOptions {
+            out_dir: out_dir.clone(),
+            total_steps: trainer.steps + args.max_steps,
+            eval_every_steps: args.eval_every,
+            seed: base.meta.seed,
+            task_hash: hash,
+            time_budget: Some(Duration::from_secs_f64(args.time_budget_s)),
+            success_rule: Some(SuccessRule::default()),
+            title: format!("retraining, request {}", req.request_id),
+            progress: false,
+        };
+        let start_steps = trainer.steps;
+        let before: EvalResult = trainer.evaluate(&eval_scenes);
+        tracing::info!(
+            request = req.request_id,
+            success = before.success_rate,
+            collision = before.collision_rate,
+            "base policy on the reported scene"
+        );
+        let mut newer: Option<RetrainRequest> = None;
+        let sum = train(&mut trainer, &sampler, &eval_scenes, &opts, |st, eval| {
+            let (ret, succ) = eval.map_or((st.mean_return, st.success_rate), |e| {
+                (e.mean_return, e.success_rate)
+            });
+            let phase = if eval.is_some() {
+                RetrainPhase::Evaluating
+            } else {
+                RetrainPhase::Training
+            };
+            let _ = progress_pub.send_copy(progress(
+                &req,
+                phase,
+                st.steps - start_steps,
+                ret,
+                succ,
+                t0,
+                0,
+            ));
+            drain(&mut newer);
+            newer.is_none()
+        });
+        let sum = match sum {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::error!(request = req.request_id, "retraining failed: {e}");
+                continue;
+            }
+        };
+        if sum.stop == StopReason::Cancelled {
+            tracing::info!(request = req.request_id, "superseded by a newer request");
+            pending = newer;
+            continue;
+        }
+        let best = Checkpoint::load(&out_dir.join(checkpoint::BEST))?;
+        let id = policy_id_for(&best);
+        let mut ck = best.clone();
+        ck.meta.task_hash = hash;
+        let builder = export::builder(&ck, id);
+        // Written in place in shared memory: no stack copy of the ~320 KB blob.
+        let mut sample = blobs
+            .loan_uninit()
+            .map_err(|e| anyhow::anyhow!("loan: {e:?}"))?;
+        builder.write_into(PolicyBlob::init_zeroed(sample.payload_mut()))?;
+        // SAFETY: `init_zeroed` initialised every byte of the payload and `write_into`
+        // wrote a validated blob over it.
+        let sample = unsafe { sample.assume_init() };
+        sample.send().map_err(|e| anyhow::anyhow!("send: {e:?}"))?;
+        let e = best.meta.eval.unwrap_or_default();
+        let phase = if sum.stop == StopReason::Converged {
+            RetrainPhase::Published
+        } else {
+            RetrainPhase::BudgetExhausted
+        };
+        let _ = progress_pub.send_copy(progress(
+            &req,
+            phase,
+            sum.steps,
+            e.mean_return,
+            e.success_rate,
+            t0,
+            id,
+        ));
+        if sum.stop == StopReason::Converged {
+            tracing::info!(
+                request = req.request_id,
+                policy_id = id,
+                steps = sum.steps,
+                wall_s = sum.wall_s,
+                success = e.success_rate,
+                "converged; policy published"
+            );
+        } else {
+            tracing::warn!(request = req.request_id, policy_id = id, steps = sum.steps, wall_s = sum.wall_s, success = e.success_rate, stop = ?sum.stop, "budget exhausted before the success rule was met; best policy published anyway");
+        }
+        println!(
+            "{}",
+            serde_json::json!({"request_id": req.request_id, "policy_id": id, "stop": format!("{:?}", sum.stop), "steps": sum.steps, "wall_s": sum.wall_s, "before": before, "best": best.meta.eval})
+        );
+        base_path = out_dir.join(checkpoint::BEST);
+        answered += 1;
+        if args.max_requests > 0 && answered >= args.max_requests {
+            break;
+        }
+        if pending.is_none() {
+            pending = newer;
+        }
+    }
+    Ok(())
+}

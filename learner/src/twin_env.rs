@@ -1,0 +1,216 @@
+//! The rt-core twin as a training environment, and the scene distributions the learner
+//! trains on: the pre-training curriculum (random goal, one random small box between start
+//! and goal) and the retraining mix (the reported scene with randomisation around it, plus a
+//! share of the old distribution so the policy does not forget it).
+
+use std::path::Path;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rt_core::twin::{ACT_DIM, OBS_DIM, ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
+
+use crate::env::{Env, SceneSampler, StepInfo};
+
+/// Why the task could not be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum TaskLoadError {
+    /// The task file.
+    #[error("task config {path}: {message}")]
+    Task {
+        /// File.
+        path: String,
+        /// What was wrong.
+        message: String,
+    },
+    /// The robot model.
+    #[error("robot model {path}: {message}")]
+    Model {
+        /// File.
+        path: String,
+        /// What was wrong.
+        message: String,
+    },
+}
+
+/// The twin environment behind the [`Env`] interface.
+#[derive(Debug, Clone)]
+pub struct TwinTask {
+    /// The wrapped twin.
+    pub env: TwinEnv,
+}
+
+impl TwinTask {
+    /// Loads the task file and the robot model beside it (`xarm5.urdf` in the same folder
+    /// unless `urdf` is given).
+    ///
+    /// # Errors
+    /// [`TaskLoadError`].
+    pub fn load(task: &Path, urdf: Option<&Path>) -> Result<Self, TaskLoadError> {
+        let cfg = TaskConfig::load(task).map_err(|e| TaskLoadError::Task {
+            path: task.display().to_string(),
+            message: format!("{e:?}"),
+        })?;
+        let urdf_path = urdf
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| task.parent().unwrap_or(Path::new(".")).join("xarm5.urdf"));
+        let model = RobotModel::load(&urdf_path).map_err(|e| TaskLoadError::Model {
+            path: urdf_path.display().to_string(),
+            message: format!("{e:?}"),
+        })?;
+        Ok(Self {
+            env: TwinEnv::new(model, cfg),
+        })
+    }
+
+    /// Hash of the task configuration.
+    pub fn task_hash(&self) -> u64 {
+        self.env.config().hash()
+    }
+}
+
+impl Env for TwinTask {
+    type Scene = Scene;
+    fn obs_dim(&self) -> usize {
+        OBS_DIM
+    }
+    fn act_dim(&self) -> usize {
+        ACT_DIM
+    }
+    fn reset(&mut self, scene: &Scene, obs: &mut [f32]) {
+        obs.copy_from_slice(&self.env.reset(scene));
+    }
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> StepInfo {
+        let mut a = [0.0f32; ACT_DIM];
+        a.copy_from_slice(&action[..ACT_DIM]);
+        let out = self.env.step(&a);
+        obs.copy_from_slice(&out.obs);
+        StepInfo {
+            reward: out.reward,
+            terminated: out.terminated,
+            truncated: out.truncated,
+            success: out.task_done,
+            collision: !out.safe,
+        }
+    }
+}
+
+/// Pre-training scenes: the task's random goal and one random box of a class.
+#[derive(Debug, Clone)]
+pub struct CurriculumSampler {
+    env: TwinEnv,
+    /// Obstacle class.
+    pub class: ObstacleClass,
+}
+
+impl CurriculumSampler {
+    /// Small-obstacle scenes of `task`.
+    pub fn small(task: &TwinTask) -> Self {
+        Self {
+            env: task.env.clone(),
+            class: ObstacleClass::Small,
+        }
+    }
+}
+
+impl SceneSampler<Scene> for CurriculumSampler {
+    fn sample(&self, rng: &mut ChaCha8Rng) -> Scene {
+        self.env.sample_scene(rng, self.class)
+    }
+}
+
+/// Randomisation around a reported scene.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Jitter {
+    /// Goal and box centres move by up to this in x and y (m).
+    pub xy_m: f64,
+    /// Box extents are scaled by up to `1 ± size_frac`.
+    pub size_frac: f64,
+}
+
+impl Default for Jitter {
+    fn default() -> Self {
+        Self {
+            xy_m: 0.02,
+            size_frac: 0.1,
+        }
+    }
+}
+
+/// `scene` with goal and boxes moved/scaled at random within `jitter` (boxes stay on the
+/// table).
+pub fn jittered(scene: &Scene, jitter: Jitter, rng: &mut ChaCha8Rng) -> Scene {
+    let mut s = scene.clone();
+    let mut d = |r: f64| {
+        if r > 0.0 {
+            rng.random_range(-r..=r)
+        } else {
+            0.0
+        }
+    };
+    s.goal.center_m[0] += d(jitter.xy_m);
+    s.goal.center_m[1] += d(jitter.xy_m);
+    for b in s.obstacles.iter_mut() {
+        b.center_m[0] += d(jitter.xy_m);
+        b.center_m[1] += d(jitter.xy_m);
+        let bottom = b.center_m[2] - b.size_m[2] / 2.0;
+        for k in 0..3 {
+            b.size_m[k] *= 1.0 + d(jitter.size_frac);
+        }
+        b.center_m[2] = bottom + b.size_m[2] / 2.0;
+    }
+    s
+}
+
+/// Retraining scenes: with probability `old_share` a pre-training scene, otherwise the
+/// reported scene jittered.
+#[derive(Debug, Clone)]
+pub struct RetrainSampler {
+    /// The reported scene.
+    pub scene: Scene,
+    /// Randomisation around it.
+    pub jitter: Jitter,
+    /// Share of episodes drawn from the old (pre-training) distribution.
+    pub old_share: f64,
+    old: CurriculumSampler,
+}
+
+impl RetrainSampler {
+    /// Around `scene`, with `old_share` of `task`'s small-obstacle scenes.
+    pub fn new(task: &TwinTask, scene: Scene, jitter: Jitter, old_share: f64) -> Self {
+        Self {
+            scene,
+            jitter,
+            old_share,
+            old: CurriculumSampler::small(task),
+        }
+    }
+
+    /// Evaluation scenes for the reported scene: the scene itself and `n - 1` lightly
+    /// jittered variants (half the training jitter), drawn from `seed`.
+    pub fn eval_scenes(&self, n: usize, seed: u64) -> Vec<Scene> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let half = Jitter {
+            xy_m: self.jitter.xy_m / 2.0,
+            size_frac: self.jitter.size_frac / 2.0,
+        };
+        std::iter::once(self.scene.clone())
+            .chain((1..n).map(|_| jittered(&self.scene, half, &mut rng)))
+            .collect()
+    }
+}
+
+impl SceneSampler<Scene> for RetrainSampler {
+    fn sample(&self, rng: &mut ChaCha8Rng) -> Scene {
+        if rng.random::<f64>() < self.old_share {
+            self.old.sample(rng)
+        } else {
+            jittered(&self.scene, self.jitter, rng)
+        }
+    }
+}
+
+/// `n` scenes from `sampler` with a fixed seed (the evaluation set).
+pub fn fixed_scenes<S: SceneSampler<Scene>>(sampler: &S, n: usize, seed: u64) -> Vec<Scene> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..n).map(|_| sampler.sample(&mut rng)).collect()
+}
