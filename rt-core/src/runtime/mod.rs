@@ -30,6 +30,7 @@ pub mod rt_setup;
 pub mod shield;
 pub mod smoothing;
 pub mod toy;
+pub mod twin_adapter;
 pub mod twin_thread;
 
 /// Degrees of freedom of the xArm5 (the twin's `DOF`).
