@@ -10,8 +10,15 @@
 //! a constant of shape `[1, N]`, `N > 1`, whose output is the first input of the `Concat`
 //! that produces a graph output — becomes an `Identity`, and the strides are returned as
 //! [`PatchedModel::box_scale`]; the decoder multiplies the four box rows of the output by
-//! them, which is exactly what the removed node computed. A model with no such node is
-//! passed through untouched.
+//! them, which is exactly what the removed node computed.
+//!
+//! A second, smaller incompatibility: when several initializers are identical (e.g. the
+//! all-zero biases of a model with random or untrained weights), the PyTorch exporter keeps
+//! one and feeds the others through `Identity` nodes; OpenCV 4.6 cannot parse an `Identity`
+//! of a constant. Such nodes are folded: the output becomes an initializer of its own (a
+//! copy of the tensor under the output's name) and the node is dropped.
+//!
+//! A model needing neither rewrite is passed through untouched.
 
 /// Why a model could not be read or patched.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -37,8 +44,10 @@ pub struct PatchedModel {
     /// Per-anchor factors the decoder must apply to the four box rows, when a strides
     /// `Mul` was removed.
     pub box_scale: Option<Vec<f32>>,
-    /// Names of the nodes rewritten.
+    /// Names of the strides nodes rewritten.
     pub rewritten_nodes: Vec<String>,
+    /// `Identity` nodes of initializers folded into initializers.
+    pub folded_identities: usize,
 }
 
 // ---- protobuf wire format ----
@@ -273,6 +282,18 @@ fn identity_node(node: &Node<'_>, keep_input: &str) -> Result<Vec<u8>, OnnxPatch
     Ok(out)
 }
 
+/// A copy of a serialized `TensorProto` under another name.
+fn renamed_tensor(raw: &[u8], name: &str) -> Result<Vec<u8>, OnnxPatchError> {
+    let mut out = Vec::with_capacity(raw.len() + name.len());
+    for f in parse(raw)? {
+        if f.num != 8 {
+            out.extend_from_slice(f.raw);
+        }
+    }
+    write_bytes_field(&mut out, 8, name.as_bytes());
+    Ok(out)
+}
+
 /// Applies the rewrite described in the module docs.
 ///
 /// # Errors
@@ -287,6 +308,8 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
     let graph = bytes_of(graph_field).ok_or(OnnxPatchError::NoGraph)?;
     let gfields = parse(graph)?;
     let mut constants: std::collections::HashMap<String, Tensor> = std::collections::HashMap::new();
+    let mut initializer_bytes: std::collections::HashMap<String, &[u8]> =
+        std::collections::HashMap::new();
     let mut nodes = Vec::new();
     let mut graph_outputs = Vec::new();
     for f in &gfields {
@@ -295,9 +318,10 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
                 bytes_of(f).ok_or(OnnxPatchError::Malformed("node is not a message"))?,
             )?),
             5 => {
-                let (name, t) = parse_tensor(
-                    bytes_of(f).ok_or(OnnxPatchError::Malformed("initializer is not a message"))?,
-                )?;
+                let raw =
+                    bytes_of(f).ok_or(OnnxPatchError::Malformed("initializer is not a message"))?;
+                let (name, t) = parse_tensor(raw)?;
+                initializer_bytes.insert(name.clone(), raw);
                 constants.insert(name, t);
             }
             12 => {
@@ -364,18 +388,32 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
         });
         box_scale = Some(floats);
     }
-    if replace.is_empty() {
+    let mut dropped: Vec<usize> = Vec::new();
+    let mut new_initializers: Vec<Vec<u8>> = Vec::new();
+    for (i, n) in nodes.iter().enumerate() {
+        if n.op_type == "Identity" && n.inputs.len() == 1 && n.outputs.len() == 1 {
+            if let Some(raw) = initializer_bytes.get(&n.inputs[0]) {
+                new_initializers.push(renamed_tensor(raw, &n.outputs[0])?);
+                dropped.push(i);
+            }
+        }
+    }
+    let folded_identities = dropped.len();
+    if replace.is_empty() && dropped.is_empty() {
         return Ok(PatchedModel {
             onnx: model.to_vec(),
             box_scale: None,
             rewritten_nodes: rewritten,
+            folded_identities,
         });
     }
     let mut new_graph = Vec::with_capacity(graph.len());
     let mut node_idx = 0;
     for f in &gfields {
         if f.num == 1 {
-            if let Some((_, bytes)) = replace.iter().find(|(i, _)| *i == node_idx) {
+            if dropped.contains(&node_idx) {
+                // folded into an initializer below
+            } else if let Some((_, bytes)) = replace.iter().find(|(i, _)| *i == node_idx) {
                 write_bytes_field(&mut new_graph, 1, bytes);
             } else {
                 new_graph.extend_from_slice(f.raw);
@@ -384,6 +422,9 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
         } else {
             new_graph.extend_from_slice(f.raw);
         }
+    }
+    for t in &new_initializers {
+        write_bytes_field(&mut new_graph, 5, t);
     }
     let mut new_model = Vec::with_capacity(model.len());
     for f in &fields {
@@ -397,6 +438,7 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
         onnx: new_model,
         box_scale,
         rewritten_nodes: rewritten,
+        folded_identities,
     })
 }
 
@@ -469,6 +511,36 @@ mod tests {
         let again = patch_for_opencv(&p.onnx).unwrap();
         assert!(again.box_scale.is_none());
         assert_eq!(again.onnx, p.onnx);
+    }
+
+    #[test]
+    fn identities_of_initializers_become_initializers() {
+        let mut g = Vec::new();
+        write_bytes_field(&mut g, 1, &node(&["bias_a"], "bias_b", "Identity"));
+        write_bytes_field(&mut g, 1, &node(&["x", "bias_b"], "y", "Add"));
+        write_bytes_field(&mut g, 5, &tensor("bias_a", &[1, 2], &[0.5, 0.25]));
+        let mut m = Vec::new();
+        write_bytes_field(&mut m, 7, &g);
+        let p = patch_for_opencv(&m).unwrap();
+        assert_eq!(p.folded_identities, 1);
+        let f = parse(&p.onnx).unwrap();
+        let g = parse(bytes_of(&f[0]).unwrap()).unwrap();
+        let nodes: Vec<Node<'_>> = g
+            .iter()
+            .filter(|f| f.num == 1)
+            .map(|f| parse_node(bytes_of(f).unwrap()).unwrap())
+            .collect();
+        assert_eq!(nodes.len(), 1);
+        assert_eq!(nodes[0].op_type, "Add");
+        let inits: Vec<(String, Tensor)> = g
+            .iter()
+            .filter(|f| f.num == 5)
+            .map(|f| parse_tensor(bytes_of(f).unwrap()).unwrap())
+            .collect();
+        assert_eq!(inits.len(), 2);
+        assert_eq!(inits[1].0, "bias_b");
+        assert_eq!(inits[1].1.dims, vec![1, 2]);
+        assert_eq!(inits[1].1.floats.as_deref(), Some(&[0.5f32, 0.25][..]));
     }
 
     #[test]

@@ -370,6 +370,33 @@ impl YoloDetector {
         }
     }
 
+    /// Runs the network on a ready `[1, 3, S, S]` float blob and returns the output as the
+    /// stock model defines it (`[1, 4 + C, N]`, channels-major), with the strides removed
+    /// by the loader applied again — to compare against the original model's output.
+    ///
+    /// # Errors
+    /// [`DetectError`].
+    pub fn forward_blob(&mut self, blob: &Mat) -> Result<(usize, usize, Vec<f32>), DetectError> {
+        self.net.set_input(blob, "", 1.0, Scalar::default())?;
+        let out = self.net.forward_single("")?;
+        let dims: Vec<i32> = out.mat_size().iter().copied().collect();
+        let [1, c, n] = dims[..] else {
+            return Err(DetectError::Model(format!(
+                "unexpected output shape {dims:?}"
+            )));
+        };
+        let (c, n) = (c as usize, n as usize);
+        let mut v = out.data_typed::<f32>()?.to_vec();
+        if let Some(s) = &self.box_scale {
+            for row in 0..4 {
+                for a in 0..n {
+                    v[row * n + a] *= s[a];
+                }
+            }
+        }
+        Ok((c, n, v))
+    }
+
     /// Detects objects; with a calibration and depth, measures each box's 3D extent.
     ///
     /// # Errors

@@ -2,3 +2,4 @@
 
 mod accuracy;
 mod common;
+mod yolo_models;
