@@ -113,6 +113,9 @@ pub enum XArmError {
     /// The controller reports an error code; motion is refused until it is cleared.
     #[error("controller error: {0}")]
     Controller(ControllerError),
+    /// A reply carried the error bit; the code is being read (`GET_ERROR` in flight).
+    #[error("controller flagged an error; reading its code")]
+    ErrorPending,
     /// The controller cannot move (status bit 4: stopped, not enabled, wrong mode).
     #[error("controller not ready to move (state {state}, mode {mode})")]
     NotReady {
@@ -724,6 +727,9 @@ impl XArmDriver {
         match result {
             Ok(q) => {
                 self.reconnects += 1;
+                if let Some(st) = self.state.as_mut() {
+                    st.reconnects = self.reconnects;
+                }
                 self.resume_from = Some(q);
                 self.backoff_ns = self.cfg.backoff_initial_ns;
                 tracing::info!(reconnects = self.reconnects, "xArm link re-established");
@@ -920,7 +926,7 @@ impl XArmDriver {
     ///
     /// # Errors
     /// [`XArmError::JointLimit`] (nothing sent), [`XArmError::Controller`] while the
-    /// controller has an error, [`XArmError::NotReady`] when the controller refused an earlier
+    /// controller has an error ([`XArmError::ErrorPending`] until its code is read), [`XArmError::NotReady`] when the controller refused an earlier
     /// target (reported once), [`XArmError::ResumeJump`] after a reconnect,
     /// [`XArmError::Backlog`], [`XArmError::Disconnected`].
     ///
@@ -936,7 +942,7 @@ impl XArmDriver {
             return Err(XArmError::Controller(self.error));
         }
         if self.error_bit_seen {
-            return Err(XArmError::Controller(ControllerError::Unknown(0)));
+            return Err(XArmError::ErrorPending);
         }
         if self.not_ready_seen {
             self.not_ready_seen = false;

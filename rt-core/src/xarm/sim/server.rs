@@ -499,7 +499,8 @@ fn report_loop(s: &Shared, kind: ReportKind, l: &TcpListener) {
             continue;
         }
         next += period;
-        if next < now {
+        if next + 10 * period < now {
+            // Far behind (suspended, overloaded): resynchronise instead of bursting.
             next = now + period;
         }
         if clients.is_empty() {
