@@ -49,5 +49,5 @@ pub use policy_blob::{
 pub use policy_builder::{PolicyBlobBuilder, PolicyBuildError};
 pub use retrain::{ObstacleBox, RetrainPhase, RetrainProgress, RetrainRequest};
 pub use robot_state::{N_JOINTS, RobotState, StopReason};
-pub use services::{ShmMessage, ShmOpenError, open_publisher, open_subscriber};
+pub use services::{ShmMessage, ShmOpenError, loan_zeroed, open_publisher, open_subscriber};
 pub use verdict::{EpisodeEnd, TwinVerdict};

@@ -141,7 +141,7 @@ pub struct PolicyBlob {
 }
 
 const _: () = assert!(size_of::<PolicyBlob>() == 360 + 4 * MAX_WEIGHTS);
-const _: () = assert!(size_of::<PolicyBlob>() % align_of::<PolicyBlob>() == 0);
+const _: () = assert!(size_of::<PolicyBlob>().is_multiple_of(align_of::<PolicyBlob>()));
 
 /// Number of weight values a network with these dimensions needs.
 pub fn required_weights(obs_dim: usize, hidden: &[usize], act_dim: usize) -> usize {

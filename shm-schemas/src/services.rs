@@ -19,9 +19,11 @@
 use core::fmt::Debug;
 
 use iceoryx2::node::{CleanupState, Node, NodeBuilder, NodeCreationFailure};
+use iceoryx2::port::LoanError;
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::{Subscriber, SubscriberCreateError};
-use iceoryx2::prelude::{AttributeVerifier, NodeName, ServiceName, ZeroCopySend};
+use iceoryx2::prelude::{AttributeVerifier, Config, NodeName, ServiceName, ZeroCopySend};
+use iceoryx2::sample_mut::SampleMut;
 use iceoryx2::service::Service;
 use iceoryx2::service::attribute::{AttributeKey, AttributeValue};
 use iceoryx2::service::builder::publish_subscribe::{
@@ -73,7 +75,12 @@ pub struct QueueSettings {
 }
 
 /// A payload type bound to its service: name, schema version, queue settings, validation.
-pub trait ShmMessage: Debug + ZeroCopySend + Sized + 'static {
+///
+/// # Safety
+/// Implementors guarantee that the all-zero bit pattern is a valid value of the type
+/// (every field an integer, a float or an array/struct of them — no `bool`, no Rust enum,
+/// no reference), which [`loan_zeroed`] relies on.
+pub unsafe trait ShmMessage: Debug + ZeroCopySend + Sized + 'static {
     /// Base service name (one of the constants of this module).
     const SERVICE: &'static str;
     /// Schema version, carried as the `foresight.schema_version` attribute.
@@ -103,7 +110,9 @@ const EVENTS: QueueSettings = QueueSettings {
 
 macro_rules! message {
     ($ty:ty, $service:expr, $queue:expr) => {
-        impl ShmMessage for $ty {
+        // SAFETY: every payload of this crate consists only of integers, floats and arrays
+        // or `repr(C)` structs of them (flags and enums are stored as `u8`), so all-zero is valid.
+        unsafe impl ShmMessage for $ty {
             const SERVICE: &'static str = $service;
             const SCHEMA_VERSION: u32 = <$ty>::SCHEMA_VERSION;
             const QUEUE: QueueSettings = $queue;
@@ -268,6 +277,35 @@ pub fn open_subscriber<T: ShmMessage, S: Service>(
         })
 }
 
+/// Loans a sample whose payload is zeroed in place in shared memory, ready to be filled
+/// field by field — the way to publish a large payload ([`PolicyBlob`], ~320 KB) without a
+/// stack copy:
+///
+/// ```no_run
+/// # use iceoryx2::prelude::*;
+/// # use shm_schemas::{PolicyBlob, PolicyBlobBuilder, services};
+/// # let (node, _) = services::create_node::<ipc::Service>("learner").unwrap();
+/// let publisher = services::open_publisher::<PolicyBlob, _>(&node, "run42").unwrap();
+/// let builder = PolicyBlobBuilder::random(1, 0xabc, 17, &[256, 256], 3, 7);
+/// let mut sample = services::loan_zeroed(&publisher).unwrap();
+/// builder.write_into(sample.payload_mut()).unwrap();
+/// sample.send().unwrap();
+/// ```
+///
+/// # Errors
+/// iceoryx2's [`LoanError`] (e.g. all samples loaned out).
+pub fn loan_zeroed<T: ShmMessage, S: Service>(
+    publisher: &Publisher<S, T, ()>,
+) -> Result<SampleMut<S, T, ()>, LoanError> {
+    let mut sample = publisher.loan_uninit()?;
+    // SAFETY: `write_bytes` initialises every byte of the payload, and `ShmMessage`
+    // guarantees the all-zero pattern is a valid `T`.
+    unsafe {
+        core::ptr::write_bytes(sample.payload_mut().as_mut_ptr(), 0, 1);
+        Ok(sample.assume_init())
+    }
+}
+
 /// Why a node could not be created.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum NodeCreateError {
@@ -285,10 +323,25 @@ pub enum NodeCreateError {
 ///
 /// # Errors
 /// [`NodeCreateError`].
+///
+/// iceoryx2's default configuration also cleans dead nodes on node creation and service
+/// open; this explicit pass keeps the guarantee when a deployment's config turns those off.
 pub fn create_node<S: Service>(name: &str) -> Result<(Node<S>, CleanupState), NodeCreateError> {
+    create_node_with_config(name, Config::global_config())
+}
+
+/// As [`create_node`] with an explicit iceoryx2 configuration.
+///
+/// # Errors
+/// [`NodeCreateError`].
+pub fn create_node_with_config<S: Service>(
+    name: &str,
+    config: &Config,
+) -> Result<(Node<S>, CleanupState), NodeCreateError> {
     let name = NodeName::new(name).map_err(|_| NodeCreateError::InvalidName)?;
     let node = NodeBuilder::new()
         .name(&name)
+        .config(config)
         .create::<S>()
         .map_err(NodeCreateError::Create)?;
     let cleanup = node.try_cleanup_dead_nodes();

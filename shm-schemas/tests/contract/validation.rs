@@ -1,0 +1,322 @@
+//! `validate()` rejects NaN, counts beyond capacity and bad enum bytes.
+
+use shm_schemas::*;
+
+use crate::roundtrip::{detection_frame, retrain_progress, retrain_request, robot_state, verdict};
+
+#[test]
+fn samples_are_valid() {
+    detection_frame().validate().unwrap();
+    verdict().validate().unwrap();
+    retrain_request().validate().unwrap();
+    robot_state().validate().unwrap();
+    retrain_progress().validate().unwrap();
+}
+
+#[test]
+fn detection_frame_rejects_bad_input() {
+    let mut f = detection_frame();
+    f.objects[0].center_m[1] = f32::NAN;
+    assert_eq!(
+        f.validate(),
+        Err(SchemaError::NonFinite { field: "center_m" })
+    );
+
+    let mut f = detection_frame();
+    f.count = 17;
+    assert_eq!(
+        f.validate(),
+        Err(SchemaError::CountOverCapacity {
+            field: "count",
+            count: 17,
+            capacity: 16
+        })
+    );
+
+    let mut f = detection_frame();
+    f.objects[1].class = 3;
+    assert_eq!(
+        f.validate(),
+        Err(SchemaError::BadEnum {
+            field: "class",
+            value: 3
+        })
+    );
+
+    let mut f = detection_frame();
+    f.objects[1].size_m[2] = -0.1;
+    assert_eq!(
+        f.validate(),
+        Err(SchemaError::OutOfRange { field: "size_m" })
+    );
+
+    let mut f = detection_frame();
+    f.objects[0].confidence = 1.5;
+    assert_eq!(
+        f.validate(),
+        Err(SchemaError::OutOfRange {
+            field: "confidence"
+        })
+    );
+
+    // Garbage beyond `count` is ignored.
+    let mut f = detection_frame();
+    f.objects[5].center_m[0] = f32::INFINITY;
+    f.objects[5].class = 200;
+    assert_eq!(f.validate(), Ok(()));
+
+    // A full frame refuses another object.
+    let mut f = DetectionFrame::default();
+    for i in 0..MAX_DETECTIONS {
+        assert!(f.push(detection_frame().objects[i % 2]));
+    }
+    assert!(!f.push(detection_frame().objects[0]));
+    assert_eq!(f.validate(), Ok(()));
+}
+
+#[test]
+fn verdict_rejects_bad_input() {
+    let mut v = verdict();
+    v.min_distance_m = f64::NAN;
+    assert_eq!(
+        v.validate(),
+        Err(SchemaError::NonFinite {
+            field: "min_distance_m"
+        })
+    );
+    let mut v = verdict();
+    v.safe = 2;
+    assert_eq!(
+        v.validate(),
+        Err(SchemaError::BadEnum {
+            field: "safe",
+            value: 2
+        })
+    );
+    let mut v = verdict();
+    v.episode_end = 0;
+    assert_eq!(
+        v.validate(),
+        Err(SchemaError::BadEnum {
+            field: "episode_end",
+            value: 0
+        })
+    );
+    let mut v = verdict();
+    v.plan_approved = 1; // approved although the task failed
+    assert_eq!(
+        v.validate(),
+        Err(SchemaError::OutOfRange {
+            field: "plan_approved"
+        })
+    );
+}
+
+#[test]
+fn retrain_request_rejects_bad_input() {
+    let mut r = retrain_request();
+    r.obstacle_count = 9;
+    assert_eq!(
+        r.validate(),
+        Err(SchemaError::CountOverCapacity {
+            field: "obstacle_count",
+            count: 9,
+            capacity: 8
+        })
+    );
+    let mut r = retrain_request();
+    r.obstacles[0].size_m[0] = f64::INFINITY;
+    assert_eq!(
+        r.validate(),
+        Err(SchemaError::NonFinite {
+            field: "obstacles.size_m"
+        })
+    );
+    let mut r = retrain_request();
+    r.goal_size_m = 0.0;
+    assert_eq!(
+        r.validate(),
+        Err(SchemaError::OutOfRange {
+            field: "goal_size_m"
+        })
+    );
+    let mut r = retrain_request();
+    r.verdict.task_ok = 7;
+    assert_eq!(
+        r.validate(),
+        Err(SchemaError::BadEnum {
+            field: "task_ok",
+            value: 7
+        })
+    );
+}
+
+#[test]
+fn robot_state_rejects_bad_input() {
+    let mut s = robot_state();
+    s.joints_rad[4] = f64::NEG_INFINITY;
+    assert_eq!(
+        s.validate(),
+        Err(SchemaError::NonFinite {
+            field: "joints_rad"
+        })
+    );
+    let mut s = robot_state();
+    s.stop_reason = 99;
+    assert_eq!(
+        s.validate(),
+        Err(SchemaError::BadEnum {
+            field: "stop_reason",
+            value: 99
+        })
+    );
+    let mut s = robot_state();
+    s.controlled_stop = 255;
+    assert_eq!(
+        s.validate(),
+        Err(SchemaError::BadEnum {
+            field: "controlled_stop",
+            value: 255
+        })
+    );
+}
+
+#[test]
+fn retrain_progress_rejects_bad_input() {
+    let mut p = retrain_progress();
+    p.phase = 0;
+    assert_eq!(
+        p.validate(),
+        Err(SchemaError::BadEnum {
+            field: "phase",
+            value: 0
+        })
+    );
+    let mut p = retrain_progress();
+    p.mean_return = f64::NAN;
+    assert_eq!(
+        p.validate(),
+        Err(SchemaError::NonFinite {
+            field: "mean_return"
+        })
+    );
+    let mut p = retrain_progress();
+    p.success_rate = 1.01;
+    assert_eq!(
+        p.validate(),
+        Err(SchemaError::OutOfRange {
+            field: "success_rate"
+        })
+    );
+}
+
+fn policy() -> Box<PolicyBlob> {
+    PolicyBlobBuilder::random(1, 2, 17, &[64, 64], 3, 3)
+        .build()
+        .unwrap()
+}
+
+#[test]
+fn policy_blob_rejects_bad_input() {
+    let mut b = policy();
+    b.weights[100] = f32::NAN;
+    b.seal();
+    assert_eq!(
+        b.validate(),
+        Err(SchemaError::NonFinite { field: "weights" })
+    );
+
+    let mut b = policy();
+    b.weights[100] = 0.5;
+    assert!(matches!(
+        b.validate(),
+        Err(SchemaError::ChecksumMismatch { .. })
+    ));
+
+    let mut b = policy();
+    b.n_weights = (MAX_WEIGHTS + 1) as u32;
+    b.seal();
+    assert!(matches!(
+        b.validate(),
+        Err(SchemaError::CountOverCapacity {
+            field: "n_weights",
+            ..
+        })
+    ));
+
+    let mut b = policy();
+    b.obs_dim = 40;
+    b.seal();
+    assert!(matches!(
+        b.validate(),
+        Err(SchemaError::CountOverCapacity {
+            field: "obs_dim",
+            ..
+        })
+    ));
+
+    let mut b = policy();
+    b.n_hidden = 5;
+    b.seal();
+    assert!(matches!(
+        b.validate(),
+        Err(SchemaError::CountOverCapacity {
+            field: "n_hidden",
+            ..
+        })
+    ));
+
+    let mut b = policy();
+    b.hidden_sizes[3] = 8; // set beyond n_hidden
+    b.seal();
+    assert_eq!(
+        b.validate(),
+        Err(SchemaError::LayoutInvalid {
+            field: "hidden_sizes"
+        })
+    );
+
+    let mut b = policy();
+    b.output_activation = 3;
+    b.seal();
+    assert_eq!(
+        b.validate(),
+        Err(SchemaError::BadEnum {
+            field: "output_activation",
+            value: 3
+        })
+    );
+
+    let mut b = policy();
+    b.activation = Activation::Identity as u8;
+    b.seal();
+    assert_eq!(
+        b.validate(),
+        Err(SchemaError::OutOfRange {
+            field: "activation"
+        })
+    );
+
+    let mut b = policy();
+    b.obs_std[16] = -1.0;
+    b.seal();
+    assert_eq!(
+        b.validate(),
+        Err(SchemaError::OutOfRange { field: "obs_std" })
+    );
+
+    // Values in unused slots are covered by the checksum but not by the range checks.
+    let mut b = policy();
+    b.obs_std[20] = -1.0;
+    b.seal();
+    assert_eq!(b.validate(), Ok(()));
+}
+
+#[test]
+fn blob_copy_and_checksum_are_stable() {
+    let a = policy();
+    let b = a.to_boxed();
+    assert_eq!(*a, *b);
+    assert_eq!(a.compute_checksum(), b.compute_checksum());
+    assert_eq!(a.checksum, a.compute_checksum());
+}
