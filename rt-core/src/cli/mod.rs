@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod bench_loop;
 mod twin;
 
 /// Foresight's real-time core.
@@ -20,6 +21,8 @@ enum Command {
     /// Query the digital twin (kinematics, distances, rollouts); prints one JSON object.
     #[command(subcommand)]
     Twin(twin::TwinCommand),
+    /// Latency and jitter harness of the full cycle; prints one JSON object.
+    BenchLoop(bench_loop::BenchLoopArgs),
 }
 
 /// Parses the command line and runs the chosen subcommand.
@@ -27,5 +30,6 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Twin(cmd) => twin::run(cmd),
+        Command::BenchLoop(args) => bench_loop::run(args),
     }
 }

@@ -118,9 +118,27 @@ pub fn set_fifo(priority: i32) -> Result<(), i32> {
 ///
 /// # Errors
 /// The errno of `mlockall` (`EPERM`/`ENOMEM` under a small `ulimit -l`).
+///
+/// `MCL_FUTURE` is only asked for when the memlock limit is unlimited or the process runs as
+/// root (CAP_IPC_LOCK): under a finite limit it would make later allocations fail once the
+/// limit is reached, so only the current pages are locked then.
 pub fn lock_memory() -> Result<(), i32> {
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: `lim` is a valid, writable rlimit.
+    let got = unsafe { libc::getrlimit(libc::RLIMIT_MEMLOCK, &mut lim) } == 0;
+    // SAFETY: geteuid has no preconditions.
+    let root = unsafe { libc::geteuid() } == 0;
+    let future = root || (got && lim.rlim_cur == libc::RLIM_INFINITY);
+    let flags = if future {
+        libc::MCL_CURRENT | libc::MCL_FUTURE
+    } else {
+        libc::MCL_CURRENT
+    };
     // SAFETY: mlockall takes only flags and touches no memory of ours.
-    let rc = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
+    let rc = unsafe { libc::mlockall(flags) };
     if rc == 0 { Ok(()) } else { Err(last_errno()) }
 }
 

@@ -1,0 +1,282 @@
+//! `rt-core bench-loop`: the latency and jitter harness. Runs the full cycle — the twin's
+//! shield model on a synthetic scene, Ruckig-smoothed plans from the twin lookahead with
+//! real policy blobs (random weights) hot-swapped every few milliseconds, the in-process
+//! arm — on a real clock for a few seconds, and prints one JSON object: wake-up latency and
+//! cycle compute histograms (µs), missed deadlines, allocations counted on the cycle thread,
+//! swaps, lookahead times. A watchdog aborts with exit code 3 when the cycle stops beating.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use clap::Args;
+use rt_core::policy::{MlpPolicy, PolicyExpectation, PolicyLoader};
+use rt_core::runtime::alloc_count;
+use rt_core::runtime::clock::{Clock, MonotonicClock};
+use rt_core::runtime::config::RuntimeConfig;
+use rt_core::runtime::cycle::{self, Cycle, CycleConfig, LoopStats};
+use rt_core::runtime::link::InProcessArm;
+use rt_core::runtime::rt_setup::{self, RtRequest};
+use rt_core::runtime::shield::{Shield, ShieldLimits};
+use rt_core::runtime::smoothing::Brake;
+use rt_core::runtime::twin_adapter::{LookaheadActions, SceneSnapshot, TwinLookahead, TwinModel};
+use rt_core::runtime::twin_thread::{TwinEvent, TwinWorker};
+use rt_core::twin::{ACT_DIM, BoxObstacle, Goal, OBS_DIM, RobotModel, Scene, TaskConfig};
+use shm_schemas::PolicyBlobBuilder;
+
+/// Arguments of `bench-loop`.
+#[derive(Debug, Args)]
+pub struct BenchLoopArgs {
+    /// Cycle rate, Hz.
+    #[arg(long, default_value_t = 250.0)]
+    rate: f64,
+    /// Duration of the measured run, s.
+    #[arg(long, default_value_t = 3.0)]
+    seconds: f64,
+    /// Pin the cycle thread to this CPU.
+    #[arg(long)]
+    cpu: Option<usize>,
+    /// Ask for SCHED_FIFO at this priority for the cycle thread.
+    #[arg(long)]
+    rt_priority: Option<i32>,
+    /// Do not lock memory.
+    #[arg(long)]
+    no_mlock: bool,
+    /// Period of policy hot-swaps, ms (0 = none after the first).
+    #[arg(long, default_value_t = 50)]
+    swap_every_ms: u64,
+    /// Folder with runtime.toml, xarm5.urdf and task.toml.
+    #[arg(long, default_value = "assets")]
+    assets: PathBuf,
+}
+
+/// Loads the runtime config (with `rate_hz` overridden), the robot model and the task.
+pub(crate) fn load_assets(
+    assets: &Path,
+    rate_hz: Option<f64>,
+    config: Option<&Path>,
+) -> anyhow::Result<(RuntimeConfig, RobotModel, TaskConfig)> {
+    let cfg_path = config.map_or_else(|| assets.join("runtime.toml"), Path::to_path_buf);
+    let mut cfg = RuntimeConfig::load(&cfg_path)
+        .with_context(|| format!("loading {}", cfg_path.display()))?;
+    if let Some(r) = rate_hz {
+        cfg.rate_hz = r;
+        cfg.validate().context("--rate")?;
+    }
+    let model = RobotModel::load(&assets.join("xarm5.urdf")).context("loading xarm5.urdf")?;
+    let task = TaskConfig::load(&assets.join("task.toml")).context("loading task.toml")?;
+    Ok((cfg, model, task))
+}
+
+/// The bench's synthetic scene: a goal in reach and one small box off the path.
+pub(crate) fn synthetic_scene() -> SceneSnapshot {
+    let mut s = Scene::empty(
+        0.0,
+        Goal {
+            center_m: [0.35, 0.15, 0.025],
+            size_m: 0.05,
+        },
+    );
+    let _ = s.obstacles.push(BoxObstacle {
+        center_m: [0.30, -0.30, 0.03],
+        size_m: [0.04, 0.04, 0.06],
+    });
+    SceneSnapshot::from_scene(&s)
+}
+
+/// A prepared random-weight policy for the running task.
+pub(crate) fn random_policy(
+    loader: &PolicyLoader,
+    id: u64,
+    task_hash: u64,
+) -> anyhow::Result<Box<MlpPolicy>> {
+    let blob = PolicyBlobBuilder::random(id, task_hash, OBS_DIM, &[64, 64], ACT_DIM, id)
+        .build()
+        .map_err(|e| anyhow::anyhow!("building a random policy blob: {e:?}"))?;
+    let p = loader
+        .prepare(&blob)
+        .map_err(|e| anyhow::anyhow!("random policy rejected: {e:?}"))?;
+    Ok(Box::new(p))
+}
+
+fn percentile_ms(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    let i = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len()) - 1;
+    sorted[i] * 1e3
+}
+
+/// Runs the bench.
+pub fn run(args: BenchLoopArgs) -> ExitCode {
+    match bench(&args) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("bench-loop: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
+    let (cfg, model, task) = load_assets(&args.assets, Some(args.rate), None)?;
+    let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
+    let task_hash = task.hash();
+    let lookahead = TwinLookahead::new(
+        model.clone(),
+        task,
+        LookaheadActions::ScriptedWithPolicyCost,
+    );
+    let start_q = lookahead.start_q_rad();
+    let (twin_io, cycle_io, log_drain) = cycle::wire::<SceneSnapshot>();
+    let arm = InProcessArm::new(
+        start_q,
+        cfg.limits.joint_min_rad,
+        cfg.limits.joint_max_rad,
+        [std::f64::consts::PI; 5],
+    );
+    let clock = MonotonicClock::new();
+    let mut cyc = Cycle::new(
+        CycleConfig::from_runtime(&cfg),
+        Shield::new(TwinModel::new(model.clone()), limits),
+        Brake::new(&cfg.limits),
+        arm,
+        cycle_io,
+    );
+    cyc.start(clock.now_ns())
+        .map_err(|e| anyhow::anyhow!("starting the cycle: {e}"))?;
+    let mut twin = TwinWorker::new(
+        &cfg,
+        lookahead,
+        Shield::new(TwinModel::new(model), limits),
+        twin_io,
+    );
+
+    let stop = Arc::new(AtomicBool::new(false));
+    let heartbeat = Arc::new(AtomicU64::new(0));
+    let log_thread = log_drain.spawn(Duration::from_millis(20), stop.clone())?;
+
+    // Twin thread: detections at 30 Hz, a new random policy every swap period.
+    let loader = PolicyLoader::new(PolicyExpectation::for_task(task_hash));
+    let scene = synthetic_scene();
+    let swap_every = Duration::from_millis(args.swap_every_ms);
+    let twin_stop = stop.clone();
+    let twin_thread =
+        std::thread::Builder::new()
+            .name("twin".into())
+            .spawn(move || -> anyhow::Result<_> {
+                let mut events = Vec::new();
+                let mut lookahead_s = Vec::new();
+                let (mut swaps, mut approved, mut retrains, mut rejected) =
+                    (0u64, 0u64, 0u64, 0u64);
+                let mut next_id = 1;
+                let mut last_det = Instant::now() - Duration::from_secs(1);
+                let mut last_swap: Option<Instant> = None;
+                while !twin_stop.load(Ordering::Acquire) {
+                    if last_det.elapsed() >= Duration::from_millis(33) {
+                        twin.on_detection(scene, clock.now_ns(), &mut events);
+                        last_det = Instant::now();
+                    }
+                    let due = match last_swap {
+                        None => true,
+                        Some(t) => !swap_every.is_zero() && t.elapsed() >= swap_every,
+                    };
+                    if due {
+                        twin.on_policy(random_policy(&loader, next_id, task_hash)?, &mut events);
+                        next_id += 1;
+                        swaps += 1;
+                        last_swap = Some(Instant::now());
+                    }
+                    twin.step(&mut events);
+                    for e in events.drain(..) {
+                        match e {
+                            TwinEvent::Verdict { elapsed_s, .. } => lookahead_s.push(elapsed_s),
+                            TwinEvent::PlanApproved { .. } => approved += 1,
+                            TwinEvent::Retrain { .. } => retrains += 1,
+                            TwinEvent::PlanRejected { .. } => rejected += 1,
+                            _ => {}
+                        }
+                    }
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+                Ok((lookahead_s, swaps, approved, retrains, rejected))
+            })?;
+
+    // Cycle thread.
+    let req = RtRequest {
+        cpu: args.cpu,
+        rt_priority: args.rt_priority,
+        lock_memory: !args.no_mlock,
+    };
+    let cyc_stop = stop.clone();
+    let hb = heartbeat.clone();
+    let cycle_thread = std::thread::Builder::new()
+        .name("cycle".into())
+        .spawn(move || {
+            let rt = rt_setup::apply(&req);
+            let mut stats = LoopStats::default();
+            alloc_count::count_this_thread(true);
+            let before = alloc_count::counted();
+            cycle::run_loop(&mut cyc, &clock, &cyc_stop, &hb, &mut stats);
+            let allocs = alloc_count::counted() - before;
+            alloc_count::count_this_thread(false);
+            (stats, rt, allocs, *cyc.report())
+        })?;
+
+    // Watchdog.
+    let t0 = Instant::now();
+    let mut last_beat = 0;
+    let mut last_change = Instant::now();
+    while t0.elapsed().as_secs_f64() < args.seconds {
+        std::thread::sleep(Duration::from_millis(100));
+        let b = heartbeat.load(Ordering::Acquire);
+        if b != last_beat {
+            last_beat = b;
+            last_change = Instant::now();
+        } else if last_change.elapsed() > Duration::from_secs(2) {
+            println!(
+                "{}",
+                serde_json::json!({"error": "watchdog: the cycle stopped beating", "cycles": b})
+            );
+            return Ok(ExitCode::from(3));
+        }
+    }
+    stop.store(true, Ordering::Release);
+    let (stats, rt, allocs, report) = cycle_thread
+        .join()
+        .map_err(|_| anyhow::anyhow!("cycle thread panicked"))?;
+    let (mut lookahead_s, swaps, approved, retrains, rejected) = twin_thread
+        .join()
+        .map_err(|_| anyhow::anyhow!("twin thread panicked"))??;
+    let _ = log_thread.join();
+    lookahead_s.sort_by(f64::total_cmp);
+    let s = stats.summary();
+    let out = serde_json::json!({
+        "rate_hz": cfg.rate_hz,
+        "seconds": args.seconds,
+        "cycles": s.cycles,
+        "missed_deadlines": s.missed_deadlines,
+        "missed_ratio": if s.cycles > 0 { s.missed_deadlines as f64 / s.cycles as f64 } else { 0.0 },
+        "wakeup_latency_us": s.wakeup_latency_us,
+        "cycle_compute_us": s.cycle_compute_us,
+        "allocations_in_cycle": allocs,
+        "policy_swaps": swaps,
+        "plans_approved": approved,
+        "plans_taken_by_cycle": report.plans_taken,
+        "plans_rejected": rejected,
+        "retrain_requests": retrains,
+        "stops": report.stops,
+        "lookahead_ms": {
+            "count": lookahead_s.len(),
+            "p50": percentile_ms(&lookahead_s, 0.5),
+            "p99": percentile_ms(&lookahead_s, 0.99),
+            "max": percentile_ms(&lookahead_s, 1.0),
+        },
+        "rt_setup": rt,
+    });
+    println!("{out}");
+    Ok(ExitCode::SUCCESS)
+}
