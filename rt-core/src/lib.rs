@@ -5,6 +5,7 @@
 
 #![deny(clippy::unwrap_used)]
 pub mod policy;
+pub mod ros_bridge;
 pub mod runtime;
 pub mod twin;
 pub mod xarm;

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod bench_loop;
+mod ros_bridge;
 mod twin;
 
 /// Foresight's real-time core.
@@ -21,6 +22,8 @@ enum Command {
     /// Query the digital twin (kinematics, distances, rollouts); prints one JSON object.
     #[command(subcommand)]
     Twin(twin::TwinCommand),
+    /// Republish robot state, scene and verdicts over ROS 2 (for RViz).
+    RosBridge(ros_bridge::RosBridgeArgs),
     /// Latency and jitter harness of the full cycle; prints one JSON object.
     BenchLoop(bench_loop::BenchLoopArgs),
 }
@@ -30,6 +33,7 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Twin(cmd) => twin::run(cmd),
+        Command::RosBridge(args) => ros_bridge::run(args),
         Command::BenchLoop(args) => bench_loop::run(args),
     }
 }
