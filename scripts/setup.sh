@@ -27,7 +27,8 @@ venv="$cache/venv-torch-$torch_version-$variant"
 say() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
 
 # ---- 1. Debian packages ------------------------------------------------------------------
-apt_pkgs=(clang libclang-dev libopencv-dev pkg-config iproute2 python3-venv)
+apt_pkgs=(clang libclang-dev libopencv-dev pkg-config iproute2 util-linux python3-venv
+          libfontconfig1-dev libfreetype-dev fonts-dejavu-core)
 missing=()
 for p in "${apt_pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
