@@ -110,6 +110,37 @@ fn percentile_ms(sorted: &[f64], q: f64) -> f64 {
     sorted[i] * 1e3
 }
 
+/// Times whole lookahead episodes with random-weight policies (policy actions, so most run
+/// to the step limit): median and max in ms, and the mean number of steps.
+fn full_lookahead_ms(
+    model: &RobotModel,
+    task: &TaskConfig,
+    task_hash: u64,
+) -> anyhow::Result<serde_json::Value> {
+    use rt_core::runtime::twin_thread::Lookahead;
+    let loader = PolicyLoader::new(PolicyExpectation::for_task(task_hash));
+    let mut la = TwinLookahead::new(model.clone(), task.clone(), LookaheadActions::Policy);
+    let start = la.start_q_rad();
+    let scene = synthetic_scene();
+    let mut wps = Vec::with_capacity(512);
+    let mut times = Vec::new();
+    let mut steps = 0u64;
+    for id in 0..30 {
+        let p = random_policy(&loader, 1000 + id, task_hash)?;
+        let t0 = Instant::now();
+        let v = la.lookahead(&p, &scene, &start, &mut wps);
+        times.push(t0.elapsed().as_secs_f64());
+        steps += u64::from(v.steps);
+    }
+    times.sort_by(f64::total_cmp);
+    Ok(serde_json::json!({
+        "runs": times.len(),
+        "mean_steps": steps as f64 / times.len() as f64,
+        "p50_ms": percentile_ms(&times, 0.5),
+        "max_ms": percentile_ms(&times, 1.0),
+    }))
+}
+
 /// Runs the bench.
 pub fn run(args: BenchLoopArgs) -> ExitCode {
     match bench(&args) {
@@ -125,12 +156,14 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     let (cfg, model, task) = load_assets(&args.assets, Some(args.rate), None)?;
     let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
     let task_hash = task.hash();
+    let task_for_probe = task.clone();
     let lookahead = TwinLookahead::new(
         model.clone(),
         task,
         LookaheadActions::ScriptedWithPolicyCost,
     );
     let start_q = lookahead.start_q_rad();
+    let full = full_lookahead_ms(&model, &task_for_probe, task_hash)?;
     let (twin_io, cycle_io, log_drain) = cycle::wire::<SceneSnapshot>();
     let arm = InProcessArm::new(
         start_q,
@@ -275,6 +308,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
             "p99": percentile_ms(&lookahead_s, 0.99),
             "max": percentile_ms(&lookahead_s, 1.0),
         },
+        "full_lookahead": full,
         "rt_setup": rt,
     });
     println!("{out}");
