@@ -156,6 +156,15 @@ enum Cmd {
     },
     /// Retraining service: answers RetrainRequests with PolicyBlobs over iceoryx2.
     Serve(service::ServeArgs),
+    /// One retraining on a scene file, offline (what `serve` does for one request); prints
+    /// a JSON summary. Output goes to --out (default: `retrain/` beside the checkpoint).
+    Retrain {
+        /// The failed scene.
+        #[arg(long)]
+        scene: PathBuf,
+        #[command(flatten)]
+        args: service::ServeArgs,
+    },
 }
 
 fn load_scene(path: &Path) -> Result<Scene> {
@@ -305,6 +314,30 @@ fn main() -> Result<()> {
             println!(
                 "{}",
                 serde_json::json!({"out": out, "policy_id": id, "task_config_hash": format!("{:#x}", ck.meta.task_hash), "steps": ck.meta.steps, "bytes": size_of_val(&*blob)})
+            );
+        }
+        Cmd::Retrain { scene, args } => {
+            tch::set_num_threads(1);
+            let env = TwinTask::load(&args.task, None)?;
+            let base = Checkpoint::load(&args.checkpoint)?;
+            let out = args
+                .out
+                .clone()
+                .unwrap_or_else(|| checkpoint::resolve(&args.checkpoint).with_file_name("retrain"));
+            let (sum, before) = service::retrain(
+                &base,
+                &env,
+                load_scene(&scene)?,
+                &args,
+                &out,
+                1,
+                device,
+                |_, _| true,
+            )?;
+            let best = Checkpoint::load(&out.join(checkpoint::BEST))?;
+            println!(
+                "{}",
+                serde_json::json!({"summary": sum, "before": before, "best": best.meta.eval, "out": out})
             );
         }
         Cmd::Serve(args) => {

@@ -17,7 +17,7 @@ use shm_schemas::{PolicyBlob, RetrainPhase, RetrainProgress, RetrainRequest};
 use crate::checkpoint::{self, Checkpoint};
 use crate::export;
 use crate::ppo::{EvalResult, Trainer};
-use crate::run::{RunOptions, StopReason, SuccessRule, train};
+use crate::run::{RunOptions, RunSummary, StopReason, SuccessRule, train};
 use crate::twin_env::{Jitter, RetrainSampler, TwinTask};
 
 /// Arguments of `learner serve`.
@@ -54,6 +54,16 @@ pub struct ServeArgs {
     /// Exit after answering this many requests (0: serve forever).
     #[arg(long, default_value_t = 0)]
     pub max_requests: u64,
+    /// Raise the policy's standard deviation to at least this at the start of a retraining
+    /// (a converged policy barely explores; 0 keeps it).
+    #[arg(long, default_value_t = 0.5)]
+    pub explore_std: f64,
+    /// Learning rate during retraining (0: the checkpoint's).
+    #[arg(long, default_value_t = 0.0)]
+    pub lr: f64,
+    /// Entropy bonus coefficient during retraining.
+    #[arg(long, default_value_t = 0.0)]
+    pub ent_coef: f64,
     /// Rollout worker threads (0 = the checkpoint's setting).
     #[arg(long, default_value_t = 0)]
     pub workers: usize,
@@ -95,6 +105,74 @@ fn progress(
         phase: phase as u8,
         reserved: [0; 7],
     }
+}
+
+/// Retrains `base` on `scene` (with randomisation and a share of the old distribution) into
+/// `out_dir` (best/last checkpoints, metrics, plot). `on_iter` sees every iteration with the
+/// steps taken in this retraining; returning `false` cancels. Returns the run summary and
+/// the base policy's evaluation on the reported scene.
+///
+/// # Errors
+/// Checkpoint or configuration failures.
+#[allow(clippy::too_many_arguments)]
+pub fn retrain(
+    base: &Checkpoint,
+    env: &TwinTask,
+    scene: Scene,
+    args: &ServeArgs,
+    out_dir: &std::path::Path,
+    eval_seed: u64,
+    device: tch::Device,
+    mut on_iter: impl FnMut(&crate::ppo::IterStats, Option<&EvalResult>) -> bool,
+) -> anyhow::Result<(RunSummary, EvalResult)> {
+    let mut cfg = base.meta.ppo.clone();
+    if args.workers > 0 {
+        cfg.workers = args.workers;
+    }
+    let mut trainer =
+        Trainer::new(cfg, env.clone(), base.meta.seed, device).map_err(anyhow::Error::msg)?;
+    base.restore(&mut trainer)?;
+    trainer.cfg.ent_coef = args.ent_coef;
+    if args.lr > 0.0 {
+        trainer.cfg.learning_rate = args.lr;
+        trainer.adam.lr = args.lr;
+    }
+    let std_before = trainer.net.log_std().detach().exp();
+    if args.explore_std > 0.0 {
+        let floor = args.explore_std.ln();
+        tch::no_grad(|| {
+            let mut ls = trainer.net.log_std();
+            let _ = ls.clamp_min_(floor);
+        });
+    }
+    tracing::info!(std_before = ?Vec::<f32>::try_from(&std_before).unwrap_or_default(), explore_std = args.explore_std, "exploration");
+    let sampler = RetrainSampler::new(env, scene, Jitter::default(), args.old_share);
+    let eval_scenes = sampler.eval_scenes(args.eval_episodes, eval_seed);
+    let _ = std::fs::remove_dir_all(out_dir);
+    let opts = RunOptions {
+        out_dir: out_dir.to_path_buf(),
+        total_steps: trainer.steps + args.max_steps,
+        eval_every_steps: args.eval_every,
+        seed: base.meta.seed,
+        task_hash: env.task_hash(),
+        time_budget: Some(Duration::from_secs_f64(args.time_budget_s)),
+        success_rule: Some(SuccessRule::default()),
+        title: format!("retraining ({})", out_dir.display()),
+        progress: false,
+    };
+    let start_steps = trainer.steps;
+    let before = trainer.evaluate(&eval_scenes);
+    tracing::info!(
+        success = before.success_rate,
+        collision = before.collision_rate,
+        "base policy on the reported scene"
+    );
+    let sum = train(&mut trainer, &sampler, &eval_scenes, &opts, |st, e| {
+        let mut st = st.clone();
+        st.steps -= start_steps;
+        on_iter(&st, e)
+    })?;
+    Ok((sum, before))
 }
 
 /// Runs the service until `max_requests` are answered (or forever, or until SIGINT/SIGTERM).
@@ -171,59 +249,31 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> anyhow::Result<()> {
             "retraining"
         );
         let base = Checkpoint::load(&base_path)?;
-        let mut cfg = base.meta.ppo.clone();
-        if args.workers > 0 {
-            cfg.workers = args.workers;
-        }
-        let mut trainer =
-            Trainer::new(cfg, env.clone(), base.meta.seed, device).map_err(anyhow::Error::msg)?;
-        base.restore(&mut trainer)?;
-        let sampler = RetrainSampler::new(&env, scene, Jitter::default(), args.old_share);
-        let eval_scenes = sampler.eval_scenes(args.eval_episodes, req.request_id);
         let out_dir = out_root.join(format!("request-{}", req.request_id));
-        let _ = std::fs::remove_dir_all(&out_dir);
-        let opts = RunOptions {
-            out_dir: out_dir.clone(),
-            total_steps: trainer.steps + args.max_steps,
-            eval_every_steps: args.eval_every,
-            seed: base.meta.seed,
-            task_hash: hash,
-            time_budget: Some(Duration::from_secs_f64(args.time_budget_s)),
-            success_rule: Some(SuccessRule::default()),
-            title: format!("retraining, request {}", req.request_id),
-            progress: false,
-        };
-        let start_steps = trainer.steps;
-        let before: EvalResult = trainer.evaluate(&eval_scenes);
-        tracing::info!(
-            request = req.request_id,
-            success = before.success_rate,
-            collision = before.collision_rate,
-            "base policy on the reported scene"
-        );
         let mut newer: Option<RetrainRequest> = None;
-        let sum = train(&mut trainer, &sampler, &eval_scenes, &opts, |st, eval| {
-            let (ret, succ) = eval.map_or((st.mean_return, st.success_rate), |e| {
-                (e.mean_return, e.success_rate)
-            });
-            let phase = if eval.is_some() {
-                RetrainPhase::Evaluating
-            } else {
-                RetrainPhase::Training
-            };
-            let _ = progress_pub.send_copy(progress(
-                &req,
-                phase,
-                st.steps - start_steps,
-                ret,
-                succ,
-                t0,
-                0,
-            ));
-            drain(&mut newer);
-            newer.is_none()
-        });
-        let sum = match sum {
+        let res = retrain(
+            &base,
+            &env,
+            scene,
+            args,
+            &out_dir,
+            req.request_id,
+            device,
+            |st, eval| {
+                let (ret, succ) = eval.map_or((st.mean_return, st.success_rate), |e| {
+                    (e.mean_return, e.success_rate)
+                });
+                let phase = if eval.is_some() {
+                    RetrainPhase::Evaluating
+                } else {
+                    RetrainPhase::Training
+                };
+                let _ = progress_pub.send_copy(progress(&req, phase, st.steps, ret, succ, t0, 0));
+                drain(&mut newer);
+                newer.is_none()
+            },
+        );
+        let (sum, before) = match res {
             Ok(s) => s,
             Err(e) => {
                 tracing::error!(request = req.request_id, "retraining failed: {e}");

@@ -125,3 +125,108 @@ fn run_driver_trains_checkpoints_and_writes_metrics() {
     assert!(std::fs::metadata(dir.join("reward.png")).unwrap().len() > 1000);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+mod export_equivalence {
+    use learner::checkpoint::Checkpoint;
+    use learner::env::{Env, StepInfo};
+    use learner::export;
+    use learner::net::ActorCritic;
+    use learner::normalize::ObsNormalizer;
+    use learner::ppo::{PpoConfig, Trainer, randn};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use rt_core::policy::{PolicyExpectation, PolicyLoader};
+    use tch::{Device, Tensor};
+
+    /// An environment with the twin's dimensions; only its shape matters here.
+    #[derive(Clone)]
+    struct Shape;
+    impl Env for Shape {
+        type Scene = ();
+        fn obs_dim(&self) -> usize {
+            rt_core::twin::OBS_DIM
+        }
+        fn act_dim(&self) -> usize {
+            rt_core::twin::ACT_DIM
+        }
+        fn reset(&mut self, _: &(), obs: &mut [f32]) {
+            obs.fill(0.0);
+        }
+        fn step(&mut self, _: &[f32], obs: &mut [f32]) -> StepInfo {
+            obs.fill(0.0);
+            StepInfo::default()
+        }
+    }
+
+    #[test]
+    fn exported_blob_acts_like_the_tch_policy_in_rt_core() {
+        let mut t = Trainer::new(PpoConfig::default(), Shape, 5, Device::Cpu).unwrap();
+        // Weights of a trained size (not the near-zero initial output layer) and
+        // non-trivial normalisation statistics.
+        let mut rng = ChaCha8Rng::seed_from_u64(17);
+        let flat: Vec<f32> = (0..t.net.layout.len)
+            .map(|_| 0.4 * randn(&mut rng))
+            .collect();
+        t.net = ActorCritic::from_flat(t.net.spec.clone(), &flat, Device::Cpu).unwrap();
+        for (m, v) in t.obs_rms.mean.iter_mut().zip(t.obs_rms.var.iter_mut()) {
+            *m = rng.random_range(-0.5..0.5);
+            *v = rng.random_range(0.001..2.0);
+        }
+        let hash = 0x5eed_u64;
+        let ck = Checkpoint::capture(&t, 5, hash);
+        let blob = export::export_blob(&ck, 42).unwrap();
+        blob.validate().unwrap();
+        let loader = PolicyLoader::new(PolicyExpectation::for_task(hash));
+        let policy = loader.prepare(&blob).unwrap();
+        assert_eq!(policy.policy_id(), 42);
+
+        let norm = ObsNormalizer::from_stats(&t.obs_rms, t.cfg.clip_obs);
+        let n = 2000;
+        let d = rt_core::twin::OBS_DIM;
+        // Wide observations so that the normalisation clip and the action clip both bite.
+        let raw: Vec<f32> = (0..n * d).map(|_| rng.random_range(-3.0..3.0)).collect();
+        let mut x = vec![0.0f32; n * d];
+        for (r, o) in raw.chunks(d).zip(x.chunks_mut(d)) {
+            norm.apply(r, o);
+        }
+        let mean = tch::no_grad(|| {
+            t.net
+                .actor_mean(&Tensor::from_slice(&x).view([n as i64, d as i64]))
+                .clamp(-1.0, 1.0)
+        });
+        let a = rt_core::twin::ACT_DIM;
+        let mut tch_out = vec![0.0f32; n * a];
+        mean.copy_data(&mut tch_out, n * a);
+        let (mut max_diff, mut clipped) = (0.0f32, 0usize);
+        let mut out = [0.0f32; rt_core::twin::ACT_DIM];
+        for (i, obs) in raw.chunks(d).enumerate() {
+            policy.evaluate(obs, &mut out).unwrap();
+            for k in 0..a {
+                max_diff = max_diff.max((out[k] - tch_out[i * a + k]).abs());
+                clipped += usize::from(out[k].abs() == 1.0);
+            }
+        }
+        assert!(max_diff <= 1e-5, "max |rt-core - tch| = {max_diff}");
+        assert!(
+            clipped > 0 && clipped < n * a,
+            "the test should exercise the action clip ({clipped})"
+        );
+    }
+
+    #[test]
+    fn blob_file_round_trips_and_rejects_corruption() {
+        let t = Trainer::new(PpoConfig::default(), Shape, 1, Device::Cpu).unwrap();
+        let ck = Checkpoint::capture(&t, 1, 7);
+        let blob = export::export_blob(&ck, 9).unwrap();
+        let dir = super::tmp_dir("blob");
+        let path = dir.join("p.blob");
+        export::write_blob(&path, &blob).unwrap();
+        let back = export::read_blob(&path).unwrap();
+        assert_eq!(*back, *blob);
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes[400] ^= 0x40;
+        assert!(export::blob_from_bytes(&bytes).is_err());
+        assert!(export::blob_from_bytes(&bytes[..100]).is_err());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
