@@ -4,6 +4,7 @@
 //! library for its training environments, so training and lookahead share one task.
 
 #![deny(clippy::unwrap_used)]
+pub mod launcher;
 pub mod policy;
 pub mod ros_bridge;
 pub mod runtime;

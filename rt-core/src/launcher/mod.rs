@@ -1,0 +1,7 @@
+//! The `foresight` launcher's library side: the run folder, the process supervisor, and the
+//! run report (summary, plots, Markdown). The binary `foresight` (src/bin/foresight.rs)
+//! wires them into the self-improving scenario. Nothing here is on the real-time path.
+
+pub mod report;
+pub mod run_dir;
+pub mod supervisor;

@@ -1,0 +1,474 @@
+//! The run report: `summary.json` (the figures a person or CI reads), PNG plots made with
+//! plotters (TCP path top and side views over the obstacles and goals, reward curves of
+//! pre-training and retraining from the learner's CSVs) and `report.md` linking everything.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use plotters::prelude::*;
+use serde::{Deserialize, Serialize};
+use shm_schemas::scene_file::SceneFile;
+
+use super::run_dir::write_atomic;
+
+/// The run's headline figures (`summary.json`). Times are from the world change; `None`
+/// when the event did not happen.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct Summary {
+    /// Whether the arm reached the final goal.
+    pub goal_reached: bool,
+    /// Collisions reported by the arm (xarm-sim's ground truth, or the real controller).
+    pub collisions: u64,
+    /// Whether the lookahead flagged the coming collision before the arm moved in the new
+    /// scene.
+    pub collision_predicted_before_motion: bool,
+    /// Policies swapped into the running loop.
+    pub policy_swaps: u64,
+    /// World change → first detection of the new scene (s).
+    pub world_change_to_detection_s: Option<f64>,
+    /// World change → first verdict on the new scene (s).
+    pub world_change_to_verdict_s: Option<f64>,
+    /// Retraining wall time: retrain request → new policy published (s).
+    pub retrain_s: Option<f64>,
+    /// World change → the arm moving again under an approved plan (s).
+    pub world_change_to_motion_s: Option<f64>,
+    /// Cycle compute time, 99th percentile (µs).
+    pub cycle_p99_us: Option<f64>,
+    /// Cycle compute time, 99.9th percentile (µs).
+    pub cycle_p999_us: Option<f64>,
+    /// Whether the lookahead gate was on (`--no-lookahead` turns it off).
+    pub lookahead: bool,
+    /// Seed of the scenario.
+    pub seed: u64,
+    /// Processes restarted by the supervisor.
+    pub restarts: u64,
+    /// Free-form notes (e.g. what timed out).
+    pub notes: Vec<String>,
+}
+
+/// One sample of the executed TCP path.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
+pub struct PathSample {
+    /// Time since the run started (s).
+    pub t_s: f64,
+    /// TCP position (m).
+    pub tcp_m: [f64; 3],
+    /// Index of the world scene in force.
+    pub scene: usize,
+}
+
+/// Why a report file could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    /// A file could not be written.
+    #[error("cannot write {0}: {1}")]
+    Io(PathBuf, std::io::Error),
+    /// A plot could not be drawn.
+    #[error("cannot draw {0}: {1}")]
+    Plot(PathBuf, String),
+}
+
+/// Writes `summary.json` atomically.
+///
+/// # Errors
+/// [`ReportError::Io`].
+pub fn write_summary(path: &Path, summary: &Summary) -> Result<(), ReportError> {
+    let text = serde_json::to_string_pretty(summary).unwrap_or_default();
+    write_atomic(path, text.as_bytes()).map_err(|e| ReportError::Io(path.to_path_buf(), e))
+}
+
+const SCENE_COLOURS: [RGBColor; 4] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(148, 103, 189),
+];
+
+fn plot_err(path: &Path) -> impl Fn(String) -> ReportError + '_ {
+    move |e| ReportError::Plot(path.to_path_buf(), e)
+}
+
+/// Which plane a view shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum View {
+    /// x–y (from above).
+    Top,
+    /// x–z (from the side).
+    Side,
+}
+
+/// Draws the executed TCP path (coloured by scene) over the obstacles (hatched per scene)
+/// and goals of every scene, in one view.
+///
+/// # Errors
+/// [`ReportError::Plot`].
+pub fn plot_path(
+    out: &Path,
+    view: View,
+    path: &[PathSample],
+    scenes: &[(f64, SceneFile)],
+) -> Result<(), ReportError> {
+    let err = plot_err(out);
+    let root = BitMapBackend::new(out, (900, 700)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
+    let (ax, bx, title, xl, yl) = match view {
+        View::Top => (0usize, 1usize, "TCP path, top view (x–y)", "x (m)", "y (m)"),
+        View::Side => (0, 2, "TCP path, side view (x–z)", "x (m)", "z (m)"),
+    };
+    let (y_lo, y_hi) = match view {
+        View::Top => (-0.5, 0.5),
+        View::Side => (0.0, 0.7),
+    };
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 24))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(-0.1f64..0.8f64, y_lo..y_hi)
+        .map_err(|e| err(e.to_string()))?;
+    chart
+        .configure_mesh()
+        .x_desc(xl)
+        .y_desc(yl)
+        .light_line_style(RGBColor(235, 235, 235))
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
+    for (i, (at_s, scene)) in scenes.iter().enumerate() {
+        let c = SCENE_COLOURS[i % SCENE_COLOURS.len()];
+        for (k, b) in scene.obstacles.iter().enumerate() {
+            let lo = (
+                b.center_m[ax] - b.size_m[ax] / 2.0,
+                b.center_m[bx] - b.size_m[bx] / 2.0,
+            );
+            let hi = (
+                b.center_m[ax] + b.size_m[ax] / 2.0,
+                b.center_m[bx] + b.size_m[bx] / 2.0,
+            );
+            let label = format!("scene {i} (from {at_s:.0} s) obstacle");
+            let series = chart
+                .draw_series(std::iter::once(Rectangle::new(
+                    [lo, hi],
+                    c.mix(0.25).filled(),
+                )))
+                .map_err(|e| err(e.to_string()))?;
+            if k == 0 {
+                series.label(label).legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 5), (x + 12, y + 5)], c.mix(0.4).filled())
+                });
+            }
+            chart
+                .draw_series(std::iter::once(Rectangle::new([lo, hi], c.stroke_width(2))))
+                .map_err(|e| err(e.to_string()))?;
+        }
+        let g = &scene.goal;
+        let h = g.size_m / 2.0;
+        chart
+            .draw_series(std::iter::once(Rectangle::new(
+                [
+                    (g.center_m[ax] - h, g.center_m[bx] - h),
+                    (g.center_m[ax] + h, g.center_m[bx] + h),
+                ],
+                GREEN.mix(0.6).filled(),
+            )))
+            .map_err(|e| err(e.to_string()))?;
+        chart
+            .draw_series(std::iter::once(Text::new(
+                format!("goal {i}"),
+                (g.center_m[ax] + h + 0.01, g.center_m[bx] + h),
+                ("sans-serif", 16),
+            )))
+            .map_err(|e| err(e.to_string()))?;
+    }
+    if view == View::Side {
+        let table = scenes.first().map_or(0.0, |s| s.1.table.height_m);
+        chart
+            .draw_series(LineSeries::new(
+                [(-0.1, table), (0.8, table)],
+                BLACK.stroke_width(2),
+            ))
+            .map_err(|e| err(e.to_string()))?
+            .label("table")
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 12, y)], BLACK));
+    }
+    let n_scenes = path.iter().map(|p| p.scene).max().map_or(0, |m| m + 1);
+    for s in 0..n_scenes {
+        let c = SCENE_COLOURS[s % SCENE_COLOURS.len()];
+        let pts: Vec<(f64, f64)> = path
+            .iter()
+            .filter(|p| p.scene == s)
+            .map(|p| (p.tcp_m[ax], p.tcp_m[bx]))
+            .collect();
+        if pts.is_empty() {
+            continue;
+        }
+        chart
+            .draw_series(LineSeries::new(pts, c.stroke_width(3)))
+            .map_err(|e| err(e.to_string()))?
+            .label(format!("TCP path in scene {s}"))
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 12, y)], c.stroke_width(3)));
+    }
+    if let Some(p0) = path.first() {
+        chart
+            .draw_series(std::iter::once(Circle::new(
+                (p0.tcp_m[ax], p0.tcp_m[bx]),
+                6,
+                BLACK.filled(),
+            )))
+            .map_err(|e| err(e.to_string()))?
+            .label("start")
+            .legend(|(x, y)| Circle::new((x + 6, y), 5, BLACK.filled()));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
+    root.present().map_err(|e| err(e.to_string()))
+}
+
+/// A reward curve read from a learner CSV: `(steps, mean_return)` pairs.
+///
+/// The CSV needs a header naming a step column (`steps`/`step`/`total_steps`) and a return
+/// column (`mean_return`/`eval_return`/`return`).
+///
+/// # Errors
+/// A message when the file is unreadable or lacks the columns.
+pub fn read_reward_curve(csv: &Path) -> Result<Vec<(f64, f64)>, String> {
+    let text = std::fs::read_to_string(csv).map_err(|e| format!("{}: {e}", csv.display()))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines
+        .next()
+        .ok_or_else(|| format!("{}: empty", csv.display()))?
+        .split(',')
+        .map(str::trim)
+        .collect();
+    let find = |names: &[&str]| header.iter().position(|h| names.contains(h));
+    let si = find(&["steps", "step", "total_steps"])
+        .ok_or_else(|| format!("{}: no steps column", csv.display()))?;
+    let ri = find(&["mean_return", "eval_return", "return"])
+        .ok_or_else(|| format!("{}: no mean_return column", csv.display()))?;
+    Ok(lines
+        .filter_map(|l| {
+            let cols: Vec<&str> = l.split(',').collect();
+            let s = cols.get(si)?.trim().parse::<f64>().ok()?;
+            let r = cols.get(ri)?.trim().parse::<f64>().ok()?;
+            (s.is_finite() && r.is_finite()).then_some((s, r))
+        })
+        .collect())
+}
+
+/// Plots reward curves (one line per labelled curve) against environment steps.
+///
+/// # Errors
+/// [`ReportError::Plot`].
+pub fn plot_reward_curves(
+    out: &Path,
+    title: &str,
+    curves: &[(String, Vec<(f64, f64)>)],
+) -> Result<(), ReportError> {
+    let err = plot_err(out);
+    let (mut x_hi, mut y_lo, mut y_hi) = (1.0f64, f64::INFINITY, f64::NEG_INFINITY);
+    for (_, c) in curves {
+        for (s, r) in c {
+            x_hi = x_hi.max(*s);
+            y_lo = y_lo.min(*r);
+            y_hi = y_hi.max(*r);
+        }
+    }
+    if !y_lo.is_finite() {
+        (y_lo, y_hi) = (0.0, 1.0);
+    }
+    let pad = ((y_hi - y_lo) * 0.05).max(1e-3);
+    let root = BitMapBackend::new(out, (900, 500)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 24))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0f64..x_hi, (y_lo - pad)..(y_hi + pad))
+        .map_err(|e| err(e.to_string()))?;
+    chart
+        .configure_mesh()
+        .x_desc("environment steps")
+        .y_desc("mean episode return")
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
+    for (i, (label, c)) in curves.iter().enumerate() {
+        let col = SCENE_COLOURS[i % SCENE_COLOURS.len()];
+        chart
+            .draw_series(LineSeries::new(c.iter().copied(), col.stroke_width(2)))
+            .map_err(|e| err(e.to_string()))?
+            .label(label.clone())
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 12, y)], col.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::LowerRight)
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
+    root.present().map_err(|e| err(e.to_string()))
+}
+
+fn fmt_opt(v: Option<f64>, unit: &str) -> String {
+    v.map_or_else(|| "—".to_owned(), |x| format!("{x:.3} {unit}"))
+}
+
+/// Writes `report.md`: the summary table, the timeline and links to every artefact.
+///
+/// # Errors
+/// [`ReportError::Io`].
+pub fn write_markdown(
+    out: &Path,
+    summary: &Summary,
+    timeline: &[String],
+    images: &[(&str, &str)],
+    files: &[(&str, &str)],
+) -> Result<(), ReportError> {
+    let mut md = String::new();
+    let verdict = if summary.goal_reached && summary.collisions == 0 {
+        "goal reached with no collision"
+    } else if summary.collisions > 0 {
+        "the arm COLLIDED"
+    } else {
+        "goal NOT reached"
+    };
+    let _ = writeln!(
+        md,
+        "# Foresight run report\n\n**Outcome:** {verdict} (lookahead {}).\n",
+        if summary.lookahead { "on" } else { "off" }
+    );
+    let _ = writeln!(md, "| figure | value |\n|---|---|");
+    let rows = [
+        ("goal reached", summary.goal_reached.to_string()),
+        ("collisions (arm)", summary.collisions.to_string()),
+        (
+            "collision predicted before motion",
+            summary.collision_predicted_before_motion.to_string(),
+        ),
+        ("policy swaps", summary.policy_swaps.to_string()),
+        (
+            "world change → detection",
+            fmt_opt(summary.world_change_to_detection_s, "s"),
+        ),
+        (
+            "world change → verdict",
+            fmt_opt(summary.world_change_to_verdict_s, "s"),
+        ),
+        ("retraining", fmt_opt(summary.retrain_s, "s")),
+        (
+            "world change → motion resumed",
+            fmt_opt(summary.world_change_to_motion_s, "s"),
+        ),
+        ("cycle compute p99", fmt_opt(summary.cycle_p99_us, "µs")),
+        ("cycle compute p99.9", fmt_opt(summary.cycle_p999_us, "µs")),
+        ("process restarts", summary.restarts.to_string()),
+    ];
+    for (k, v) in rows {
+        let _ = writeln!(md, "| {k} | {v} |");
+    }
+    for note in &summary.notes {
+        let _ = writeln!(md, "\n> {note}");
+    }
+    let _ = writeln!(md, "\n## Pictures\n");
+    for (title, file) in images {
+        let _ = writeln!(md, "### {title}\n\n![{title}]({file})\n");
+    }
+    let _ = writeln!(md, "## Timeline\n\n```");
+    for line in timeline {
+        let _ = writeln!(md, "{line}");
+    }
+    let _ = writeln!(md, "```\n\n## Files\n");
+    for (title, file) in files {
+        let _ = writeln!(md, "- [{title}]({file})");
+    }
+    write_atomic(out, md.as_bytes()).map_err(|e| ReportError::Io(out.to_path_buf(), e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shm_schemas::scene_file::{BoxSpec, GoalSpec, TableSpec};
+
+    fn scene(h: f64) -> SceneFile {
+        SceneFile {
+            name: "s".into(),
+            table: TableSpec::default(),
+            goal: GoalSpec {
+                center_m: [0.45, 0.15, 0.025],
+                size_m: 0.05,
+            },
+            obstacles: vec![BoxSpec {
+                center_m: [0.35, 0.0, h / 2.0],
+                size_m: [0.06, 0.06, h],
+            }],
+        }
+    }
+
+    #[test]
+    fn writes_plots_summary_and_markdown() {
+        let dir = std::env::temp_dir().join(format!("foresight-report-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path: Vec<PathSample> = (0..100)
+            .map(|i| {
+                let s = f64::from(i) / 100.0;
+                PathSample {
+                    t_s: s * 10.0,
+                    tcp_m: [0.2 + 0.25 * s, 0.15 * s, 0.3 - 0.25 * s],
+                    scene: usize::from(i >= 50),
+                }
+            })
+            .collect();
+        let scenes = vec![(0.0, scene(0.08)), (10.0, scene(0.35))];
+        plot_path(&dir.join("top.png"), View::Top, &path, &scenes).unwrap();
+        plot_path(&dir.join("side.png"), View::Side, &path, &scenes).unwrap();
+        std::fs::write(
+            dir.join("m.csv"),
+            "steps,mean_return,success_rate\n0,-5,0\n1000,-2,0.5\n2000,1.5,0.9\nbad,row\n",
+        )
+        .unwrap();
+        let curve = read_reward_curve(&dir.join("m.csv")).unwrap();
+        assert_eq!(curve, vec![(0.0, -5.0), (1000.0, -2.0), (2000.0, 1.5)]);
+        plot_reward_curves(
+            &dir.join("r.png"),
+            "reward",
+            &[("pre-training".into(), curve)],
+        )
+        .unwrap();
+        for f in ["top.png", "side.png", "r.png"] {
+            let bytes = std::fs::read(dir.join(f)).unwrap();
+            assert_eq!(&bytes[1..4], b"PNG", "{f} is a PNG");
+            assert!(bytes.len() > 5_000, "{f} has content");
+        }
+        let summary = Summary {
+            goal_reached: true,
+            world_change_to_detection_s: Some(0.05),
+            ..Summary::default()
+        };
+        write_summary(&dir.join("summary.json"), &summary).unwrap();
+        let back: Summary =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap())
+                .unwrap();
+        assert_eq!(back, summary);
+        write_markdown(
+            &dir.join("report.md"),
+            &summary,
+            &["0.0 s start".into()],
+            &[("Top view", "top.png")],
+            &[("summary", "summary.json")],
+        )
+        .unwrap();
+        let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+        assert!(
+            md.contains("goal reached with no collision") && md.contains("![Top view](top.png)")
+        );
+        assert!(read_reward_curve(&dir.join("missing.csv")).is_err());
+        if std::env::var_os("FORESIGHT_KEEP_TEST_OUTPUT").is_none() {
+            std::fs::remove_dir_all(&dir).ok();
+        }
+    }
+}

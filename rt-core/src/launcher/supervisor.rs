@@ -1,0 +1,291 @@
+//! Starts and supervises Foresight's processes: each child's output goes to its own log file
+//! in the run folder; a child marked restartable (learner, perception) is started again with
+//! back-off when it dies; everything is stopped with SIGINT, then SIGKILL after a grace time.
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+/// What to start.
+#[derive(Debug, Clone)]
+pub struct ProcessSpec {
+    /// Short name (`xarm-sim`, `perception`, `learner`, `rt-core`).
+    pub name: String,
+    /// Program path.
+    pub program: PathBuf,
+    /// Arguments.
+    pub args: Vec<String>,
+    /// Extra environment.
+    pub env: Vec<(String, String)>,
+    /// Start again when it dies.
+    pub restart: bool,
+}
+
+/// Something that happened to a supervised process.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ProcessEvent {
+    /// It died (status); restartable processes are started again after back-off.
+    Exited {
+        /// Name.
+        name: String,
+        /// How it ended.
+        status: String,
+        /// Whether a restart is scheduled.
+        will_restart: bool,
+    },
+    /// It was started again.
+    Restarted {
+        /// Name.
+        name: String,
+        /// Restart count so far.
+        restarts: u32,
+    },
+}
+
+/// Why a process could not be started.
+#[derive(Debug, thiserror::Error)]
+pub enum SuperviseError {
+    /// The program or its log file could not be opened.
+    #[error("cannot start {name} ({program}): {source}")]
+    Spawn {
+        /// Name.
+        name: String,
+        /// Program path.
+        program: String,
+        /// OS error.
+        source: std::io::Error,
+    },
+}
+
+#[derive(Debug)]
+struct Supervised {
+    spec: ProcessSpec,
+    child: Option<Child>,
+    restarts: u32,
+    restart_at: Option<Instant>,
+    last_status: Option<ExitStatus>,
+}
+
+/// The set of supervised processes.
+#[derive(Debug)]
+pub struct Supervisor {
+    log_dir: PathBuf,
+    procs: Vec<Supervised>,
+}
+
+fn spawn(spec: &ProcessSpec, log_dir: &Path) -> Result<Child, SuperviseError> {
+    let err = |source| SuperviseError::Spawn {
+        name: spec.name.clone(),
+        program: spec.program.display().to_string(),
+        source,
+    };
+    std::fs::create_dir_all(log_dir).map_err(err)?;
+    let log = File::options()
+        .create(true)
+        .append(true)
+        .open(log_dir.join(format!("{}.log", spec.name)))
+        .map_err(err)?;
+    let log2 = log.try_clone().map_err(err)?;
+    let mut cmd = Command::new(&spec.program);
+    cmd.args(&spec.args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::from(log))
+        .stderr(Stdio::from(log2));
+    for (k, v) in &spec.env {
+        cmd.env(k, v);
+    }
+    cmd.spawn().map_err(err)
+}
+
+impl Supervisor {
+    /// An empty supervisor writing logs to `log_dir/<name>.log`.
+    pub fn new(log_dir: &Path) -> Self {
+        Self {
+            log_dir: log_dir.to_path_buf(),
+            procs: Vec::new(),
+        }
+    }
+
+    /// Starts a process.
+    ///
+    /// # Errors
+    /// [`SuperviseError`] when it cannot be started.
+    pub fn start(&mut self, spec: ProcessSpec) -> Result<(), SuperviseError> {
+        let child = spawn(&spec, &self.log_dir)?;
+        self.procs.push(Supervised {
+            spec,
+            child: Some(child),
+            restarts: 0,
+            restart_at: None,
+            last_status: None,
+        });
+        Ok(())
+    }
+
+    /// PID of a running process.
+    pub fn pid(&self, name: &str) -> Option<u32> {
+        self.procs
+            .iter()
+            .find(|p| p.spec.name == name)
+            .and_then(|p| p.child.as_ref().map(Child::id))
+    }
+
+    /// Whether a named process is running now.
+    pub fn is_running(&self, name: &str) -> bool {
+        self.procs
+            .iter()
+            .any(|p| p.spec.name == name && p.child.is_some())
+    }
+
+    /// Restart count of a named process.
+    pub fn restarts(&self, name: &str) -> u32 {
+        self.procs
+            .iter()
+            .find(|p| p.spec.name == name)
+            .map_or(0, |p| p.restarts)
+    }
+
+    /// Last exit status of a named process, if it has exited.
+    pub fn last_status(&self, name: &str) -> Option<ExitStatus> {
+        self.procs
+            .iter()
+            .find(|p| p.spec.name == name)
+            .and_then(|p| p.last_status)
+    }
+
+    /// Reaps dead children and restarts the restartable ones whose back-off has passed
+    /// (0.5 s doubling to 8 s). Call it often (every 50–100 ms).
+    pub fn poll(&mut self) -> Vec<ProcessEvent> {
+        let mut events = Vec::new();
+        let now = Instant::now();
+        for p in &mut self.procs {
+            if let Some(child) = p.child.as_mut()
+                && let Ok(Some(status)) = child.try_wait()
+            {
+                p.child = None;
+                p.last_status = Some(status);
+                let will_restart = p.spec.restart;
+                if will_restart {
+                    let backoff_s = (0.5 * 2f64.powi(p.restarts.min(4) as i32)).min(8.0);
+                    p.restart_at = Some(now + Duration::from_secs_f64(backoff_s));
+                }
+                events.push(ProcessEvent::Exited {
+                    name: p.spec.name.clone(),
+                    status: status.to_string(),
+                    will_restart,
+                });
+            }
+            if p.child.is_none()
+                && p.restart_at.is_some_and(|t| now >= t)
+                && let Ok(child) = spawn(&p.spec, &self.log_dir)
+            {
+                p.child = Some(child);
+                p.restart_at = None;
+                p.restarts += 1;
+                events.push(ProcessEvent::Restarted {
+                    name: p.spec.name.clone(),
+                    restarts: p.restarts,
+                });
+            }
+        }
+        events
+    }
+
+    /// Sends SIGINT to one process and waits up to `grace` for it, then SIGKILL. Returns its
+    /// exit status.
+    pub fn stop_one(&mut self, name: &str, grace: Duration) -> Option<ExitStatus> {
+        let p = self.procs.iter_mut().find(|p| p.spec.name == name)?;
+        p.restart_at = None;
+        p.spec.restart = false;
+        let mut child = p.child.take()?;
+        let status = stop_child(&mut child, grace);
+        p.last_status = status;
+        status
+    }
+
+    /// Stops every process in reverse start order (SIGINT, grace, SIGKILL).
+    pub fn stop_all(&mut self, grace: Duration) {
+        let names: Vec<String> = self
+            .procs
+            .iter()
+            .rev()
+            .map(|p| p.spec.name.clone())
+            .collect();
+        for n in names {
+            self.stop_one(&n, grace);
+        }
+    }
+}
+
+impl Drop for Supervisor {
+    fn drop(&mut self) {
+        self.stop_all(Duration::from_secs(2));
+    }
+}
+
+/// Sends `signal` to a process.
+pub fn send_signal(pid: u32, signal: &str) -> bool {
+    Command::new("kill")
+        .args([&format!("-{signal}"), &pid.to_string()])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+fn stop_child(child: &mut Child, grace: Duration) -> Option<ExitStatus> {
+    if let Ok(Some(s)) = child.try_wait() {
+        return Some(s);
+    }
+    send_signal(child.id(), "INT");
+    let deadline = Instant::now() + grace;
+    while Instant::now() < deadline {
+        if let Ok(Some(s)) = child.try_wait() {
+            return Some(s);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    child.wait().ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sh(name: &str, script: &str, restart: bool) -> ProcessSpec {
+        ProcessSpec {
+            name: name.into(),
+            program: "sh".into(),
+            args: vec!["-c".into(), script.into()],
+            env: vec![],
+            restart,
+        }
+    }
+
+    #[test]
+    fn restarts_a_crashed_restartable_process_and_not_others() {
+        let dir = std::env::temp_dir().join(format!("foresight-sup-{}", std::process::id()));
+        let mut sup = Supervisor::new(&dir);
+        sup.start(sh("crashy", "echo hello; exit 3", true)).unwrap();
+        sup.start(sh("oneshot", "exit 0", false)).unwrap();
+        sup.start(sh("sleeper", "sleep 30", false)).unwrap();
+        let deadline = Instant::now() + Duration::from_secs(10);
+        let mut events = Vec::new();
+        while Instant::now() < deadline && sup.restarts("crashy") < 1 {
+            events.extend(sup.poll());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert_eq!(sup.restarts("crashy"), 1, "events: {events:?}");
+        assert!(events.iter().any(|e| matches!(e, ProcessEvent::Exited { name, will_restart: false, .. } if name == "oneshot")));
+        assert!(sup.is_running("sleeper"));
+        let status = sup.stop_one("sleeper", Duration::from_secs(5));
+        assert!(status.is_some(), "sleeper stopped");
+        assert!(!sup.is_running("sleeper"));
+        let log = std::fs::read_to_string(dir.join("crashy.log")).unwrap();
+        assert!(log.matches("hello").count() >= 1);
+        sup.stop_all(Duration::from_secs(1));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
