@@ -5,12 +5,12 @@
 //! Per frame: BGR→HSV once (inside the image region where the workspace and anything
 //! standing on it can appear, when a calibration is given), then per class `inRange`, removal
 //! of mask pixels on depth discontinuities (so two objects that touch in the image but not in
-//! space become two blobs), `connectedComponentsWithStats`, and [`measure_blob`] on every
-//! blob large enough. All buffers are kept between frames.
+//! space become two blobs), connected components over runs ([`crate::runs`]), and
+//! [`measure_blob`] on every blob large enough. All buffers are kept between frames.
 
 use std::path::{Path, PathBuf};
 
-use opencv::core::{CV_32S, Mat, Rect, Scalar};
+use opencv::core::{Mat, Rect, Scalar};
 use opencv::imgproc;
 use opencv::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -19,6 +19,7 @@ use crate::calibration::Calibration;
 use crate::detection::{Detection, ObjectKind};
 use crate::frame::{Frame, FrameError};
 use crate::measure::{Blob, MeasureScratch, measure_blob};
+use crate::runs::{DepthCut, RunLabeller};
 
 /// One colour class.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -54,7 +55,7 @@ impl Default for ColourDetectorConfig {
         Self {
             min_area_px: 150,
             depth_edge_m: 0.03,
-            max_object_height_m: 0.5,
+            max_object_height_m: 0.35,
             classes: vec![
                 ColourClass {
                     name: "green goal cube".into(),
@@ -170,9 +171,7 @@ pub struct ColourDetector {
     config: ColourDetectorConfig,
     hsv: Mat,
     mask: Mat,
-    labels: Mat,
-    stats: Mat,
-    centroids: Mat,
+    labeller: RunLabeller,
     scratch: MeasureScratch,
 }
 
@@ -187,9 +186,7 @@ impl ColourDetector {
             config,
             hsv: Mat::default(),
             mask: Mat::default(),
-            labels: Mat::default(),
-            stats: Mat::default(),
-            centroids: Mat::default(),
+            labeller: RunLabeller::default(),
             scratch: MeasureScratch::default(),
         })
     }
@@ -286,42 +283,24 @@ impl ColourDetector {
             );
             let kind = class.kind;
             opencv::core::in_range(&self.hsv, &lo, &hi, &mut self.mask)?;
-            if let Some(depth) = depth {
-                cut_depth_edges(
-                    &mut self.mask,
-                    depth,
-                    w as usize,
-                    roi,
-                    self.config.depth_edge_m,
-                )?;
-            }
-            let n = imgproc::connected_components_with_stats(
-                &self.mask,
-                &mut self.labels,
-                &mut self.stats,
-                &mut self.centroids,
-                4,
-                CV_32S,
-            )?;
-            let labels = self.labels.data_typed::<i32>()?;
             let rw = roi.width as usize;
-            for comp in 1..n {
-                let area = *self.stats.at_2d::<i32>(comp, imgproc::CC_STAT_AREA)?;
-                if area < self.config.min_area_px as i32 {
+            let rh = roi.height as usize;
+            let cut = depth.map(|d| DepthCut {
+                depth_m: d,
+                width_px: w as usize,
+                edge_m: self.config.depth_edge_m,
+            });
+            let mask = self.mask.data_typed_mut::<u8>()?;
+            self.labeller
+                .label(mask, rw, rh, (roi.x, roi.y), cut.as_ref());
+            for comp in self.labeller.components() {
+                if comp.area < self.config.min_area_px {
                     continue;
                 }
-                let bbox = [
-                    *self.stats.at_2d::<i32>(comp, imgproc::CC_STAT_LEFT)? + roi.x,
-                    *self.stats.at_2d::<i32>(comp, imgproc::CC_STAT_TOP)? + roi.y,
-                    *self.stats.at_2d::<i32>(comp, imgproc::CC_STAT_WIDTH)?,
-                    *self.stats.at_2d::<i32>(comp, imgproc::CC_STAT_HEIGHT)?,
-                ];
-                let member = |x: i32, y: i32| {
-                    labels[(y - roi.y) as usize * rw + (x - roi.x) as usize] == comp
-                };
+                let bbox = comp.bbox_px;
                 let blob = Blob {
                     bbox_px: bbox,
-                    member: &member,
+                    runs: self.labeller.runs_of(comp),
                 };
                 let det = match (calibration, depth) {
                     (Some(cal), Some(depth)) => {
@@ -375,36 +354,4 @@ fn table_footprint(kind: ObjectKind, bbox: [i32; 4], cal: &Calibration) -> Detec
         position_m: [mid[0], mid[1], cal.file.workspace.table_height_m],
         size_m: [width, width, 0.0],
     }
-}
-
-/// Clears mask pixels whose right or lower neighbour (also in the mask) lies more than
-/// `edge_m` away in depth, so blobs separate at occlusion boundaries.
-fn cut_depth_edges(
-    mask: &mut Mat,
-    depth: &[f32],
-    width_px: usize,
-    roi: Rect,
-    edge_m: f32,
-) -> Result<(), opencv::Error> {
-    let rw = roi.width as usize;
-    let rh = roi.height as usize;
-    let m = mask.data_typed_mut::<u8>()?;
-    for y in 0..rh {
-        let drow = (y + roi.y as usize) * width_px + roi.x as usize;
-        for x in 0..rw {
-            let i = y * rw + x;
-            if m[i] == 0 {
-                continue;
-            }
-            let d = depth[drow + x];
-            if x + 1 < rw && m[i + 1] != 0 && (depth[drow + x + 1] - d).abs() > edge_m {
-                m[i] = 0;
-                continue;
-            }
-            if y + 1 < rh && m[i + rw] != 0 && (depth[drow + width_px + x] - d).abs() > edge_m {
-                m[i] = 0;
-            }
-        }
-    }
-    Ok(())
 }

@@ -30,6 +30,7 @@ pub mod onnx_patch;
 pub mod pipeline;
 pub mod publisher;
 pub mod ros2_source;
+pub mod runs;
 pub mod source;
 pub mod synthetic;
 pub mod tracker;

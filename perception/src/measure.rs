@@ -31,13 +31,35 @@ pub struct MeasureScratch {
     tmp: Vec<f64>,
 }
 
-/// A blob: the pixels inside `bbox` (x, y, w, h in image coordinates) for which
-/// `member(x, y)` holds.
+/// A horizontal run of blob pixels: row `y`, columns `x0..x1` (image coordinates).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Run {
+    /// Row.
+    pub y: i32,
+    /// First column.
+    pub x0: i32,
+    /// One past the last column.
+    pub x1: i32,
+}
+
+/// A blob: its bounding box (x, y, w, h in image coordinates) and its pixels as runs.
 pub struct Blob<'a> {
     /// Bounding box in the image (px).
     pub bbox_px: [i32; 4],
-    /// Membership test in image coordinates.
-    pub member: &'a dyn Fn(i32, i32) -> bool,
+    /// The pixels.
+    pub runs: &'a [Run],
+}
+
+/// The runs covering a whole box (for detectors that report boxes, not masks).
+pub fn box_runs(bbox_px: [i32; 4]) -> Vec<Run> {
+    let [x, y, w, h] = bbox_px;
+    (y..y + h)
+        .map(|y| Run {
+            y,
+            x0: x,
+            x1: x + w,
+        })
+        .collect()
 }
 
 /// Measures a blob from a depth image (`CV_32FC1` data, row-major, `width_px` per row).
@@ -54,7 +76,6 @@ pub fn measure_blob(
     xs.clear();
     ys.clear();
     zs.clear();
-    let [bx, by, bw, bh] = blob.bbox_px;
     let k = &model.intrinsics;
     let rot = model.pose.rotation.inverse();
     let m = rot.matrix();
@@ -62,14 +83,11 @@ pub fn measure_blob(
     // world = R^T (cam - t) = R^T cam - R^T t
     let offset = -(m * t);
     let mut members = 0usize;
-    for y in by..by + bh {
-        let b = (f64::from(y) - k.cy_px) / k.fy_px;
-        let row = y as usize * width_px;
-        for x in bx..bx + bw {
-            if !(blob.member)(x, y) {
-                continue;
-            }
-            members += 1;
+    for run in blob.runs {
+        let b = (f64::from(run.y) - k.cy_px) / k.fy_px;
+        let row = run.y as usize * width_px;
+        members += (run.x1 - run.x0).max(0) as usize;
+        for x in run.x0..run.x1 {
             let d = depth_m[row + x as usize];
             if !(d.is_finite() && d > 0.0) {
                 continue;
@@ -156,10 +174,10 @@ mod tests {
             pose: CameraPose::look_at([1.0, 0.0, 1.0], [0.0, 0.0, 0.0]).unwrap(),
         };
         let depth = vec![f32::NAN; 256];
-        let all = |_: i32, _: i32| true;
+        let runs = box_runs([0, 0, 16, 16]);
         let blob = Blob {
             bbox_px: [0, 0, 16, 16],
-            member: &all,
+            runs: &runs,
         };
         assert!(
             measure_blob(

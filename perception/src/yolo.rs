@@ -14,7 +14,7 @@ use crate::calibration::Calibration;
 use crate::color_detector::DetectError;
 use crate::detection::{Detection, ObjectKind};
 use crate::frame::Frame;
-use crate::measure::{Blob, MeasureScratch, measure_blob};
+use crate::measure::{Blob, MeasureScratch, box_runs, measure_blob};
 use crate::onnx_patch::{OnnxPatchError, patch_for_opencv};
 
 /// Why a YOLO model could not be loaded.
@@ -443,10 +443,10 @@ impl YoloDetector {
                 size_m: [0.0; 3],
             };
             if let (Some(cal), Some(depth)) = (calibration, depth) {
-                let all = |_: i32, _: i32| true;
+                let runs = box_runs(bbox);
                 let blob = Blob {
                     bbox_px: bbox,
-                    member: &all,
+                    runs: &runs,
                 };
                 if let Some(m) = measure_blob(
                     &blob,
