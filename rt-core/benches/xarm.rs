@@ -59,9 +59,11 @@ fn encode_send_percentiles() {
 }
 
 fn driver_250hz_percentiles() {
-    let mut opts = SimOptions::default();
-    opts.ports = SimPorts::ephemeral();
-    opts.q0_rad = [0.0, -0.3, -0.5, 0.0, 0.0];
+    let opts = SimOptions {
+        ports: SimPorts::ephemeral(),
+        q0_rad: [0.0, -0.3, -0.5, 0.0, 0.0],
+        ..SimOptions::default()
+    };
     let sim = SimServer::start(opts).expect("sim");
     let ports = sim.ports();
     let mut cfg = XArmConfig::new("127.0.0.1");
@@ -81,11 +83,18 @@ fn driver_250hz_percentiles() {
         if next > now {
             std::thread::sleep(next - now);
         }
-        let q = [q0[0] + 0.05 * (k as f64 * 0.004).sin(), q0[1], q0[2], q0[3], q0[4]];
+        let q = [
+            q0[0] + 0.05 * (k as f64 * 0.004).sin(),
+            q0[1],
+            q0[2],
+            q0[3],
+            q0[4],
+        ];
         let t0 = Instant::now();
         let _ = black_box(d.read_state(origin.elapsed().as_nanos() as u64));
         let t1 = Instant::now();
-        d.send_servo(origin.elapsed().as_nanos() as u64, &q).expect("send");
+        d.send_servo(origin.elapsed().as_nanos() as u64, &q)
+            .expect("send");
         let t2 = Instant::now();
         read.push((t1 - t0).as_nanos() as u64);
         send.push((t2 - t1).as_nanos() as u64);

@@ -107,7 +107,9 @@ fn sdk_like_session_streams_250hz_with_no_dropped_command() {
     let mut d = XArmDriver::connect(cfg(&s)).expect("connect");
     let v = d.version().expect("version");
     assert_eq!((v.axis, v.robot_type), (5, 5));
-    let q0 = d.start_servo_mode().expect("clean error, enable, mode 1, state 0");
+    let q0 = d
+        .start_servo_mode()
+        .expect("clean error, enable, mode 1, state 0");
     for (a, b) in q0.iter().zip(home()) {
         assert!((a - b).abs() < 1e-5, "starts from the actual joints");
     }
@@ -129,22 +131,36 @@ fn sdk_like_session_streams_250hz_with_no_dropped_command() {
     let st = d.read_state(clock.ns()).expect("fresh state");
     let q = d.get_joints().expect("get_servo_angle");
     for i in 0..5 {
-        assert!((q[i] - last[i]).abs() < 1e-4, "joint {i}: {} vs {}", q[i], last[i]);
+        assert!(
+            (q[i] - last[i]).abs() < 1e-4,
+            "joint {i}: {} vs {}",
+            q[i],
+            last[i]
+        );
         assert!((f64::from(st.report.joints_rad[i]) - last[i]).abs() < 1e-4);
     }
     let pose = d.get_tcp_pose().expect("get_position");
-    assert!(pose.iter().all(|v| v.is_finite()) && pose[0].abs() > 1.0, "{pose:?}");
+    assert!(
+        pose.iter().all(|v| v.is_finite()) && pose[0].abs() > 1.0,
+        "{pose:?}"
+    );
     d.emergency_stop().expect("stop");
     assert_eq!(d.get_state().expect("state"), 4);
     // A stopped arm refuses servo_j: the frame goes out, the reply has the not-ready bit,
     // and the driver reports it on the next call.
     d.send_servo(clock.ns(), &last).expect("written");
     d.flush().expect("flush");
-    assert!(matches!(d.send_servo(clock.ns(), &last), Err(XArmError::NotReady { .. })));
+    assert!(matches!(
+        d.send_servo(clock.ns(), &last),
+        Err(XArmError::NotReady { .. })
+    ));
     let summary = s.shutdown();
     let stats = d.stats();
     assert!(stats.servo_sent >= n as u64);
-    assert_eq!(summary.counters.servo_accepted, n as u64, "no dropped command");
+    assert_eq!(
+        summary.counters.servo_accepted, n as u64,
+        "no dropped command"
+    );
     assert_eq!(summary.collisions, 0);
     println!(
         "streamed {n} targets at 250 Hz: max in flight {}, last rtt {} µs",
@@ -166,7 +182,10 @@ fn reports_arrive_at_their_rates() {
             let mut n = 0u32;
             while t0.elapsed() < Duration::from_secs(3) {
                 c.read_exact(&mut buf).expect("packet");
-                assert_eq!(u32::from_be_bytes([buf[0], buf[1], buf[2], buf[3]]) as usize, expect_len);
+                assert_eq!(
+                    u32::from_be_bytes([buf[0], buf[1], buf[2], buf[3]]) as usize,
+                    expect_len
+                );
                 n += 1;
             }
             f64::from(n) / t0.elapsed().as_secs_f64()
@@ -175,7 +194,11 @@ fn reports_arrive_at_their_rates() {
     let real = count(p.report_real, report::REAL_LEN);
     let rt = count(p.report_rt, report::RT_LEN);
     let rich = count(p.report_rich, report::RICH_LEN);
-    let (real, rt, rich) = (real.join().unwrap(), rt.join().unwrap(), rich.join().unwrap());
+    let (real, rt, rich) = (
+        real.join().unwrap(),
+        rt.join().unwrap(),
+        rich.join().unwrap(),
+    );
     println!("report rates: real {real:.1} Hz, rt {rt:.1} Hz, rich {rich:.1} Hz");
     assert!((real - 100.0).abs() <= 5.0, "real report at {real} Hz");
     assert!((rt - 250.0).abs() <= 25.0, "rt report at {rt} Hz");
@@ -199,7 +222,15 @@ fn out_of_range_targets_never_reach_the_wire() {
     ];
     for q in bad {
         let e = d.send_servo(clock.ns(), &q).expect_err("refused");
-        assert!(matches!(e, XArmError::JointLimit(JointCheckError::OutOfRange { .. } | JointCheckError::NotFinite { .. })), "{e:?}");
+        assert!(
+            matches!(
+                e,
+                XArmError::JointLimit(
+                    JointCheckError::OutOfRange { .. } | JointCheckError::NotFinite { .. }
+                )
+            ),
+            "{e:?}"
+        );
     }
     assert_eq!(d.stats().servo_sent, 0);
     std::thread::sleep(Duration::from_millis(50));
@@ -219,8 +250,14 @@ fn collision_with_the_ground_truth_scene_raises_error_31_and_stops() {
     let scene = SceneFile {
         name: "wall".into(),
         table: TableSpec { height_m: 0.0 },
-        goal: GoalSpec { center_m: [0.3, -0.25, 0.025], size_m: 0.05 },
-        obstacles: vec![BoxSpec { center_m: [tcp.x, tcp.y, tcp.z], size_m: [size, size, size] }],
+        goal: GoalSpec {
+            center_m: [0.3, -0.25, 0.025],
+            size_m: 0.05,
+        },
+        obstacles: vec![BoxSpec {
+            center_m: [tcp.x, tcp.y, tcp.z],
+            size_m: [size, size, size],
+        }],
     };
     let s = sim(vec![(0.0, scene)]);
     let clock = Clock(Instant::now());
@@ -251,12 +288,22 @@ fn collision_with_the_ground_truth_scene_raises_error_31_and_stops() {
     }
     assert_eq!(saw, Some(ControllerError::Collision));
     let stopped_at = d.get_joints().expect("joints");
-    assert!(stopped_at[0] < q0[0] + 0.6 - 1e-3, "stopped before the end of the motion");
+    assert!(
+        stopped_at[0] < q0[0] + 0.6 - 1e-3,
+        "stopped before the end of the motion"
+    );
     assert_eq!(d.get_state().expect("state"), 4);
     // Motion stays refused until the error is cleared.
-    assert!(matches!(d.send_servo(clock.ns(), &stopped_at), Err(XArmError::Controller(_))));
+    assert!(matches!(
+        d.send_servo(clock.ns(), &stopped_at),
+        Err(XArmError::Controller(_))
+    ));
     std::thread::sleep(Duration::from_millis(100));
-    assert_eq!(d.get_joints().expect("joints"), stopped_at, "the arm does not move");
+    assert_eq!(
+        d.get_joints().expect("joints"),
+        stopped_at,
+        "the arm does not move"
+    );
     let summary = s.shutdown();
     assert_eq!(summary.collisions, 1);
     assert_eq!(summary.error_code, 31);
@@ -285,8 +332,12 @@ fn reconnects_and_resumes_only_from_the_reread_joints() {
     assert_eq!(state.reconnects, 1);
     let mut far = q0;
     far[0] += 0.3;
-    assert_eq!(d.send_servo(clock.ns(), &far), Err(XArmError::ResumeJump { joint: 0 }));
-    d.send_servo(clock.ns(), &q0).expect("resume from the actual joints");
+    assert_eq!(
+        d.send_servo(clock.ns(), &far),
+        Err(XArmError::ResumeJump { joint: 0 })
+    );
+    d.send_servo(clock.ns(), &q0)
+        .expect("resume from the actual joints");
     d.send_servo(clock.ns(), &far).expect("then stream on");
     assert_eq!(s.shutdown().connections, 2);
 }
@@ -312,7 +363,11 @@ fn the_cycle_path_does_not_allocate() {
     COUNTING.with(|c| c.set(true));
     run(&mut d, 250);
     COUNTING.with(|c| c.set(false));
-    assert_eq!(ALLOCS.with(Cell::get), 0, "read_state + send_servo allocated");
+    assert_eq!(
+        ALLOCS.with(Cell::get),
+        0,
+        "read_state + send_servo allocated"
+    );
     s.shutdown();
 }
 
@@ -377,12 +432,40 @@ fn good_report() -> Vec<u8> {
 #[test]
 fn bad_controller_bytes_are_typed_errors() {
     let cases: Vec<(&str, Vec<u8>, Vec<u8>)> = vec![
-        ("truncated then closed", vec![0, 1, 0, 2, 0, 42, 1], good_report()),
-        ("length too large", vec![0, 1, 0, 2, 0xff, 0xff, 1, 0], good_report()),
+        (
+            "truncated then closed",
+            vec![0, 1, 0, 2, 0, 42, 1],
+            good_report(),
+        ),
+        (
+            "length too large",
+            vec![0, 1, 0, 2, 0xff, 0xff, 1, 0],
+            good_report(),
+        ),
         ("length too small", vec![0, 1, 0, 2, 0, 1, 1], good_report()),
-        ("wrong register", { let mut v = version_reply(); v[6] = 0x77; v }, good_report()),
-        ("wrong protocol", { let mut v = version_reply(); v[3] = 3; v }, good_report()),
-        ("garbage version", vec![0, 1, 0, 2, 0, 6, 1, 0, b'x', b'y', b'z', b'!'], good_report()),
+        (
+            "wrong register",
+            {
+                let mut v = version_reply();
+                v[6] = 0x77;
+                v
+            },
+            good_report(),
+        ),
+        (
+            "wrong protocol",
+            {
+                let mut v = version_reply();
+                v[3] = 3;
+                v
+            },
+            good_report(),
+        ),
+        (
+            "garbage version",
+            vec![0, 1, 0, 2, 0, 6, 1, 0, b'x', b'y', b'z', b'!'],
+            good_report(),
+        ),
         ("garbage report", version_reply(), vec![0xde; 300]),
         ("report with NaN joints", version_reply(), {
             let mut r = good_report();
@@ -397,14 +480,23 @@ fn bad_controller_bytes_are_typed_errors() {
         println!("{name}: {e}");
         let typed = matches!(
             e,
-            XArmError::Frame(_) | XArmError::Report(_) | XArmError::Timeout | XArmError::Disconnected
+            XArmError::Frame(_)
+                | XArmError::Report(_)
+                | XArmError::Timeout
+                | XArmError::Disconnected
         );
         assert!(typed, "{name}: {e:?}");
         if name == "wrong register" {
-            assert!(matches!(e, XArmError::Frame(FrameError::RegisterMismatch { .. })), "{e:?}");
+            assert!(
+                matches!(e, XArmError::Frame(FrameError::RegisterMismatch { .. })),
+                "{e:?}"
+            );
         }
         if name == "wrong protocol" {
-            assert!(matches!(e, XArmError::Frame(FrameError::ProtocolMismatch { .. })), "{e:?}");
+            assert!(
+                matches!(e, XArmError::Frame(FrameError::ProtocolMismatch { .. })),
+                "{e:?}"
+            );
         }
     }
 }

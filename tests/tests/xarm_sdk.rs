@@ -43,7 +43,13 @@ fn sdk_python() -> PathBuf {
         .expect("python3 -m venv");
     assert!(ok.success(), "python3 -m venv failed");
     let ok = Command::new(&py)
-        .args(["-m", "pip", "install", "--quiet", &format!("xarm-python-sdk=={SDK_VERSION}")])
+        .args([
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            &format!("xarm-python-sdk=={SDK_VERSION}"),
+        ])
         .status()
         .expect("pip install");
     assert!(ok.success(), "pip install xarm-python-sdk failed");
@@ -77,7 +83,10 @@ fn official_sdk_drives_xarm_sim() {
     let mut out = BufReader::new(sim.child.stdout.take().expect("sim stdout"));
     let mut line = String::new();
     out.read_line(&mut line).expect("listening line");
-    assert!(line.contains("\"listening\""), "xarm-sim did not start: {line}");
+    assert!(
+        line.contains("\"listening\""),
+        "xarm-sim did not start: {line}"
+    );
 
     let script = root.join("tests/python/xarm_sdk_check.py");
     let run = Command::new(&py)
@@ -96,13 +105,19 @@ fn official_sdk_drives_xarm_sim() {
     assert_eq!(result["ok"], true);
 
     let status = sim.interrupt_and_wait(Duration::from_secs(5));
-    assert!(status.is_some_and(|s| s.success()), "xarm-sim exits cleanly on SIGINT");
+    assert!(
+        status.is_some_and(|s| s.success()),
+        "xarm-sim exits cleanly on SIGINT"
+    );
     let mut summary = String::new();
     out.read_line(&mut summary).expect("summary line");
     let summary: serde_json::Value = serde_json::from_str(&summary).expect("summary JSON");
     println!("xarm-sim summary: {summary}");
     assert_eq!(summary["event"], "summary");
-    assert_eq!(summary["counters"]["servo_accepted"], 150, "every SDK target executed");
+    assert_eq!(
+        summary["counters"]["servo_accepted"], 150,
+        "every SDK target executed"
+    );
     assert_eq!(summary["counters"]["servo_rejected"], 0);
     assert_eq!(summary["counters"]["bad_frames"], 0);
     assert_eq!(summary["collisions"], 0);

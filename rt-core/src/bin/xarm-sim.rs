@@ -103,7 +103,8 @@ fn options(a: &Args) -> Result<SimOptions> {
     set(&mut ports.control, a.control_port);
     let mut scenes: Vec<(f64, SceneFile)> = Vec::new();
     if let Some(w) = &a.world {
-        let script = WorldScript::load(w).with_context(|| format!("world script {}", w.display()))?;
+        let script =
+            WorldScript::load(w).with_context(|| format!("world script {}", w.display()))?;
         scenes.extend(script.steps);
     }
     if let Some(s) = &a.scene {
@@ -112,8 +113,11 @@ fn options(a: &Args) -> Result<SimOptions> {
         scenes.push((0.0, scene));
     }
     for pair in a.swap_scene_at.chunks(2) {
-        let [t, path] = pair else { bail!("--swap-scene-at needs TIME SCENE") };
-        let scene = SceneFile::load(&PathBuf::from(path)).with_context(|| format!("scene {path}"))?;
+        let [t, path] = pair else {
+            bail!("--swap-scene-at needs TIME SCENE")
+        };
+        let scene =
+            SceneFile::load(&PathBuf::from(path)).with_context(|| format!("scene {path}"))?;
         scenes.push((parse_time_s(t)?, scene));
     }
     scenes.sort_by(|x, y| x.0.total_cmp(&y.0));

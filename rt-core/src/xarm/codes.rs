@@ -226,6 +226,7 @@ impl From<ControllerWarning> for u8 {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

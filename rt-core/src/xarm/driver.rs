@@ -270,7 +270,10 @@ fn resolve(host: &str, port: u16) -> Result<SocketAddr, XArmError> {
 
 impl Conn {
     fn open(cfg: &XArmConfig) -> Result<Self, XArmError> {
-        let cmd = TcpStream::connect_timeout(&resolve(&cfg.host, cfg.command_port)?, cfg.connect_timeout)?;
+        let cmd = TcpStream::connect_timeout(
+            &resolve(&cfg.host, cfg.command_port)?,
+            cfg.connect_timeout,
+        )?;
         cmd.set_nodelay(true)?;
         let report =
             TcpStream::connect_timeout(&resolve(&cfg.host, cfg.report_port)?, cfg.connect_timeout)?;
@@ -292,7 +295,11 @@ impl Conn {
     }
 
     fn next_tid(&mut self) -> u16 {
-        self.tid = if self.tid == u16::MAX { 1 } else { self.tid + 1 };
+        self.tid = if self.tid == u16::MAX {
+            1
+        } else {
+            self.tid + 1
+        };
         self.tid
     }
 
@@ -796,7 +803,10 @@ impl XArmDriver {
         let Some(conn) = self.conn.as_mut() else {
             return Err(XArmError::Disconnected);
         };
-        if let Err(e) = conn.fill_rx().and_then(|()| conn.flush_pending().map(|_| ())) {
+        if let Err(e) = conn
+            .fill_rx()
+            .and_then(|()| conn.flush_pending().map(|_| ()))
+        {
             return Err(self.lose(e));
         }
         for _ in 0..budget {
@@ -946,7 +956,9 @@ impl XArmDriver {
         }
         if self.not_ready_seen {
             self.not_ready_seen = false;
-            let (state, mode) = self.state.map_or((0, 0), |s| (s.report.state, s.report.mode));
+            let (state, mode) = self
+                .state
+                .map_or((0, 0), |s| (s.report.state, s.report.mode));
             return Err(XArmError::NotReady { state, mode });
         }
         if let Some(q0) = self.resume_from {

@@ -443,6 +443,7 @@ impl ReportFramer {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
@@ -452,7 +453,7 @@ mod tests {
         r.mode = 1;
         r.cmdnum = 3;
         r.joints_rad = [0.1, -0.2, -0.3, 0.4, 0.5, 0.0, 0.0];
-        r.tcp_pose = [200.0, 0.0, 100.0, 3.14, 0.0, 0.0];
+        r.tcp_pose = [200.0, 0.0, 100.0, 3.0, 0.0, 0.0];
         r
     }
 

@@ -247,7 +247,7 @@ impl Controller {
         frame: &[u8],
         out: &mut [u8; MAX_FRAME_LEN],
     ) -> Result<usize, FrameError> {
-        if frame.len() >= PREFIX_LEN + 1 {
+        if frame.len() > PREFIX_LEN {
             let protocol = u16::from_be_bytes([frame[2], frame[3]]);
             if protocol == PROTOCOL_HEARTBEAT {
                 return Ok(0);
@@ -263,7 +263,7 @@ impl Controller {
         }
         let (h, req) = match Request::decode(frame) {
             Ok(v) => v,
-            Err(FrameError::UnknownRegister(reg)) if frame.len() >= PREFIX_LEN + 1 => {
+            Err(FrameError::UnknownRegister(reg)) if frame.len() > PREFIX_LEN => {
                 self.counters.frames += 1;
                 self.counters.bad_frames += 1;
                 let tid = u16::from_be_bytes([frame[0], frame[1]]);
@@ -424,6 +424,7 @@ impl Controller {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::xarm::codec::Response;

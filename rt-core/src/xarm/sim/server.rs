@@ -482,16 +482,11 @@ fn report_loop(s: &Shared, kind: ReportKind, l: &TcpListener) {
     let mut rich = [0u8; report::RICH_LEN];
     let mut real = [0u8; report::REAL_LEN];
     while !s.shutdown.load(Ordering::Relaxed) {
-        loop {
-            match l.accept() {
-                Ok((c, _)) => {
-                    let _ = c.set_nonblocking(false);
-                    let _ = c.set_nodelay(true);
-                    let _ = c.set_write_timeout(Some(Duration::from_millis(200)));
-                    clients.push(c);
-                }
-                Err(_) => break,
-            }
+        while let Ok((c, _)) = l.accept() {
+            let _ = c.set_nonblocking(false);
+            let _ = c.set_nodelay(true);
+            let _ = c.set_write_timeout(Some(Duration::from_millis(200)));
+            clients.push(c);
         }
         let now = Instant::now();
         if now < next {
