@@ -270,11 +270,9 @@ fn collision_with_the_ground_truth_scene_raises_error_31_and_stops() {
         sleep_until(next);
         let mut q = q0;
         q[0] += 0.6 * (f64::from(k) / 250.0).min(1.0);
-        if let Err(e) = d.read_state(clock.ns()) {
-            if let XArmError::Controller(c) = e {
-                saw = Some(c);
-                break;
-            }
+        if let Err(XArmError::Controller(c)) = d.read_state(clock.ns()) {
+            saw = Some(c);
+            break;
         }
         match d.send_servo(clock.ns(), &q) {
             Ok(()) => {}
