@@ -270,6 +270,10 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> anyhow::Result<()> {
                 };
                 let _ = progress_pub.send_copy(progress(&req, phase, st.steps, ret, succ, t0, 0));
                 drain(&mut newer);
+                // A repeat of the request in training is not a new one.
+                if newer.is_some_and(|n| n.request_id == req.request_id) {
+                    newer = None;
+                }
                 newer.is_none()
             },
         );
