@@ -9,9 +9,7 @@ use std::path::PathBuf;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::Vector3;
-use rt_core::twin::{
-    IkSolver, RobotGeometry, RobotModel, Scene, TaskConfig, TwinEnv, rollout,
-};
+use rt_core::twin::{IkSolver, RobotGeometry, RobotModel, Scene, TaskConfig, TwinEnv, rollout};
 use shm_schemas::scene_file::SceneFile;
 
 fn assets() -> PathBuf {
@@ -84,7 +82,10 @@ fn benches(c: &mut Criterion) {
         [0.5 * phase.cos(), 0.5 * phase.sin(), 0.0]
     };
     let check = rollout(&mut env, &small, circle, None);
-    assert_eq!(check.steps, 200, "the benchmark episode must run its full length");
+    assert_eq!(
+        check.steps, 200,
+        "the benchmark episode must run its full length"
+    );
     c.bench_function("twin/episode_200_steps", |b| {
         b.iter(|| rollout(&mut env, black_box(&small), circle, None))
     });

@@ -114,7 +114,10 @@ pub struct RolloutArgs {
 fn parse_list<const N: usize>(s: &str, what: &str) -> Result<[f64; N], String> {
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();
     if parts.len() != N {
-        return Err(format!("expected {N} comma-separated {what}, got {}", parts.len()));
+        return Err(format!(
+            "expected {N} comma-separated {what}, got {}",
+            parts.len()
+        ));
     }
     let mut out = [0.0; N];
     for (o, p) in out.iter_mut().zip(parts) {

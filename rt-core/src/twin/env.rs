@@ -275,7 +275,13 @@ impl TwinEnv {
     /// # Performance
     /// One IK solve, one FK, one distance query; no allocation.
     pub fn step(&mut self, action: &[f32; ACT_DIM]) -> StepOutcome {
-        let a = action.map(|v| if v.is_nan() { 0.0 } else { f64::from(v).clamp(-1.0, 1.0) });
+        let a = action.map(|v| {
+            if v.is_nan() {
+                0.0
+            } else {
+                f64::from(v).clamp(-1.0, 1.0)
+            }
+        });
         let a_norm = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
         let scale = self.cfg.action.scale_m;
         let dt = self.cfg.episode.step_period_s;
@@ -361,7 +367,11 @@ impl TwinEnv {
                 continue;
             }
             let goal = Goal {
-                center_m: [goal_xy[0], goal_xy[1], s.table_height_m + s.goal_size_m / 2.0],
+                center_m: [
+                    goal_xy[0],
+                    goal_xy[1],
+                    s.table_height_m + s.goal_size_m / 2.0,
+                ],
                 size_m: s.goal_size_m,
             };
             scene = Scene::empty(s.table_height_m, goal);
@@ -369,9 +379,12 @@ impl TwinEnv {
             // linkage in the plane of joint 1, so a tall box in that plane, nearer than the
             // goal, makes the goal unreachable).
             let goal_target = scene.goal_target_m(self.cfg.success.goal_hover_m);
-            let at_goal =
-                self.ik
-                    .solve_with(&self.model, &goal_target, &self.model.home(), GOAL_IK_ITERATIONS);
+            let at_goal = self.ik.solve_with(
+                &self.model,
+                &goal_target,
+                &self.model.home(),
+                GOAL_IK_ITERATIONS,
+            );
             if !at_goal.reached {
                 continue;
             }

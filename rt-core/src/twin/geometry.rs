@@ -71,7 +71,11 @@ impl DistanceReport {
     };
 
     fn closer(self, other: DistanceReport) -> DistanceReport {
-        if other.distance_m < self.distance_m { other } else { self }
+        if other.distance_m < self.distance_m {
+            other
+        } else {
+            self
+        }
     }
 }
 
@@ -132,7 +136,11 @@ fn capsule_box(c: &WorldCapsule, b: &BoxObstacle, index: usize) -> DistanceRepor
             let distance_m = d_axis - c.r;
             DistanceReport {
                 distance_m,
-                robot_point_m: if distance_m >= 0.0 { robot.into() } else { p_box.into() },
+                robot_point_m: if distance_m >= 0.0 {
+                    robot.into()
+                } else {
+                    p_box.into()
+                },
                 obstacle_point_m: p_box.into(),
                 link: c.frame,
                 obstacle: Some(index),
@@ -236,7 +244,11 @@ impl RobotGeometry {
     }
 
     /// Both the box report (if any boxes) and the table report, in one pass.
-    pub fn distances(&self, poses: &LinkPoses, scene: &Scene) -> (Option<DistanceReport>, DistanceReport) {
+    pub fn distances(
+        &self,
+        poses: &LinkPoses,
+        scene: &Scene,
+    ) -> (Option<DistanceReport>, DistanceReport) {
         let world = self.world(poses);
         let boxes = if scene.obstacles.is_empty() {
             None

@@ -49,9 +49,9 @@ impl RobotModel {
     pub fn fk_into(&self, q: &Joints, out: &mut LinkPoses) {
         let mut t = Isometry3::identity();
         out.links[0] = t;
-        for i in 0..DOF {
-            t = t * self.joint_origin[i];
-            t.rotation *= UnitQuaternion::from_axis_angle(&self.joint_axis[i], q[i]);
+        for (i, angle) in q.iter().enumerate() {
+            t *= self.joint_origin[i];
+            t.rotation *= UnitQuaternion::from_axis_angle(&self.joint_axis[i], *angle);
             out.links[i + 1] = t;
         }
         out.tcp = t * self.tcp_offset;

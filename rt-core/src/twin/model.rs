@@ -198,9 +198,9 @@ impl RobotModel {
             }
             joint_axis[i] = Unit::new_normalize(a);
             let l = &j.limit;
-            if !(l.lower.is_finite() && l.upper.is_finite() && l.lower < l.upper)
-                || !(l.velocity.is_finite() && l.velocity > 0.0)
-            {
+            let limits_ok = l.lower.is_finite() && l.upper.is_finite() && l.lower < l.upper;
+            let velocity_ok = l.velocity.is_finite() && l.velocity > 0.0;
+            if !(limits_ok && velocity_ok) {
                 return Err(UrdfLoadError::BadLimits(i + 1));
             }
             limits.lower_rad[i] = l.lower;

@@ -130,6 +130,10 @@ impl Scene {
     /// The point the TCP must reach: `hover_m` above the goal cube's top face.
     pub fn goal_target_m(&self, hover_m: f64) -> Vector3<f64> {
         let g = &self.goal;
-        Vector3::new(g.center_m[0], g.center_m[1], g.center_m[2] + g.size_m / 2.0 + hover_m)
+        Vector3::new(
+            g.center_m[0],
+            g.center_m[1],
+            g.center_m[2] + g.size_m / 2.0 + hover_m,
+        )
     }
 }

@@ -203,7 +203,9 @@ impl TaskConfig {
             .iter()
             .all(|v| v.is_finite() && *v >= 0.0)
         {
-            return Err("reward weights (c1, c2, c3, success_bonus, collision_penalty) must be finite and ≥ 0");
+            return Err(
+                "reward weights (c1, c2, c3, success_bonus, collision_penalty) must be finite and ≥ 0",
+            );
         }
         if !(r.d_thre_m.is_finite() && r.d_thre_m >= 0.0 && r.d_thre_m < 1.0) {
             return Err("reward.d_thre_m must be in [0, 1) m");
@@ -234,7 +236,10 @@ impl TaskConfig {
         if !(g.min_goal_distance_m.is_finite() && g.min_goal_distance_m >= 0.0) {
             return Err("sampling.min_goal_distance_m must be ≥ 0");
         }
-        if !range_ok(&g.obstacle_fraction) || g.obstacle_fraction[0] < 0.0 || g.obstacle_fraction[1] > 1.0 {
+        if !range_ok(&g.obstacle_fraction)
+            || g.obstacle_fraction[0] < 0.0
+            || g.obstacle_fraction[1] > 1.0
+        {
             return Err("sampling.obstacle_fraction must be a range within [0, 1]");
         }
         if !range_ok(&g.obstacle_lateral_m) {
@@ -244,7 +249,13 @@ impl TaskConfig {
             return Err("sampling.goal_clearance_m must be ≥ 0");
         }
         for c in [&self.obstacles.small, &self.obstacles.large] {
-            if !range_ok(&c.footprint_m) || !range_ok(&c.height_m) || !pos(c.footprint_m[0]) || !pos(c.height_m[0]) || c.footprint_m[1] >= 1.0 || c.height_m[1] >= 1.0 {
+            if !range_ok(&c.footprint_m)
+                || !range_ok(&c.height_m)
+                || !pos(c.footprint_m[0])
+                || !pos(c.height_m[0])
+                || c.footprint_m[1] >= 1.0
+                || c.height_m[1] >= 1.0
+            {
                 return Err("obstacles.small/large ranges must be positive [low, high] below 1 m");
             }
         }

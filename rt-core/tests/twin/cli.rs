@@ -13,13 +13,21 @@ fn run(args: &[&str]) -> (i32, Value, String) {
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout).to_string();
     let json = serde_json::from_str(&stdout).unwrap_or(Value::Null);
-    (out.status.code().unwrap_or(-1), json, String::from_utf8_lossy(&out.stderr).to_string())
+    (
+        out.status.code().unwrap_or(-1),
+        json,
+        String::from_utf8_lossy(&out.stderr).to_string(),
+    )
 }
 
 fn vec3(v: &Value) -> [f64; 3] {
     let a = v.as_array().unwrap();
     assert_eq!(a.len(), 3);
-    [a[0].as_f64().unwrap(), a[1].as_f64().unwrap(), a[2].as_f64().unwrap()]
+    [
+        a[0].as_f64().unwrap(),
+        a[1].as_f64().unwrap(),
+        a[2].as_f64().unwrap(),
+    ]
 }
 
 #[test]
@@ -49,7 +57,13 @@ fn ik_prints_joints_reached_and_error() {
 
 #[test]
 fn distance_prints_the_report() {
-    let (code, j, _) = run(&["distance", "--joints", "0,0,0,0,0", "--box", "0.35,0,0.1,0.1,0.1,0.2"]);
+    let (code, j, _) = run(&[
+        "distance",
+        "--joints",
+        "0,0,0,0,0",
+        "--box",
+        "0.35,0,0.1,0.1,0.1,0.2",
+    ]);
     assert_eq!(code, 0);
     let d = j["distance_m"].as_f64().unwrap();
     assert!((d - 0.043).abs() < 1e-3, "{d}");
@@ -62,7 +76,15 @@ fn distance_prints_the_report() {
 #[test]
 fn rollout_prints_episodes_and_timing() {
     let scene = super::common::assets().join("scenes/small_box.toml");
-    let (code, j, _) = run(&["rollout", "--scene", scene.to_str().unwrap(), "--episodes", "2", "--seed", "4"]);
+    let (code, j, _) = run(&[
+        "rollout",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--episodes",
+        "2",
+        "--seed",
+        "4",
+    ]);
     assert_eq!(code, 0);
     let eps = j["episodes"].as_array().unwrap();
     assert_eq!(eps.len(), 2);

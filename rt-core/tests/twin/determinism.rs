@@ -33,7 +33,11 @@ fn episode(e: &mut TwinEnv, seed: u64, class: ObstacleClass) -> Vec<Vec<u64>> {
 
 #[test]
 fn same_seed_same_actions_bit_identical() {
-    for (seed, class) in [(1, ObstacleClass::Small), (2, ObstacleClass::Large), (3, ObstacleClass::Small)] {
+    for (seed, class) in [
+        (1, ObstacleClass::Small),
+        (2, ObstacleClass::Large),
+        (3, ObstacleClass::Small),
+    ] {
         let mut a = env();
         let mut b = env();
         let first = episode(&mut a, seed, class);
@@ -52,7 +56,10 @@ fn different_seeds_give_different_scenes() {
     let s1 = e.sample_scene(&mut ChaCha8Rng::seed_from_u64(1), ObstacleClass::Large);
     let s2 = e.sample_scene(&mut ChaCha8Rng::seed_from_u64(2), ObstacleClass::Large);
     assert_ne!(s1, s2);
-    assert_eq!(s1, e.sample_scene(&mut ChaCha8Rng::seed_from_u64(1), ObstacleClass::Large));
+    assert_eq!(
+        s1,
+        e.sample_scene(&mut ChaCha8Rng::seed_from_u64(1), ObstacleClass::Large)
+    );
 }
 
 #[test]

@@ -26,9 +26,20 @@ fn model_with_link5_shape(shape: &str) -> RobotModel {
 }
 
 fn scene_with(boxes: &[([f64; 3], [f64; 3])]) -> Scene {
-    let mut s = Scene::empty(-1.0, Goal { center_m: [0.5, 0.5, 0.0], size_m: 0.05 });
+    let mut s = Scene::empty(
+        -1.0,
+        Goal {
+            center_m: [0.5, 0.5, 0.0],
+            size_m: 0.05,
+        },
+    );
     for (c, size) in boxes {
-        s.obstacles.push(BoxObstacle { center_m: *c, size_m: *size }).unwrap();
+        s.obstacles
+            .push(BoxObstacle {
+                center_m: *c,
+                size_m: *size,
+            })
+            .unwrap();
     }
     s
 }
@@ -50,7 +61,10 @@ fn sphere_to_box_face_and_corner() {
     // Face: box spanning x ≥ 0.35.
     let s = scene_with(&[([0.40, 0.0, 0.112], [0.1, 0.1, 0.1])]);
     let d = g.distance_to_boxes(&p, &s).unwrap();
-    assert!((d.distance_m - (0.35 - 0.207 - 0.05)).abs() < TOL_M, "{d:?}");
+    assert!(
+        (d.distance_m - (0.35 - 0.207 - 0.05)).abs() < TOL_M,
+        "{d:?}"
+    );
     close(d.robot_point_m, [0.257, 0.0, 0.112], TOL_M);
     close(d.obstacle_point_m, [0.35, 0.0, 0.112], TOL_M);
     assert_eq!(d.link, 5);
@@ -61,7 +75,11 @@ fn sphere_to_box_face_and_corner() {
     let s = scene_with(&[([0.35, 0.15, 0.25], [0.1, 0.1, 0.1])]);
     let d = g.distance_to_boxes(&p, &s).unwrap();
     let want: f64 = (Vector3::from(corner) - Vector3::from(c)).norm() - 0.05;
-    assert!((d.distance_m - want).abs() < TOL_M, "{} vs {want}", d.distance_m);
+    assert!(
+        (d.distance_m - want).abs() < TOL_M,
+        "{} vs {want}",
+        d.distance_m
+    );
     close(d.obstacle_point_m, corner, TOL_M);
     // Penetration: negative distance, colliding.
     let s = scene_with(&[([0.27, 0.0, 0.112], [0.1, 0.1, 0.1])]);
@@ -85,10 +103,16 @@ fn capsule_to_box_side_and_end() {
     // End: a box below the capsule's lower end → the cap's distance.
     let s = scene_with(&[([0.207, 0.0, 0.0], [0.1, 0.1, 0.02])]);
     let d = g.distance_to_boxes(&p, &s).unwrap();
-    assert!((d.distance_m - (0.062 - 0.03 - 0.01)).abs() < TOL_M, "{d:?}");
+    assert!(
+        (d.distance_m - (0.062 - 0.03 - 0.01)).abs() < TOL_M,
+        "{d:?}"
+    );
     close(d.robot_point_m, [0.207, 0.0, 0.032], TOL_M);
     // Two boxes: the nearer one is reported.
-    let s = scene_with(&[([0.0, 0.25, 0.10], [0.6, 0.1, 0.02]), ([0.207, 0.0, 0.0], [0.1, 0.1, 0.02])]);
+    let s = scene_with(&[
+        ([0.0, 0.25, 0.10], [0.6, 0.1, 0.02]),
+        ([0.207, 0.0, 0.0], [0.1, 0.1, 0.02]),
+    ]);
     assert_eq!(g.distance_to_boxes(&p, &s).unwrap().obstacle, Some(1));
     // Margins: within 0.03 but not within 0.01.
     assert!(g.in_contact(&p, &s, 0.03));
@@ -103,7 +127,13 @@ fn table_counts_for_the_upper_links_only() {
     // table report is about links 2–5: link4's capsule, whose lowest end is the flange
     // axis point at z = 0.112 with radius 0.05.
     let p = m.fk(&[0.0; 5]);
-    let mut s = Scene::empty(0.0, Goal { center_m: [0.4, 0.0, 0.025], size_m: 0.05 });
+    let mut s = Scene::empty(
+        0.0,
+        Goal {
+            center_m: [0.4, 0.0, 0.025],
+            size_m: 0.05,
+        },
+    );
     let t = g.distance_to_table(&p, &s);
     assert!(t.obstacle.is_none());
     assert!(t.link >= 2, "{t:?}");

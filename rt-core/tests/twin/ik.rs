@@ -52,7 +52,14 @@ fn null_space_pull_keeps_the_redundant_joint_at_home() {
     let target = Vector3::new(0.35, 0.1, 0.2);
     let start = [0.0, 0.0, -0.5, 0.5, 0.8];
     let pulled = IkSolver::new(&m, IkConfig::default()).solve(&m, &target, &start);
-    let free = IkSolver::new(&m, IkConfig { nullspace_gain: 0.0, ..IkConfig::default() }).solve(&m, &target, &start);
+    let free = IkSolver::new(
+        &m,
+        IkConfig {
+            nullspace_gain: 0.0,
+            ..IkConfig::default()
+        },
+    )
+    .solve(&m, &target, &start);
     assert!(pulled.reached && free.reached);
     assert!((free.joints[4] - 0.8).abs() < 1e-9);
     assert!((pulled.joints[4] - m.home()[4]).abs() < (free.joints[4] - m.home()[4]).abs());
@@ -62,6 +69,10 @@ fn null_space_pull_keeps_the_redundant_joint_at_home() {
 fn start_outside_limits_is_clamped() {
     let m = model();
     let solver = IkSolver::new(&m, IkConfig::default());
-    let r = solver.solve(&m, &Vector3::new(0.3, 0.0, 0.25), &[0.0, 5.0, 3.0, -4.0, 0.0]);
+    let r = solver.solve(
+        &m,
+        &Vector3::new(0.3, 0.0, 0.25),
+        &[0.0, 5.0, 3.0, -4.0, 0.0],
+    );
     assert!(m.limits().contains(&r.joints));
 }

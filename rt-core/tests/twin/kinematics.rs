@@ -27,8 +27,16 @@ fn flange_at_zero_joints_is_where_the_datasheet_says() {
 #[test]
 fn joint1_turns_the_arm_about_the_vertical() {
     let m = model();
-    close(&m.tcp_m(&[FRAC_PI_2, 0.0, 0.0, 0.0, 0.0]), [0.0, 0.207, 0.112], 1e-9);
-    close(&m.tcp_m(&[-FRAC_PI_2, 0.0, 0.0, 0.0, 0.0]), [0.0, -0.207, 0.112], 1e-9);
+    close(
+        &m.tcp_m(&[FRAC_PI_2, 0.0, 0.0, 0.0, 0.0]),
+        [0.0, 0.207, 0.112],
+        1e-9,
+    );
+    close(
+        &m.tcp_m(&[-FRAC_PI_2, 0.0, 0.0, 0.0, 0.0]),
+        [0.0, -0.207, 0.112],
+        1e-9,
+    );
 }
 
 #[test]
@@ -56,7 +64,8 @@ fn elbow_geometry_matches_link_lengths() {
     // Whatever the joints, distances between consecutive joint origins are the link lengths.
     let m = model();
     let p = m.fk(&[0.7, -0.4, -1.3, 0.9, 0.5]);
-    let d = |i: usize, j: usize| (p.links[i].translation.vector - p.links[j].translation.vector).norm();
+    let d =
+        |i: usize, j: usize| (p.links[i].translation.vector - p.links[j].translation.vector).norm();
     assert!((d(2, 3) - (0.0535f64.hypot(0.2845))).abs() < 1e-12);
     assert!((d(3, 4) - (0.0775f64.hypot(0.3425))).abs() < 1e-12);
     assert!((d(4, 5) - (0.076f64.hypot(0.097))).abs() < 1e-12);

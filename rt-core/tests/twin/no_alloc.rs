@@ -46,7 +46,10 @@ fn per_step_work_does_not_allocate() {
         acc
     });
     assert!(checksum.is_finite());
-    assert_eq!(allocations, 0, "per-step twin work allocated {allocations} times");
+    assert_eq!(
+        allocations, 0,
+        "per-step twin work allocated {allocations} times"
+    );
 }
 
 #[test]

@@ -49,7 +49,11 @@ fn waypoint_policy(wps: &[[f64; 3]], scale_m: f64) -> impl FnMut(&[f32; OBS_DIM]
     let mut k = 0;
     move |o| {
         let t = wps[k];
-        let d = [t[0] - f64::from(o[3]), t[1] - f64::from(o[4]), t[2] - f64::from(o[5])];
+        let d = [
+            t[0] - f64::from(o[3]),
+            t[1] - f64::from(o[4]),
+            t[2] - f64::from(o[5]),
+        ];
         if (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() < 0.01 && k + 1 < wps.len() {
             k += 1;
         }
@@ -70,10 +74,19 @@ fn tall_box_scene_is_solvable_by_a_detour() {
     let tall = scene("tall_box.toml");
     e.reset(&tall);
     let target = e.target_m();
-    let wps = [[0.18, 0.0, 0.25], [0.127, -0.127, 0.25], [target.x, target.y, target.z]];
+    let wps = [
+        [0.18, 0.0, 0.25],
+        [0.127, -0.127, 0.25],
+        [target.x, target.y, target.z],
+    ];
     let scale = e.config().action.scale_m;
     let mut waypoints: heapless::Vec<Joints, MAX_EPISODE_STEPS> = heapless::Vec::new();
-    let s = rollout(&mut e, &tall, waypoint_policy(&wps, scale), Some(&mut waypoints));
+    let s = rollout(
+        &mut e,
+        &tall,
+        waypoint_policy(&wps, scale),
+        Some(&mut waypoints),
+    );
     assert!(s.success && s.safe, "{s:?}");
     assert!(s.min_distance_m > 0.0);
     assert_eq!(waypoints.len(), s.steps as usize);
@@ -102,7 +115,10 @@ fn sampled_scenes_follow_the_curriculum() {
             assert!(g[0] >= cfg.sampling.goal_x_m[0] && g[0] <= cfg.sampling.goal_x_m[1]);
             assert!(g[1] >= cfg.sampling.goal_y_m[0] && g[1] <= cfg.sampling.goal_y_m[1]);
             // No contact at the start.
-            assert!(!e.geometry().in_contact(&e.model().fk(&cfg.start.joints_rad), &s, 0.0));
+            assert!(
+                !e.geometry()
+                    .in_contact(&e.model().fk(&cfg.start.joints_rad), &s, 0.0)
+            );
             let p = {
                 e.reset(&s);
                 e.straight_line_policy()

@@ -50,19 +50,45 @@ fn malformed_or_invalid_task_files_are_rejected() {
     }
     let invalid = [
         (ok.replace("max_steps = 200", "max_steps = 0"), "max_steps"),
-        (ok.replace("max_steps = 200", "max_steps = 10000"), "max_steps"),
-        (ok.replace("step_period_s = 0.05", "step_period_s = -0.05"), "step_period_s"),
+        (
+            ok.replace("max_steps = 200", "max_steps = 10000"),
+            "max_steps",
+        ),
+        (
+            ok.replace("step_period_s = 0.05", "step_period_s = -0.05"),
+            "step_period_s",
+        ),
         (ok.replace("scale_m = 0.015", "scale_m = nan"), "scale_m"),
         (ok.replace("c2 = 0.1", "c2 = -0.1"), "reward weights"),
-        (ok.replace("tolerance_m = 0.02", "tolerance_m = 0.0"), "tolerance_m"),
-        (ok.replace("goal_x_m = [0.20, 0.45]", "goal_x_m = [0.45, 0.20]"), "goal_x_m"),
-        (ok.replace("obstacle_fraction = [0.4, 0.6]", "obstacle_fraction = [0.4, 1.6]"), "obstacle_fraction"),
-        (ok.replace("height_m = [0.30, 0.40]", "height_m = [0.0, 0.40]"), "obstacles"),
-        (ok.replace("max_iterations = 10", "max_iterations = 0"), "ik.max_iterations"),
+        (
+            ok.replace("tolerance_m = 0.02", "tolerance_m = 0.0"),
+            "tolerance_m",
+        ),
+        (
+            ok.replace("goal_x_m = [0.20, 0.45]", "goal_x_m = [0.45, 0.20]"),
+            "goal_x_m",
+        ),
+        (
+            ok.replace(
+                "obstacle_fraction = [0.4, 0.6]",
+                "obstacle_fraction = [0.4, 1.6]",
+            ),
+            "obstacle_fraction",
+        ),
+        (
+            ok.replace("height_m = [0.30, 0.40]", "height_m = [0.0, 0.40]"),
+            "obstacles",
+        ),
+        (
+            ok.replace("max_iterations = 10", "max_iterations = 0"),
+            "ik.max_iterations",
+        ),
     ];
     for (t, field) in invalid {
         match TaskConfig::from_toml_str(&t) {
-            Err(TaskConfigError::Invalid(msg)) => assert!(msg.contains(field), "{msg} should name {field}"),
+            Err(TaskConfigError::Invalid(msg)) => {
+                assert!(msg.contains(field), "{msg} should name {field}")
+            }
             other => panic!("expected Invalid naming {field}, got {other:?}"),
         }
     }
@@ -77,7 +103,13 @@ fn near_goal_scene(e: &TwinEnv) -> Scene {
     let start = e.start_tcp_m();
     let hover = e.config().success.goal_hover_m;
     let size = 0.05;
-    Scene::empty(0.0, Goal { center_m: [start.x + 0.1, start.y, start.z - hover - size / 2.0], size_m: size })
+    Scene::empty(
+        0.0,
+        Goal {
+            center_m: [start.x + 0.1, start.y, start.z - hover - size / 2.0],
+            size_m: size,
+        },
+    )
 }
 
 #[test]
@@ -89,7 +121,10 @@ fn observation_layout_after_reset() {
     let tcp = e.tcp_m();
     assert_eq!(obs[0], 0.0);
     assert_eq!([obs[1], obs[2]], [0.30, 0.25]);
-    assert_eq!([obs[3], obs[4], obs[5]], [tcp.x as f32, tcp.y as f32, tcp.z as f32]);
+    assert_eq!(
+        [obs[3], obs[4], obs[5]],
+        [tcp.x as f32, tcp.y as f32, tcp.z as f32]
+    );
     assert_eq!([obs[6], obs[7], obs[8]], [0.0; 3]);
     assert_eq!([obs[9], obs[10]], [0.06, 0.06]);
     // Closest points: on the robot and on the box, as far apart as the reported distance.
@@ -118,9 +153,15 @@ fn progress_term_is_the_decrease_of_goal_distance() {
     let out = e.step(&[1.0, 0.0, 0.0]);
     let d1 = (target - e.tcp_m()).norm();
     assert!((f64::from(out.terms.progress) - (d0 - d1)).abs() < 1e-6);
-    assert!(out.terms.progress > 0.01, "moving toward the goal is progress");
+    assert!(
+        out.terms.progress > 0.01,
+        "moving toward the goal is progress"
+    );
     let back = e.step(&[-1.0, 0.0, 0.0]);
-    assert!(back.terms.progress < -0.01, "moving away is negative progress");
+    assert!(
+        back.terms.progress < -0.01,
+        "moving away is negative progress"
+    );
     let c = e.config().reward;
     let want = c.c1 * f64::from(back.terms.progress) + c.c2 * f64::from(back.terms.action);
     assert!((f64::from(back.reward) - want).abs() < 1e-4);
@@ -134,7 +175,10 @@ fn action_term_is_minus_the_norm_of_the_clipped_action() {
     let out = e.step(&[0.3, -0.4, 0.0]);
     assert!((out.terms.action + 0.5).abs() < 1e-6);
     let clipped = e.step(&[5.0, 0.0, f32::NAN]);
-    assert!((clipped.terms.action + 1.0).abs() < 1e-6, "clipped to 1, NaN treated as 0");
+    assert!(
+        (clipped.terms.action + 1.0).abs() < 1e-6,
+        "clipped to 1, NaN treated as 0"
+    );
 }
 
 #[test]
@@ -146,9 +190,19 @@ fn proximity_term_fires_below_d_thre_only() {
     // A box just below the flange: distance to link5/link4 under d_thre but no contact.
     let mut near = base.clone();
     let top = tcp.z - 0.05 - d_thre / 2.0;
-    near.obstacles.push(BoxObstacle { center_m: [tcp.x + 0.1, tcp.y + 0.3, top - 0.05], size_m: [0.05, 0.05, 0.1] }).unwrap();
+    near.obstacles
+        .push(BoxObstacle {
+            center_m: [tcp.x + 0.1, tcp.y + 0.3, top - 0.05],
+            size_m: [0.05, 0.05, 0.1],
+        })
+        .unwrap();
     let mut far = base.clone();
-    far.obstacles.push(BoxObstacle { center_m: [-0.4, -0.4, 0.05], size_m: [0.05, 0.05, 0.1] }).unwrap();
+    far.obstacles
+        .push(BoxObstacle {
+            center_m: [-0.4, -0.4, 0.05],
+            size_m: [0.05, 0.05, 0.1],
+        })
+        .unwrap();
     e.reset(&far);
     let out = e.step(&[0.0; 3]);
     assert_eq!(out.terms.proximity, 0.0);
@@ -200,7 +254,10 @@ fn contact_terminates_unsafe() {
         if out.terminated {
             assert!(!out.safe && !out.task_done && !out.truncated);
             assert!(out.distance.colliding);
-            assert_eq!(out.terms.terminal as f64, -e.config().reward.collision_penalty);
+            assert_eq!(
+                out.terms.terminal as f64,
+                -e.config().reward.collision_penalty
+            );
             return;
         }
     }
@@ -230,8 +287,9 @@ fn joint_change_per_step_respects_the_velocity_limit() {
     let mut q = e.joints();
     for a in [[1.0, 1.0, -1.0], [-1.0, -1.0, 1.0], [0.0, 1.0, 1.0]] {
         let out = e.step(&a);
-        for i in 0..5 {
-            assert!((out.joints[i] - q[i]).abs() <= lim.velocity_rad_s[i] * cfg.episode.step_period_s + 1e-12);
+        for (i, (after, before)) in out.joints.iter().zip(&q).enumerate() {
+            let max_rad = lim.velocity_rad_s[i] * cfg.episode.step_period_s;
+            assert!((after - before).abs() <= max_rad + 1e-12, "joint {i}");
         }
         q = out.joints;
     }

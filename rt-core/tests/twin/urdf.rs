@@ -1,7 +1,7 @@
 //! Loading the URDF: the bundled model's facts, and malformed files rejected with the
 //! right error.
 
-use rt_core::twin::{RobotModel, UrdfLoadError, ACCELERATION_LIMIT_RAD_S2, JERK_LIMIT_RAD_S3};
+use rt_core::twin::{ACCELERATION_LIMIT_RAD_S2, JERK_LIMIT_RAD_S3, RobotModel, UrdfLoadError};
 
 use super::common::{assets, model};
 
@@ -21,16 +21,36 @@ fn bundled_model_has_the_published_limits() {
     let m = model();
     let l = m.limits();
     let two_pi = std::f64::consts::TAU;
-    assert_eq!(l.lower_rad, [-two_pi, -2.059488, -3.92699, -1.692969, -two_pi]);
-    assert_eq!(l.upper_rad, [two_pi, 2.094395, 0.191986, std::f64::consts::PI, two_pi]);
-    assert_eq!(l.velocity_rad_s, [3.14; 5]);
+    assert_eq!(
+        l.lower_rad,
+        [-two_pi, -2.059488, -3.92699, -1.692969, -two_pi]
+    );
+    assert_eq!(
+        l.upper_rad,
+        [two_pi, 2.094395, 0.191986, std::f64::consts::PI, two_pi]
+    );
+    // The datasheet's 3.14 rad/s, not π.
+    #[allow(clippy::approx_constant)]
+    let datasheet_velocity_rad_s = 3.14;
+    assert_eq!(l.velocity_rad_s, [datasheet_velocity_rad_s; 5]);
     assert_eq!(l.acceleration_rad_s2, [ACCELERATION_LIMIT_RAD_S2; 5]);
     assert_eq!(l.jerk_rad_s3, [JERK_LIMIT_RAD_S3; 5]);
     assert_eq!(ACCELERATION_LIMIT_RAD_S2, 20.0);
     assert_eq!(JERK_LIMIT_RAD_S3, 500.0);
     assert!(l.contains(&m.home()));
     let names: Vec<&str> = (0..=6).map(|i| m.link_name(i)).collect();
-    assert_eq!(names, ["link_base", "link1", "link2", "link3", "link4", "link5", "tcp"]);
+    assert_eq!(
+        names,
+        [
+            "link_base",
+            "link1",
+            "link2",
+            "link3",
+            "link4",
+            "link5",
+            "tcp"
+        ]
+    );
 }
 
 #[test]
@@ -108,12 +128,23 @@ fn malformed_files_are_rejected_with_the_right_error() {
         assert_eq!(got, Some(want), "expected {want}");
     }
     let missing = RobotModel::load(std::path::Path::new("/nonexistent/xarm5.urdf")).err();
-    assert_eq!(missing, Some(UrdfLoadError::Io(std::io::ErrorKind::NotFound)));
+    assert_eq!(
+        missing,
+        Some(UrdfLoadError::Io(std::io::ErrorKind::NotFound))
+    );
 }
 
 #[test]
 fn error_messages_name_the_joint() {
-    assert!(UrdfLoadError::MissingJoint(3).to_string().contains("joint3"));
-    assert!(UrdfLoadError::UnsupportedJointType(2).to_string().contains("joint2"));
+    assert!(
+        UrdfLoadError::MissingJoint(3)
+            .to_string()
+            .contains("joint3")
+    );
+    assert!(
+        UrdfLoadError::UnsupportedJointType(2)
+            .to_string()
+            .contains("joint2")
+    );
     assert!(UrdfLoadError::WrongJointCount(6).to_string().contains('6'));
 }
