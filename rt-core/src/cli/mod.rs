@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 mod bench_loop;
 mod ros_bridge;
 mod twin;
+mod xarm;
 
 /// Foresight's real-time core.
 #[derive(Debug, Parser)]
@@ -26,6 +27,9 @@ enum Command {
     RosBridge(ros_bridge::RosBridgeArgs),
     /// Latency and jitter harness of the full cycle; prints one JSON object.
     BenchLoop(bench_loop::BenchLoopArgs),
+    /// xArm driver tools (`probe`).
+    #[command(subcommand)]
+    Xarm(xarm::XarmCommand),
 }
 
 /// Parses the command line and runs the chosen subcommand.
@@ -35,5 +39,6 @@ pub fn main() -> ExitCode {
         Command::Twin(cmd) => twin::run(cmd),
         Command::RosBridge(args) => ros_bridge::run(args),
         Command::BenchLoop(args) => bench_loop::run(args),
+        Command::Xarm(cmd) => xarm::run(cmd),
     }
 }

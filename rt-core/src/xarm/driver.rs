@@ -651,7 +651,13 @@ impl XArmDriver {
         self.enter_servo_mode()
     }
 
-    fn enter_servo_mode(&mut self) -> Result<[f64; 5], XArmError> {
+    /// Enable all servos, mode 1, state 0 (each state change followed by `GET_STATE`), without
+    /// clearing errors first; then re-reads the joints.
+    ///
+    /// # Errors
+    /// [`XArmError::Controller`] if the controller has an error, [`XArmError::NotReady`] if
+    /// it does not leave the stopped state.
+    pub fn enter_servo_mode(&mut self) -> Result<[f64; 5], XArmError> {
         self.call(&Request::MotionEnable {
             servo_id: 8,
             enable: true,

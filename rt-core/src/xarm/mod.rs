@@ -13,5 +13,6 @@ pub mod codec;
 pub mod codes;
 pub mod driver;
 pub mod limits;
+pub mod link;
 pub mod report;
 pub mod sim;
