@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
@@ -17,7 +17,7 @@ use rt_core::policy::{MlpPolicy, PolicyExpectation, PolicyLoader};
 use rt_core::runtime::alloc_count;
 use rt_core::runtime::clock::{Clock, MonotonicClock};
 use rt_core::runtime::config::RuntimeConfig;
-use rt_core::runtime::cycle::{self, Cycle, CycleConfig, LoopStats};
+use rt_core::runtime::cycle::{self, Cycle, CycleConfig, LoopShared, LoopStats};
 use rt_core::runtime::link::InProcessArm;
 use rt_core::runtime::rt_setup::{self, RtRequest};
 use rt_core::runtime::shield::{Shield, ShieldLimits};
@@ -189,7 +189,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     );
 
     let stop = Arc::new(AtomicBool::new(false));
-    let heartbeat = Arc::new(AtomicU64::new(0));
+    let shared = Arc::new(LoopShared::default());
     let log_thread = log_drain.spawn(Duration::from_millis(20), stop.clone())?;
 
     // Twin thread: detections at 30 Hz, a new random policy every swap period.
@@ -245,7 +245,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
         lock_memory: !args.no_mlock,
     };
     let cyc_stop = stop.clone();
-    let hb = heartbeat.clone();
+    let hb = shared.clone();
     let cycle_thread = std::thread::Builder::new()
         .name("cycle".into())
         .spawn(move || {
@@ -265,7 +265,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     let mut last_change = Instant::now();
     while t0.elapsed().as_secs_f64() < args.seconds {
         std::thread::sleep(Duration::from_millis(100));
-        let b = heartbeat.load(Ordering::Acquire);
+        let b = shared.heartbeat.load(Ordering::Acquire);
         if b != last_beat {
             last_beat = b;
             last_change = Instant::now();

@@ -7,6 +7,7 @@ use clap::{Parser, Subcommand};
 
 mod bench_loop;
 mod ros_bridge;
+mod run;
 mod twin;
 mod xarm;
 
@@ -27,6 +28,8 @@ enum Command {
     RosBridge(ros_bridge::RosBridgeArgs),
     /// Latency and jitter harness of the full cycle; prints one JSON object.
     BenchLoop(bench_loop::BenchLoopArgs),
+    /// The runtime: twin thread + control cycle with iceoryx2 I/O.
+    Run(run::RunArgs),
     /// xArm driver tools (`probe`).
     #[command(subcommand)]
     Xarm(xarm::XarmCommand),
@@ -39,6 +42,7 @@ pub fn main() -> ExitCode {
         Command::Twin(cmd) => twin::run(cmd),
         Command::RosBridge(args) => ros_bridge::run(args),
         Command::BenchLoop(args) => bench_loop::run(args),
+        Command::Run(args) => run::run(args),
         Command::Xarm(cmd) => xarm::run(cmd),
     }
 }

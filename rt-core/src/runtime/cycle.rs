@@ -548,13 +548,24 @@ impl LoopStats {
     }
 }
 
+/// Counters of a running loop that other threads may read (relaxed atomics).
+#[derive(Debug, Default)]
+pub struct LoopShared {
+    /// Cycles run (a watchdog checks that it moves).
+    pub heartbeat: AtomicU64,
+    /// Deadlines missed so far.
+    pub missed_deadlines: AtomicU64,
+    /// Compute time of the last cycle, ns.
+    pub last_compute_ns: AtomicU64,
+}
+
 /// Drives `cycle` every `period_ns` on `clock` until `stop` is set, recording timing into
-/// `stats` and bumping `heartbeat` every cycle (for a watchdog). Allocation-free.
+/// `stats` and publishing counters in `shared`. Allocation-free.
 pub fn run_loop<M: ShieldModel, L: RobotLink, C: Clock>(
     cycle: &mut Cycle<M, L>,
     clock: &C,
     stop: &AtomicBool,
-    heartbeat: &AtomicU64,
+    shared: &LoopShared,
     stats: &mut LoopStats,
 ) {
     let period = cycle.cfg.period_ns;
@@ -565,13 +576,16 @@ pub fn run_loop<M: ShieldModel, L: RobotLink, C: Clock>(
         stats.wake.record_ns(wake.saturating_sub(deadline));
         cycle.process(wake);
         let done = clock.now_ns();
-        stats.compute.record_ns(done.saturating_sub(wake));
+        let compute = done.saturating_sub(wake);
+        stats.compute.record_ns(compute);
         stats.cycles += 1;
-        heartbeat.fetch_add(1, Ordering::Release);
+        shared.last_compute_ns.store(compute, Ordering::Relaxed);
+        shared.heartbeat.fetch_add(1, Ordering::Release);
         deadline += period;
         if done > deadline {
             let behind = (done - deadline) / period + 1;
             stats.missed_deadlines += behind;
+            shared.missed_deadlines.fetch_add(behind, Ordering::Relaxed);
             deadline += behind * period;
         }
     }

@@ -1,0 +1,423 @@
+//! `rt-core run --config FILE`: the runtime. A twin thread (iceoryx2 I/O, scene sync,
+//! lookahead, verdicts, plan approval, retrain requests) and a cycle thread (real-time
+//! set-up, the control cycle at the configured rate) around a robot link: `--link sim`
+//! (the in-process simulated arm) until the xArm driver's link lands (`--link xarm --robot
+//! HOST`).
+//!
+//! iceoryx2 services (all under the config's `service_prefix`): subscribes to
+//! `DetectionFrame` and `PolicyBlob`; publishes `RobotState` (every 4 ms), `TwinVerdict`
+//! (every lookahead) and `RetrainRequest` (every failed lookahead). Stops on SIGINT/SIGTERM
+//! or after `--seconds`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use clap::{Args, ValueEnum};
+use iceoryx2::prelude::*;
+use rt_core::policy::{PolicyExpectation, PolicyLoader};
+use rt_core::runtime::alloc_count;
+use rt_core::runtime::clock::{Clock, MonotonicClock};
+use rt_core::runtime::cycle::{
+    self, Cycle, CycleConfig, CycleReport, LoopShared, LoopStats, Mode, StopReason,
+};
+use rt_core::runtime::link::InProcessArm;
+use rt_core::runtime::rt_setup::{self, RtRequest};
+use rt_core::runtime::shield::{Shield, ShieldLimits, ShieldModel};
+use rt_core::runtime::smoothing::Brake;
+use rt_core::runtime::twin_adapter::{LookaheadActions, SceneSnapshot, TwinLookahead, TwinModel};
+use rt_core::runtime::twin_thread::{TwinEvent, TwinWorker, Verdict};
+use rt_core::twin::{BoxObstacle, Goal, MAX_OBSTACLES, Scene};
+use shm_schemas::services::{create_node, loan_zeroed, open_publisher, open_subscriber};
+use shm_schemas::{
+    DetectionFrame, EpisodeEnd, ObjectClass, ObstacleBox, PolicyBlob, RetrainRequest, RobotState,
+    TwinVerdict,
+};
+
+use super::bench_loop::load_assets;
+
+/// Which robot link the cycle drives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum LinkKind {
+    /// The in-process simulated arm.
+    Sim,
+    /// A real xArm5 (or xarm-sim) over TCP — not wired yet.
+    Xarm,
+}
+
+/// Arguments of `run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Runtime configuration (TOML).
+    #[arg(long, default_value = "assets/runtime.toml")]
+    config: PathBuf,
+    /// Folder with xarm5.urdf and task.toml.
+    #[arg(long, default_value = "assets")]
+    assets: PathBuf,
+    /// Robot link.
+    #[arg(long, value_enum, default_value_t = LinkKind::Sim)]
+    link: LinkKind,
+    /// Robot address for `--link xarm`.
+    #[arg(long)]
+    robot: Option<String>,
+    /// Pin the cycle thread to this CPU.
+    #[arg(long)]
+    cpu: Option<usize>,
+    /// Ask for SCHED_FIFO at this priority for the cycle thread.
+    #[arg(long)]
+    rt_priority: Option<i32>,
+    /// Do not lock memory.
+    #[arg(long)]
+    no_mlock: bool,
+    /// Stop after this many seconds (0 = until SIGINT/SIGTERM).
+    #[arg(long, default_value_t = 0.0)]
+    seconds: f64,
+}
+
+/// Runs the runtime.
+pub fn run(args: RunArgs) -> ExitCode {
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .try_init();
+    match runtime(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("rt-core run: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Scene snapshot from a detection frame: goal and obstacles, positions snapped to a 5 mm
+/// grid so sensor noise does not count as a scene change (a change re-runs the lookahead).
+fn scene_from_detection(
+    frame: &DetectionFrame,
+    table_height_m: f64,
+    last_goal: &mut Goal,
+) -> SceneSnapshot {
+    let snap = |v: f32| (f64::from(v) / 0.005).round() * 0.005;
+    let mut scene = Scene::empty(table_height_m, *last_goal);
+    for o in frame.objects() {
+        let center_m = [
+            snap(o.center_m[0]),
+            snap(o.center_m[1]),
+            snap(o.center_m[2]),
+        ];
+        let size_m = [snap(o.size_m[0]), snap(o.size_m[1]), snap(o.size_m[2])];
+        match o.class() {
+            Ok(ObjectClass::Goal) => {
+                *last_goal = Goal {
+                    center_m,
+                    size_m: size_m[0].max(0.005),
+                };
+                scene.goal = *last_goal;
+            }
+            Ok(ObjectClass::Obstacle) => {
+                if scene.obstacles.len() < MAX_OBSTACLES {
+                    let _ = scene.obstacles.push(BoxObstacle {
+                        center_m,
+                        size_m: size_m.map(|s| s.max(0.005)),
+                    });
+                }
+            }
+            Err(_) => {}
+        }
+    }
+    SceneSnapshot::from_scene(&scene)
+}
+
+fn stop_code(reason: StopReason) -> shm_schemas::StopReason {
+    use shm_schemas::StopReason as S;
+    match reason {
+        StopReason::None => S::None,
+        StopReason::Shield(_) | StopReason::Revoked => S::ShieldViolation,
+        StopReason::StaleDetection => S::StaleDetections,
+        StopReason::StaleRobotState => S::StaleRobotState,
+        StopReason::LinkLost => S::LinkLost,
+    }
+}
+
+fn twin_verdict(v: &Verdict, id: u64, seq: u64, now_ns: u64, elapsed_s: f64) -> TwinVerdict {
+    let mut t = TwinVerdict {
+        verdict_id: id,
+        scene_sequence: seq,
+        policy_id: v.policy_id,
+        computed_time_ns: now_ns,
+        min_distance_m: v.min_distance_m.clamp(-10.0, 10.0),
+        episode_return: 0.0,
+        steps: v.steps,
+        lookahead_compute_us: (elapsed_s * 1e6).min(f64::from(u32::MAX)) as u32,
+        episode_end: if v.task_ok {
+            EpisodeEnd::Success as u8
+        } else if !v.safe {
+            EpisodeEnd::Collision as u8
+        } else {
+            EpisodeEnd::Timeout as u8
+        },
+        ..TwinVerdict::default()
+    };
+    t.set_flags(v.task_ok, v.safe, v.task_ok && v.safe);
+    t
+}
+
+fn runtime(args: &RunArgs) -> anyhow::Result<()> {
+    let (cfg, model, task) = load_assets(&args.assets, None, Some(&args.config))?;
+    if args.link == LinkKind::Xarm {
+        anyhow::bail!(
+            "--link xarm (robot {:?}) is not wired into the runtime yet; use --link sim",
+            args.robot
+        );
+    }
+    let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
+    let task_hash = task.hash();
+    let table_height_m = task.sampling.table_height_m;
+    let lookahead = TwinLookahead::new(model.clone(), task.clone(), LookaheadActions::Policy);
+    let start_q = lookahead.start_q_rad();
+    let (twin_io, cycle_io, log_drain) = cycle::wire::<SceneSnapshot>();
+    let arm = InProcessArm::new(
+        start_q,
+        cfg.limits.joint_min_rad,
+        cfg.limits.joint_max_rad,
+        [std::f64::consts::PI; 5],
+    );
+    let clock = MonotonicClock::new();
+    let mut cyc = Cycle::new(
+        CycleConfig::from_runtime(&cfg),
+        Shield::new(TwinModel::new(model.clone()), limits),
+        Brake::new(&cfg.limits),
+        arm,
+        cycle_io,
+    );
+    cyc.start(clock.now_ns())
+        .map_err(|e| anyhow::anyhow!("reading the arm: {e}"))?;
+    let mut twin = TwinWorker::new(
+        &cfg,
+        lookahead,
+        Shield::new(TwinModel::new(model.clone()), limits),
+        twin_io,
+    );
+    let mut fk = TwinModel::new(model);
+
+    let stop = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, stop.clone()).context("installing signal handlers")?;
+    }
+    let shared = Arc::new(LoopShared::default());
+    let log_thread = log_drain.spawn(Duration::from_millis(20), stop.clone())?;
+
+    // iceoryx2 I/O (twin thread = this thread).
+    let prefix = cfg.service_prefix.clone();
+    let (node, cleanup) =
+        create_node::<ipc::Service>("rt-core").context("creating the iceoryx2 node")?;
+    tracing::info!(?cleanup, prefix, "iceoryx2 node up");
+    let det_sub = open_subscriber::<DetectionFrame, _>(&node, &prefix).context("detections")?;
+    let pol_sub = open_subscriber::<PolicyBlob, _>(&node, &prefix).context("policies")?;
+    let state_pub = open_publisher::<RobotState, _>(&node, &prefix).context("robot state")?;
+    let verdict_pub = open_publisher::<TwinVerdict, _>(&node, &prefix).context("verdicts")?;
+    let retrain_pub =
+        open_publisher::<RetrainRequest, _>(&node, &prefix).context("retrain requests")?;
+    let loader = PolicyLoader::new(PolicyExpectation::for_task(task_hash));
+
+    // Cycle thread.
+    let req = RtRequest {
+        cpu: args.cpu,
+        rt_priority: args.rt_priority,
+        lock_memory: !args.no_mlock,
+    };
+    let cyc_stop = stop.clone();
+    let cyc_shared = shared.clone();
+    let cycle_thread = std::thread::Builder::new()
+        .name("cycle".into())
+        .spawn(move || {
+            let rt = rt_setup::apply(&req);
+            let mut stats = LoopStats::default();
+            alloc_count::count_this_thread(true);
+            let before = alloc_count::counted();
+            cycle::run_loop(&mut cyc, &clock, &cyc_stop, &cyc_shared, &mut stats);
+            let allocs = alloc_count::counted() - before;
+            alloc_count::count_this_thread(false);
+            (stats.summary(), rt, allocs)
+        })?;
+
+    let t0 = Instant::now();
+    let mut events = Vec::new();
+    let mut last_goal = Scene::empty(
+        table_height_m,
+        Goal {
+            center_m: [0.35, 0.0, table_height_m + 0.025],
+            size_m: 0.05,
+        },
+    )
+    .goal;
+    let (mut verdict_id, mut scene_seq, mut last_state_ns) = (0u64, 0u64, 0u64);
+    let mut last_cycles = 0;
+    while !stop.load(Ordering::Acquire) {
+        if args.seconds > 0.0 && t0.elapsed().as_secs_f64() >= args.seconds {
+            break;
+        }
+        while let Some(sample) = det_sub.receive().context("receiving detections")? {
+            let frame = *sample.payload();
+            if let Err(e) = frame.validate() {
+                tracing::warn!(sequence = frame.sequence, "detection frame rejected: {e}");
+                continue;
+            }
+            scene_seq = frame.sequence;
+            let scene = scene_from_detection(&frame, table_height_m, &mut last_goal);
+            twin.on_detection(scene, clock.now_ns(), &mut events);
+        }
+        while let Some(sample) = pol_sub.receive().context("receiving policies")? {
+            let blob: &PolicyBlob = sample.payload();
+            match loader.prepare(blob) {
+                Ok(p) => {
+                    tracing::info!(
+                        policy_id = p.policy_id(),
+                        "policy accepted; re-running the lookahead"
+                    );
+                    twin.on_policy(Box::new(p), &mut events);
+                }
+                Err(reason) => tracing::warn!(
+                    policy_id = blob.policy_id,
+                    ?reason,
+                    rejected_total = loader.counters().total_rejected(),
+                    "policy blob rejected; the running policy stays"
+                ),
+            }
+        }
+        twin.step(&mut events);
+        let now = clock.now_ns();
+        let mut last_verdict: Option<TwinVerdict> = None;
+        for e in events.drain(..) {
+            match e {
+                TwinEvent::Verdict {
+                    verdict, elapsed_s, ..
+                } => {
+                    verdict_id += 1;
+                    let v = twin_verdict(&verdict, verdict_id, scene_seq, now, elapsed_s);
+                    tracing::info!(
+                        policy_id = verdict.policy_id,
+                        task_ok = verdict.task_ok,
+                        safe = verdict.safe,
+                        steps = verdict.steps,
+                        min_distance_m = verdict.min_distance_m,
+                        lookahead_ms = elapsed_s * 1e3,
+                        "lookahead"
+                    );
+                    last_verdict = Some(v);
+                    let mut s = loan_zeroed(&verdict_pub).context("loaning a verdict")?;
+                    *s.payload_mut() = v;
+                    s.send().context("sending a verdict")?;
+                }
+                TwinEvent::Retrain {
+                    request_id,
+                    verdict,
+                    scene,
+                } => {
+                    let mut s = loan_zeroed(&retrain_pub).context("loaning a retrain request")?;
+                    let r = s.payload_mut();
+                    r.request_id = request_id;
+                    r.request_time_ns = now;
+                    r.task_config_hash = task_hash;
+                    r.failed_policy_id = verdict.policy_id;
+                    r.scene_sequence = scene_seq;
+                    r.table_height_m = scene.table_height_m;
+                    r.goal_center_m = scene.goal.center_m;
+                    r.goal_size_m = scene.goal.size_m;
+                    r.obstacle_count = scene.count as u32;
+                    for (slot, b) in r.obstacles.iter_mut().zip(&scene.obstacles[..scene.count]) {
+                        *slot = ObstacleBox {
+                            center_m: b.center_m,
+                            size_m: b.size_m,
+                        };
+                    }
+                    r.verdict = last_verdict.unwrap_or_default();
+                    tracing::warn!(
+                        request_id,
+                        policy_id = verdict.policy_id,
+                        "lookahead failed: retrain requested"
+                    );
+                    s.send().context("sending a retrain request")?;
+                }
+                TwinEvent::PlanApproved {
+                    plan_id,
+                    policy_id,
+                    joins,
+                } => tracing::info!(plan_id, policy_id, joins, "plan approved"),
+                TwinEvent::PlanRejected {
+                    policy_id,
+                    smooth,
+                    shield,
+                } => tracing::warn!(
+                    policy_id,
+                    ?smooth,
+                    ?shield,
+                    "plan rejected after the lookahead"
+                ),
+                TwinEvent::Revoked { plan_id, at_index } => {
+                    tracing::warn!(
+                        plan_id,
+                        at_index,
+                        "scene change: running plan unsafe, controlled stop"
+                    )
+                }
+                TwinEvent::PolicySwapped { policy_id } => {
+                    tracing::info!(policy_id, "policy swapped in")
+                }
+            }
+        }
+        if now.saturating_sub(last_state_ns) >= 4_000_000
+            && let Some(r) = twin.last_report().copied()
+            && r.cycles != last_cycles
+        {
+            last_cycles = r.cycles;
+            last_state_ns = now;
+            publish_state(&state_pub, &r, &shared, &mut fk)?;
+        }
+        std::thread::sleep(Duration::from_micros(200));
+    }
+    stop.store(true, Ordering::Release);
+    let (summary, rt, allocs) = cycle_thread
+        .join()
+        .map_err(|_| anyhow::anyhow!("cycle thread panicked"))?;
+    let _ = log_thread.join();
+    tracing::info!(
+        cycles = summary.cycles,
+        missed = summary.missed_deadlines,
+        allocations_in_cycle = allocs,
+        wake_p999_us = summary.wakeup_latency_us.p999_us,
+        compute_p999_us = summary.cycle_compute_us.p999_us,
+        ?rt,
+        "rt-core run finished"
+    );
+    Ok(())
+}
+
+fn publish_state(
+    publisher: &iceoryx2::port::publisher::Publisher<ipc::Service, RobotState, ()>,
+    r: &CycleReport,
+    shared: &LoopShared,
+    fk: &mut TwinModel,
+) -> anyhow::Result<()> {
+    let mut s = loan_zeroed(publisher).context("loaning a robot state")?;
+    let st = s.payload_mut();
+    st.time_ns = r.t_ns;
+    st.cycle_count = r.cycles;
+    st.missed_deadlines = shared.missed_deadlines.load(Ordering::Relaxed);
+    st.active_policy_id = r.policy_id;
+    st.joints_rad = r.measured_q_rad;
+    st.joint_velocities_rad_s = r.cmd.dq_rad_s;
+    st.command_joints_rad = r.cmd.q_rad;
+    st.tcp_m = fk.tcp_position_m(&r.measured_q_rad);
+    st.last_compute_us = shared.last_compute_ns.load(Ordering::Relaxed) as f32 / 1000.0;
+    st.controlled_stop = u8::from(matches!(r.mode, Mode::Stopping | Mode::Stopped));
+    st.stop_reason = stop_code(r.stop_reason) as u8;
+    st.link_ok = u8::from(r.stop_reason != StopReason::LinkLost || r.mode == Mode::Following);
+    s.send().context("sending a robot state")?;
+    Ok(())
+}
