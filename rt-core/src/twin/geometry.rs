@@ -4,7 +4,9 @@
 //!
 //! **The table** counts for links 2–5 only: `link_base` and link1 stand on the table (the
 //! base capsule reaches into it by construction), so they are never tested against it.
-//! Every link is tested against every box.
+//! Every link is tested against every box. The goal cube is not an obstacle, and links are
+//! not tested against each other (no self-collision check: the task's workspace and joint
+//! limits keep the arm clear of itself).
 //!
 //! parry3d 0.31 works in `f32` (glam); capsule axes are expressed relative to each box's
 //! centre before the query, so the `f32` error stays ~1e-5 m. A capsule whose axis enters a

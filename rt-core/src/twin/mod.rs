@@ -19,7 +19,8 @@
 //!   `Scene::from_file(&SceneFile)` / `to_file()`.
 //! - [`RobotGeometry`]: one or two capsules per link (from the URDF collision cylinders);
 //!   `distance(&poses, &scene) -> DistanceReport`, `distance_to_boxes`, `in_contact`.
-//!   **The table** counts for links 2–5 only: the base and link 1 stand on it.
+//!   **The table** counts for links 2–5 only: the base and link 1 stand on it. The goal
+//!   cube is not an obstacle; there is no self-collision check.
 //! - [`TaskConfig`] (`assets/task.toml`) and [`TwinEnv`]: the reaching MDP, `reset`, `step`,
 //!   `sample_scene`, and [`rollout`] (a whole episode with a policy closure).
 //!
@@ -53,7 +54,26 @@
 //! # Termination
 //! `task_done` (TCP within `tolerance_m` of the target point) terminates; contact (any link
 //! touching a box, or links 2–5 touching the table) terminates with `safe = false`;
-//! `truncated` after `max_steps` steps.
+//! `truncated` after `max_steps` steps. `StepOutcome::distance` (and
+//! `EpisodeSummary::min_distance_m`) is the robot–box report of the nearest box, or the
+//! robot–table report in a scene without boxes.
+//!
+//! # Example
+//! ```no_run
+//! use std::path::Path;
+//! use rt_core::twin::{RobotModel, Scene, TaskConfig, TwinEnv, rollout};
+//! use shm_schemas::scene_file::SceneFile;
+//!
+//! let model = RobotModel::load(Path::new("assets/xarm5.urdf"))?;
+//! let task = TaskConfig::load(Path::new("assets/task.toml"))?;
+//! let scene = Scene::from_file(&SceneFile::load(Path::new("assets/scenes/tall_box.toml"))?)?;
+//! let mut env = TwinEnv::new(model, task);
+//! env.reset(&scene);
+//! let policy = env.straight_line_policy();
+//! let summary = rollout(&mut env, &scene, |obs| policy.act(obs), None);
+//! assert!(!summary.safe); // the straight line runs into the tall box
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 mod env;
 mod geometry;
