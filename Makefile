@@ -36,7 +36,7 @@ _build:
 
 demo: setup
 	$(MAKE) --no-print-directory _build
-	@bash scripts/demo.sh "$(BIN)"
+	@bash scripts/demo.sh "$(BIN)" $(ARGS)
 
 test: setup
 	$(MAKE) --no-print-directory _test

@@ -1,0 +1,11 @@
+#!/usr/bin/env bash
+# The main job (`make demo`): the self-improving loop on the simulated arm.
+# Usage: scripts/demo.sh <bin-dir> [foresight options...]
+#   e.g. make demo ARGS="--no-lookahead"   or   make demo ARGS="--runs 20 --seed 7"
+set -euo pipefail
+bin=${1:?usage: demo.sh <bin-dir> [foresight options]}
+shift
+cd "$(dirname "$0")/.."
+# iceoryx2 keeps shared memory of crashed processes; the launcher's nodes clean dead
+# nodes at start, so nothing needs removing here.
+exec "$bin/foresight" "$@"
