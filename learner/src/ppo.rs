@@ -66,6 +66,9 @@ pub struct PpoConfig {
     pub hidden: Vec<usize>,
     /// Rollout worker threads (0: one per available core, at most `n_envs`).
     pub workers: usize,
+    /// Keep updating the observation and return statistics (off: frozen, e.g. while
+    /// retraining, so the inputs the pre-trained network knows keep their meaning).
+    pub update_stats: bool,
 }
 
 impl Default for PpoConfig {
@@ -88,6 +91,7 @@ impl Default for PpoConfig {
             clip_reward: 10.0,
             hidden: vec![64, 64],
             workers: 0,
+            update_stats: true,
         }
     }
 }
@@ -561,9 +565,11 @@ impl<E: Env + Clone> Trainer<E> {
         });
         let total: usize = bufs.iter().map(|b| b.n * n_steps).sum();
         self.steps += total as u64;
-        for b in &bufs {
-            self.obs_rms.update(&b.raw_obs);
-            self.ret_rms.update(&b.disc_returns);
+        if self.cfg.update_stats {
+            for b in &bufs {
+                self.obs_rms.update(&b.raw_obs);
+                self.ret_rms.update(&b.disc_returns);
+            }
         }
         bufs
     }

@@ -58,6 +58,13 @@ pub struct ServeArgs {
     /// (a converged policy barely explores; 0 keeps it).
     #[arg(long, default_value_t = 0.5)]
     pub explore_std: f64,
+    /// Keep the pre-training observation/return statistics fixed while retraining (off by
+    /// default: measured worse — the unseen tall-box features saturate at the clip).
+    #[arg(long, default_value_t = false, action = clap::ArgAction::Set)]
+    pub freeze_stats: bool,
+    /// Minibatch size during retraining (0: the checkpoint's).
+    #[arg(long, default_value_t = 0)]
+    pub batch: usize,
     /// Learning rate during retraining (0: the checkpoint's).
     #[arg(long, default_value_t = 0.0)]
     pub lr: f64,
@@ -133,6 +140,10 @@ pub fn retrain(
         Trainer::new(cfg, env.clone(), base.meta.seed, device).map_err(anyhow::Error::msg)?;
     base.restore(&mut trainer)?;
     trainer.cfg.ent_coef = args.ent_coef;
+    trainer.cfg.update_stats = !args.freeze_stats;
+    if args.batch > 0 {
+        trainer.cfg.batch_size = args.batch;
+    }
     if args.lr > 0.0 {
         trainer.cfg.learning_rate = args.lr;
         trainer.adam.lr = args.lr;
