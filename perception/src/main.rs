@@ -243,7 +243,7 @@ fn load_detector(
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,rustdds=warn,ros2_client=warn".into()),
         )
         .with_writer(std::io::stderr)
         .init();

@@ -1,0 +1,157 @@
+//! perception's ROS 2 source: a ros2-client node publishes a synthetic camera's colour
+//! (`bgra8`, as the ZED wrapper does), depth (`32FC1`) and camera info on the ZED wrapper's
+//! default topic names; the real `perception run --source ros2` process turns them into
+//! `DetectionFrame`s on iceoryx2 with the right objects.
+//!
+//! DDS stays on loopback: both sides restrict rustdds to 127.0.0.1 (`with_only_networks`),
+//! and the test runs inside a private network namespace (`unshare -n`, `lo` up with
+//! MULTICAST on, which rustdds' discovery needs) made by `run_in_private_netns`.
+//! Needs `cargo build --release -p perception` first.
+
+use std::process::{Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use foresight_tests::{ChildGuard, NetnsOutcome, bin_path, run_in_private_netns, unique_prefix, wait_for};
+use iceoryx2::prelude::*;
+use perception::calibration::{Calibration, CalibrationFile};
+use perception::ros2_source::{CameraInfo, Header, Image, Ros2Topics, Time, camera_info_publisher, context, image_publisher, node};
+use perception::synthetic::SyntheticCamera;
+use shm_schemas::scene_file::SceneFile;
+use shm_schemas::{DetectionFrame, ObjectClass, services};
+
+const SCENE: &str = "[goal]\ncenter_m = [0.45, 0.20, 0.025]\nsize_m = 0.05\n[[obstacle]]\ncenter_m = [0.30, -0.10, 0.075]\nsize_m = [0.08, 0.06, 0.15]\n";
+
+#[test]
+fn ros2_camera_topics_become_detection_frames() {
+    if run_in_private_netns("ros2_camera_topics_become_detection_frames") == NetnsOutcome::RanInChild {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("foresight-perc-ros2-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // A 640x360 camera (keeps each image message under 1 MB).
+    let mut cam = SyntheticCamera::load(&foresight_tests::asset("perception/synthetic_camera.toml")).unwrap().config;
+    cam.intrinsics.fx_px /= 2.0;
+    cam.intrinsics.fy_px /= 2.0;
+    cam.intrinsics.cx_px /= 2.0;
+    cam.intrinsics.cy_px /= 2.0;
+    cam.intrinsics.width_px /= 2;
+    cam.intrinsics.height_px /= 2;
+    let cam = SyntheticCamera::new(cam).unwrap();
+    let scene = SceneFile::from_toml_str(SCENE, std::path::Path::new("<test>")).unwrap();
+    let r = cam.render(&scene);
+    Calibration::new(CalibrationFile {
+        intrinsics: cam.config.intrinsics,
+        workspace: cam.workspace_for(&scene),
+        corners_px: cam.workspace_corners_px(&scene).unwrap(),
+        rectified_px_per_m: 1000.0,
+    })
+    .unwrap()
+    .save(&dir.join("calibration.toml"))
+    .unwrap();
+    let topics = Ros2Topics {
+        networks: vec!["127.0.0.1".parse().unwrap()],
+        timeout_s: 5.0,
+        ..Ros2Topics::default()
+    };
+    std::fs::write(dir.join("topics.toml"), toml_of(&topics)).unwrap();
+
+    let prefix = unique_prefix("percros");
+    let (ice, _) = services::create_node::<ipc::Service>("perception-ros2-test").unwrap();
+    let sub = services::open_subscriber::<DetectionFrame, _>(&ice, &prefix).unwrap();
+    let mut p = ChildGuard::spawn(
+        "perception run --source ros2",
+        Command::new(bin_path("perception"))
+            .args(["run", "--source", "ros2", "--prefix", &prefix, "--rate", "10", "--frames", "40", "--persist-frames", "1"])
+            .arg("--ros2-topics")
+            .arg(dir.join("topics.toml"))
+            .arg("--calibration")
+            .arg(dir.join("calibration.toml"))
+            .stdout(Stdio::null()),
+    );
+
+    // The camera: publish at 10 Hz until told to stop.
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop2 = stop.clone();
+    let (w, h) = (r.width_px as u32, r.height_px as u32);
+    let bgra: Vec<u8> = r.bgr.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
+    let depth: Vec<u8> = r.depth_m.iter().flat_map(|d| d.to_le_bytes()).collect();
+    let k = cam.config.intrinsics;
+    let camera = std::thread::spawn(move || {
+        let ctx = context(0, &topics.networks).unwrap();
+        let mut n = node(&ctx, "fake_zed").unwrap();
+        let colour_pub = image_publisher(&mut n, &topics.colour).unwrap();
+        let depth_pub = image_publisher(&mut n, &topics.depth).unwrap();
+        let info_pub = camera_info_publisher(&mut n, &topics.camera_info).unwrap();
+        let mut i = 0;
+        while !stop2.load(Ordering::Relaxed) {
+            i += 1;
+            let header = Header {
+                stamp: Time { sec: i, nanosec: 0 },
+                frame_id: "zed_left_camera_optical_frame".into(),
+            };
+            let info = CameraInfo {
+                header: header.clone(),
+                height: h,
+                width: w,
+                distortion_model: "plumb_bob".into(),
+                d: vec![0.0; 5],
+                k: [k.fx_px, 0.0, k.cx_px, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 1.0],
+                ..CameraInfo::default()
+            };
+            let _ = info_pub.publish(info);
+            let _ = depth_pub.publish(Image {
+                header: header.clone(),
+                height: h,
+                width: w,
+                encoding: "32FC1".into(),
+                is_bigendian: 0,
+                step: w * 4,
+                data: depth.clone(),
+            });
+            let _ = colour_pub.publish(Image {
+                header,
+                height: h,
+                width: w,
+                encoding: "bgra8".into(),
+                is_bigendian: 0,
+                step: w * 4,
+                data: bgra.clone(),
+            });
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    });
+
+    let got = wait_for(Duration::from_secs(40), || {
+        while let Ok(Some(s)) = sub.receive() {
+            let f = *s.payload();
+            if f.count == 2 {
+                return Some(f);
+            }
+        }
+        assert!(p.child.try_wait().unwrap().is_none(), "perception exited early");
+        None
+    });
+    stop.store(true, Ordering::Relaxed);
+    camera.join().unwrap();
+    let f = got.expect("no DetectionFrame with both objects arrived from the ROS 2 source");
+    f.validate().unwrap();
+    let goal = f.objects()[0];
+    let obs = f.objects()[1];
+    assert_eq!(goal.class().unwrap(), ObjectClass::Goal);
+    assert_eq!(obs.class().unwrap(), ObjectClass::Obstacle);
+    let close = |a: [f32; 3], b: [f32; 3], tol: f32| a.iter().zip(b).all(|(x, y)| (x - y).abs() < tol);
+    assert!(close(goal.center_m, [0.45, 0.20, 0.025], 0.015), "{goal:?}");
+    assert!(close(obs.center_m, [0.30, -0.10, 0.075], 0.015), "{obs:?}");
+    assert!((obs.size_m[2] - 0.15).abs() < 0.015, "{obs:?}");
+    assert!(f.capture_time_ns > 0);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+fn toml_of(t: &Ros2Topics) -> String {
+    format!(
+        "domain_id = {}\nnetworks = [\"127.0.0.1\"]\ncolour = {:?}\ndepth = {:?}\ncamera_info = {:?}\ntimeout_s = {}\n",
+        t.domain_id, t.colour, t.depth, t.camera_info, t.timeout_s
+    )
+}
