@@ -53,7 +53,7 @@ fn bench(c: &mut Criterion) {
     .unwrap();
     let prefix = format!("bench{}", std::process::id());
     let mut pipeline = Pipeline {
-        detector: Detector::Colour(detector),
+        detector: Detector::Colour(Box::new(detector)),
         calibration,
         tracker: Tracker::new(TrackerConfig::default()).unwrap(),
         publisher: DetectionPublisher::open(&prefix, 0).unwrap(),

@@ -235,15 +235,16 @@ fn load_detector(
             }
         }
     };
-    Ok(Detector::Colour(
+    Ok(Detector::Colour(Box::new(
         ColourDetector::new(cfg).map_err(anyhow::Error::msg)?,
-    ))
+    )))
 }
 
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,rustdds=warn,ros2_client=warn".into()),
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| "info,rustdds=warn,ros2_client=warn".into()),
         )
         .with_writer(std::io::stderr)
         .init();

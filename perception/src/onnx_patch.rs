@@ -249,10 +249,9 @@ fn parse_node(buf: &[u8]) -> Result<Node<'_>, OnnxPatchError> {
                 if let Some(b) = bytes_of(&f) {
                     let attr = parse(b)?;
                     let is_value = attr.iter().any(|a| a.num == 1 && string_of(a) == "value");
-                    if is_value {
-                        if let Some(t) = attr.iter().find(|a| a.num == 5).and_then(bytes_of) {
-                            n.constant = Some(parse_tensor(t)?.1);
-                        }
+                    if is_value && let Some(t) = attr.iter().find(|a| a.num == 5).and_then(bytes_of)
+                    {
+                        n.constant = Some(parse_tensor(t)?.1);
                     }
                 }
             }
@@ -326,20 +325,20 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
             }
             12 => {
                 // ValueInfoProto: name = 1
-                if let Some(b) = bytes_of(f) {
-                    if let Some(nf) = parse(b)?.iter().find(|x| x.num == 1) {
-                        graph_outputs.push(string_of(nf));
-                    }
+                if let Some(b) = bytes_of(f)
+                    && let Some(nf) = parse(b)?.iter().find(|x| x.num == 1)
+                {
+                    graph_outputs.push(string_of(nf));
                 }
             }
             _ => {}
         }
     }
     for n in &mut nodes {
-        if n.op_type == "Constant" {
-            if let (Some(t), Some(o)) = (n.constant.take(), n.outputs.first()) {
-                constants.insert(o.clone(), t);
-            }
+        if n.op_type == "Constant"
+            && let (Some(t), Some(o)) = (n.constant.take(), n.outputs.first())
+        {
+            constants.insert(o.clone(), t);
         }
     }
     let mut replace: Vec<(usize, Vec<u8>)> = Vec::new();
@@ -391,11 +390,13 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
     let mut dropped: Vec<usize> = Vec::new();
     let mut new_initializers: Vec<Vec<u8>> = Vec::new();
     for (i, n) in nodes.iter().enumerate() {
-        if n.op_type == "Identity" && n.inputs.len() == 1 && n.outputs.len() == 1 {
-            if let Some(raw) = initializer_bytes.get(&n.inputs[0]) {
-                new_initializers.push(renamed_tensor(raw, &n.outputs[0])?);
-                dropped.push(i);
-            }
+        if n.op_type == "Identity"
+            && n.inputs.len() == 1
+            && n.outputs.len() == 1
+            && let Some(raw) = initializer_bytes.get(&n.inputs[0])
+        {
+            new_initializers.push(renamed_tensor(raw, &n.outputs[0])?);
+            dropped.push(i);
         }
     }
     let folded_identities = dropped.len();

@@ -18,7 +18,7 @@ use crate::yolo::YoloDetector;
 /// Either detector.
 pub enum Detector {
     /// Per-class HSV thresholds.
-    Colour(ColourDetector),
+    Colour(Box<ColourDetector>),
     /// A YOLOv8 ONNX model.
     Yolo(Box<YoloDetector>),
 }

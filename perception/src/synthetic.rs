@@ -316,17 +316,17 @@ impl SyntheticCamera {
                     }
                 }
                 for s in &solids {
-                    if let Some((t, axis)) = ray_box(o, d, s) {
-                        if t < best_t {
-                            best_t = t;
-                            hit_label = s.label;
-                            hit_bgr = s.bgr;
-                            shade = match axis {
-                                2 => 1.0,
-                                0 => 0.78,
-                                _ => 0.62,
-                            };
-                        }
+                    if let Some((t, axis)) = ray_box(o, d, s)
+                        && t < best_t
+                    {
+                        best_t = t;
+                        hit_label = s.label;
+                        hit_bgr = s.bgr;
+                        shade = match axis {
+                            2 => 1.0,
+                            0 => 0.78,
+                            _ => 0.62,
+                        };
                     }
                 }
                 let i = v * w + u;

@@ -139,7 +139,7 @@ pub fn decode(
                 best = c;
             }
         }
-        if !(score >= threshold) {
+        if score.is_nan() || score < threshold {
             continue;
         }
         let k = box_scale.and_then(|s| s.get(a).copied()).unwrap_or(1.0);
@@ -312,13 +312,13 @@ impl YoloDetector {
                 det.labels.len()
             )));
         }
-        if let Some(s) = &det.box_scale {
-            if s.len() != n {
-                return Err(unrunnable(format!(
-                    "strides constant has {} entries for {n} anchors",
-                    s.len()
-                )));
-            }
+        if let Some(s) = &det.box_scale
+            && s.len() != n
+        {
+            return Err(unrunnable(format!(
+                "strides constant has {} entries for {n} anchors",
+                s.len()
+            )));
         }
         Ok(det)
     }

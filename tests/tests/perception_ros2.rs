@@ -13,10 +13,15 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use foresight_tests::{ChildGuard, NetnsOutcome, bin_path, run_in_private_netns, unique_prefix, wait_for};
+use foresight_tests::{
+    ChildGuard, NetnsOutcome, bin_path, run_in_private_netns, unique_prefix, wait_for,
+};
 use iceoryx2::prelude::*;
 use perception::calibration::{Calibration, CalibrationFile};
-use perception::ros2_source::{CameraInfo, Header, Image, Ros2Topics, Time, camera_info_publisher, context, image_publisher, node};
+use perception::ros2_source::{
+    CameraInfo, Header, Image, Ros2Topics, Time, camera_info_publisher, context, image_publisher,
+    node,
+};
 use perception::synthetic::SyntheticCamera;
 use shm_schemas::scene_file::SceneFile;
 use shm_schemas::{DetectionFrame, ObjectClass, services};
@@ -25,13 +30,18 @@ const SCENE: &str = "[goal]\ncenter_m = [0.45, 0.20, 0.025]\nsize_m = 0.05\n[[ob
 
 #[test]
 fn ros2_camera_topics_become_detection_frames() {
-    if run_in_private_netns("ros2_camera_topics_become_detection_frames") == NetnsOutcome::RanInChild {
+    if run_in_private_netns("ros2_camera_topics_become_detection_frames")
+        == NetnsOutcome::RanInChild
+    {
         return;
     }
     let dir = std::env::temp_dir().join(format!("foresight-perc-ros2-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     // A 640x360 camera (keeps each image message under 1 MB).
-    let mut cam = SyntheticCamera::load(&foresight_tests::asset("perception/synthetic_camera.toml")).unwrap().config;
+    let mut cam =
+        SyntheticCamera::load(&foresight_tests::asset("perception/synthetic_camera.toml"))
+            .unwrap()
+            .config;
     cam.intrinsics.fx_px /= 2.0;
     cam.intrinsics.fy_px /= 2.0;
     cam.intrinsics.cx_px /= 2.0;
@@ -63,7 +73,19 @@ fn ros2_camera_topics_become_detection_frames() {
     let mut p = ChildGuard::spawn(
         "perception run --source ros2",
         Command::new(bin_path("perception"))
-            .args(["run", "--source", "ros2", "--prefix", &prefix, "--rate", "10", "--frames", "40", "--persist-frames", "1"])
+            .args([
+                "run",
+                "--source",
+                "ros2",
+                "--prefix",
+                &prefix,
+                "--rate",
+                "10",
+                "--frames",
+                "40",
+                "--persist-frames",
+                "1",
+            ])
             .arg("--ros2-topics")
             .arg(dir.join("topics.toml"))
             .arg("--calibration")
@@ -75,7 +97,11 @@ fn ros2_camera_topics_become_detection_frames() {
     let stop = Arc::new(AtomicBool::new(false));
     let stop2 = stop.clone();
     let (w, h) = (r.width_px as u32, r.height_px as u32);
-    let bgra: Vec<u8> = r.bgr.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
+    let bgra: Vec<u8> = r
+        .bgr
+        .chunks_exact(3)
+        .flat_map(|p| [p[0], p[1], p[2], 255])
+        .collect();
     let depth: Vec<u8> = r.depth_m.iter().flat_map(|d| d.to_le_bytes()).collect();
     let k = cam.config.intrinsics;
     let camera = std::thread::spawn(move || {
@@ -130,7 +156,10 @@ fn ros2_camera_topics_become_detection_frames() {
                 return Some(f);
             }
         }
-        assert!(p.child.try_wait().unwrap().is_none(), "perception exited early");
+        assert!(
+            p.child.try_wait().unwrap().is_none(),
+            "perception exited early"
+        );
         None
     });
     stop.store(true, Ordering::Relaxed);
@@ -141,7 +170,8 @@ fn ros2_camera_topics_become_detection_frames() {
     let obs = f.objects()[1];
     assert_eq!(goal.class().unwrap(), ObjectClass::Goal);
     assert_eq!(obs.class().unwrap(), ObjectClass::Obstacle);
-    let close = |a: [f32; 3], b: [f32; 3], tol: f32| a.iter().zip(b).all(|(x, y)| (x - y).abs() < tol);
+    let close =
+        |a: [f32; 3], b: [f32; 3], tol: f32| a.iter().zip(b).all(|(x, y)| (x - y).abs() < tol);
     assert!(close(goal.center_m, [0.45, 0.20, 0.025], 0.015), "{goal:?}");
     assert!(close(obs.center_m, [0.30, -0.10, 0.075], 0.015), "{obs:?}");
     assert!((obs.size_m[2] - 0.15).abs() < 0.015, "{obs:?}");

@@ -23,13 +23,23 @@ const SMALL: &str = "name = \"small\"\n[goal]\ncenter_m = [0.45, 0.20, 0.025]\ns
 
 fn write_world(dir: &Path) -> PathBuf {
     std::fs::write(dir.join("small.toml"), SMALL).unwrap();
-    std::fs::write(dir.join("tall.toml"), SMALL.replace("0.05]\nsize_m = [0.06, 0.06, 0.10]", "0.15]\nsize_m = [0.06, 0.06, 0.30]")).unwrap();
+    std::fs::write(
+        dir.join("tall.toml"),
+        SMALL.replace(
+            "0.05]\nsize_m = [0.06, 0.06, 0.10]",
+            "0.15]\nsize_m = [0.06, 0.06, 0.30]",
+        ),
+    )
+    .unwrap();
     let w = dir.join("world.toml");
     std::fs::write(&w, "[[step]]\nat_s = 0.0\nscene = \"small.toml\"\n[[step]]\nat_s = 1.0\nscene = \"tall.toml\"\n").unwrap();
     w
 }
 
-fn drain(sub: &iceoryx2::port::subscriber::Subscriber<ipc::Service, DetectionFrame, ()>, into: &mut Vec<DetectionFrame>) {
+fn drain(
+    sub: &iceoryx2::port::subscriber::Subscriber<ipc::Service, DetectionFrame, ()>,
+    into: &mut Vec<DetectionFrame>,
+) {
     while let Ok(Some(s)) = sub.receive() {
         let f = *s.payload();
         f.validate().expect("published frames validate");
@@ -47,8 +57,22 @@ fn synthetic_world_script_is_published_with_stable_ids_and_the_tall_box_grows() 
     let mut p = ChildGuard::spawn(
         "perception run",
         Command::new(bin_path("perception"))
-            .args(["run", "--source", &format!("synthetic:{}", world.display()), "--prefix", &prefix])
-            .args(["--rate", "20", "--fixed-step", "--frames", "60", "--persist-frames", "2"])
+            .args([
+                "run",
+                "--source",
+                &format!("synthetic:{}", world.display()),
+                "--prefix",
+                &prefix,
+            ])
+            .args([
+                "--rate",
+                "20",
+                "--fixed-step",
+                "--frames",
+                "60",
+                "--persist-frames",
+                "2",
+            ])
             .stdout(Stdio::piped()),
     );
     let mut frames = Vec::new();
@@ -61,23 +85,36 @@ fn synthetic_world_script_is_published_with_stable_ids_and_the_tall_box_grows() 
     assert!(frames.len() >= 30, "only {} frames received", frames.len());
     for w in frames.windows(2) {
         assert!(w[1].sequence > w[0].sequence, "sequence must increase");
-        assert!(w[1].capture_time_ns > w[0].capture_time_ns, "capture time must increase");
+        assert!(
+            w[1].capture_time_ns > w[0].capture_time_ns,
+            "capture time must increase"
+        );
     }
     let last = frames.last().unwrap();
     assert_eq!(last.sequence, 60);
     // Objects: a goal and an obstacle, with stable ids; the obstacle is 0.10 m tall before
     // the swap (t < 1 s, frames 1..=20) and 0.30 m after.
     let with_both: Vec<&DetectionFrame> = frames.iter().filter(|f| f.count == 2).collect();
-    assert!(with_both.len() >= 25, "{} frames with both objects", with_both.len());
+    assert!(
+        with_both.len() >= 25,
+        "{} frames with both objects",
+        with_both.len()
+    );
     let ids = |f: &DetectionFrame| (f.objects()[0].object_id, f.objects()[1].object_id);
     let first_ids = ids(with_both[0]);
-    assert!(with_both.iter().all(|f| ids(f) == first_ids), "ids changed across frames");
+    assert!(
+        with_both.iter().all(|f| ids(f) == first_ids),
+        "ids changed across frames"
+    );
     for f in &with_both {
         let goal = f.objects()[0];
         let obs = f.objects()[1];
         assert_eq!(goal.class().unwrap(), ObjectClass::Goal);
         assert_eq!(obs.class().unwrap(), ObjectClass::Obstacle);
-        assert!((goal.center_m[0] - 0.45).abs() < 0.01 && (goal.center_m[1] - 0.20).abs() < 0.01, "{goal:?}");
+        assert!(
+            (goal.center_m[0] - 0.45).abs() < 0.01 && (goal.center_m[1] - 0.20).abs() < 0.01,
+            "{goal:?}"
+        );
         let h = obs.size_m[2];
         if f.sequence <= 20 {
             assert!((h - 0.10).abs() < 0.01, "seq {}: height {h}", f.sequence);
@@ -99,7 +136,11 @@ fn corrupt_and_empty_files_are_skipped_and_good_frames_served() {
         .arg(dir.join("r"))
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let frames = dir.join("frames");
     std::fs::create_dir_all(&frames).unwrap();
     std::fs::copy(dir.join("r/colour.png"), frames.join("a.png")).unwrap();
@@ -115,8 +156,17 @@ fn corrupt_and_empty_files_are_skipped_and_good_frames_served() {
     let mut p = ChildGuard::spawn(
         "perception run",
         Command::new(bin_path("perception"))
-            .args(["run", "--source", &format!("file:{}", frames.display()), "--prefix", &prefix])
-            .args(["--calibration", dir.join("r/calibration.toml").to_str().unwrap()])
+            .args([
+                "run",
+                "--source",
+                &format!("file:{}", frames.display()),
+                "--prefix",
+                &prefix,
+            ])
+            .args([
+                "--calibration",
+                dir.join("r/calibration.toml").to_str().unwrap(),
+            ])
             .args(["--rate", "20", "--persist-frames", "1"])
             .stdout(Stdio::piped())
             .stderr(Stdio::piped()),
@@ -131,12 +181,25 @@ fn corrupt_and_empty_files_are_skipped_and_good_frames_served() {
     let mut stdout = String::new();
     let mut stderr = String::new();
     use std::io::Read;
-    p.child.stdout.take().unwrap().read_to_string(&mut stdout).unwrap();
-    p.child.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    p.child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut stdout)
+        .unwrap();
+    p.child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
     let stats: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
     assert_eq!(stats["published"], 2, "{stdout}\n{stderr}");
     assert_eq!(stats["bad_frames"], 2, "{stdout}\n{stderr}");
-    assert!(stderr.contains("b.png") && stderr.contains("c.png"), "the bad files are named in the log:\n{stderr}");
+    assert!(
+        stderr.contains("b.png") && stderr.contains("c.png"),
+        "the bad files are named in the log:\n{stderr}"
+    );
     assert_eq!(got.len(), 2);
     assert_eq!(got[1].count, 2, "{:?}", got[1]);
     std::fs::remove_dir_all(&dir).ok();
@@ -146,13 +209,28 @@ fn corrupt_and_empty_files_are_skipped_and_good_frames_served() {
 fn bad_inputs_give_clear_errors() {
     let dir = tmpdir("perc-bad");
     let run = |args: &[&str]| {
-        let o = Command::new(bin_path("perception")).args(args).output().unwrap();
-        (o.status.success(), String::from_utf8_lossy(&o.stderr).into_owned())
+        let o = Command::new(bin_path("perception"))
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
     };
     std::fs::write(dir.join("cal.toml"), "corners_px = [[1.0, 2.0]]\n").unwrap();
-    let (ok, err) = run(&["run", "--source", "file:/nonexistent", "--calibration", dir.join("cal.toml").to_str().unwrap()]);
+    let (ok, err) = run(&[
+        "run",
+        "--source",
+        "file:/nonexistent",
+        "--calibration",
+        dir.join("cal.toml").to_str().unwrap(),
+    ]);
     assert!(!ok);
-    assert!(err.contains("cannot open source") || err.contains("calibration"), "{err}");
+    assert!(
+        err.contains("cannot open source") || err.contains("calibration"),
+        "{err}"
+    );
     let world = write_world(&dir);
     let (ok, err) = run(&[
         "run",
@@ -164,7 +242,10 @@ fn bad_inputs_give_clear_errors() {
         "1",
     ]);
     assert!(!ok);
-    assert!(err.contains("malformed calibration file") && err.contains("cal.toml"), "{err}");
+    assert!(
+        err.contains("malformed calibration file") && err.contains("cal.toml"),
+        "{err}"
+    );
     let (ok, err) = run(&["detect", "--image", "/nonexistent.png"]);
     assert!(!ok && err.contains("/nonexistent.png"), "{err}");
     std::fs::write(dir.join("labels.txt"), "goal\nobstacle\n").unwrap();
