@@ -2,7 +2,7 @@
 //! toy arm and an in-process arm, a twin worker with the toy lookahead, and a manual clock,
 //! stepped in one thread so every run is deterministic.
 
-#![allow(dead_code)]
+#![allow(dead_code, missing_docs, clippy::new_without_default)]
 
 use rt_core::runtime::clock::{Clock, ManualClock};
 use rt_core::runtime::config::RuntimeConfig;
@@ -84,7 +84,7 @@ impl Rig {
         let period = self.cfg.period_ns();
         for _ in 0..n {
             let now = self.clock.now_ns();
-            if self.detections_on && self.cycles % self.detections_every == 0 {
+            if self.detections_on && self.cycles.is_multiple_of(self.detections_every) {
                 self.twin.on_detection(self.scene, now, &mut self.events);
             }
             self.twin.step(&mut self.events);

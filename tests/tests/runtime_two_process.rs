@@ -23,6 +23,9 @@ use shm_schemas::{
 };
 
 const GOAL_M: [f32; 3] = [0.40, 0.15, 0.025];
+
+/// Obstacles the detector publishes: (centre, size), m.
+type Obstacles = Arc<Mutex<Vec<([f32; 3], [f32; 3])>>>;
 const GOAL_SIZE_M: f32 = 0.05;
 
 fn task() -> TaskConfig {
@@ -71,7 +74,7 @@ struct Rig {
     verdicts: iceoryx2::port::subscriber::Subscriber<ipc::Service, TwinVerdict, ()>,
     retrains: iceoryx2::port::subscriber::Subscriber<ipc::Service, RetrainRequest, ()>,
     states: iceoryx2::port::subscriber::Subscriber<ipc::Service, RobotState, ()>,
-    obstacles: Arc<Mutex<Vec<([f32; 3], [f32; 3])>>>,
+    obstacles: Obstacles,
     stop: Arc<AtomicBool>,
     detector: Option<std::thread::JoinHandle<()>>,
     log: PathBuf,
@@ -79,6 +82,7 @@ struct Rig {
 }
 
 #[derive(Debug, Clone, Copy)]
+#[allow(clippy::large_enum_variant)] // a test log of fixed-size samples
 enum Seen {
     Verdict(TwinVerdict),
     Retrain(RetrainRequest),
@@ -121,7 +125,7 @@ impl Rig {
                 .stdout(Stdio::null())
                 .stderr(Stdio::from(log_file)),
         );
-        let obstacles: Arc<Mutex<Vec<([f32; 3], [f32; 3])>>> = Arc::new(Mutex::new(Vec::new()));
+        let obstacles: Obstacles = Arc::new(Mutex::new(Vec::new()));
         let stop = Arc::new(AtomicBool::new(false));
         let (obs, st, pfx) = (obstacles.clone(), stop.clone(), prefix.clone());
         let detector = std::thread::spawn(move || {

@@ -133,6 +133,7 @@ impl RuntimeConfig {
     }
 
     /// The defaults of `assets/runtime.toml` (xArm5 limits, 250 Hz).
+    #[allow(clippy::approx_constant)] // the xArm5's published limits, rounded as in the TOML
     pub fn xarm5_default() -> Self {
         let j = |a: f64| [a; DOF];
         Self {
@@ -244,6 +245,7 @@ impl RuntimeConfig {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

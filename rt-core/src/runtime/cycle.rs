@@ -501,6 +501,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
 }
 
 /// Timing figures of a loop run.
+#[derive(Default)]
 pub struct LoopStats {
     /// Wake-up latency (actual wake − deadline).
     pub wake: Histogram,
@@ -510,17 +511,6 @@ pub struct LoopStats {
     pub missed_deadlines: u64,
     /// Cycles run.
     pub cycles: u64,
-}
-
-impl Default for LoopStats {
-    fn default() -> Self {
-        Self {
-            wake: Histogram::new(),
-            compute: Histogram::new(),
-            missed_deadlines: 0,
-            cycles: 0,
-        }
-    }
 }
 
 /// Summary of a loop run (JSON for the bench).

@@ -132,6 +132,7 @@ impl RobotLink for InProcessArm {
             .last_ns
             .map_or(0.0, |t| now_ns.saturating_sub(t) as f64 * 1e-9);
         self.last_ns = Some(now_ns);
+        #[allow(clippy::needless_range_loop)] // j indexes six per-joint arrays
         for j in 0..DOF {
             let target = q_rad[j].clamp(self.joint_min_rad[j], self.joint_max_rad[j]);
             let max_step = self.max_velocity_rad_s[j] * dt_s;
@@ -149,6 +150,7 @@ impl RobotLink for InProcessArm {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

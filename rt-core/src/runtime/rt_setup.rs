@@ -44,9 +44,11 @@ fn last_errno() -> i32 {
 /// Applies `req` to the calling thread (and, for memory, the process). Reports each refusal
 /// once with `tracing::warn!` and carries on.
 pub fn apply(req: &RtRequest) -> RtSetupReport {
-    let mut report = RtSetupReport::default();
     // A 1 ns timer slack for this thread: SCHED_OTHER sleeps otherwise wake up to 50 µs late.
-    report.timer_slack_1ns = set_timer_slack_ns(1).is_ok();
+    let mut report = RtSetupReport {
+        timer_slack_1ns: set_timer_slack_ns(1).is_ok(),
+        ..RtSetupReport::default()
+    };
     if req.lock_memory {
         let r = lock_memory();
         if let Err(e) = r {
@@ -200,6 +202,7 @@ pub fn sleep_until_monotonic_ns(deadline_ns: u64) {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -130,8 +130,8 @@ impl<M: ShieldModel> Shield<M> {
         if q_rad.iter().any(|x| !x.is_finite()) {
             return Err(ShieldViolation::NonFinite);
         }
-        for j in 0..DOF {
-            if q_rad[j] < self.limits.joint_min_rad[j] || q_rad[j] > self.limits.joint_max_rad[j] {
+        for (j, q) in q_rad.iter().enumerate() {
+            if *q < self.limits.joint_min_rad[j] || *q > self.limits.joint_max_rad[j] {
                 return Err(ShieldViolation::JointLimit { joint: j as u8 });
             }
         }
@@ -198,6 +198,7 @@ impl<M: ShieldModel> Shield<M> {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::super::config::RuntimeConfig;
     use super::super::toy::{ToyArm, ToyScene};

@@ -297,6 +297,7 @@ impl Brake {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::super::config::RuntimeConfig;
     use super::super::toy::ToyArm;

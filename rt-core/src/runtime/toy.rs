@@ -267,6 +267,7 @@ impl Lookahead for ToyLookahead {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
