@@ -7,7 +7,12 @@ use rt_core::twin::{IkConfig, IkSolver};
 use super::common::model;
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+    // PROPTEST_CASES raises the case count for a longer search.
+    #![proptest_config(ProptestConfig {
+        cases: std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(512),
+        max_global_rejects: 1_000_000,
+        ..ProptestConfig::default()
+    })]
 
     /// Random reachable targets (FK of random joints in the working region in front of
     /// the robot) → FK(IK(x)) within 1 mm, joints within limits.
@@ -21,7 +26,13 @@ proptest! {
     ) {
         let m = model();
         let target = m.tcp_m(&[j1, j2, j3, j4, j5]);
+        // Reachable and not on the singular boundary of the workspace: above the table,
+        // at least 0.1 m off the joint-1 axis and within 0.65 m of the shoulder (full
+        // stretch is 0.76 m).
+        let shoulder = nalgebra::Vector3::new(0.0, 0.0, 0.267);
         prop_assume!(target.z > 0.05);
+        prop_assume!(target.xy().norm() > 0.1);
+        prop_assume!((target - shoulder).norm() < 0.65);
         let solver = IkSolver::new(&m, IkConfig { max_iterations: 300, ..IkConfig::default() });
         let r = solver.solve(&m, &target, &m.home());
         prop_assert!(m.limits().contains(&r.joints));
