@@ -315,7 +315,7 @@ fn bad_blobs_are_rejected_while_the_loop_runs_and_hot_swaps_wait_for_a_passing_l
     let idle = PolicyBlobBuilder::new(4, task.hash())
         .activation(Activation::Relu)
         .output_activation(Activation::Identity)
-        .layer(OBS_DIM, 2, &vec![0.0; 2 * OBS_DIM], &[0.0; 2])
+        .layer(OBS_DIM, 2, &[0.0; 2 * OBS_DIM], &[0.0; 2])
         .layer(2, ACT_DIM, &[0.0; 2 * ACT_DIM], &[0.0; ACT_DIM]);
     rig.publish_policy(&idle, false);
     let (_, v4) = rig.wait("verdict of policy 4", Duration::from_secs(10), |s| {
