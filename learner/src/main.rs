@@ -324,10 +324,11 @@ fn main() -> Result<()> {
                 .out
                 .clone()
                 .unwrap_or_else(|| checkpoint::resolve(&args.checkpoint).with_file_name("retrain"));
+            let scene = load_scene(&scene)?;
             let (sum, before) = service::retrain(
                 &base,
                 &env,
-                load_scene(&scene)?,
+                scene.clone(),
                 &args,
                 &out,
                 1,
@@ -335,9 +336,21 @@ fn main() -> Result<()> {
                 |_, _| true,
             )?;
             let best = Checkpoint::load(&out.join(checkpoint::BEST))?;
+            let norm = learner::normalize::ObsNormalizer::from_stats(
+                &best.meta.obs_rms.to_rms(),
+                best.meta.ppo.clip_obs,
+            );
+            let exact = evaluate(&best.network(device)?, &norm, &env, &[scene], 1);
+            let old = evaluate(
+                &best.network(device)?,
+                &norm,
+                &env,
+                &fixed_scenes(&CurriculumSampler::small(&env), 200, EVAL_SEED),
+                best.meta.ppo.effective_workers(),
+            );
             println!(
                 "{}",
-                serde_json::json!({"summary": sum, "before": before, "best": best.meta.eval, "out": out})
+                serde_json::json!({"summary": sum, "before": before, "best": best.meta.eval, "exact_scene": exact, "small_obstacle_scenes": old, "best_steps": best.meta.steps - base.meta.steps, "out": out})
             );
         }
         Cmd::Serve(args) => {

@@ -4,6 +4,7 @@
 //! share of the old distribution so the policy does not forget it).
 
 use std::path::Path;
+use std::sync::atomic::{AtomicU32, Ordering};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -163,7 +164,7 @@ pub fn jittered(scene: &Scene, jitter: Jitter, rng: &mut ChaCha8Rng) -> Scene {
 
 /// Retraining scenes: with probability `old_share` a pre-training scene, otherwise the
 /// reported scene jittered.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct RetrainSampler {
     /// The reported scene.
     pub scene: Scene,
@@ -172,6 +173,9 @@ pub struct RetrainSampler {
     /// Share of episodes drawn from the old (pre-training) distribution.
     pub old_share: f64,
     old: CurriculumSampler,
+    /// Height curriculum: box heights are scaled by a factor drawn from `[lo, 1]`, with `lo`
+    /// (f32 bits) raised by the trainer from a small value to 1 (1 = off).
+    height_lo: AtomicU32,
 }
 
 impl RetrainSampler {
@@ -182,6 +186,7 @@ impl RetrainSampler {
             jitter,
             old_share,
             old: CurriculumSampler::small(task),
+            height_lo: AtomicU32::new(1.0f32.to_bits()),
         }
     }
 
@@ -199,13 +204,36 @@ impl RetrainSampler {
     }
 }
 
+impl RetrainSampler {
+    /// Sets the lower end of the box-height scale (clamped to `[0, 1]`; 1 turns the height
+    /// curriculum off).
+    pub fn set_height_lo(&self, lo: f32) {
+        self.height_lo
+            .store(lo.clamp(0.0, 1.0).to_bits(), Ordering::Relaxed);
+    }
+
+    /// The lower end of the box-height scale.
+    pub fn height_lo(&self) -> f32 {
+        f32::from_bits(self.height_lo.load(Ordering::Relaxed))
+    }
+}
+
 impl SceneSampler<Scene> for RetrainSampler {
     fn sample(&self, rng: &mut ChaCha8Rng) -> Scene {
         if rng.random::<f64>() < self.old_share {
-            self.old.sample(rng)
-        } else {
-            jittered(&self.scene, self.jitter, rng)
+            return self.old.sample(rng);
         }
+        let mut s = jittered(&self.scene, self.jitter, rng);
+        let lo = f64::from(self.height_lo());
+        if lo < 1.0 {
+            let k = rng.random_range(lo..=1.0);
+            for b in s.obstacles.iter_mut() {
+                let bottom = b.center_m[2] - b.size_m[2] / 2.0;
+                b.size_m[2] *= k;
+                b.center_m[2] = bottom + b.size_m[2] / 2.0;
+            }
+        }
+        s
     }
 }
 
