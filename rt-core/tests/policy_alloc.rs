@@ -88,12 +88,16 @@ fn act_and_prepare_into_allocate_nothing() {
         obs[(i as usize) % OBS_DIM] = (i % 97) as f32 * 0.01 - 0.5;
         let a = running.act(black_box(&obs));
         checksum += a[0] + a[1] + a[2];
-        if i % 1_000 == 999 {
-            let next = if swaps % 2 == 0 { &large } else { &small };
+        if (i + 1).is_multiple_of(1_000) {
+            let next = if swaps.is_multiple_of(2) {
+                &large
+            } else {
+                &small
+            };
             loader.prepare_into(next, &mut spare).unwrap();
             std::mem::swap(&mut running, &mut spare);
             swaps += 1;
-            if swaps % 10 == 0 {
+            if swaps.is_multiple_of(10) {
                 assert_eq!(
                     loader.prepare_into(&bad, &mut spare),
                     Err(PolicyRejectReason::NonFinite)

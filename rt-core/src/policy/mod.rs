@@ -8,6 +8,7 @@
 //! [`PolicyLoader::prepare_into`], then swap which one the cycle reads in one atomic step.
 //! A rejected blob leaves the running policy untouched.
 
+mod kernel;
 mod loader;
 mod mlp;
 
@@ -15,4 +16,5 @@ pub use loader::{PolicyExpectation, PolicyLoader, PolicyRejectReason, RejectCoun
 pub use mlp::{MlpPolicy, PolicyEvalError};
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests;

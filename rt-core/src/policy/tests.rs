@@ -205,3 +205,70 @@ fn swapping_into_a_spare_changes_the_action() {
     loader.prepare_into(&a, &mut spare).unwrap();
     assert_eq!(spare.act(&obs), from_a);
 }
+
+/// A straightforward f64 evaluation of a blob, as the reference for the optimised kernels.
+fn reference(blob: &PolicyBlob, obs: &[f32]) -> Vec<f64> {
+    let d = blob.obs_dim as usize;
+    let clip = f64::from(blob.obs_clip);
+    let mut x: Vec<f64> = (0..d)
+        .map(|i| {
+            ((f64::from(obs[i]) - f64::from(blob.obs_mean[i])) / f64::from(blob.obs_std[i]))
+                .clamp(-clip, clip)
+        })
+        .collect();
+    for k in 0..blob.n_layers() {
+        let l = blob.layer(k).unwrap();
+        let last = k + 1 == blob.n_layers();
+        x = (0..l.out_dim)
+            .map(|o| {
+                let z: f64 = (0..l.in_dim)
+                    .map(|j| f64::from(l.weights[o * l.in_dim + j]) * x[j])
+                    .sum::<f64>()
+                    + f64::from(l.bias[o]);
+                match (last, blob.activation) {
+                    (true, _) => z,
+                    (false, 1) => z.tanh(),
+                    (false, _) => z.max(0.0),
+                }
+            })
+            .collect();
+    }
+    let c = f64::from(blob.action_clip);
+    x.iter()
+        .enumerate()
+        .map(|(j, v)| v.clamp(-c, c) * f64::from(blob.action_scale[j]))
+        .collect()
+}
+
+#[test]
+fn optimised_kernels_match_a_plain_f64_evaluation() {
+    let loader = PolicyLoader::new(PolicyExpectation::for_task(TASK));
+    for (hidden, activation) in [
+        (vec![64usize, 64], Activation::Tanh),
+        (vec![256, 256], Activation::Tanh),
+        (vec![100, 17, 40], Activation::Relu),
+        (vec![8], Activation::Relu),
+    ] {
+        let blob = PolicyBlobBuilder::random(9, TASK, OBS_DIM, &hidden, ACT_DIM, 4)
+            .activation(activation)
+            .obs_normalization(&[0.1; OBS_DIM], &[0.5; OBS_DIM], 5.0)
+            .action_scaling(&[2.0, 1.0, 0.5], 1.0)
+            .build()
+            .unwrap();
+        let p = loader.prepare(&blob).unwrap();
+        for s in 0..20 {
+            let obs: [f32; OBS_DIM] =
+                core::array::from_fn(|i| ((i * 7 + s * 13) % 23) as f32 * 0.1 - 1.0);
+            let got = p.act(&obs);
+            let want = reference(&blob, &obs);
+            for j in 0..ACT_DIM {
+                assert!(
+                    (f64::from(got[j]) - want[j]).abs() < 1e-4,
+                    "{hidden:?} sample {s} action {j}: {} vs {}",
+                    got[j],
+                    want[j]
+                );
+            }
+        }
+    }
+}
