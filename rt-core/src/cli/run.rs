@@ -1,8 +1,8 @@
 //! `rt-core run --config FILE`: the runtime. A twin thread (iceoryx2 I/O, scene sync,
 //! lookahead, verdicts, plan approval, retrain requests) and a cycle thread (real-time
 //! set-up, the control cycle at the configured rate) around a robot link: `--link sim`
-//! (the in-process simulated arm) until the xArm driver's link lands (`--link xarm --robot
-//! HOST`).
+//! (the in-process simulated arm) or `--link xarm --robot HOST` (the xArm driver: a real
+//! xArm5 or `xarm-sim`).
 //!
 //! iceoryx2 services (all under the config's `service_prefix`): subscribes to
 //! `DetectionFrame` and `PolicyBlob`; publishes `RobotState` (every 4 ms), `TwinVerdict`
@@ -21,16 +21,18 @@ use iceoryx2::prelude::*;
 use rt_core::policy::{PolicyExpectation, PolicyLoader};
 use rt_core::runtime::alloc_count;
 use rt_core::runtime::clock::{Clock, MonotonicClock};
+use rt_core::runtime::config::RuntimeConfig;
 use rt_core::runtime::cycle::{
     self, Cycle, CycleConfig, CycleReport, LoopShared, LoopStats, Mode, StopReason,
 };
-use rt_core::runtime::link::InProcessArm;
+use rt_core::runtime::link::{InProcessArm, RobotLink};
 use rt_core::runtime::rt_setup::{self, RtRequest};
 use rt_core::runtime::shield::{Shield, ShieldLimits, ShieldModel};
 use rt_core::runtime::smoothing::Brake;
 use rt_core::runtime::twin_adapter::{LookaheadActions, SceneSnapshot, TwinLookahead, TwinModel};
 use rt_core::runtime::twin_thread::{TwinEvent, TwinWorker, Verdict};
-use rt_core::twin::{BoxObstacle, Goal, MAX_OBSTACLES, Scene};
+use rt_core::twin::{BoxObstacle, Goal, MAX_OBSTACLES, RobotModel, Scene, TaskConfig};
+use rt_core::xarm::driver::{XArmConfig, XArmDriver};
 use shm_schemas::services::{create_node, loan_zeroed, open_publisher, open_subscriber};
 use shm_schemas::{
     DetectionFrame, EpisodeEnd, ObjectClass, ObstacleBox, PolicyBlob, RetrainRequest, RobotState,
@@ -44,7 +46,7 @@ use super::bench_loop::load_assets;
 pub enum LinkKind {
     /// The in-process simulated arm.
     Sim,
-    /// A real xArm5 (or xarm-sim) over TCP — not wired yet.
+    /// A real xArm5 (or xarm-sim) over TCP (`--robot HOST`).
     Xarm,
 }
 
@@ -169,34 +171,62 @@ fn twin_verdict(v: &Verdict, id: u64, seq: u64, now_ns: u64, elapsed_s: f64) -> 
 
 fn runtime(args: &RunArgs) -> anyhow::Result<()> {
     let (cfg, model, task) = load_assets(&args.assets, None, Some(&args.config))?;
-    if args.link == LinkKind::Xarm {
-        anyhow::bail!(
-            "--link xarm (robot {:?}) is not wired into the runtime yet; use --link sim",
-            args.robot
-        );
+    match args.link {
+        LinkKind::Sim => {
+            let arm = InProcessArm::new(
+                task.start.joints_rad,
+                cfg.limits.joint_min_rad,
+                cfg.limits.joint_max_rad,
+                [std::f64::consts::PI; 5],
+            );
+            serve(args, cfg, model, task, arm)
+        }
+        LinkKind::Xarm => {
+            let host = args
+                .robot
+                .as_deref()
+                .context("--link xarm needs --robot HOST")?;
+            let mut driver = XArmDriver::connect(XArmConfig::new(host))
+                .map_err(|e| anyhow::anyhow!("connecting to the xArm at {host}: {e:?}"))?;
+            let q = driver
+                .start_servo_mode()
+                .map_err(|e| anyhow::anyhow!("entering servo mode: {e:?}"))?;
+            tracing::info!(host, joints_rad = ?q, "xArm in servo mode");
+            serve(args, cfg, model, task, driver)
+        }
     }
+}
+
+fn serve<L: RobotLink + 'static>(
+    args: &RunArgs,
+    cfg: RuntimeConfig,
+    model: RobotModel,
+    task: TaskConfig,
+    link: L,
+) -> anyhow::Result<()> {
     let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
     let task_hash = task.hash();
     let table_height_m = task.sampling.table_height_m;
     let lookahead = TwinLookahead::new(model.clone(), task.clone(), LookaheadActions::Policy);
-    let start_q = lookahead.start_q_rad();
     let (twin_io, cycle_io, log_drain) = cycle::wire::<SceneSnapshot>();
-    let arm = InProcessArm::new(
-        start_q,
-        cfg.limits.joint_min_rad,
-        cfg.limits.joint_max_rad,
-        [std::f64::consts::PI; 5],
-    );
     let clock = MonotonicClock::new();
     let mut cyc = Cycle::new(
         CycleConfig::from_runtime(&cfg),
         Shield::new(TwinModel::new(model.clone()), limits),
         Brake::new(&cfg.limits),
-        arm,
+        link,
         cycle_io,
     );
-    cyc.start(clock.now_ns())
-        .map_err(|e| anyhow::anyhow!("reading the arm: {e}"))?;
+    // The first report of a real link may take a few cycles to arrive.
+    let mut started = cyc.start(clock.now_ns());
+    for _ in 0..200 {
+        if started.is_ok() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+        started = cyc.start(clock.now_ns());
+    }
+    started.map_err(|e| anyhow::anyhow!("reading the arm: {e}"))?;
     let mut twin = TwinWorker::new(
         &cfg,
         lookahead,
