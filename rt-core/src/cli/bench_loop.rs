@@ -119,7 +119,7 @@ fn full_lookahead_ms(
 ) -> anyhow::Result<serde_json::Value> {
     use rt_core::runtime::twin_thread::Lookahead;
     let loader = PolicyLoader::new(PolicyExpectation::for_task(task_hash));
-    let mut la = TwinLookahead::new(model.clone(), task.clone(), LookaheadActions::Policy);
+    let mut la = TwinLookahead::new(model.clone(), *task, LookaheadActions::Policy);
     let start = la.start_q_rad();
     let scene = synthetic_scene();
     let mut wps = Vec::with_capacity(512);
@@ -156,7 +156,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     let (cfg, model, task) = load_assets(&args.assets, Some(args.rate), None)?;
     let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
     let task_hash = task.hash();
-    let task_for_probe = task.clone();
+    let task_for_probe = task;
     let lookahead = TwinLookahead::new(
         model.clone(),
         task,

@@ -207,7 +207,7 @@ fn serve<L: RobotLink + 'static>(
     let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
     let task_hash = task.hash();
     let table_height_m = task.sampling.table_height_m;
-    let lookahead = TwinLookahead::new(model.clone(), task.clone(), LookaheadActions::Policy);
+    let lookahead = TwinLookahead::new(model.clone(), task, LookaheadActions::Policy);
     let (twin_io, cycle_io, log_drain) = cycle::wire::<SceneSnapshot>();
     let clock = MonotonicClock::new();
     let mut cyc = Cycle::new(
