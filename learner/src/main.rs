@@ -255,7 +255,7 @@ fn main() -> Result<()> {
             }
             let scenes = match scene {
                 Some(p) => RetrainSampler::new(&env, load_scene(&p)?, Jitter::default(), 0.0)
-                    .eval_scenes(episodes, EVAL_SEED),
+                    .eval_scenes(episodes, EVAL_SEED, 0.5),
                 None => fixed_scenes(&CurriculumSampler::small(&env), episodes, EVAL_SEED),
             };
             let net = ck.network(device)?;

@@ -49,6 +49,11 @@ pub struct ServeArgs {
     /// Evaluation episodes (the reported scene and lightly jittered variants).
     #[arg(long, default_value_t = 20)]
     pub eval_episodes: usize,
+    /// Jitter of the evaluation variants as a fraction of the training jitter (2 cm, 10 %):
+    /// 0 (default) evaluates the reported scene exactly as reported (the lookahead re-checks
+    /// the live scene anyway); 0.5 asks for robustness to ±1 cm / ±5 % and takes ~5× longer.
+    #[arg(long, default_value_t = 0.0)]
+    pub eval_jitter: f64,
     /// Share of training episodes from the old (pre-training) distribution.
     #[arg(long, default_value_t = 0.3)]
     pub old_share: f64,
@@ -164,7 +169,7 @@ pub fn retrain(
     }
     tracing::info!(std_before = ?Vec::<f32>::try_from(&std_before).unwrap_or_default(), explore_std = args.explore_std, "exploration");
     let sampler = RetrainSampler::new(env, scene, Jitter::default(), args.old_share);
-    let eval_scenes = sampler.eval_scenes(args.eval_episodes, eval_seed);
+    let eval_scenes = sampler.eval_scenes(args.eval_episodes, eval_seed, args.eval_jitter);
     let _ = std::fs::remove_dir_all(out_dir);
     let opts = RunOptions {
         out_dir: out_dir.to_path_buf(),

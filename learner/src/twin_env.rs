@@ -190,13 +190,13 @@ impl RetrainSampler {
         }
     }
 
-    /// Evaluation scenes for the reported scene: the scene itself and `n - 1` lightly
-    /// jittered variants (half the training jitter), drawn from `seed`.
-    pub fn eval_scenes(&self, n: usize, seed: u64) -> Vec<Scene> {
+    /// Evaluation scenes for the reported scene: the scene itself and `n - 1` variants
+    /// jittered by `scale` × the training jitter (0: `n` copies of the scene), from `seed`.
+    pub fn eval_scenes(&self, n: usize, seed: u64, scale: f64) -> Vec<Scene> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let half = Jitter {
-            xy_m: self.jitter.xy_m / 2.0,
-            size_frac: self.jitter.size_frac / 2.0,
+            xy_m: self.jitter.xy_m * scale,
+            size_frac: self.jitter.size_frac * scale,
         };
         std::iter::once(self.scene.clone())
             .chain((1..n).map(|_| jittered(&self.scene, half, &mut rng)))
