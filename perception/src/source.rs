@@ -75,6 +75,8 @@ pub struct SyntheticSource {
     pub fixed_step_s: Option<f64>,
     /// Index of the script step shown by the last frame.
     pub last_step: usize,
+    /// The render of the step in force (a scene only changes at a script step).
+    cache: Option<(usize, crate::synthetic::RenderedFrame)>,
 }
 
 impl SyntheticSource {
@@ -100,6 +102,7 @@ impl SyntheticSource {
             sequence: 0,
             fixed_step_s: None,
             last_step: 0,
+            cache: None,
         })
     }
 }
@@ -112,11 +115,17 @@ impl FrameSource for SyntheticSource {
             None => start.elapsed().as_secs_f64(),
         };
         let capture = monotonic_now_ns();
-        let (step, _, rendered) = self.scripted.render_at(t_s);
+        let (step, scene) = self.scripted.script.scene_at(t_s);
+        if self.cache.as_ref().is_none_or(|(s, _)| *s != step) {
+            self.cache = Some((step, self.scripted.camera.render(scene)));
+        }
         self.last_step = step;
         self.sequence += 1;
+        let Some((_, rendered)) = &self.cache else {
+            return Err(SourceError::Failed("no render".into()));
+        };
         Ok(Some(Frame::from_rendered(
-            &rendered,
+            rendered,
             self.sequence,
             capture,
         )?))
@@ -288,6 +297,43 @@ mod tests {
                 .unwrap_err()
                 .contains("unknown source")
         );
+    }
+
+    #[test]
+    fn video_files_are_played_frame_by_frame() {
+        use opencv::videoio::{VideoWriter, VideoWriterTrait};
+        let dir = std::env::temp_dir().join(format!("foresight-video-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("clip.avi");
+        let fourcc = VideoWriter::fourcc('M', 'J', 'P', 'G').unwrap();
+        let mut w = VideoWriter::new(
+            path.to_str().unwrap(),
+            fourcc,
+            10.0,
+            opencv::core::Size::new(64, 48),
+            true,
+        )
+        .unwrap();
+        assert!(w.is_opened().unwrap(), "OpenCV cannot write MJPG/AVI here");
+        for i in 0..3 {
+            let img = opencv::core::Mat::new_rows_cols_with_default(
+                48,
+                64,
+                opencv::core::CV_8UC3,
+                opencv::core::Scalar::all(f64::from(40 * i)),
+            )
+            .unwrap();
+            w.write(&img).unwrap();
+        }
+        w.release().unwrap();
+        let mut s = FileSource::open(&path).unwrap();
+        for seq in 1..=3 {
+            let f = s.next_frame().unwrap().unwrap();
+            assert_eq!((f.bgr.cols(), f.bgr.rows(), f.sequence), (64, 48, seq));
+            assert!(f.depth_m.is_none());
+        }
+        assert!(s.next_frame().unwrap().is_none());
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
