@@ -13,14 +13,26 @@ use rt_core::xarm::driver::{XArmConfig, XArmDriver};
 use rt_core::xarm::report::ReportKind;
 use rt_core::xarm::sim::{SimOptions, SimPorts, SimServer};
 
-/// A loopback socket pair whose far end discards everything.
+/// A loopback socket pair whose far end discards everything. The far end polls every
+/// 500 µs instead of blocking in `read`, so a send does not pay for waking a reader on this
+/// machine (the controller is another machine).
 fn sink() -> TcpStream {
     let l = TcpListener::bind("127.0.0.1:0").expect("bind");
     let addr = l.local_addr().expect("addr");
     std::thread::spawn(move || {
         if let Ok((mut s, _)) = l.accept() {
+            s.set_nonblocking(true).expect("nonblocking");
             let mut buf = [0u8; 65536];
-            while matches!(s.read(&mut buf), Ok(n) if n > 0) {}
+            loop {
+                match s.read(&mut buf) {
+                    Ok(0) => return,
+                    Ok(_) => {}
+                    Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                        std::thread::sleep(Duration::from_micros(500));
+                    }
+                    Err(_) => return,
+                }
+            }
         }
     });
     let s = TcpStream::connect(addr).expect("connect");

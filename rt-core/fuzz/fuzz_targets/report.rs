@@ -4,7 +4,12 @@ use libfuzzer_sys::fuzz_target;
 use rt_core_fuzz::xarm::report::{ReportKind, decode};
 
 fuzz_target!(|data: &[u8]| {
-    for kind in [ReportKind::RealTime, ReportKind::Normal, ReportKind::Rich, ReportKind::Real] {
+    for kind in [
+        ReportKind::RealTime,
+        ReportKind::Normal,
+        ReportKind::Rich,
+        ReportKind::Real,
+    ] {
         if let Ok(r) = decode(kind, data) {
             assert!(r.joints_rad.iter().all(|v| v.is_finite()));
             assert!(r.state <= 9 && r.mode <= 11);

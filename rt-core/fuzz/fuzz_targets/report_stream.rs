@@ -4,7 +4,9 @@ use libfuzzer_sys::fuzz_target;
 use rt_core_fuzz::xarm::report::{ReportFramer, ReportKind, decode};
 
 fuzz_target!(|data: &[u8]| {
-    let Some((&chunk, rest)) = data.split_first() else { return };
+    let Some((&chunk, rest)) = data.split_first() else {
+        return;
+    };
     let chunk = usize::from(chunk).max(1);
     let mut f = ReportFramer::new();
     for piece in rest.chunks(chunk) {

@@ -20,6 +20,8 @@ fuzz_target!(|data: &[u8]| {
     let _ = c.handle(rest, &mut out);
     c.step(t + 1.0);
     for (q, [lo, hi]) in c.q_rad().iter().zip(XARM5_JOINT_LIMITS_RAD) {
-        assert!(q.is_finite() && *q >= lo - LIMIT_SLACK_RAD - 1e-6 && *q <= hi + LIMIT_SLACK_RAD + 1e-6);
+        assert!(
+            q.is_finite() && *q >= lo - LIMIT_SLACK_RAD - 1e-6 && *q <= hi + LIMIT_SLACK_RAD + 1e-6
+        );
     }
 });
