@@ -131,24 +131,45 @@ pub(crate) fn columns(
     }
 }
 
-/// `tanh` for `f32`, within 3 ulp of the exact value and about three times faster than
-/// `f32::tanh` (glibc's `tanhf`): an odd Taylor polynomial below |x| = 0.125 (error
-/// < 2e-10), `(1 - e) / (1 + e)` with `e = exp(-2|x|)` above, exactly ±1 beyond |x| = 9.
-#[inline]
+/// `2^t` for `t` in about [-27, 0]: round to the nearest integer `k` with the 1.5·2²³
+/// trick, a degree-7 Taylor polynomial of `2^r` on r ∈ [-0.5, 0.5] (truncation < 6e-9),
+/// and `2^k` built from the exponent bits. Branch-free and call-free, so loops vectorise.
+#[inline(always)]
+fn exp2_neg(t: f32) -> f32 {
+    const ROUND: f32 = 12_582_912.0; // 1.5 · 2^23
+    const C: [f32; 8] = [
+        1.0,
+        core::f32::consts::LN_2,
+        0.240_226_5,      // ln2^2 / 2
+        0.055_504_11,     // ln2^3 / 6
+        0.009_618_129,    // ln2^4 / 24
+        0.001_333_355_8,  // ln2^5 / 120
+        0.000_154_035_3,  // ln2^6 / 720
+        0.000_015_252_73, // ln2^7 / 5040
+    ];
+    let k = (t + ROUND) - ROUND;
+    let r = t - k;
+    let p = C[0]
+        + r * (C[1] + r * (C[2] + r * (C[3] + r * (C[4] + r * (C[5] + r * (C[6] + r * C[7]))))));
+    let scale = f32::from_bits(((k as i32 + 127) as u32) << 23);
+    p * scale
+}
+
+/// `tanh` for `f32`, within 4 ulp of the exact value, branch-free so that applying it to
+/// a layer vectorises (several times faster than glibc's `tanhf`): an odd Taylor
+/// polynomial below |x| = 0.125 (error < 2e-10), `(1 − e) / (1 + e)` with `e = e^{−2|x|}`
+/// from [`exp2_neg`] above, saturating at |x| = 9 (tanh 9 rounds to 1 in `f32`). NaN stays NaN.
+#[inline(always)]
 pub(crate) fn tanh(x: f32) -> f32 {
-    let a = x.abs();
-    let r = if a < 0.125 {
-        let a2 = a * a;
-        a * (1.0 + a2 * (-1.0 / 3.0 + a2 * (2.0 / 15.0 + a2 * (-17.0 / 315.0))))
-    } else if a < 9.0 {
-        let e = (-2.0 * a).exp();
-        (1.0 - e) / (1.0 + e)
-    } else if a >= 9.0 {
-        1.0
-    } else {
-        return x; // NaN
-    };
-    r.copysign(x)
+    const LOG2_E: f32 = core::f32::consts::LOG2_E;
+    let a = x.abs().min(9.0);
+    let a2 = a * a;
+    let small = a * (1.0 + a2 * (-1.0 / 3.0 + a2 * (2.0 / 15.0 + a2 * (-17.0 / 315.0))));
+    let e = exp2_neg(-2.0 * LOG2_E * a);
+    let large = (1.0 - e) / (1.0 + e);
+    let r = if a < 0.125 { small } else { large };
+    let r = r.copysign(x);
+    if x.is_nan() { x } else { r }
 }
 
 #[cfg(test)]
@@ -215,7 +236,7 @@ mod tests {
     }
 
     #[test]
-    fn fast_tanh_is_within_3_ulp() {
+    fn fast_tanh_is_within_4_ulp() {
         let mut worst_ulp = 0i64;
         let mut x = -12.0f32;
         while x <= 12.0 {
@@ -225,7 +246,8 @@ mod tests {
             worst_ulp = worst_ulp.max(ulp);
             x += 0.000_37;
         }
-        assert!(worst_ulp <= 3, "worst error {worst_ulp} ulp");
+        println!("fast tanh: worst error {worst_ulp} ulp");
+        assert!(worst_ulp <= 4, "worst error {worst_ulp} ulp");
         assert_eq!(tanh(0.0), 0.0);
         assert_eq!(tanh(20.0), 1.0);
         assert_eq!(tanh(-20.0), -1.0);

@@ -74,8 +74,8 @@ pub enum PolicyEvalError {
 /// # Performance
 /// Wide layers are stored transposed and evaluated 32–64 outputs at a time in registers
 /// (vectorised; an AVX2 build is picked at construction when the CPU has it), the narrow
-/// action head as row dot products with eight lane accumulators, and `tanh` is a fast
-/// 3-ulp version. The summation order is fixed, so results are bit-identical across runs
+/// action head as row dot products with eight lane accumulators, and `tanh` is a fast,
+/// vectorisable 4-ulp version. The summation order is fixed, so results are bit-identical across runs
 /// and kernel builds. See `benches/policy.rs` for figures.
 #[derive(Debug, Clone)]
 pub struct MlpPolicy {
