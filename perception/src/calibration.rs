@@ -502,3 +502,128 @@ pub fn order_image_corners(c: [[f64; 2]; 4]) -> [[f64; 2]; 4] {
     bottom.sort_by(|a, b| a[0].total_cmp(&b[0]));
     [top[0], top[1], bottom[1], bottom[0]]
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::SyntheticCamera;
+    use shm_schemas::scene_file::SceneFile;
+
+    fn setup() -> (SyntheticCamera, SceneFile, CalibrationFile) {
+        let cam = SyntheticCamera::load(
+            &Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../assets/perception/synthetic_camera.toml"),
+        )
+        .unwrap();
+        let scene = SceneFile::from_toml_str(
+            "[goal]\ncenter_m = [-2.5, 2.5, 0.01]\nsize_m = 0.02\n",
+            Path::new("<empty>"),
+        )
+        .unwrap();
+        let file = CalibrationFile {
+            intrinsics: cam.config.intrinsics,
+            workspace: cam.workspace_for(&scene),
+            corners_px: cam.workspace_corners_px(&scene).unwrap(),
+            rectified_px_per_m: 1000.0,
+        };
+        (cam, scene, file)
+    }
+
+    #[test]
+    fn exact_corners_recover_the_pose_and_the_table_mapping() {
+        let (cam, _, file) = setup();
+        let cal = Calibration::new(file).unwrap();
+        assert!(cal.reprojection_error_px < 1e-6);
+        assert!((cal.model.pose.eye_m() - cam.model.pose.eye_m()).norm() < 1e-6);
+        for p in [[0.2, -0.3], [0.6, 0.3], [0.4, 0.0]] {
+            let (px, _) = cam.model.project([p[0], p[1], 0.0]).unwrap();
+            let back = cal.pixel_to_table_m(px[0], px[1]);
+            assert!(
+                (back[0] - p[0]).abs() < 1e-5 && (back[1] - p[1]).abs() < 1e-5,
+                "{back:?} vs {p:?}"
+            );
+        }
+        assert_eq!(cal.rectified_size_px(), (700, 500));
+    }
+
+    #[test]
+    fn save_load_round_trip_and_clear_errors() {
+        let (_, _, file) = setup();
+        let dir = std::env::temp_dir().join(format!("foresight-cal-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cal = Calibration::new(file.clone()).unwrap();
+        cal.save(&dir.join("c.toml")).unwrap();
+        assert_eq!(Calibration::load(&dir.join("c.toml")).unwrap().file, file);
+        // Wrong corner order (two swapped): not convex.
+        let mut bad = file.clone();
+        bad.corners_px.swap(0, 1);
+        let e = Calibration::new(bad).unwrap_err().to_string();
+        assert!(e.contains("convex"), "{e}");
+        // Mirrored order: convex, but the camera would have to stand below the table.
+        let mut mirrored = file.clone();
+        mirrored.corners_px.reverse();
+        let e = Calibration::new(mirrored).unwrap_err().to_string();
+        assert!(
+            e.contains("below the table") || e.contains("reproject"),
+            "{e}"
+        );
+        // A corner off the image; a workspace that disagrees with the corners.
+        let mut off = file.clone();
+        off.corners_px[2] = [5000.0, 10.0];
+        assert!(
+            Calibration::new(off)
+                .unwrap_err()
+                .to_string()
+                .contains("outside")
+        );
+        let mut wrong = file.clone();
+        wrong.workspace.size_m = [0.9, 0.3];
+        assert!(
+            Calibration::new(wrong)
+                .unwrap_err()
+                .to_string()
+                .contains("reproject")
+        );
+        std::fs::write(dir.join("bad.toml"), "corners_px = 3\n").unwrap();
+        let e = Calibration::load(&dir.join("bad.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("malformed calibration file") && e.contains("bad.toml"),
+            "{e}"
+        );
+        assert!(
+            Calibration::load(&dir.join("missing.toml"))
+                .unwrap_err()
+                .to_string()
+                .contains("missing.toml")
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn tape_corners_are_found_to_sub_pixel_and_an_empty_image_is_refused() {
+        let (cam, scene, file) = setup();
+        let r = cam.render(&scene);
+        let frame = crate::frame::Frame::from_rendered(&r, 0, 0).unwrap();
+        let found = find_workspace_corners(&frame.bgr, DEFAULT_TAPE_HSV).unwrap();
+        for (a, b) in found.iter().zip(file.corners_px.iter()) {
+            assert!(
+                (a[0] - b[0]).hypot(a[1] - b[1]) < 0.75,
+                "{found:?} vs {:?}",
+                file.corners_px
+            );
+        }
+        let grey = Mat::new_rows_cols_with_default(
+            720,
+            1280,
+            opencv::core::CV_8UC3,
+            opencv::core::Scalar::all(128.0),
+        )
+        .unwrap();
+        let e = find_workspace_corners(&grey, DEFAULT_TAPE_HSV)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("tape"), "{e}");
+    }
+}

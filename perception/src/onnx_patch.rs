@@ -545,6 +545,30 @@ mod tests {
     }
 
     #[test]
+    fn random_and_truncated_bytes_never_panic() {
+        let good = model(true);
+        for cut in 0..good.len() {
+            let _ = patch_for_opencv(&good[..cut]);
+        }
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        for len in 0..2000 {
+            let bytes: Vec<u8> = (0..len % 97)
+                .map(|_| {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    state as u8
+                })
+                .collect();
+            let _ = patch_for_opencv(&bytes);
+            let mut spliced = good.clone();
+            let at = len % good.len();
+            spliced.splice(at..at, bytes);
+            let _ = patch_for_opencv(&spliced);
+        }
+    }
+
+    #[test]
     fn models_without_the_broadcast_pass_through_and_garbage_is_refused() {
         let m = model(false);
         let p = patch_for_opencv(&m).unwrap();
