@@ -498,3 +498,62 @@ fn bad_controller_bytes_are_typed_errors() {
         }
     }
 }
+
+#[test]
+fn survives_a_controller_restart_with_backoff_and_resumes_from_the_actual_joints() {
+    let a = sim(Vec::new());
+    let ports = a.ports();
+    let clock = Clock(Instant::now());
+    let mut d = XArmDriver::connect(cfg(&a)).expect("connect");
+    let q0 = d.start_servo_mode().expect("servo mode");
+    let mut q1 = q0;
+    q1[0] += 0.02;
+    d.send_servo(clock.ns(), &q1).expect("send");
+    d.flush().expect("flush");
+    a.shutdown();
+    // The controller is gone: the driver notices, stops commanding and retries.
+    let deadline = Instant::now() + Duration::from_secs(2);
+    loop {
+        match d.read_state(clock.ns()) {
+            Err(XArmError::Disconnected) => break,
+            Ok(_) | Err(XArmError::NoState) if Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            other => panic!("expected a lost link, got {other:?}"),
+        }
+    }
+    assert_eq!(d.send_servo(clock.ns(), &q1), Err(XArmError::Disconnected));
+    std::thread::sleep(Duration::from_millis(100));
+    // A new controller on the same ports, with the arm somewhere else.
+    let mut moved = home();
+    moved[0] += 0.1;
+    let b = SimServer::start(SimOptions {
+        ports,
+        urdf: urdf(),
+        q0_rad: moved,
+        ..SimOptions::default()
+    })
+    .expect("restart on the same ports");
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let st = loop {
+        match d.read_state(clock.ns()) {
+            Ok(st) => break st,
+            Err(XArmError::Disconnected | XArmError::NoState) if Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            Err(e) => panic!("reconnect failed: {e:?}"),
+        }
+    };
+    assert_eq!(st.reconnects, 1);
+    assert!((f64::from(st.report.joints_rad[0]) - moved[0]).abs() < 1e-5);
+    // The old target would jump; the re-read joints are accepted (servo mode was restored).
+    assert_eq!(
+        d.send_servo(clock.ns(), &q1),
+        Err(XArmError::ResumeJump { joint: 0 })
+    );
+    d.send_servo(clock.ns(), &moved)
+        .expect("resume from the actual joints");
+    d.flush().expect("flush");
+    let summary = b.shutdown();
+    assert_eq!(summary.counters.servo_accepted, 1);
+}
