@@ -68,7 +68,7 @@ fn straight_line_blob(id: u64, task: &TaskConfig, z_offset_m: f64) -> PolicyBlob
 }
 
 struct Rig {
-    _rt: ChildGuard,
+    rt: ChildGuard,
     node: Node<ipc::Service>,
     policies: iceoryx2::port::publisher::Publisher<ipc::Service, PolicyBlob, ()>,
     verdicts: iceoryx2::port::subscriber::Subscriber<ipc::Service, TwinVerdict, ()>,
@@ -137,7 +137,7 @@ impl Rig {
                 seq += 1;
                 let mut frame = DetectionFrame {
                     sequence: seq,
-                    capture_time_ns: seq * 33_000_000,
+                    capture_time_ns: rt_core::runtime::rt_setup::monotonic_now_ns(),
                     camera_id: 1,
                     ..DetectionFrame::default()
                 };
@@ -171,7 +171,7 @@ impl Rig {
             }
         });
         Self {
-            _rt: rt,
+            rt,
             node,
             policies,
             verdicts,
@@ -235,6 +235,17 @@ impl Rig {
             }
             std::thread::sleep(Duration::from_millis(5));
         }
+    }
+
+    /// Stops `rt-core run` with SIGINT and returns its log.
+    fn finish(&mut self) -> String {
+        let status = self.rt.interrupt_and_wait(Duration::from_secs(10));
+        let log = std::fs::read_to_string(&self.log).unwrap_or_default();
+        assert!(
+            status.is_some_and(|s| s.success()),
+            "rt-core run did not exit cleanly: {status:?}\n{log}"
+        );
+        log
     }
 
     fn last_state(&self) -> Option<RobotState> {
@@ -425,4 +436,18 @@ fn a_scene_change_that_makes_the_plan_unsafe_stops_the_arm_and_requests_retraini
         "box published -> controlled stop seen after {:.1} ms",
         (t_stop - t_box).as_secs_f64() * 1e3
     );
+    let log = rig.finish();
+    let find = |needle: &str| {
+        log.lines()
+            .find(|l| l.contains(needle))
+            .unwrap_or_default()
+            .to_owned()
+    };
+    let fin = find("rt-core run finished");
+    assert!(
+        fin.contains("allocations_in_cycle=0"),
+        "the cycle allocated during the run: {fin}"
+    );
+    println!("{}", find("detection capture -> visible"));
+    println!("{fin}");
 }

@@ -25,6 +25,7 @@ use rt_core::runtime::config::RuntimeConfig;
 use rt_core::runtime::cycle::{
     self, Cycle, CycleConfig, CycleReport, LoopShared, LoopStats, Mode, StopReason,
 };
+use rt_core::runtime::histogram::Histogram;
 use rt_core::runtime::link::{InProcessArm, RobotLink};
 use rt_core::runtime::rt_setup::{self, RtRequest};
 use rt_core::runtime::shield::{Shield, ShieldLimits, ShieldModel};
@@ -87,6 +88,7 @@ pub fn run(args: RunArgs) -> ExitCode {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();
     match runtime(&args) {
         Ok(()) => ExitCode::SUCCESS,
@@ -276,6 +278,9 @@ fn serve<L: RobotLink + 'static>(
             (stats.summary(), rt, allocs)
         })?;
 
+    // The twin thread polls its subscribers every 100 µs; a 1 ns timer slack keeps the
+    // sleeps close to that.
+    let _ = rt_setup::set_timer_slack_ns(1);
     let t0 = Instant::now();
     let mut events = Vec::new();
     let mut last_goal = Scene::empty(
@@ -288,6 +293,7 @@ fn serve<L: RobotLink + 'static>(
     .goal;
     let (mut verdict_id, mut scene_seq, mut last_state_ns) = (0u64, 0u64, 0u64);
     let mut last_cycles = 0;
+    let mut detection_age = Histogram::new();
     while !stop.load(Ordering::Acquire) {
         if args.seconds > 0.0 && t0.elapsed().as_secs_f64() >= args.seconds {
             break;
@@ -299,8 +305,17 @@ fn serve<L: RobotLink + 'static>(
                 continue;
             }
             scene_seq = frame.sequence;
+            // Capture time is CLOCK_MONOTONIC of this machine: its age, carried into the
+            // cycle's clock, is what the staleness check sees (receipt time when absent).
+            let mono_now = rt_setup::monotonic_now_ns();
+            let age_ns = if frame.capture_time_ns == 0 || frame.capture_time_ns > mono_now {
+                0
+            } else {
+                mono_now - frame.capture_time_ns
+            };
+            detection_age.record_ns(age_ns);
             let scene = scene_from_detection(&frame, table_height_m, &mut last_goal);
-            twin.on_detection(scene, clock.now_ns(), &mut events);
+            twin.on_detection(scene, clock.now_ns().saturating_sub(age_ns), &mut events);
         }
         while let Some(sample) = pol_sub.receive().context("receiving policies")? {
             let blob: &PolicyBlob = sample.payload();
@@ -409,13 +424,21 @@ fn serve<L: RobotLink + 'static>(
             last_state_ns = now;
             publish_state(&state_pub, &r, &shared, &mut fk)?;
         }
-        std::thread::sleep(Duration::from_micros(200));
+        std::thread::sleep(Duration::from_micros(100));
     }
     stop.store(true, Ordering::Release);
     let (summary, rt, allocs) = cycle_thread
         .join()
         .map_err(|_| anyhow::anyhow!("cycle thread panicked"))?;
     let _ = log_thread.join();
+    let age = detection_age.summary();
+    tracing::info!(
+        detections = age.count,
+        p50_us = age.p50_us,
+        p99_us = age.p99_us,
+        max_us = age.max_us,
+        "detection capture -> visible in the twin thread"
+    );
     tracing::info!(
         cycles = summary.cycles,
         missed = summary.missed_deadlines,
