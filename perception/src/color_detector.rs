@@ -55,7 +55,7 @@ impl Default for ColourDetectorConfig {
         Self {
             min_area_px: 150,
             depth_edge_m: 0.03,
-            max_object_height_m: 0.35,
+            max_object_height_m: 0.45,
             classes: vec![
                 ColourClass {
                     name: "green goal cube".into(),
