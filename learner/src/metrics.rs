@@ -77,6 +77,52 @@ impl MetricsLog {
         s
     }
 
+    /// Parses CSV written by [`MetricsLog::to_csv`] (to continue a resumed run's log);
+    /// malformed lines are skipped.
+    pub fn from_csv(text: &str) -> Self {
+        let mut rows = Vec::new();
+        for line in text.lines().skip(1) {
+            let c: Vec<&str> = line.split(',').collect();
+            if c.len() != HEADER.split(',').count() {
+                continue;
+            }
+            let f = |i: usize| c[i].parse::<f64>().unwrap_or(f64::NAN);
+            let (Ok(steps), Ok(iteration), Ok(episodes)) = (
+                c[0].parse::<u64>(),
+                c[1].parse::<u64>(),
+                c[3].parse::<usize>(),
+            ) else {
+                continue;
+            };
+            let eval = (!c[13].is_empty()).then(|| EvalResult {
+                episodes: 0,
+                success_rate: f(13),
+                collision_rate: f(14),
+                mean_return: f(15),
+            });
+            rows.push(MetricsRow {
+                iter: IterStats {
+                    steps,
+                    iteration,
+                    episodes,
+                    mean_return: f(4),
+                    success_rate: f(5),
+                    collision_rate: f(6),
+                    policy_loss: f(7),
+                    value_loss: f(8),
+                    entropy: f(9),
+                    approx_kl: f(10),
+                    clip_fraction: f(11),
+                    ..Default::default()
+                },
+                wall_s: f(2),
+                steps_per_s: f(12),
+                eval,
+            });
+        }
+        Self { rows }
+    }
+
     /// Writes the CSV atomically.
     ///
     /// # Errors
@@ -194,6 +240,7 @@ mod tests {
             });
         }
         let csv = log.to_csv();
+        assert_eq!(MetricsLog::from_csv(&csv).to_csv(), csv);
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines.len(), 4);
         let ncol = HEADER.split(',').count();

@@ -124,7 +124,14 @@ pub fn train<E: Env + Clone, S: SceneSampler<E::Scene>>(
     })?;
     let start = Instant::now();
     let start_steps = trainer.steps;
-    let mut log = MetricsLog::default();
+    // A resumed run continues its log (rows past the checkpoint, written before a crash,
+    // are dropped: training repeats them).
+    let mut log = std::fs::read_to_string(opts.out_dir.join("metrics.csv"))
+        .ok()
+        .filter(|_| trainer.steps > 0)
+        .map(|t| MetricsLog::from_csv(&t))
+        .unwrap_or_default();
+    log.rows.retain(|r| r.iter.steps <= trainer.steps);
     let mut best: Option<EvalResult> = Checkpoint::load(&opts.out_dir.join(BEST))
         .ok()
         .and_then(|c| c.meta.best_eval);
