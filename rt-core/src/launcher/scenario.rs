@@ -442,6 +442,7 @@ impl Director {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use shm_schemas::scene_file::{BoxSpec, GoalSpec, TableSpec};
@@ -603,8 +604,10 @@ mod tests {
             ..Observations::default()
         };
         d.step(0.4, &seen);
-        let mut v = TwinVerdict::default();
-        v.episode_end = EpisodeEnd::Collision as u8;
+        let mut v = TwinVerdict {
+            episode_end: EpisodeEnd::Collision as u8,
+            ..TwinVerdict::default()
+        };
         v.set_flags(false, false, false);
         d.step(
             0.5,
