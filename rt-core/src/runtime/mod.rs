@@ -33,8 +33,6 @@ pub mod toy;
 pub mod twin_adapter;
 pub mod twin_thread;
 
-/// Degrees of freedom of the xArm5 (the twin's `DOF`).
-pub const DOF: usize = 5;
-
-/// A joint-space vector in radians (or rad/s, rad/s², by context).
-pub type Joints = [f64; DOF];
+/// Degrees of freedom of the xArm5 and a joint-space vector (rad, or rad/s, rad/s² by
+/// context): the twin's definitions.
+pub use crate::twin::{DOF, Joints};

@@ -129,7 +129,6 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     waypoints: Vec<Joints>,
     last_mode: Mode,
     refused_seen: u64,
-    retired_policies: Vec<Box<L::Policy>>,
 }
 
 impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
@@ -153,7 +152,6 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             waypoints: Vec::new(),
             last_mode: Mode::Idle,
             refused_seen: 0,
-            retired_policies: Vec::new(),
         }
     }
 
@@ -176,10 +174,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// dropped here, off the cycle.
     pub fn on_policy(&mut self, policy: Box<L::Policy>, events: &mut Vec<TwinEvent<L::Scene>>) {
         let policy_id = L::policy_id(&policy);
-        if let Some(old) = self.policy.replace(policy) {
-            self.retired_policies.push(old);
-        }
-        self.retired_policies.clear();
+        // The old policy is dropped here, on the twin thread.
+        drop(self.policy.replace(policy));
         self.want_plan = true;
         events.push(TwinEvent::PolicySwapped { policy_id });
     }
