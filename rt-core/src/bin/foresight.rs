@@ -128,7 +128,7 @@ fn run_all(args: &Args) -> Result<bool> {
     }
     let model =
         RobotModel::load(&args.urdf).with_context(|| format!("loading {}", args.urdf.display()))?;
-    let env = TwinEnv::new(model, *task);
+    let env = TwinEnv::new(model, task);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(args.seed);
     let mut all_ok = true;
     let mut collisions = 0;
