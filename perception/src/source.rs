@@ -75,8 +75,18 @@ pub struct SyntheticSource {
     pub fixed_step_s: Option<f64>,
     /// Index of the script step shown by the last frame.
     pub last_step: usize,
-    /// The render of the step in force (a scene only changes at a script step).
-    cache: Option<(usize, crate::synthetic::RenderedFrame)>,
+    /// The render of the step in force (a scene only changes at a script step), keyed by
+    /// `(generation, step)`.
+    cache: Option<((u64, usize), crate::synthetic::RenderedFrame)>,
+    /// A single scene file watched for changes: path and last seen modification time. The
+    /// launcher drives the world this way (it replaces the file atomically).
+    live: Option<(PathBuf, Option<std::time::SystemTime>)>,
+    /// Bumped on every reload of the live scene file.
+    generation: u64,
+}
+
+fn modified(path: &Path) -> Option<std::time::SystemTime> {
+    std::fs::metadata(path).and_then(|m| m.modified()).ok()
 }
 
 impl SyntheticSource {
@@ -86,10 +96,14 @@ impl SyntheticSource {
     /// [`SourceError::Open`].
     pub fn open(camera: &Path, world: &Path) -> Result<Self, SourceError> {
         let cam = SyntheticCamera::load(camera).map_err(|e| SourceError::Open(e.to_string()))?;
+        let mut live = None;
         let script = match WorldScript::load(world) {
             Ok(s) => s,
             Err(script_err) => match SceneFile::load(world) {
-                Ok(scene) => WorldScript::single(scene),
+                Ok(scene) => {
+                    live = Some((world.to_path_buf(), modified(world)));
+                    WorldScript::single(scene)
+                }
                 Err(_) => return Err(SourceError::Open(script_err.to_string())),
             },
         };
@@ -103,7 +117,33 @@ impl SyntheticSource {
             fixed_step_s: None,
             last_step: 0,
             cache: None,
+            live,
+            generation: 0,
         })
+    }
+
+    /// For a single scene file: reloads it when its modification time changed. A file that
+    /// is missing or invalid at that moment keeps the previous scene (logged once per
+    /// change).
+    fn reload_live_scene(&mut self) {
+        let Some((path, seen)) = &mut self.live else {
+            return;
+        };
+        let now = modified(path);
+        if now == *seen {
+            return;
+        }
+        *seen = now;
+        match SceneFile::load(path) {
+            Ok(scene) => {
+                tracing::info!(scene = %scene.name, "scene file changed; rendering the new scene");
+                self.scripted.script = WorldScript::single(scene);
+                self.generation += 1;
+            }
+            Err(e) => {
+                tracing::warn!("scene file changed but cannot be used, keeping the last scene: {e}")
+            }
+        }
     }
 }
 
@@ -114,10 +154,12 @@ impl FrameSource for SyntheticSource {
             Some(dt) => self.sequence as f64 * dt,
             None => start.elapsed().as_secs_f64(),
         };
+        self.reload_live_scene();
         let capture = monotonic_now_ns();
         let (step, scene) = self.scripted.script.scene_at(t_s);
-        if self.cache.as_ref().is_none_or(|(s, _)| *s != step) {
-            self.cache = Some((step, self.scripted.camera.render(scene)));
+        let key = (self.generation, step);
+        if self.cache.as_ref().is_none_or(|(k, _)| *k != key) {
+            self.cache = Some((key, self.scripted.camera.render(scene)));
         }
         self.last_step = step;
         self.sequence += 1;
@@ -279,6 +321,54 @@ impl FrameSource for FileSource {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_live_scene_file_is_reloaded_when_it_changes() {
+        let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
+        let dir = std::env::temp_dir().join(format!("foresight-live-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let live = dir.join("live.toml");
+        std::fs::copy(assets.join("scenes/small_box.toml"), &live).unwrap();
+        let mut src =
+            SyntheticSource::open(&assets.join("perception/synthetic_camera.toml"), &live).unwrap();
+        let small = src.next_frame().unwrap().unwrap();
+        let tall = SceneFile::load(&assets.join("scenes/tall_box.toml")).unwrap();
+        // Replace atomically, as the launcher does, with a later modification time.
+        let tmp = dir.join(".live.tmp");
+        std::fs::write(&tmp, tall.to_toml_string()).unwrap();
+        let later = std::time::SystemTime::now() + std::time::Duration::from_secs(2);
+        std::fs::File::options()
+            .write(true)
+            .open(&tmp)
+            .unwrap()
+            .set_modified(later)
+            .unwrap();
+        std::fs::rename(&tmp, &live).unwrap();
+        let after = src.next_frame().unwrap().unwrap();
+        assert_eq!(
+            src.scripted.script.steps[0].1, tall,
+            "the new scene is in force"
+        );
+        let diff = opencv::core::norm2(
+            &small.bgr,
+            &after.bgr,
+            opencv::core::NORM_L1,
+            &opencv::core::no_array(),
+        )
+        .unwrap();
+        assert!(diff > 0.0, "the frame shows the new scene");
+        // A broken file keeps the last good scene.
+        std::fs::write(&live, "not toml").unwrap();
+        std::fs::File::options()
+            .write(true)
+            .open(&live)
+            .unwrap()
+            .set_modified(later + std::time::Duration::from_secs(2))
+            .unwrap();
+        assert!(src.next_frame().unwrap().is_some());
+        assert_eq!(src.scripted.script.steps[0].1, tall);
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     #[test]
     fn source_specs_parse() {
