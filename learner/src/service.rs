@@ -12,13 +12,13 @@ use std::time::{Duration, Instant};
 use iceoryx2::prelude::*;
 use rt_core::twin::Scene;
 use shm_schemas::services;
-use shm_schemas::{PolicyBlob, RetrainPhase, RetrainProgress, RetrainRequest};
+use shm_schemas::{PolicyBlob, PolicyBuildError, RetrainPhase, RetrainProgress, RetrainRequest};
 
-use crate::checkpoint::{self, Checkpoint};
+use crate::checkpoint::{self, Checkpoint, CheckpointError};
 use crate::export;
 use crate::ppo::{EvalResult, Trainer};
 use crate::run::{RunOptions, RunSummary, StopReason, SuccessRule, train};
-use crate::twin_env::{Jitter, RetrainSampler, TwinTask};
+use crate::twin_env::{Jitter, RetrainSampler, TaskLoadError, TwinTask};
 
 /// Arguments of `learner serve`.
 #[derive(Debug, Clone, clap::Args)]
@@ -87,6 +87,26 @@ pub struct ServeArgs {
     pub workers: usize,
 }
 
+/// Why retraining or the service failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    /// The task or robot model could not be loaded.
+    #[error(transparent)]
+    Task(#[from] TaskLoadError),
+    /// A checkpoint could not be read or written.
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    /// The PPO configuration is invalid.
+    #[error("PPO configuration: {0}")]
+    Config(String),
+    /// The policy could not be packed into a blob.
+    #[error("policy blob: {0}")]
+    Blob(#[from] PolicyBuildError),
+    /// iceoryx2 (node, services, loan, send).
+    #[error("iceoryx2: {0}")]
+    Shm(String),
+}
+
 /// A policy id for a checkpoint: FNV-1a of its weights and step count, never 0.
 pub fn policy_id_for(ck: &Checkpoint) -> u64 {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
@@ -142,13 +162,13 @@ pub fn retrain(
     eval_seed: u64,
     device: tch::Device,
     mut on_iter: impl FnMut(&crate::ppo::IterStats, Option<&EvalResult>) -> bool,
-) -> anyhow::Result<(RunSummary, EvalResult)> {
+) -> Result<(RunSummary, EvalResult), ServeError> {
     let mut cfg = base.meta.ppo.clone();
     if args.workers > 0 {
         cfg.workers = args.workers;
     }
     let mut trainer =
-        Trainer::new(cfg, env.clone(), base.meta.seed, device).map_err(anyhow::Error::msg)?;
+        Trainer::new(cfg, env.clone(), base.meta.seed, device).map_err(ServeError::Config)?;
     base.restore(&mut trainer)?;
     trainer.cfg.ent_coef = args.ent_coef;
     trainer.cfg.update_stats = !args.freeze_stats;
@@ -206,7 +226,7 @@ pub fn retrain(
 /// # Errors
 /// Setup failures (task, checkpoint, iceoryx2); per-request failures are logged and the
 /// service carries on.
-pub fn serve(args: &ServeArgs, device: tch::Device) -> anyhow::Result<()> {
+pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
     let env = TwinTask::load(&args.task, None)?;
     let hash = env.task_hash();
     let mut base_path = checkpoint::resolve(&args.checkpoint);
@@ -224,13 +244,13 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> anyhow::Result<()> {
             .map_or_else(|| PathBuf::from("retrain"), |p| p.join("retrain"))
     });
     let (node, _) = services::create_node::<ipc::Service>("learner")
-        .map_err(|e| anyhow::anyhow!("iceoryx2 node: {e}"))?;
+        .map_err(|e| ServeError::Shm(format!("node: {e}")))?;
     let requests = services::open_subscriber::<RetrainRequest, _>(&node, &args.prefix)
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+        .map_err(|e| ServeError::Shm(e.to_string()))?;
     let blobs = services::open_publisher::<PolicyBlob, _>(&node, &args.prefix)
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+        .map_err(|e| ServeError::Shm(e.to_string()))?;
     let progress_pub = services::open_publisher::<RetrainProgress, _>(&node, &args.prefix)
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+        .map_err(|e| ServeError::Shm(e.to_string()))?;
     tracing::info!(prefix = %args.prefix, base = %base_path.display(), "learner serve: waiting for retrain requests");
 
     let drain = |latest: &mut Option<RetrainRequest>| {
@@ -323,12 +343,14 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> anyhow::Result<()> {
         // Written in place in shared memory: no stack copy of the ~320 KB blob.
         let mut sample = blobs
             .loan_uninit()
-            .map_err(|e| anyhow::anyhow!("loan: {e:?}"))?;
+            .map_err(|e| ServeError::Shm(format!("loan: {e:?}")))?;
         builder.write_into(PolicyBlob::init_zeroed(sample.payload_mut()))?;
         // SAFETY: `init_zeroed` initialised every byte of the payload and `write_into`
         // wrote a validated blob over it.
         let sample = unsafe { sample.assume_init() };
-        sample.send().map_err(|e| anyhow::anyhow!("send: {e:?}"))?;
+        sample
+            .send()
+            .map_err(|e| ServeError::Shm(format!("send: {e:?}")))?;
         let e = best.meta.eval.unwrap_or_default();
         let phase = if sum.stop == StopReason::Converged {
             RetrainPhase::Published
