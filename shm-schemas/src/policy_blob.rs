@@ -179,6 +179,46 @@ impl PolicyBlob {
         unsafe { slot.assume_init() }
     }
 
+    /// The blob's bytes: the blob-file format (`*.blob`), native-endian, exactly
+    /// `size_of::<PolicyBlob>()` bytes. The checksum and the schema version inside make a
+    /// file from another build or architecture fail [`PolicyBlob::from_bytes`].
+    pub fn as_bytes(&self) -> &[u8] {
+        // SAFETY: `PolicyBlob` is `repr(C)`, made only of integers and floats with no
+        // padding (its size is asserted above), so every byte is initialised; the slice
+        // borrows `self` for its lifetime.
+        unsafe {
+            core::slice::from_raw_parts(
+                (self as *const PolicyBlob).cast::<u8>(),
+                size_of::<PolicyBlob>(),
+            )
+        }
+    }
+
+    /// Parses blob-file bytes and validates the result (layout, finite numbers, checksum).
+    ///
+    /// # Errors
+    /// [`SchemaError::LayoutInvalid`] for a wrong length, else the first error of
+    /// [`PolicyBlob::validate`].
+    pub fn from_bytes(bytes: &[u8]) -> Result<Box<PolicyBlob>, SchemaError> {
+        if bytes.len() != size_of::<PolicyBlob>() {
+            return Err(SchemaError::LayoutInvalid {
+                field: "blob file length",
+            });
+        }
+        let mut blob = PolicyBlob::new_boxed();
+        // SAFETY: the destination is a live, exclusively borrowed `PolicyBlob` of exactly
+        // `bytes.len()` bytes; every bit pattern is a valid value of its integer/float fields.
+        unsafe {
+            core::ptr::copy_nonoverlapping(
+                bytes.as_ptr(),
+                (&mut *blob as *mut PolicyBlob).cast::<u8>(),
+                bytes.len(),
+            );
+        }
+        blob.validate()?;
+        Ok(blob)
+    }
+
     /// Copies every field of `other` into `self` in place (no stack temporary).
     pub fn copy_from(&mut self, other: &PolicyBlob) {
         self.format_version = other.format_version;
@@ -381,6 +421,29 @@ impl PolicyBlob {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn blob_file_bytes_round_trip_and_bad_files_are_rejected() {
+        let blob = crate::PolicyBlobBuilder::random(7, 42, 17, &[16, 16], 3, 1)
+            .build()
+            .unwrap();
+        let bytes = blob.as_bytes().to_vec();
+        let back = PolicyBlob::from_bytes(&bytes).unwrap();
+        assert_eq!(back.as_bytes(), blob.as_bytes());
+        assert_eq!(
+            PolicyBlob::from_bytes(&bytes[..bytes.len() - 1]).unwrap_err(),
+            SchemaError::LayoutInvalid {
+                field: "blob file length"
+            }
+        );
+        let mut flipped = bytes.clone();
+        let last_weight = size_of::<PolicyBlob>() - 4 * (MAX_WEIGHTS - back.n_weights as usize) - 2;
+        flipped[last_weight] ^= 0x40;
+        assert!(
+            PolicyBlob::from_bytes(&flipped).is_err(),
+            "a flipped weight byte is caught"
+        );
+    }
 
     #[test]
     fn required_weights_of_the_reference_network() {
