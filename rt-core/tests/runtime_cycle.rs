@@ -185,3 +185,83 @@ fn runs_are_deterministic_under_the_manual_clock() {
     };
     assert_eq!(run(), run());
 }
+
+#[test]
+fn the_cycle_shield_stops_a_plan_that_runs_into_the_live_scene_without_the_twin() {
+    use rt_core::runtime::config::RuntimeConfig;
+    use rt_core::runtime::cycle::{self, Cycle, CycleConfig, SceneUpdate};
+    use rt_core::runtime::link::InProcessArm;
+    use rt_core::runtime::plan::Plan;
+    use rt_core::runtime::shield::{Shield, ShieldLimits, ShieldViolation};
+    use rt_core::runtime::smoothing::Brake;
+    use rt_core::runtime::toy::ToyScene;
+
+    let cfg = RuntimeConfig::xarm5_default();
+    let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
+    let (mut twin_io, cycle_io, _log) = cycle::wire::<ToyScene>();
+    let arm = InProcessArm::new(
+        START,
+        cfg.limits.joint_min_rad,
+        cfg.limits.joint_max_rad,
+        [3.0; 5],
+    );
+    let mut cyc = Cycle::new(
+        CycleConfig::from_runtime(&cfg),
+        Shield::new(ToyArm, limits),
+        Brake::new(&cfg.limits),
+        arm,
+        cycle_io,
+    );
+    let period = cfg.period_ns();
+    let mut now = 1_000_000_000;
+    cyc.start(now).expect("start");
+    // A hand-made plan: 2 s of joint-space interpolation from START to TARGET_A.
+    let n = 500;
+    let mut plan = Plan::with_capacity(1, 1, 0.004, n);
+    for k in 1..=n {
+        let t = k as f64 / n as f64;
+        let s = t * t * (3.0 - 2.0 * t);
+        let q = std::array::from_fn(|j| START[j] + (TARGET_A[j] - START[j]) * s);
+        plan.push(q, [0.0; 5], [0.0; 5]);
+    }
+    let late = plan.q_rad[400];
+    assert!(twin_io.plans.send(Box::new(plan)).is_ok());
+    let mut scene = ToyScene::empty();
+    for _ in 0..100 {
+        twin_io.scenes.send(SceneUpdate {
+            scene,
+            stamp_ns: now,
+        });
+        cyc.process(now);
+        now += period;
+    }
+    assert_eq!(cyc.mode(), Mode::Following);
+    // An obstacle appears where the plan goes later; nobody revokes the plan, the cycle's
+    // own shield must stop the arm before it gets there.
+    scene.push_obstacle(ToyArm.tcp_position_m(&late), [0.06; 3]);
+    let mut min_clearance = f64::INFINITY;
+    for _ in 0..500 {
+        twin_io.scenes.send(SceneUpdate {
+            scene,
+            stamp_ns: now,
+        });
+        cyc.process(now);
+        let q = cyc.report().cmd.q_rad;
+        min_clearance = min_clearance.min(ToyArm.min_distance_m(&q, &scene));
+        now += period;
+    }
+    assert_eq!(cyc.mode(), Mode::Stopped);
+    assert!(
+        matches!(
+            cyc.report().stop_reason,
+            StopReason::Shield(ShieldViolation::Clearance { .. })
+        ),
+        "{:?}",
+        cyc.report().stop_reason
+    );
+    assert!(
+        min_clearance > 0.0,
+        "the arm touched the obstacle: {min_clearance}"
+    );
+    twin_io.plans.collect_returned();
+}
