@@ -54,7 +54,7 @@ fn the_cycle_allocates_nothing_over_100k_cycles_with_policy_swaps() {
     while cycles < 100_000 {
         // A new policy every 240 cycles (~1 s), alternating targets: each joins the
         // running plan or starts from rest.
-        if cycles % 240 == 0 {
+        if cycles.is_multiple_of(240) {
             let target = if next_policy % 2 == 0 {
                 TARGET_B
             } else {
@@ -64,9 +64,9 @@ fn the_cycle_allocates_nothing_over_100k_cycles_with_policy_swaps() {
             next_policy += 1;
         }
         // Detections pause now and then: stale stops and fresh plans afterwards.
-        rig.detections_on = !(cycles % 20_000 > 19_800);
+        rig.detections_on = cycles % 20_000 <= 19_800;
         let now = rig.clock.now_ns();
-        if rig.detections_on && cycles % 8 == 0 {
+        if rig.detections_on && cycles.is_multiple_of(8) {
             rig.twin.on_detection(rig.scene, now, &mut rig.events);
         }
         rig.twin.step(&mut rig.events);

@@ -170,6 +170,10 @@ pub struct CycleConfig {
     pub max_robot_state_age_ns: u64,
     /// Largest joint gap between the arm's command and a plan's first sample, rad.
     pub start_tolerance_rad: f64,
+    /// How many samples ahead of the next command the shield also checks the running plan
+    /// against the live scene: about the braking time, so a stop begun now ends before an
+    /// obstacle that appears on the path.
+    pub brake_horizon_samples: usize,
 }
 
 impl CycleConfig {
@@ -180,6 +184,16 @@ impl CycleConfig {
             max_detection_age_ns: (cfg.stale.max_detection_age_s * 1e9) as u64,
             max_robot_state_age_ns: (cfg.stale.max_robot_state_age_s * 1e9) as u64,
             start_tolerance_rad: 0.02,
+            brake_horizon_samples: {
+                let l = &cfg.limits;
+                let t_s = (0..DOF)
+                    .map(|j| {
+                        l.max_velocity_rad_s[j] / l.max_acceleration_rad_s2[j]
+                            + l.max_acceleration_rad_s2[j] / l.max_jerk_rad_s3[j]
+                    })
+                    .fold(0.0, f64::max);
+                (t_s * cfg.rate_hz).ceil() as usize
+            },
         }
     }
 }
@@ -413,12 +427,6 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                 self.cmd = MotionState::at_rest(self.cmd.q_rad);
             }
         }
-        if let Some(s) = self.scene {
-            self.report.clearance_m = self
-                .shield
-                .model_mut()
-                .min_distance_m(&self.cmd.q_rad, &s.scene);
-        }
         if self.link_ok
             && let Err(e) = self.link.send_servo(now_ns, &self.cmd.q_rad)
         {
@@ -466,14 +474,17 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             dq_rad_s: plan.dq_rad_s[k],
             ddq_rad_s2: plan.ddq_rad_s2[k],
         };
+        let ahead = plan.q_rad[(k + self.cfg.brake_horizon_samples).min(plan.len() - 1)];
         let verdict = match &self.scene {
             Some(s) => self
                 .shield
-                .check_step(prev_q, &candidate.q_rad, dt_s, &s.scene),
+                .check_step(prev_q, &candidate.q_rad, dt_s, &s.scene)
+                .and_then(|d| self.shield.check_pose(&ahead, &s.scene).map(|_| d)),
             None => Err(ShieldViolation::NonFinite),
         };
         match verdict {
-            Ok(_) => {
+            Ok(d) => {
+                self.report.clearance_m = d;
                 self.cmd = candidate;
                 self.next += 1;
             }
