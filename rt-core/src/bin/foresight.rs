@@ -292,29 +292,28 @@ fn run_scenario(
         env: vec![],
         restart: true,
     })?;
+    let assets = args
+        .task
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
     let mut rt_args = vec![
         "run".into(),
         "--config".into(),
         s(&args.runtime),
+        "--assets".into(),
+        s(&assets),
         "--prefix".into(),
         prefix.clone(),
-        "--task".into(),
-        s(&args.task),
-        "--urdf".into(),
-        s(&args.urdf),
         "--link".into(),
         "xarm".into(),
         "--robot".into(),
         robot_addr,
+        "--policy".into(),
+        s(&args.checkpoint.join("policy.blob")),
     ];
     if args.robot.is_none() {
-        rt_args.extend(["--report-port-offset".into(), offset.to_string()]);
-    }
-    if args.no_lookahead {
-        rt_args.push("--no-lookahead".into());
-    }
-    if args.dry_run {
-        rt_args.push("--dry-run".into());
+        rt_args.extend(["--report-port".into(), (30_003 + offset).to_string()]);
     }
     sup.start(ProcessSpec {
         name: "rt-core".into(),
@@ -454,12 +453,13 @@ fn run_scenario(
         send_signal(pid, "INT");
     }
     sup.stop_all(Duration::from_secs(5));
-    let p999 = read_cycle_p999(&run.path.join("logs/rt-core.log"));
+    let (p99, p999) = read_cycle_stats(&run.path.join("logs/rt-core.log"));
     let restarts = ["perception", "learner"]
         .iter()
         .map(|n| u64::from(sup.restarts(n)))
         .sum();
     let mut summary = director.summary(collisions, p999, restarts, args.seed);
+    summary.cycle_p99_us = p99.or(summary.cycle_p99_us);
     summary.notes.extend(notes);
 
     write_report(&run, args, &world, &director, &summary)?;
@@ -471,16 +471,22 @@ fn run_scenario(
     Ok(summary)
 }
 
-/// The last `"p999_us"` figure rt-core printed in its log (its exit statistics), if any.
-fn read_cycle_p999(log: &Path) -> Option<f64> {
-    let text = std::fs::read_to_string(log).ok()?;
-    text.lines().rev().find_map(|l| {
-        let v: serde_json::Value = serde_json::from_str(l.trim()).ok()?;
-        v.pointer("/cycle_compute_us/p999")
-            .or_else(|| v.pointer("/compute_us/p999"))
-            .or_else(|| v.get("cycle_p999_us"))
-            .and_then(serde_json::Value::as_f64)
-    })
+/// Cycle compute p99 and p99.9 (µs) from the JSON line `rt-core run` prints at exit.
+fn read_cycle_stats(log: &Path) -> (Option<f64>, Option<f64>) {
+    let Ok(text) = std::fs::read_to_string(log) else {
+        return (None, None);
+    };
+    text.lines()
+        .rev()
+        .find_map(|l| {
+            let v: serde_json::Value = serde_json::from_str(l.trim()).ok()?;
+            let c = v.get("cycle_compute_us")?;
+            Some((
+                c.get("p99").and_then(serde_json::Value::as_f64),
+                c.get("p999").and_then(serde_json::Value::as_f64),
+            ))
+        })
+        .unwrap_or((None, None))
 }
 
 fn write_report(

@@ -78,6 +78,17 @@ pub struct RunArgs {
     /// Stop after this many seconds (0 = until SIGINT/SIGTERM).
     #[arg(long, default_value_t = 0.0)]
     seconds: f64,
+    /// Service-name prefix (overrides the config's `service_prefix`; the launcher gives
+    /// every run a unique one).
+    #[arg(long)]
+    prefix: Option<String>,
+    /// Report port of the arm for `--link xarm` (default: the real controller's 30003).
+    #[arg(long)]
+    report_port: Option<u16>,
+    /// A policy blob file to start with (e.g. assets/policy/policy.blob); it is validated
+    /// and must pass the lookahead like any policy the learner sends.
+    #[arg(long)]
+    policy: Option<PathBuf>,
 }
 
 /// Runs the runtime.
@@ -188,7 +199,11 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
                 .robot
                 .as_deref()
                 .context("--link xarm needs --robot HOST")?;
-            let mut driver = XArmDriver::connect(XArmConfig::new(host))
+            let mut xarm_cfg = XArmConfig::from_addr(host);
+            if let Some(port) = args.report_port {
+                xarm_cfg.report_port = port;
+            }
+            let mut driver = XArmDriver::connect(xarm_cfg)
                 .map_err(|e| anyhow::anyhow!("connecting to the xArm at {host}: {e:?}"))?;
             let q = driver
                 .start_servo_mode()
@@ -245,7 +260,10 @@ fn serve<L: RobotLink + 'static>(
     let log_thread = log_drain.spawn(Duration::from_millis(20), stop.clone())?;
 
     // iceoryx2 I/O (twin thread = this thread).
-    let prefix = cfg.service_prefix.clone();
+    let prefix = args
+        .prefix
+        .clone()
+        .unwrap_or_else(|| cfg.service_prefix.clone());
     let (node, cleanup) =
         create_node::<ipc::Service>("rt-core").context("creating the iceoryx2 node")?;
     tracing::info!(?cleanup, prefix, "iceoryx2 node up");
@@ -256,6 +274,18 @@ fn serve<L: RobotLink + 'static>(
     let retrain_pub =
         open_publisher::<RetrainRequest, _>(&node, &prefix).context("retrain requests")?;
     let loader = PolicyLoader::new(PolicyExpectation::for_task(task_hash));
+    if let Some(path) = &args.policy {
+        let bytes =
+            std::fs::read(path).with_context(|| format!("reading policy {}", path.display()))?;
+        let blob = PolicyBlob::from_bytes(&bytes)
+            .map_err(|e| anyhow::anyhow!("policy {} is invalid: {e}", path.display()))?;
+        let policy = loader
+            .prepare(&blob)
+            .map_err(|e| anyhow::anyhow!("policy {} rejected: {e:?}", path.display()))?;
+        tracing::info!(policy_id = policy.policy_id(), path = %path.display(), "start policy loaded; it must pass the lookahead");
+        let mut start_events = Vec::new();
+        twin.on_policy(Box::new(policy), &mut start_events);
+    }
 
     // Cycle thread.
     let req = RtRequest {
@@ -447,6 +477,19 @@ fn serve<L: RobotLink + 'static>(
         compute_p999_us = summary.cycle_compute_us.p999_us,
         ?rt,
         "rt-core run finished"
+    );
+    // One JSON line on stdout with the run's cycle figures, for the launcher's report.
+    let h = |x: &rt_core::runtime::histogram::Summary| serde_json::json!({"p50": x.p50_us, "p99": x.p99_us, "p999": x.p999_us, "max": x.max_us});
+    println!(
+        "{}",
+        serde_json::json!({
+            "cycles": summary.cycles,
+            "missed_deadlines": summary.missed_deadlines,
+            "allocations_in_cycle": allocs,
+            "wakeup_latency_us": h(&summary.wakeup_latency_us),
+            "cycle_compute_us": h(&summary.cycle_compute_us),
+            "detection_to_twin_us": {"p50": age.p50_us, "p99": age.p99_us, "max": age.max_us},
+        })
     );
     Ok(())
 }

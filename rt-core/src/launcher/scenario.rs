@@ -84,6 +84,7 @@ pub struct Director {
     motion_s: Option<f64>,
     predicted_before_motion: bool,
     moved_since_change: bool,
+    approved_after_change: bool,
     policy_swaps: u64,
     goals_reached: Vec<bool>,
     p99_us: Option<f64>,
@@ -115,6 +116,7 @@ impl Director {
             motion_s: None,
             predicted_before_motion: false,
             moved_since_change: false,
+            approved_after_change: false,
             policy_swaps: 0,
             goals_reached: vec![false; n],
             p99_us: None,
@@ -209,6 +211,9 @@ impl Director {
                 v.lookahead_compute_us
             );
             self.log(t_s, "verdict", text);
+            if self.change_s.is_some() && v.is_plan_approved() {
+                self.approved_after_change = true;
+            }
             if self.detect_s.is_some() && self.verdict_s.is_none() {
                 self.verdict_s = Some(t_s);
                 if !v.is_safe() && !self.moved_since_change {
@@ -421,6 +426,13 @@ impl Director {
             if !r {
                 notes.push(format!("goal of scene {i} was not reached"));
             }
+        }
+        if self.approved_after_change && !self.moved_since_change {
+            notes.push(
+                "a plan was approved after the world change but the arm never moved: the cycle \
+                 refused it (see `plan rejected` in logs/rt-core.log)"
+                    .to_owned(),
+            );
         }
         Summary {
             goal_reached: self.goals_reached.last().copied().unwrap_or(false),
