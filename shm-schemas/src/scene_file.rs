@@ -154,10 +154,12 @@ impl SceneFile {
             path: origin.to_path_buf(),
             message: e.to_string(),
         })?;
-        scene.validate().map_err(|message| SceneFileError::Invalid {
-            path: origin.to_path_buf(),
-            message,
-        })?;
+        scene
+            .validate()
+            .map_err(|message| SceneFileError::Invalid {
+                path: origin.to_path_buf(),
+                message,
+            })?;
         Ok(scene)
     }
 
@@ -175,11 +177,16 @@ impl SceneFile {
     pub fn validate(&self) -> Result<(), String> {
         let t = self.table.height_m;
         if !t.is_finite() || t.abs() > MAX_SCENE_EXTENT_M {
-            return Err(format!("table.height_m = {t} is not a finite height within ±{MAX_SCENE_EXTENT_M} m"));
+            return Err(format!(
+                "table.height_m = {t} is not a finite height within ±{MAX_SCENE_EXTENT_M} m"
+            ));
         }
         let g = &self.goal;
         if !finite3(&g.center_m) || g.center_m.iter().any(|c| c.abs() > MAX_SCENE_EXTENT_M) {
-            return Err(format!("goal.center_m = {:?} is not finite or lies beyond ±{MAX_SCENE_EXTENT_M} m", g.center_m));
+            return Err(format!(
+                "goal.center_m = {:?} is not finite or lies beyond ±{MAX_SCENE_EXTENT_M} m",
+                g.center_m
+            ));
         }
         if !(g.size_m.is_finite() && g.size_m > 0.0 && g.size_m < 1.0) {
             return Err(format!("goal.size_m = {} must be in (0, 1) m", g.size_m));
@@ -192,10 +199,19 @@ impl SceneFile {
         }
         for (i, b) in self.obstacles.iter().enumerate() {
             if !finite3(&b.center_m) || b.center_m.iter().any(|c| c.abs() > MAX_SCENE_EXTENT_M) {
-                return Err(format!("obstacle[{i}].center_m = {:?} is not finite or lies beyond ±{MAX_SCENE_EXTENT_M} m", b.center_m));
+                return Err(format!(
+                    "obstacle[{i}].center_m = {:?} is not finite or lies beyond ±{MAX_SCENE_EXTENT_M} m",
+                    b.center_m
+                ));
             }
-            if b.size_m.iter().any(|s| !(s.is_finite() && *s > 0.0 && *s < 2.0)) {
-                return Err(format!("obstacle[{i}].size_m = {:?}: each extent must be in (0, 2) m", b.size_m));
+            if b.size_m
+                .iter()
+                .any(|s| !(s.is_finite() && *s > 0.0 && *s < 2.0))
+            {
+                return Err(format!(
+                    "obstacle[{i}].size_m = {:?}: each extent must be in (0, 2) m",
+                    b.size_m
+                ));
             }
             let bottom = b.center_m[2] - b.size_m[2] / 2.0;
             if bottom < t - 1e-3 {
@@ -317,15 +333,30 @@ size_m = [0.06, 0.06, 0.10]
     #[test]
     fn rejects_bad_scenes_with_a_reason() {
         let cases = [
-            (SMALL.replace("size_m = 0.05", "size_m = -0.05"), "goal.size_m"),
-            (SMALL.replace("[0.06, 0.06, 0.10]", "[0.06, nan, 0.10]"), "obstacle[0].size_m"),
-            (SMALL.replace("[0.35, 0.0, 0.05]", "[0.35, 0.0, -0.5]"), "below the table"),
-            (SMALL.replace("name =", "colour = 1\nname ="), "unknown field"),
+            (
+                SMALL.replace("size_m = 0.05", "size_m = -0.05"),
+                "goal.size_m",
+            ),
+            (
+                SMALL.replace("[0.06, 0.06, 0.10]", "[0.06, nan, 0.10]"),
+                "obstacle[0].size_m",
+            ),
+            (
+                SMALL.replace("[0.35, 0.0, 0.05]", "[0.35, 0.0, -0.5]"),
+                "below the table",
+            ),
+            (
+                SMALL.replace("name =", "colour = 1\nname ="),
+                "unknown field",
+            ),
             (SMALL.replace("[goal]", "[gaol]"), "malformed"),
         ];
         for (text, want) in cases {
             let err = SceneFile::from_toml_str(&text, Path::new("<inline>")).unwrap_err();
-            assert!(err.to_string().contains(want), "{err} should mention {want}");
+            assert!(
+                err.to_string().contains(want),
+                "{err} should mention {want}"
+            );
         }
         let many = (0..=MAX_OBSTACLES).fold(SMALL.to_string(), |s, _| {
             s + "[[obstacle]]\ncenter_m = [0.3, 0.3, 0.05]\nsize_m = [0.05, 0.05, 0.1]\n"
@@ -339,7 +370,13 @@ size_m = [0.06, 0.06, 0.10]
         let dir = std::env::temp_dir().join(format!("foresight-ws-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(dir.join("a.toml"), SMALL).unwrap();
-        std::fs::write(dir.join("b.toml"), SMALL.replace("0.10]", "0.30]").replace("0.05]\n", "0.15]\n")).unwrap();
+        std::fs::write(
+            dir.join("b.toml"),
+            SMALL
+                .replace("0.10]", "0.30]")
+                .replace("0.05]\n", "0.15]\n"),
+        )
+        .unwrap();
         std::fs::write(
             dir.join("w.toml"),
             "[[step]]\nat_s = 0.0\nscene = \"a.toml\"\n[[step]]\nat_s = 10.0\nscene = \"b.toml\"\n",
