@@ -254,8 +254,17 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
     tracing::info!(prefix = %args.prefix, base = %base_path.display(), "learner serve: waiting for retrain requests");
 
     let drain = |latest: &mut Option<RetrainRequest>| {
-        while let Ok(Some(s)) = requests.receive() {
+        loop {
+            let s = match requests.receive() {
+                Ok(Some(s)) => s,
+                Ok(None) => break,
+                Err(e) => {
+                    tracing::warn!("receiving retrain requests: {e:?}");
+                    break;
+                }
+            };
             let r: RetrainRequest = *s.payload();
+            tracing::debug!(request = r.request_id, "retrain request received");
             match r.validate() {
                 Ok(()) => *latest = Some(r),
                 Err(e) => tracing::warn!("rejected retrain request: {e}"),
@@ -297,6 +306,7 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
         let base = Checkpoint::load(&base_path)?;
         let out_dir = out_root.join(format!("request-{}", req.request_id));
         let mut newer: Option<RetrainRequest> = None;
+        let mut stop_requested = false;
         let res = retrain(
             &base,
             &env,
@@ -315,6 +325,11 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
                     RetrainPhase::Training
                 };
                 let _ = progress_pub.send_copy(progress(&req, phase, st.steps, ret, succ, t0, 0));
+                if node.wait(Duration::ZERO).is_err() {
+                    // SIGINT/SIGTERM: stop training; the loop below exits.
+                    stop_requested = true;
+                    return false;
+                }
                 drain(&mut newer);
                 // A repeat of the request in training is not a new one.
                 if newer.is_some_and(|n| n.request_id == req.request_id) {
@@ -330,6 +345,13 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
                 continue;
             }
         };
+        if stop_requested {
+            tracing::info!(
+                request = req.request_id,
+                "termination requested; abandoning the retraining"
+            );
+            break;
+        }
         if sum.stop == StopReason::Cancelled {
             tracing::info!(request = req.request_id, "superseded by a newer request");
             pending = newer;

@@ -97,14 +97,14 @@ fn serve_answers_a_retrain_request_with_a_valid_policy_blob() {
     req.verdict.set_flags(false, false, false);
     req.verdict.episode_end = EpisodeEnd::Collision as u8;
     req.validate().expect("request validates");
-    // Sent once: the service's history hands it to the server when it subscribes. Resent
-    // (same id: not a new request) only if no progress shows up for a while.
+    // Sent, then resent every 0.5 s while no progress shows up (a repeat of the request in
+    // training is not a new request): the server may not have subscribed yet.
     requests.send_copy(req).expect("send request");
     let mut phases = Vec::new();
     let started = std::time::Instant::now();
     let mut resent = 0;
     let blob = wait_for(Duration::from_secs(90), || {
-        if phases.is_empty() && started.elapsed() > Duration::from_secs(10 * (resent + 1)) {
+        if phases.is_empty() && started.elapsed() > Duration::from_millis(500 * (resent + 1)) {
             let _ = requests.send_copy(req);
             resent += 1;
         }
