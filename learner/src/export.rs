@@ -90,44 +90,17 @@ pub fn blob_normalizer(blob: &PolicyBlob) -> ObsNormalizer {
     }
 }
 
-/// The blob's bytes (see the module docs).
+/// The blob's bytes (the blob-file format of [`PolicyBlob::as_bytes`]).
 pub fn blob_bytes(blob: &PolicyBlob) -> &[u8] {
-    // SAFETY: `PolicyBlob` is `repr(C)`, made only of integers and floats with no padding
-    // (its size is asserted in shm-schemas), so every byte is initialised; the slice
-    // borrows `blob` for its lifetime.
-    unsafe {
-        std::slice::from_raw_parts(
-            (blob as *const PolicyBlob).cast::<u8>(),
-            size_of::<PolicyBlob>(),
-        )
-    }
+    blob.as_bytes()
 }
 
-/// Parses and validates blob bytes.
+/// Parses and validates blob bytes ([`PolicyBlob::from_bytes`]).
 ///
 /// # Errors
 /// [`ExportError::Invalid`] for a wrong length or a blob that fails validation.
 pub fn blob_from_bytes(bytes: &[u8]) -> Result<Box<PolicyBlob>, ExportError> {
-    if bytes.len() != size_of::<PolicyBlob>() {
-        return Err(ExportError::Invalid(format!(
-            "{} bytes, a PolicyBlob has {}",
-            bytes.len(),
-            size_of::<PolicyBlob>()
-        )));
-    }
-    let mut blob = PolicyBlob::new_boxed();
-    // SAFETY: the destination is a live, exclusively borrowed `PolicyBlob` of exactly
-    // `bytes.len()` bytes; every bit pattern is a valid value of its integer/float fields.
-    unsafe {
-        std::ptr::copy_nonoverlapping(
-            bytes.as_ptr(),
-            (&mut *blob as *mut PolicyBlob).cast::<u8>(),
-            bytes.len(),
-        );
-    }
-    blob.validate()
-        .map_err(|e| ExportError::Invalid(format!("{e:?}")))?;
-    Ok(blob)
+    PolicyBlob::from_bytes(bytes).map_err(|e| ExportError::Invalid(format!("{e}")))
 }
 
 /// Writes a blob file atomically.
