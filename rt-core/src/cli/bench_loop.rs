@@ -14,12 +14,12 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use clap::Args;
 use rt_core::policy::{MlpPolicy, PolicyExpectation, PolicyLoader};
-use rt_core::runtime::alloc_count;
 use rt_core::runtime::clock::{Clock, MonotonicClock};
 use rt_core::runtime::config::RuntimeConfig;
-use rt_core::runtime::cycle::{self, Cycle, CycleConfig, LoopShared, LoopStats};
+use rt_core::runtime::cycle::{self, Cycle, CycleConfig, LoopShared};
+use rt_core::runtime::cycle_thread::spawn_cycle_thread;
 use rt_core::runtime::link::InProcessArm;
-use rt_core::runtime::rt_setup::{self, RtRequest};
+use rt_core::runtime::rt_setup::RtRequest;
 use rt_core::runtime::shield::{Shield, ShieldLimits};
 use rt_core::runtime::smoothing::Brake;
 use rt_core::runtime::twin_adapter::{LookaheadActions, SceneSnapshot, TwinLookahead, TwinModel};
@@ -244,20 +244,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
         rt_priority: args.rt_priority,
         lock_memory: !args.no_mlock,
     };
-    let cyc_stop = stop.clone();
-    let hb = shared.clone();
-    let cycle_thread = std::thread::Builder::new()
-        .name("cycle".into())
-        .spawn(move || {
-            let rt = rt_setup::apply(&req);
-            let mut stats = LoopStats::default();
-            alloc_count::count_this_thread(true);
-            let before = alloc_count::counted();
-            cycle::run_loop(&mut cyc, &clock, &cyc_stop, &hb, &mut stats);
-            let allocs = alloc_count::counted() - before;
-            alloc_count::count_this_thread(false);
-            (stats, rt, allocs, *cyc.report())
-        })?;
+    let cycle_thread = spawn_cycle_thread(cyc, clock, req, stop.clone(), shared.clone())?;
 
     // Watchdog.
     let t0 = Instant::now();
@@ -278,9 +265,10 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
         }
     }
     stop.store(true, Ordering::Release);
-    let (stats, rt, allocs, report) = cycle_thread
+    let done = cycle_thread
         .join()
         .map_err(|_| anyhow::anyhow!("cycle thread panicked"))?;
+    let (stats, rt, allocs, report) = (done.stats, done.rt, done.allocations, *done.cycle.report());
     let (mut lookahead_s, swaps, approved, retrains, rejected) = twin_thread
         .join()
         .map_err(|_| anyhow::anyhow!("twin thread panicked"))??;

@@ -19,12 +19,12 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use iceoryx2::prelude::*;
 use rt_core::policy::{PolicyExpectation, PolicyLoader};
-use rt_core::runtime::alloc_count;
 use rt_core::runtime::clock::{Clock, MonotonicClock};
 use rt_core::runtime::config::RuntimeConfig;
 use rt_core::runtime::cycle::{
-    self, Cycle, CycleConfig, CycleReport, LoopShared, LoopStats, Mode, StopReason,
+    self, Cycle, CycleConfig, CycleReport, LoopShared, Mode, StopReason,
 };
+use rt_core::runtime::cycle_thread::spawn_cycle_thread;
 use rt_core::runtime::histogram::Histogram;
 use rt_core::runtime::link::{InProcessArm, RobotLink};
 use rt_core::runtime::rt_setup::{self, RtRequest};
@@ -293,20 +293,7 @@ fn serve<L: RobotLink + 'static>(
         rt_priority: args.rt_priority,
         lock_memory: !args.no_mlock,
     };
-    let cyc_stop = stop.clone();
-    let cyc_shared = shared.clone();
-    let cycle_thread = std::thread::Builder::new()
-        .name("cycle".into())
-        .spawn(move || {
-            let rt = rt_setup::apply(&req);
-            let mut stats = LoopStats::default();
-            alloc_count::count_this_thread(true);
-            let before = alloc_count::counted();
-            cycle::run_loop(&mut cyc, &clock, &cyc_stop, &cyc_shared, &mut stats);
-            let allocs = alloc_count::counted() - before;
-            alloc_count::count_this_thread(false);
-            (stats.summary(), rt, allocs)
-        })?;
+    let cycle_thread = spawn_cycle_thread(cyc, clock, req, stop.clone(), shared.clone())?;
 
     // The twin thread polls its subscribers every 100 µs; a 1 ns timer slack keeps the
     // sleeps close to that.
@@ -457,9 +444,10 @@ fn serve<L: RobotLink + 'static>(
         std::thread::sleep(Duration::from_micros(100));
     }
     stop.store(true, Ordering::Release);
-    let (summary, rt, allocs) = cycle_thread
+    let done = cycle_thread
         .join()
         .map_err(|_| anyhow::anyhow!("cycle thread panicked"))?;
+    let (summary, rt, allocs) = (done.stats.summary(), done.rt, done.allocations);
     let _ = log_thread.join();
     let age = detection_age.summary();
     tracing::info!(

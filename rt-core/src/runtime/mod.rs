@@ -21,6 +21,7 @@ pub mod alloc_count;
 pub mod clock;
 pub mod config;
 pub mod cycle;
+pub mod cycle_thread;
 pub mod handoff;
 pub mod histogram;
 pub mod link;
