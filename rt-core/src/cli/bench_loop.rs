@@ -19,7 +19,6 @@ use rt_core::runtime::config::RuntimeConfig;
 use rt_core::runtime::cycle::{self, Cycle, CycleConfig, LoopShared};
 use rt_core::runtime::cycle_thread::spawn_cycle_thread;
 use rt_core::runtime::link::InProcessArm;
-use rt_core::runtime::rt_setup::RtRequest;
 use rt_core::runtime::shield::{Shield, ShieldLimits};
 use rt_core::runtime::smoothing::Brake;
 use rt_core::runtime::twin_adapter::{LookaheadActions, SceneSnapshot, TwinLookahead, TwinModel};
@@ -36,15 +35,9 @@ pub struct BenchLoopArgs {
     /// Duration of the measured run, s.
     #[arg(long, default_value_t = 3.0)]
     seconds: f64,
-    /// Pin the cycle thread to this CPU.
-    #[arg(long)]
-    cpu: Option<usize>,
-    /// Ask for SCHED_FIFO at this priority for the cycle thread.
-    #[arg(long)]
-    rt_priority: Option<i32>,
-    /// Do not lock memory.
-    #[arg(long)]
-    no_mlock: bool,
+    /// Real-time set-up of the cycle thread.
+    #[command(flatten)]
+    rt: super::RtArgs,
     /// Period of policy hot-swaps, ms (0 = none after the first).
     #[arg(long, default_value_t = 50)]
     swap_every_ms: u64,
@@ -239,11 +232,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
             })?;
 
     // Cycle thread.
-    let req = RtRequest {
-        cpu: args.cpu,
-        rt_priority: args.rt_priority,
-        lock_memory: !args.no_mlock,
-    };
+    let req = args.rt.request();
     let cycle_thread = spawn_cycle_thread(cyc, clock, req, stop.clone(), shared.clone())?;
 
     // Watchdog.

@@ -3,7 +3,8 @@
 
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
+use rt_core::runtime::rt_setup::RtRequest;
 
 mod bench_loop;
 mod ros_bridge;
@@ -44,5 +45,30 @@ pub fn main() -> ExitCode {
         Command::BenchLoop(args) => bench_loop::run(args),
         Command::Run(args) => run::run(args),
         Command::Xarm(cmd) => xarm::run(cmd),
+    }
+}
+
+/// The real-time flags shared by `run` and `bench-loop`.
+#[derive(Debug, Clone, Copy, Args)]
+pub struct RtArgs {
+    /// Pin the cycle thread to this CPU.
+    #[arg(long)]
+    cpu: Option<usize>,
+    /// Ask for SCHED_FIFO at this priority for the cycle thread.
+    #[arg(long)]
+    rt_priority: Option<i32>,
+    /// Do not lock memory.
+    #[arg(long)]
+    no_mlock: bool,
+}
+
+impl RtArgs {
+    /// The request the cycle thread applies to itself.
+    pub fn request(&self) -> RtRequest {
+        RtRequest {
+            cpu: self.cpu,
+            rt_priority: self.rt_priority,
+            lock_memory: !self.no_mlock,
+        }
     }
 }

@@ -27,7 +27,7 @@ use rt_core::runtime::cycle::{
 use rt_core::runtime::cycle_thread::spawn_cycle_thread;
 use rt_core::runtime::histogram::Histogram;
 use rt_core::runtime::link::{InProcessArm, RobotLink};
-use rt_core::runtime::rt_setup::{self, RtRequest};
+use rt_core::runtime::rt_setup;
 use rt_core::runtime::shield::{Shield, ShieldLimits, ShieldModel};
 use rt_core::runtime::smoothing::Brake;
 use rt_core::runtime::twin_adapter::{LookaheadActions, SceneSnapshot, TwinLookahead, TwinModel};
@@ -66,15 +66,9 @@ pub struct RunArgs {
     /// Robot address for `--link xarm`.
     #[arg(long)]
     robot: Option<String>,
-    /// Pin the cycle thread to this CPU.
-    #[arg(long)]
-    cpu: Option<usize>,
-    /// Ask for SCHED_FIFO at this priority for the cycle thread.
-    #[arg(long)]
-    rt_priority: Option<i32>,
-    /// Do not lock memory.
-    #[arg(long)]
-    no_mlock: bool,
+    /// Real-time set-up of the cycle thread.
+    #[command(flatten)]
+    rt: super::RtArgs,
     /// Stop after this many seconds (0 = until SIGINT/SIGTERM).
     #[arg(long, default_value_t = 0.0)]
     seconds: f64,
@@ -288,11 +282,7 @@ fn serve<L: RobotLink + 'static>(
     }
 
     // Cycle thread.
-    let req = RtRequest {
-        cpu: args.cpu,
-        rt_priority: args.rt_priority,
-        lock_memory: !args.no_mlock,
-    };
+    let req = args.rt.request();
     let cycle_thread = spawn_cycle_thread(cyc, clock, req, stop.clone(), shared.clone())?;
 
     // The twin thread polls its subscribers every 100 µs; a 1 ns timer slack keeps the
