@@ -429,6 +429,30 @@ mod tests {
     use super::*;
     use crate::xarm::codec::Response;
 
+    /// A controller taken through enable, mode 1 and state 0 (transactions 1–3), as the
+    /// SDK does before streaming servo_j.
+    fn servo_ready() -> Controller {
+        let mut c = Controller::default();
+        ask(
+            &mut c,
+            Request::MotionEnable {
+                servo_id: 8,
+                enable: true,
+            },
+            1,
+        );
+        ask(
+            &mut c,
+            Request::SetMode {
+                mode: 1,
+                detection: Some(0),
+            },
+            2,
+        );
+        ask(&mut c, Request::SetState(0), 3);
+        c
+    }
+
     fn ask(c: &mut Controller, req: Request, tid: u16) -> (u8, Vec<u8>) {
         let mut buf = [0u8; 64];
         let n = req.encode(tid, 3, &mut buf).unwrap();
@@ -482,24 +506,7 @@ mod tests {
 
     #[test]
     fn collision_sets_error_31_stops_and_needs_clearing() {
-        let mut c = Controller::default();
-        ask(
-            &mut c,
-            Request::MotionEnable {
-                servo_id: 8,
-                enable: true,
-            },
-            1,
-        );
-        ask(
-            &mut c,
-            Request::SetMode {
-                mode: 1,
-                detection: Some(0),
-            },
-            2,
-        );
-        ask(&mut c, Request::SetState(0), 3);
+        let mut c = servo_ready();
         ask(
             &mut c,
             Request::ServoJ(JointTarget::xarm5(&[1.0, 0.0, 0.0, 0.0, 0.0])),
@@ -527,24 +534,7 @@ mod tests {
 
     #[test]
     fn out_of_range_targets_do_not_move_and_unknown_registers_are_answered() {
-        let mut c = Controller::default();
-        ask(
-            &mut c,
-            Request::MotionEnable {
-                servo_id: 8,
-                enable: true,
-            },
-            1,
-        );
-        ask(
-            &mut c,
-            Request::SetMode {
-                mode: 1,
-                detection: Some(0),
-            },
-            2,
-        );
-        ask(&mut c, Request::SetState(0), 3);
+        let mut c = servo_ready();
         let (s, _) = ask(
             &mut c,
             Request::ServoJ(JointTarget::xarm5(&[0.0, -2.5, 0.0, 0.0, 0.0])),
