@@ -35,7 +35,7 @@ use ros2_client::{
 use serde::{Deserialize, Serialize};
 use shm_schemas::{DetectionFrame, ObjectClass, RobotState, TwinVerdict, services};
 
-use crate::twin::{DOF, RobotModel};
+use crate::twin::{DOF, LinkPoses, RobotModel};
 use msgs::{
     ColorRgba, Header, JointState, Marker, MarkerArray, Point, Pose, Quaternion, Time,
     Vector3 as RosVector3,
@@ -239,8 +239,7 @@ pub fn joint_state_msg(state: &RobotState, frame_id: &str) -> JointState {
 }
 
 /// Builds the `/tf` message: every link frame of the twin's FK, parented to `frame_id`.
-pub fn tf_msg(model: &RobotModel, joints_rad: &[f64; DOF], frame_id: &str) -> TfMessage {
-    let poses = model.fk(joints_rad);
+pub fn tf_msg(model: &RobotModel, poses: &LinkPoses, frame_id: &str) -> TfMessage {
     let stamp = now_stamp();
     let mut transforms = Vec::with_capacity(DOF + 1);
     for (i, iso) in poses.links.iter().enumerate().skip(1) {
@@ -484,6 +483,7 @@ pub fn run(
             }
         }
         if let Some(state) = &latest_state {
+            let poses = model.fk(&state.joints_rad);
             if publishers
                 .joint_states
                 .publish(joint_state_msg(state, &cfg.frame_id))
@@ -493,12 +493,12 @@ pub fn run(
             }
             if publishers
                 .tf
-                .publish(tf_msg(model, &state.joints_rad, &cfg.frame_id))
+                .publish(tf_msg(model, &poses, &cfg.frame_id))
                 .is_ok()
             {
                 stats.tf_messages += 1;
             }
-            let tcp = model.fk(&state.joints_rad).tcp_m();
+            let tcp = poses.tcp_m();
             let moved = trail
                 .back()
                 .is_none_or(|p| (Vector3::from(*p) - tcp).norm() > 0.002);
