@@ -22,10 +22,18 @@ use perception::workspace::WorkspaceRect;
 use perception::yolo::{YoloConfig, YoloDetector};
 use shm_schemas::scene_file::{SceneFile, WorldScript};
 
-const ASSETS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/perception");
-
+/// A bundled perception asset: `$FORESIGHT_ASSETS/perception`, else `./assets/perception`
+/// (the repository root is the working directory of `make demo`), else the source tree's
+/// copy (a binary run from elsewhere on the build machine).
 fn asset(name: &str) -> PathBuf {
-    Path::new(ASSETS).join(name)
+    if let Some(dir) = std::env::var_os("FORESIGHT_ASSETS") {
+        return Path::new(&dir).join("perception").join(name);
+    }
+    let local = Path::new("assets/perception").join(name);
+    if local.exists() {
+        return local;
+    }
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/perception")).join(name)
 }
 
 #[derive(Parser)]
