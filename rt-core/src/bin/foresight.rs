@@ -22,6 +22,7 @@ use rt_core::launcher::report::{self, View};
 use rt_core::launcher::run_dir::{RunDir, write_atomic};
 use rt_core::launcher::scenario::{Action, Director, ScenarioConfig, TimelineEvent};
 use rt_core::launcher::supervisor::{ProcessEvent, ProcessSpec, Supervisor, send_signal};
+use rt_core::runtime::config::RuntimeConfig;
 use rt_core::twin::{ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
 use shm_schemas::scene_file::{SceneFile, WorldScript};
 
@@ -186,6 +187,14 @@ fn sim_control(port: u16, line: &str) -> Result<String> {
     Ok(reply.trim().to_owned())
 }
 
+/// `xarm-sim`'s collision count (its `status` reply), if it answers.
+fn sim_collisions(port: u16) -> Option<u64> {
+    sim_control(port, "status")
+        .ok()
+        .and_then(|r| serde_json::from_str::<serde_json::Value>(&r).ok())
+        .and_then(|v| v.get("collisions").and_then(serde_json::Value::as_u64))
+}
+
 fn print_event(e: &TimelineEvent) {
     println!("{:>8.3} s  {:<20} {}", e.t_s, e.kind, e.detail);
 }
@@ -198,6 +207,8 @@ fn run_scenario(
     stop: &Arc<AtomicBool>,
 ) -> Result<report::Summary> {
     let bins = bin_dir()?;
+    let runtime = RuntimeConfig::load(&args.runtime)
+        .with_context(|| format!("loading {}", args.runtime.display()))?;
     let run = RunDir::create(&args.out).context("creating the run folder")?;
     let prefix = format!(
         "fs{}_{}",
@@ -315,6 +326,16 @@ fn run_scenario(
     if args.robot.is_none() {
         rt_args.extend(["--report-port".into(), (30_003 + offset).to_string()]);
     }
+    if args.no_lookahead {
+        rt_args.push("--no-lookahead".into());
+    }
+    if args.dry_run {
+        rt_args.extend([
+            "--dry-run".into(),
+            "--command-log".into(),
+            s(&run.file("commands.csv")?),
+        ]);
+    }
     sup.start(ProcessSpec {
         name: "rt-core".into(),
         program: bins.join("rt-core"),
@@ -357,6 +378,7 @@ fn run_scenario(
         phase_timeout_s: args.phase_timeout_s,
         settle_s: 1.0,
         lookahead: !args.no_lookahead,
+        home_q_rad: runtime.return_home.then_some(task.start.joints_rad),
     });
     let t0 = Instant::now();
     let timeline_path = run.file("timeline.jsonl")?;
@@ -366,6 +388,8 @@ fn run_scenario(
     let overall_timeout =
         Duration::from_secs_f64(args.phase_timeout_s * (world.len() as f64) + 60.0);
     let mut notes = Vec::new();
+    let (mut last_status_s, mut collisions_seen, mut blind_collided) =
+        (f64::NEG_INFINITY, 0, false);
     loop {
         let t_s = t0.elapsed().as_secs_f64();
         if stop.load(Ordering::Relaxed) {
@@ -405,6 +429,26 @@ fn run_scenario(
             notes.push("rt-core exited".to_owned());
             break;
         }
+        // Ground truth from the simulated arm, twice a second.
+        if args.robot.is_none() && t_s - last_status_s >= 0.5 {
+            last_status_s = t_s;
+            if let Some(n) = sim_collisions(control_port)
+                && n > collisions_seen
+            {
+                extra_events.push(TimelineEvent {
+                    t_s,
+                    kind: "collision",
+                    detail: format!("xarm-sim reports {n} collision(s)"),
+                });
+                collisions_seen = n;
+                if args.no_lookahead {
+                    notes.push(
+                        "the blind run collided: this is what the lookahead prevents".to_owned(),
+                    );
+                    blind_collided = true;
+                }
+            }
+        }
         let obs = observer.poll();
         let actions = director.step(t_s, &obs);
         for a in actions {
@@ -429,7 +473,7 @@ fn run_scenario(
             print_event(e);
             let _ = writeln!(timeline, "{}", serde_json::to_string(e).unwrap_or_default());
         }
-        if director.is_done() {
+        if director.is_done() || blind_collided {
             break;
         }
         std::thread::sleep(Duration::from_millis(20));
@@ -438,14 +482,10 @@ fn run_scenario(
 
     // Ground truth from the arm, then an orderly stop.
     let collisions = if args.robot.is_none() {
-        sim_control(control_port, "status")
-            .ok()
-            .and_then(|r| serde_json::from_str::<serde_json::Value>(&r).ok())
-            .and_then(|v| v.get("collisions").and_then(serde_json::Value::as_u64))
-            .unwrap_or_else(|| {
-                notes.push("could not read xarm-sim's collision count".into());
-                0
-            })
+        sim_collisions(control_port).unwrap_or_else(|| {
+            notes.push("could not read xarm-sim's collision count".into());
+            0
+        })
     } else {
         0
     };

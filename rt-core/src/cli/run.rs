@@ -8,6 +8,9 @@
 //! `DetectionFrame` and `PolicyBlob`; publishes `RobotState` (every 4 ms), `TwinVerdict`
 //! (every lookahead) and `RetrainRequest` (every failed lookahead). Stops on SIGINT/SIGTERM
 //! or after `--seconds`.
+//!
+//! `--dry-run` computes and logs every command and sends none; `--no-lookahead` runs the
+//! policy blind (no lookahead gate, no clearance shield) to show what Foresight prevents.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -26,7 +29,7 @@ use rt_core::runtime::cycle::{
 };
 use rt_core::runtime::cycle_thread::spawn_cycle_thread;
 use rt_core::runtime::histogram::Histogram;
-use rt_core::runtime::link::{InProcessArm, RobotLink};
+use rt_core::runtime::link::{DryRunLink, InProcessArm, RobotLink};
 use rt_core::runtime::rt_setup;
 use rt_core::runtime::shield::{Shield, ShieldLimits, ShieldModel};
 use rt_core::runtime::smoothing::Brake;
@@ -83,6 +86,19 @@ pub struct RunArgs {
     /// and must pass the lookahead like any policy the learner sends.
     #[arg(long)]
     policy: Option<PathBuf>,
+    /// Blind run: execute the policy's plans whatever the lookahead says and without the
+    /// shield's clearance check (joint, workspace and speed limits still hold). This is the
+    /// demonstration of what Foresight prevents; never use it on a real arm near people.
+    #[arg(long)]
+    no_lookahead: bool,
+    /// Dry run: read the arm, run everything, compute every command, and send none (the
+    /// arm's mode is left as it is). Commands are logged to `--command-log`.
+    #[arg(long)]
+    dry_run: bool,
+    /// CSV log of the commands computed while following a plan (`t_ns,cycle,plan_id,q0..q4`
+    /// in rad); written in dry runs, or whenever given.
+    #[arg(long)]
+    command_log: Option<PathBuf>,
 }
 
 /// Runs the runtime.
@@ -186,6 +202,9 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
                 cfg.limits.joint_max_rad,
                 [std::f64::consts::PI; 5],
             );
+            if args.dry_run {
+                return serve(args, cfg, model, task, DryRunLink::new(arm));
+            }
             serve(args, cfg, model, task, arm)
         }
         LinkKind::Xarm => {
@@ -199,6 +218,13 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
             }
             let mut driver = XArmDriver::connect(xarm_cfg)
                 .map_err(|e| anyhow::anyhow!("connecting to the xArm at {host}: {e:?}"))?;
+            if args.dry_run {
+                tracing::warn!(
+                    host,
+                    "dry run: the arm's mode is left as it is; no command is sent"
+                );
+                return serve(args, cfg, model, task, DryRunLink::new(driver));
+            }
             let q = driver
                 .start_servo_mode()
                 .map_err(|e| anyhow::anyhow!("entering servo mode: {e:?}"))?;
@@ -215,10 +241,26 @@ fn serve<L: RobotLink + 'static>(
     task: TaskConfig,
     link: L,
 ) -> anyhow::Result<()> {
-    let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
+    if task.success.min_box_clearance_m < cfg.shield.min_distance_m {
+        anyhow::bail!(
+            "task success.min_box_clearance_m ({} m) is below the runtime's shield.min_distance_m ({} m): \
+             the lookahead would pass plans the shield refuses; raise the task's clearance (and retrain) \
+             or lower the shield's",
+            task.success.min_box_clearance_m,
+            cfg.shield.min_distance_m
+        );
+    }
+    let mut limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
+    if args.no_lookahead {
+        tracing::warn!(
+            "--no-lookahead: plans run whatever the lookahead says, and the shield's clearance check is off"
+        );
+        limits.min_distance_m = f64::NEG_INFINITY;
+    }
     let task_hash = task.hash();
     let table_height_m = task.sampling.table_height_m;
-    let lookahead = TwinLookahead::new(model.clone(), task, LookaheadActions::Policy);
+    let mut lookahead = TwinLookahead::new(model.clone(), task, LookaheadActions::Policy);
+    lookahead.blind = args.no_lookahead;
     let (twin_io, cycle_io, log_drain) = cycle::wire::<SceneSnapshot>();
     let clock = MonotonicClock::new();
     let mut cyc = Cycle::new(
@@ -244,7 +286,17 @@ fn serve<L: RobotLink + 'static>(
         Shield::new(TwinModel::new(model.clone()), limits),
         twin_io,
     );
+    if args.no_lookahead {
+        twin.disable_lookahead_gate();
+    }
     let mut fk = TwinModel::new(model);
+    let mut command_log = match (&args.command_log, args.dry_run) {
+        (Some(p), _) => Some(CommandLog::create(p)?),
+        (None, true) => Some(CommandLog::create(std::path::Path::new(
+            "dry_run_commands.csv",
+        ))?),
+        (None, false) => None,
+    };
 
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
@@ -351,7 +403,11 @@ fn serve<L: RobotLink + 'static>(
                     verdict, elapsed_s, ..
                 } => {
                     verdict_id += 1;
-                    let v = twin_verdict(&verdict, verdict_id, scene_seq, now, elapsed_s);
+                    let mut v = twin_verdict(&verdict, verdict_id, scene_seq, now, elapsed_s);
+                    if args.no_lookahead {
+                        // Blind: the plan goes to the arm whatever the verdict says.
+                        v.set_flags(verdict.task_ok, verdict.safe, true);
+                    }
                     tracing::info!(
                         policy_id = verdict.policy_id,
                         task_ok = verdict.task_ok,
@@ -421,7 +477,20 @@ fn serve<L: RobotLink + 'static>(
                 TwinEvent::PolicySwapped { policy_id } => {
                     tracing::info!(policy_id, "policy swapped in")
                 }
+                TwinEvent::ReturningHome { plan_id, samples } => tracing::info!(
+                    plan_id,
+                    duration_s = samples as f64 / cfg.rate_hz,
+                    "goal reached: returning home along the executed path"
+                ),
+                TwinEvent::ReturnHomeRefused { shield, smooth } => tracing::warn!(
+                    ?shield,
+                    ?smooth,
+                    "the way home is unsafe in the current scene: holding; the lookahead takes over"
+                ),
             }
+        }
+        if let (Some(log), Some(r)) = (command_log.as_mut(), twin.last_report()) {
+            log.record(r)?;
         }
         if now.saturating_sub(last_state_ns) >= 4_000_000
             && let Some(r) = twin.last_report().copied()
@@ -434,6 +503,10 @@ fn serve<L: RobotLink + 'static>(
         std::thread::sleep(Duration::from_micros(100));
     }
     stop.store(true, Ordering::Release);
+    let commands_logged = match command_log.take() {
+        Some(log) => log.finish()?,
+        None => 0,
+    };
     let done = cycle_thread
         .join()
         .map_err(|_| anyhow::anyhow!("cycle thread panicked"))?;
@@ -467,9 +540,72 @@ fn serve<L: RobotLink + 'static>(
             "wakeup_latency_us": h(&summary.wakeup_latency_us),
             "cycle_compute_us": h(&summary.cycle_compute_us),
             "detection_to_twin_us": {"p50": age.p50_us, "p99": age.p99_us, "max": age.max_us},
+            "dry_run": args.dry_run,
+            "lookahead_gate": !args.no_lookahead,
+            "commands_logged": commands_logged,
         })
     );
     Ok(())
+}
+
+/// The command log: one CSV line per cycle that followed a plan, from the cycle's reports
+/// (written by the twin thread; the cycle only fills its report). Lines are whole; the file
+/// is flushed at least every 100 ms and at the end.
+struct CommandLog {
+    path: PathBuf,
+    out: std::io::BufWriter<std::fs::File>,
+    last_cycle: u64,
+    lines: u64,
+    flushed: Instant,
+}
+
+impl CommandLog {
+    fn create(path: &std::path::Path) -> anyhow::Result<Self> {
+        use std::io::Write;
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("creating the command log {}", path.display()))?;
+        let mut out = std::io::BufWriter::new(file);
+        writeln!(out, "t_ns,cycle,plan_id,q0_rad,q1_rad,q2_rad,q3_rad,q4_rad")?;
+        tracing::info!(path = %path.display(), "logging computed commands");
+        Ok(Self {
+            path: path.to_path_buf(),
+            out,
+            last_cycle: 0,
+            lines: 0,
+            flushed: Instant::now(),
+        })
+    }
+
+    fn record(&mut self, r: &CycleReport) -> anyhow::Result<()> {
+        use std::io::Write;
+        if r.cycles == self.last_cycle {
+            return Ok(());
+        }
+        self.last_cycle = r.cycles;
+        if r.mode == Mode::Following {
+            let q = r.cmd.q_rad;
+            writeln!(
+                self.out,
+                "{},{},{},{:.6},{:.6},{:.6},{:.6},{:.6}",
+                r.t_ns, r.cycles, r.plan_id, q[0], q[1], q[2], q[3], q[4]
+            )
+            .with_context(|| format!("writing {}", self.path.display()))?;
+            self.lines += 1;
+        }
+        if self.flushed.elapsed() >= Duration::from_millis(100) {
+            self.out.flush()?;
+            self.flushed = Instant::now();
+        }
+        Ok(())
+    }
+
+    fn finish(mut self) -> anyhow::Result<u64> {
+        use std::io::Write;
+        self.out
+            .flush()
+            .with_context(|| format!("writing {}", self.path.display()))?;
+        Ok(self.lines)
+    }
 }
 
 fn publish_state(

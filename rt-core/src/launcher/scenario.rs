@@ -34,7 +34,14 @@ pub struct ScenarioConfig {
     pub settle_s: f64,
     /// Whether rt-core gates motion on the lookahead (reported only).
     pub lookahead: bool,
+    /// Where the arm rests between episodes (rt-core's `return_home`: the task's start
+    /// posture), rad; the world changes only once the arm has settled there. `None`: the
+    /// world changes wherever the arm has settled.
+    pub home_q_rad: Option<[f64; 5]>,
 }
+
+/// Joints within this of home count as home, rad.
+const HOME_TOLERANCE_RAD: f64 = 0.02;
 
 /// What the launcher must do now.
 #[derive(Debug, Clone, PartialEq)]
@@ -216,7 +223,7 @@ impl Director {
             }
             if self.detect_s.is_some() && self.verdict_s.is_none() {
                 self.verdict_s = Some(t_s);
-                if !v.is_safe() && !self.moved_since_change {
+                if !v.is_safe() && !self.moved_since_change && self.cfg.lookahead {
                     self.predicted_before_motion = true;
                     self.log(
                         t_s,
@@ -224,7 +231,11 @@ impl Director {
                         "the lookahead predicts a collision; the arm has not moved".into(),
                     );
                 }
-            } else if self.verdict_s.is_some() && !v.is_safe() && !self.moved_since_change {
+            } else if self.verdict_s.is_some()
+                && !v.is_safe()
+                && !self.moved_since_change
+                && self.cfg.lookahead
+            {
                 self.predicted_before_motion = true;
             }
         }
@@ -301,9 +312,17 @@ impl Director {
                     self.phase = Phase::Done;
                     actions.push(Action::Finish);
                 } else if !last {
-                    let settled = self
-                        .still_since_s
-                        .is_some_and(|s| t_s - s >= self.cfg.settle_s);
+                    let at_home = self.cfg.home_q_rad.is_none_or(|h| {
+                        self.last_state.is_some_and(|s| {
+                            h.iter()
+                                .zip(s.joints_rad.iter())
+                                .all(|(a, b)| (a - b).abs() <= HOME_TOLERANCE_RAD)
+                        })
+                    });
+                    let settled = at_home
+                        && self
+                            .still_since_s
+                            .is_some_and(|s| t_s - s >= self.cfg.settle_s);
                     let due = t_s >= self.cfg.world[scene + 1].0;
                     if due && ((reached && settled) || timed_out) {
                         let next = scene + 1;
@@ -380,7 +399,8 @@ impl Director {
             );
         }
         if self.active_policy != Some(s.active_policy_id) {
-            if self.active_policy.is_some() {
+            // The start policy taking over from none (id 0) is not a swap.
+            if self.active_policy.is_some_and(|p| p != 0) {
                 self.policy_swaps += 1;
                 if self.published_s.is_none() && self.request_s.is_some() {
                     self.published_s = Some(t_s);
@@ -506,6 +526,7 @@ mod tests {
             phase_timeout_s: 60.0,
             settle_s: 0.5,
             lookahead: true,
+            home_q_rad: None,
         };
         let g0 = [0.4, 0.2, 0.1];
         let g1 = [0.4, -0.2, 0.1];
@@ -597,6 +618,7 @@ mod tests {
             phase_timeout_s: 3.0,
             settle_s: 0.0,
             lookahead: false,
+            home_q_rad: None,
         };
         let mut d = Director::new(cfg);
         d.step(0.0, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1)));

@@ -87,6 +87,15 @@ pub struct RuntimeConfig {
     /// How far ahead of the running plan a replacement plan joins it, s.
     #[serde(default = "default_join_ahead_s")]
     pub join_ahead_s: f64,
+    /// After an episode reaches its goal, the arm rests `dwell_at_goal_s` and then returns
+    /// to where the episode began along its own executed path, re-checked by the shield in
+    /// the scene then in force. Every episode thus starts from the task's start posture,
+    /// as in training (the research system's reset between episodes).
+    #[serde(default = "default_return_home")]
+    pub return_home: bool,
+    /// Rest at the goal before returning home, s.
+    #[serde(default = "default_dwell_at_goal_s")]
+    pub dwell_at_goal_s: f64,
     /// Motion limits.
     pub limits: MotionLimits,
     /// Shield.
@@ -103,6 +112,13 @@ fn default_prefix() -> String {
 }
 fn default_join_ahead_s() -> f64 {
     0.1
+}
+
+fn default_return_home() -> bool {
+    true
+}
+fn default_dwell_at_goal_s() -> f64 {
+    1.0
 }
 
 fn finite_pos(v: &[f64]) -> bool {
@@ -140,6 +156,8 @@ impl RuntimeConfig {
             rate_hz: 250.0,
             service_prefix: default_prefix(),
             join_ahead_s: 0.1,
+            return_home: true,
+            dwell_at_goal_s: 1.0,
             limits: MotionLimits {
                 max_velocity_rad_s: j(1.0),
                 max_acceleration_rad_s2: j(4.0),
@@ -185,6 +203,9 @@ impl RuntimeConfig {
         }
         if !(self.join_ahead_s.is_finite() && self.join_ahead_s >= 0.0 && self.join_ahead_s < 5.0) {
             return bad("join_ahead_s", "must be within 0..5 s");
+        }
+        if !(self.dwell_at_goal_s.is_finite() && (0.0..=60.0).contains(&self.dwell_at_goal_s)) {
+            return bad("dwell_at_goal_s", "must be within 0..=60 s");
         }
         let l = &self.limits;
         if !finite_pos(&l.max_velocity_rad_s) {
@@ -289,6 +310,7 @@ mod tests {
                 "stale.max_robot_state_age_s",
             ),
             ("min_distance_m", "-1.0", "shield.min_distance_m"),
+            ("dwell_at_goal_s", "-0.5", "dwell_at_goal_s"),
             (
                 "max_jerk_rad_s3",
                 "[40.0, 40.0, 0.0, 40.0, 40.0]",

@@ -149,10 +149,56 @@ impl RobotLink for InProcessArm {
     }
 }
 
+/// A dry run (`rt-core run --dry-run`): reads the real arm, computes every command as in a
+/// live run, and sends none. The withheld commands are counted here; the runtime logs them
+/// from the cycle's reports.
+#[derive(Debug)]
+pub struct DryRunLink<L: RobotLink> {
+    inner: L,
+    withheld: Arc<std::sync::atomic::AtomicU64>,
+}
+
+impl<L: RobotLink> DryRunLink<L> {
+    /// Wraps `inner`; nothing reaches its `send_servo`.
+    pub fn new(inner: L) -> Self {
+        Self {
+            inner,
+            withheld: Arc::default(),
+        }
+    }
+
+    /// A handle on the count of withheld commands.
+    pub fn withheld(&self) -> Arc<std::sync::atomic::AtomicU64> {
+        self.withheld.clone()
+    }
+}
+
+impl<L: RobotLink> RobotLink for DryRunLink<L> {
+    fn read_state(&mut self, now_ns: u64) -> Result<LinkState, LinkError> {
+        self.inner.read_state(now_ns)
+    }
+
+    fn send_servo(&mut self, _now_ns: u64, _q_rad: &Joints) -> Result<(), LinkError> {
+        self.withheld.fetch_add(1, Ordering::Relaxed);
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_dry_run_reads_the_arm_and_moves_nothing() {
+        let mut d = DryRunLink::new(arm());
+        let withheld = d.withheld();
+        d.send_servo(0, &[0.0; DOF]).unwrap();
+        d.send_servo(4_000_000, &[0.3; DOF]).unwrap();
+        assert_eq!(d.read_state(4_000_000).unwrap().q_rad, [0.0; DOF]);
+        assert_eq!(d.inner.commands(), 0);
+        assert_eq!(withheld.load(Ordering::Relaxed), 2);
+    }
 
     fn arm() -> InProcessArm {
         InProcessArm::new([0.0; DOF], [-1.0; DOF], [1.0; DOF], [1.0; DOF])

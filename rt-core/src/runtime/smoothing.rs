@@ -29,6 +29,10 @@ use super::plan::Plan;
 use super::shield::ShieldModel;
 use super::{DOF, Joints};
 
+/// Share of a joint's velocity limit a plan segment is timed for (the rest is headroom for
+/// Ruckig's pass-through profiles).
+const SEGMENT_SPEED_SHARE: f64 = 0.7;
+
 /// Position, velocity and acceleration of the arm.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct MotionState {
@@ -154,7 +158,17 @@ impl PlanSmoother {
         input.max_acceleration = self.limits.max_acceleration_rad_s2.to_vec();
         input.max_jerk = self.limits.max_jerk_rad_s3.to_vec();
         let n = waypoints.len();
+        // Each segment gets at least `step_s`, and longer where a joint would otherwise
+        // exceed `SEGMENT_SPEED_SHARE` of its velocity limit: the arm follows the waypoints'
+        // path more slowly instead of cutting its corners (the path is what the lookahead
+        // and the shield checked).
+        let segment_s = |from: &Joints, to: &Joints| {
+            (0..DOF).fold(step_s, |d, j| {
+                d.max((to[j] - from[j]).abs() / (SEGMENT_SPEED_SHARE * vmax[j]))
+            })
+        };
         let mut t_s = 0.0;
+        let mut t_end = 0.0;
         for i in 0..n {
             let prev = if i == 0 {
                 start.q_rad
@@ -162,18 +176,19 @@ impl PlanSmoother {
                 waypoints[i - 1]
             };
             let target = waypoints[i];
+            let here_s = segment_s(&prev, &target);
             let mut tv = [0.0; DOF];
             if i + 1 < n {
                 let next = waypoints[i + 1];
+                let span_s = here_s + segment_s(&target, &next);
                 for j in 0..DOF {
-                    tv[j] =
-                        ((next[j] - prev[j]) / (2.0 * step_s)).clamp(-0.9 * vmax[j], 0.9 * vmax[j]);
+                    tv[j] = ((next[j] - prev[j]) / span_s).clamp(-0.9 * vmax[j], 0.9 * vmax[j]);
                 }
             }
             input.target_position = target.to_vec();
             input.target_velocity = tv.to_vec();
             input.target_acceleration = vec![0.0; DOF];
-            let t_end = (i + 1) as f64 * step_s;
+            t_end += here_s;
             let last = i + 1 == n;
             loop {
                 if !last && t_s >= t_end - 1e-9 {

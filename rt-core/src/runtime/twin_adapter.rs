@@ -12,7 +12,7 @@
 use crate::policy::MlpPolicy;
 use crate::twin::{
     BoxObstacle, Goal, LinkPoses, MAX_EPISODE_STEPS, MAX_OBSTACLES, RobotGeometry, RobotModel,
-    Scene, TaskConfig, TwinEnv, rollout,
+    Scene, TaskConfig, TwinEnv, rollout_until,
 };
 
 use super::shield::ShieldModel;
@@ -142,6 +142,9 @@ pub struct TwinLookahead {
     actions: LookaheadActions,
     /// Speed of the approach to the start posture, rad/s.
     pub approach_speed_rad_s: f64,
+    /// Blind (`--no-lookahead`): the episode runs on through contact, as the policy would
+    /// on an arm nobody checks.
+    pub blind: bool,
 }
 
 impl TwinLookahead {
@@ -156,6 +159,7 @@ impl TwinLookahead {
             wps: heapless::Vec::new(),
             actions,
             approach_speed_rad_s: 0.5,
+            blind: false,
         }
     }
 
@@ -203,16 +207,17 @@ impl Lookahead for TwinLookahead {
             }
         }
         let summary = match self.actions {
-            LookaheadActions::Policy => rollout(
+            LookaheadActions::Policy => rollout_until(
                 &mut self.env,
                 &scene,
                 |obs| policy.act(obs),
                 Some(&mut self.wps),
+                !self.blind,
             ),
             LookaheadActions::ScriptedWithPolicyCost => {
                 self.env.reset(&scene);
                 let scripted = self.env.straight_line_policy();
-                rollout(
+                rollout_until(
                     &mut self.env,
                     &scene,
                     |obs| {
@@ -220,6 +225,7 @@ impl Lookahead for TwinLookahead {
                         scripted.act(obs)
                     },
                     Some(&mut self.wps),
+                    !self.blind,
                 )
             }
         };

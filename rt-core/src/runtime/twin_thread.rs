@@ -10,6 +10,12 @@
 //! running one at a sample `join_ahead_s` ahead of the arm, starting from that sample's
 //! position, velocity and acceleration, so the hand-over is continuous.
 //!
+//! Return home: with `return_home`, once an episode's plan has ended at its goal and the
+//! arm has rested `dwell_at_goal_s`, the worker plans the way back to where the episode
+//! began — its own executed path reversed (joined plans included), smoothed, and checked
+//! by the shield in the scene then in force. If that check fails (the world changed around
+//! the arm) the arm holds and the ordinary lookahead from its pose takes over.
+//!
 //! [`TwinWorker::step`] is one iteration; the `run` binary calls it in a loop between polls
 //! of its iceoryx2 subscribers, the tests call it directly.
 
@@ -104,6 +110,20 @@ pub enum TwinEvent<S> {
         /// The scene.
         scene: S,
     },
+    /// The arm returns to where its episode began along its executed path.
+    ReturningHome {
+        /// Plan id.
+        plan_id: u64,
+        /// Samples in the plan.
+        samples: usize,
+    },
+    /// The way home is unsafe in the scene now in force; the arm holds.
+    ReturnHomeRefused {
+        /// Shield violation and sample index, if that was the cause.
+        shield: Option<(usize, ShieldViolation)>,
+        /// Smoothing error, if that was the cause.
+        smooth: Option<SmoothError>,
+    },
     /// A new policy was swapped in.
     PolicySwapped {
         /// Its id.
@@ -129,12 +149,34 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     waypoints: Vec<Joints>,
     last_mode: Mode,
     refused_seen: u64,
+    step_s: f64,
+    return_home: bool,
+    dwell_ns: u64,
+    /// Cycle-rate samples from where the excursion began (at rest) to the end of the last
+    /// approved episode plan.
+    path_from_home: Vec<Joints>,
+    /// Where the sent plan's samples start in `path_from_home`.
+    sent_offset: usize,
+    /// The sent plan is a return home.
+    sent_is_return: bool,
+    /// Plan whose end the arm has rested at since (cycle clock, ns).
+    rest_since_ns: Option<(u64, u64)>,
+    /// The plan whose return home was refused (not retried).
+    return_refused_for: u64,
+    /// Motion waits for a passing lookahead (off only for `--no-lookahead`).
+    gate: bool,
+    /// After a refusal, no planning before this (cycle clock, ns).
+    no_plan_before_ns: u64,
 }
+
+/// Pause after the cycle refused a plan before planning again, ns.
+const REFUSAL_BACKOFF_NS: u64 = 500_000_000;
 
 impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// A worker over a lookahead and a shield model, talking to a cycle through `io`.
     pub fn new(cfg: &RuntimeConfig, la: L, shield: Shield<M>, io: TwinIo<L::Scene>) -> Self {
         let period_s = 1.0 / cfg.rate_hz;
+        let step_s = la.step_s();
         Self {
             la,
             shield,
@@ -152,7 +194,24 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             waypoints: Vec::new(),
             last_mode: Mode::Idle,
             refused_seen: 0,
+            step_s,
+            return_home: cfg.return_home,
+            dwell_ns: (cfg.dwell_at_goal_s * 1e9) as u64,
+            path_from_home: Vec::new(),
+            sent_offset: 0,
+            sent_is_return: false,
+            rest_since_ns: None,
+            return_refused_for: 0,
+            gate: true,
+            no_plan_before_ns: 0,
         }
+    }
+
+    /// Turns the lookahead gate off (`rt-core run --no-lookahead`, the demonstration of
+    /// what Foresight prevents): every lookahead's plan is executed whatever its verdict,
+    /// and no retraining is requested. Verdicts are still computed and reported.
+    pub fn disable_lookahead_gate(&mut self) {
+        self.gate = false;
     }
 
     /// A detection arrived: forwards it to the cycle at once and marks a scene change.
@@ -228,9 +287,15 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             if r.last_refused_plan_id != 0 && r.last_refused_plan_id != self.refused_seen {
                 self.refused_seen = r.last_refused_plan_id;
                 self.want_plan = true;
+                // The cycle refuses while it cannot move (a link error, a stop under way):
+                // plan again after a pause, not at the twin thread's polling rate.
+                self.no_plan_before_ns = r.t_ns.saturating_add(REFUSAL_BACKOFF_NS);
             }
             self.last_mode = r.mode;
             self.report = Some(r);
+        }
+        if self.return_home_due(events) {
+            return;
         }
         if !self.want_plan {
             return;
@@ -238,6 +303,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let (Some(r), Some(scene)) = (self.report, self.scene) else {
             return;
         };
+        if r.t_ns < self.no_plan_before_ns {
+            return;
+        }
         if self.policy.is_none() {
             return;
         }
@@ -268,6 +336,114 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         self.plan_from(start, join, scene, events);
     }
 
+    /// Extends the executed path with an approved episode plan.
+    fn record_episode_plan(&mut self, start: &MotionState, join: Option<JoinPoint>, plan: &Plan) {
+        match join {
+            Some(j) if !self.sent_is_return => {
+                self.path_from_home.truncate(self.sent_offset + j.index);
+            }
+            _ => {
+                let continues = self.path_from_home.last().is_some_and(|q| {
+                    q.iter()
+                        .zip(&start.q_rad)
+                        .all(|(a, b)| (a - b).abs() < 1e-3)
+                });
+                if !continues || self.sent_is_return {
+                    self.path_from_home.clear();
+                    self.path_from_home.push(start.q_rad);
+                }
+            }
+        }
+        self.sent_offset = self.path_from_home.len();
+        self.path_from_home.extend_from_slice(&plan.q_rad);
+        self.sent_is_return = false;
+        self.rest_since_ns = None;
+    }
+
+    /// Whether the return home is in hand this iteration (planned now, or waiting out the
+    /// dwell at the goal); the ordinary planning waits meanwhile.
+    fn return_home_due(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) -> bool {
+        let (Some(r), Some(sent)) = (self.report, self.sent.as_ref()) else {
+            return false;
+        };
+        if r.mode != Mode::Idle || r.plan_id != sent.id || r.next_index < sent.len() {
+            return false;
+        }
+        if self.sent_is_return {
+            // Home: the next excursion starts here.
+            self.path_from_home.clear();
+            return false;
+        }
+        if !self.return_home || self.path_from_home.len() < 2 || self.return_refused_for == sent.id
+        {
+            return false;
+        }
+        let Some(scene) = self.scene else {
+            return false;
+        };
+        let since = match self.rest_since_ns {
+            Some((id, t)) if id == sent.id => t,
+            _ => {
+                self.rest_since_ns = Some((sent.id, r.t_ns));
+                r.t_ns
+            }
+        };
+        if r.t_ns.saturating_sub(since) < self.dwell_ns {
+            return true;
+        }
+        let sent_id = sent.id;
+        let policy_id = sent.policy_id;
+        // The executed path reversed, one waypoint per twin step; ends exactly at its start.
+        let stride = ((self.step_s / self.period_s).round() as usize).max(1);
+        let n = self.path_from_home.len();
+        self.waypoints.clear();
+        let mut i = n - 1;
+        while i > stride {
+            i -= stride;
+            self.waypoints.push(self.path_from_home[i]);
+        }
+        self.waypoints.push(self.path_from_home[0]);
+        let start = MotionState::at_rest(r.cmd.q_rad);
+        let id = self.next_plan_id;
+        self.next_plan_id += 1;
+        let mut plan = Plan::with_capacity(id, policy_id, self.period_s, 0);
+        let checked = self
+            .smoother
+            .smooth(
+                &start,
+                &self.waypoints,
+                self.step_s,
+                self.shield.model_mut(),
+                &mut plan,
+            )
+            .map_err(|e| (None, Some(e)))
+            .and_then(|()| {
+                self.shield
+                    .check_path(&start.q_rad, &plan.q_rad, self.period_s, &scene)
+                    .map_err(|v| (Some(v), None))
+            });
+        if let Err((shield, smooth)) = checked {
+            self.return_refused_for = sent_id;
+            self.want_plan = true;
+            events.push(TwinEvent::ReturnHomeRefused { shield, smooth });
+            return false;
+        }
+        let samples = plan.len();
+        let copy = plan.clone();
+        match self.io.plans.send(Box::new(plan)) {
+            Ok(()) => {
+                self.sent = Some(copy);
+                self.sent_is_return = true;
+                events.push(TwinEvent::ReturningHome {
+                    plan_id: id,
+                    samples,
+                });
+            }
+            Err(_) => self.return_refused_for = 0,
+        }
+        true
+    }
+
     fn plan_from(
         &mut self,
         start: MotionState,
@@ -287,7 +463,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             scene,
             elapsed_s: t0.elapsed().as_secs_f64(),
         });
-        if !(verdict.task_ok && verdict.safe) {
+        if self.gate && !(verdict.task_ok && verdict.safe) {
             events.push(TwinEvent::Retrain {
                 request_id: self.next_request_id,
                 verdict,
@@ -332,6 +508,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let copy = plan.clone();
         match self.io.plans.send(Box::new(plan)) {
             Ok(()) => {
+                self.record_episode_plan(&start, join, &copy);
                 self.sent = Some(copy);
                 events.push(TwinEvent::PlanApproved {
                     plan_id: id,

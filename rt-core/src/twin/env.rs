@@ -301,7 +301,9 @@ impl TwinEnv {
         self.step_index += 1;
 
         let (boxes, table) = self.geometry.distances(&self.poses, &self.scene);
-        let contact = table.colliding || boxes.is_some_and(|b| b.colliding);
+        let clearance_m = self.cfg.success.min_box_clearance_m;
+        let contact =
+            table.colliding || boxes.is_some_and(|b| b.colliding || b.distance_m < clearance_m);
         self.last_distance = boxes.unwrap_or(table);
 
         let goal_dist_m = (self.target_m - tcp).norm();
@@ -432,8 +434,27 @@ impl TwinEnv {
 pub fn rollout<P>(
     env: &mut TwinEnv,
     scene: &Scene,
+    policy: P,
+    waypoints_out: Option<&mut heapless::Vec<Joints, MAX_EPISODE_STEPS>>,
+) -> EpisodeSummary
+where
+    P: FnMut(&[f32; OBS_DIM]) -> [f32; ACT_DIM],
+{
+    rollout_until(env, scene, policy, waypoints_out, true)
+}
+
+/// [`rollout`], or with `stop_at_contact = false` a blind one that keeps stepping through
+/// contact until the goal or the step budget (what executing the policy without the
+/// lookahead does; `safe` is then false if any step was in contact).
+///
+/// # Performance
+/// No allocation (the policy closure permitting).
+pub fn rollout_until<P>(
+    env: &mut TwinEnv,
+    scene: &Scene,
     mut policy: P,
     mut waypoints_out: Option<&mut heapless::Vec<Joints, MAX_EPISODE_STEPS>>,
+    stop_at_contact: bool,
 ) -> EpisodeSummary
 where
     P: FnMut(&[f32; OBS_DIM]) -> [f32; ACT_DIM],
@@ -457,11 +478,16 @@ where
         summary.return_ += f64::from(out.reward);
         summary.min_distance_m = summary.min_distance_m.min(out.distance.distance_m);
         summary.success = out.task_done;
-        summary.safe = out.safe;
+        summary.safe &= out.safe;
         if let Some(w) = waypoints_out.as_deref_mut() {
             let _ = w.push(out.joints);
         }
-        if out.terminated || out.truncated {
+        let ended = if stop_at_contact {
+            out.terminated
+        } else {
+            out.task_done
+        };
+        if ended || out.truncated || summary.steps >= env.config().episode.max_steps {
             break;
         }
     }

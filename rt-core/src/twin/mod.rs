@@ -53,7 +53,8 @@
 //!
 //! # Termination
 //! `task_done` (TCP within `tolerance_m` of the target point) terminates; contact (any link
-//! touching a box, or links 2–5 touching the table) terminates with `safe = false`;
+//! closer to a box than `min_box_clearance_m`, or links 2–5 touching the table) terminates
+//! with `safe = false`;
 //! `truncated` after `max_steps` steps. `StepOutcome::distance` (and
 //! `EpisodeSummary::min_distance_m`) is the robot–box report of the nearest box, or the
 //! robot–table report in a scene without boxes.
@@ -85,7 +86,7 @@ mod task;
 
 pub use env::{
     EpisodeSummary, MAX_EPISODE_STEPS, RewardTerms, StepOutcome, StraightLinePolicy, TwinEnv,
-    rollout,
+    rollout, rollout_until,
 };
 pub use geometry::{DistanceReport, LinkCapsule, MAX_CAPSULES, RobotGeometry};
 pub use ik::{IkConfig, IkResult, IkSolver};

@@ -69,6 +69,12 @@ pub struct SuccessConfig {
     pub tolerance_m: f64,
     /// Height of the goal target point above the goal cube's top face (m).
     pub goal_hover_m: f64,
+    /// Robot–box distance (between the inflated capsules and the box) below which a step
+    /// counts as contact: the episode ends unsafe. At least the runtime shield's
+    /// `min_distance_m` plus a few mm for smoothing, so that an episode the lookahead
+    /// passes is a plan the shield accepts (rt-core checks this at start). Default 0.
+    #[serde(default)]
+    pub min_box_clearance_m: f64,
 }
 
 /// `[start]`
@@ -216,6 +222,9 @@ impl TaskConfig {
         }
         if !(s.goal_hover_m.is_finite() && (0.0..0.5).contains(&s.goal_hover_m)) {
             return Err("success.goal_hover_m must be in [0, 0.5) m");
+        }
+        if !(s.min_box_clearance_m.is_finite() && (0.0..0.2).contains(&s.min_box_clearance_m)) {
+            return Err("success.min_box_clearance_m must be in [0, 0.2) m");
         }
         if !self.start.joints_rad.iter().all(|v| v.is_finite()) {
             return Err("start.joints_rad must be finite");
