@@ -4,9 +4,12 @@
 
 SHELL := /bin/bash
 FORESIGHT_CACHE ?= $(HOME)/.cache/foresight
-# Build outputs live outside the clone so CI runs and fresh clones reuse them; cargo's
-# fingerprints make that safe. Override with CARGO_TARGET_DIR=... as usual.
-CARGO_TARGET_DIR ?= $(FORESIGHT_CACHE)/target
+# Build outputs live outside the clone so repeated CI runs reuse them, one target folder per
+# checkout path: cargo's fingerprints are path-independent, and artifacts that embed their
+# checkout's path (env!("CARGO_MANIFEST_DIR")) must not be shared between two checkouts
+# building at once. Override with CARGO_TARGET_DIR=... as usual.
+CHECKOUT_KEY := $(shell printf '%s' '$(CURDIR)' | sha1sum | cut -c1-12)
+CARGO_TARGET_DIR ?= $(FORESIGHT_CACHE)/target-$(CHECKOUT_KEY)
 export CARGO_TARGET_DIR FORESIGHT_CACHE
 
 # build/env.mk is written by scripts/setup.sh (LIBTORCH and the rpath for its libraries).

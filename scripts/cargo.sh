@@ -10,6 +10,8 @@ while IFS= read -r line; do
   esac
 done < "$here/build/env.mk"
 export FORESIGHT_CACHE=${FORESIGHT_CACHE:-$HOME/.cache/foresight}
-export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$FORESIGHT_CACHE/target}
+# One target folder per checkout path (see the Makefile).
+key=$(printf '%s' "$here" | sha1sum | cut -c1-12)
+export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$FORESIGHT_CACHE/target-$key}
 export LIBTORCH_BYPASS_VERSION_CHECK=1
 exec cargo "$@"

@@ -34,8 +34,15 @@ pub struct Rig {
 }
 
 impl Rig {
+    /// A rig whose arm stays at the goal (`return_home = false`).
     pub fn new() -> Self {
-        let cfg = RuntimeConfig::xarm5_default();
+        let mut cfg = RuntimeConfig::xarm5_default();
+        cfg.return_home = false;
+        Self::with_config(cfg)
+    }
+
+    /// A rig over `cfg`.
+    pub fn with_config(cfg: RuntimeConfig) -> Self {
         let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
         let (twin_io, cycle_io, log) = cycle::wire::<ToyScene>();
         let arm = InProcessArm::new(

@@ -43,6 +43,51 @@ fn an_approved_plan_is_followed_to_the_policy_target_and_the_arm_rests() {
 }
 
 #[test]
+fn after_the_goal_the_arm_rests_then_returns_home_along_its_path_and_stays() {
+    let cfg = rt_core::runtime::config::RuntimeConfig::xarm5_default();
+    assert!(cfg.return_home);
+    let dwell_cycles = (cfg.dwell_at_goal_s * cfg.rate_hz) as usize;
+    let mut rig = Rig::with_config(cfg);
+    rig.policy(1, TARGET_A);
+    rig.run(4000);
+    let homeward = rig
+        .events
+        .iter()
+        .filter(|e| matches!(e, TwinEvent::ReturningHome { .. }))
+        .count();
+    assert_eq!(homeward, 1, "{:?}", rig.events);
+    assert_eq!(
+        rig.approvals().len(),
+        1,
+        "no second episode: {:?}",
+        rig.events
+    );
+    assert_eq!(rig.mode(), Mode::Idle);
+    assert!(Rig::near(&rig.arm_q(), &START, 1e-6), "{:?}", rig.arm_q());
+    // It rested at the goal for the dwell before turning back.
+    let resting_at_goal = rig
+        .reports
+        .windows(2)
+        .filter(|w| w[0].cmd.q_rad == w[1].cmd.q_rad && Rig::near(&w[1].cmd.q_rad, &TARGET_A, 0.03))
+        .count();
+    assert!(
+        resting_at_goal >= dwell_cycles,
+        "{resting_at_goal} cycles at rest at the goal"
+    );
+    // The way back respected the velocity limit like every plan.
+    for w in rig.reports.windows(2) {
+        for j in 0..5 {
+            let v = (w[1].cmd.q_rad[j] - w[0].cmd.q_rad[j]) / 0.004;
+            assert!(
+                v.abs() <= rig.cfg.limits.max_velocity_rad_s[j] + 1e-6,
+                "{v}"
+            );
+        }
+    }
+    assert_eq!(rig.cycle.report().stops, 0);
+}
+
+#[test]
 fn a_hot_swap_joins_the_running_plan_only_after_its_lookahead_passes() {
     let mut rig = Rig::new();
     rig.policy(1, TARGET_A);
@@ -154,6 +199,31 @@ fn stale_detections_stop_the_arm_and_it_resumes_only_with_a_fresh_plan() {
     rig.run(2500);
     assert!(rig.approvals().len() >= 2, "{:?}", rig.approvals());
     assert!(Rig::near(&rig.arm_q(), &TARGET_A, 0.03));
+}
+
+#[test]
+fn after_a_stop_on_the_way_the_arm_still_finds_its_way_home() {
+    let mut rig = Rig::with_config(rt_core::runtime::config::RuntimeConfig::xarm5_default());
+    rig.policy(1, TARGET_A);
+    rig.run(100);
+    assert_eq!(rig.mode(), Mode::Following);
+    rig.detections_on = false;
+    rig.run(200);
+    assert_eq!(rig.mode(), Mode::Stopped);
+    let stopped_at = rig.arm_q();
+    rig.detections_on = true;
+    rig.run(4000);
+    assert!(rig.approvals().len() >= 2, "{:?}", rig.approvals());
+    assert!(
+        rig.events
+            .iter()
+            .any(|e| matches!(e, TwinEvent::ReturningHome { .. })),
+        "{:?}",
+        rig.events
+    );
+    // Home is where the excursion began, not where the brake left the arm.
+    assert!(!Rig::near(&stopped_at, &START, 0.01));
+    assert!(Rig::near(&rig.arm_q(), &START, 1e-6), "{:?}", rig.arm_q());
 }
 
 #[test]

@@ -187,12 +187,16 @@ fn sim_control(port: u16, line: &str) -> Result<String> {
     Ok(reply.trim().to_owned())
 }
 
-/// `xarm-sim`'s collision count (its `status` reply), if it answers.
-fn sim_collisions(port: u16) -> Option<u64> {
+/// `xarm-sim`'s `status` reply (JSON), if it answers.
+fn sim_status(port: u16) -> Option<serde_json::Value> {
     sim_control(port, "status")
         .ok()
         .and_then(|r| serde_json::from_str::<serde_json::Value>(&r).ok())
-        .and_then(|v| v.get("collisions").and_then(serde_json::Value::as_u64))
+}
+
+/// `xarm-sim`'s collision count, if it answers.
+fn sim_collisions(port: u16) -> Option<u64> {
+    sim_status(port).and_then(|v| v["collisions"].as_u64())
 }
 
 fn print_event(e: &TimelineEvent) {
@@ -481,14 +485,22 @@ fn run_scenario(
     let _ = timeline.flush();
 
     // Ground truth from the arm, then an orderly stop.
-    let collisions = if args.robot.is_none() {
-        sim_collisions(control_port).unwrap_or_else(|| {
-            notes.push("could not read xarm-sim's collision count".into());
-            0
-        })
+    let sim_status = if args.robot.is_none() {
+        let status = sim_status(control_port);
+        if status.is_none() {
+            notes.push("could not read xarm-sim's status".into());
+        }
+        status
     } else {
-        0
+        None
     };
+    let collisions = sim_status
+        .as_ref()
+        .and_then(|v| v["collisions"].as_u64())
+        .unwrap_or(0);
+    let arm_rejected_commands = sim_status
+        .as_ref()
+        .and_then(|v| v["counters"]["servo_rejected"].as_u64());
     if let Some(pid) = sup.pid("rt-core") {
         send_signal(pid, "INT");
     }
@@ -499,6 +511,7 @@ fn run_scenario(
         .map(|n| u64::from(sup.restarts(n)))
         .sum();
     let mut summary = director.summary(collisions, p999, restarts, args.seed);
+    summary.arm_rejected_commands = arm_rejected_commands;
     summary.cycle_p99_us = p99.or(summary.cycle_p99_us);
     summary.notes.extend(notes);
 

@@ -20,6 +20,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
+use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use rt_core::policy::{PolicyExpectation, PolicyLoader};
 use rt_core::runtime::clock::{Clock, MonotonicClock};
@@ -353,6 +354,7 @@ fn serve<L: RobotLink + 'static>(
     let (mut verdict_id, mut scene_seq, mut last_state_ns) = (0u64, 0u64, 0u64);
     let mut last_cycles = 0;
     let mut detection_age = Histogram::new();
+    let mut last_connections_update = Instant::now();
     while !stop.load(Ordering::Acquire) {
         if args.seconds > 0.0 && t0.elapsed().as_secs_f64() >= args.seconds {
             break;
@@ -487,6 +489,15 @@ fn serve<L: RobotLink + 'static>(
                     ?smooth,
                     "the way home is unsafe in the current scene: holding; the lookahead takes over"
                 ),
+            }
+        }
+        // A learner that (re)connects gets the last retrain request from the service's
+        // history: a learner killed mid-retraining and restarted by the launcher picks the
+        // request up again instead of leaving the arm waiting.
+        if last_connections_update.elapsed() >= Duration::from_millis(100) {
+            last_connections_update = Instant::now();
+            if let Err(e) = retrain_pub.update_connections() {
+                tracing::debug!("retrain request connections: {e:?}");
             }
         }
         if let (Some(log), Some(r)) = (command_log.as_mut(), twin.last_report()) {

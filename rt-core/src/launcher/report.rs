@@ -42,6 +42,11 @@ pub struct Summary {
     pub seed: u64,
     /// Processes restarted by the supervisor.
     pub restarts: u64,
+    /// Servo commands the simulated arm refused (out of range, or sent while it could not
+    /// move); `None` on a real arm. An unsafe command reaching the arm shows up here or as
+    /// a collision.
+    #[serde(default)]
+    pub arm_rejected_commands: Option<u64>,
     /// Free-form notes (e.g. what timed out).
     pub notes: Vec<String>,
 }

@@ -468,6 +468,7 @@ impl Director {
             lookahead: self.cfg.lookahead,
             seed,
             restarts,
+            arm_rejected_commands: None,
             notes,
         }
     }

@@ -169,6 +169,9 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     no_plan_before_ns: u64,
 }
 
+/// A rest pose this close (every joint) to a sample of the recorded path lies on it, rad.
+const ON_PATH_TOLERANCE_RAD: f64 = 0.05;
+
 /// Pause after the cycle refused a plan before planning again, ns.
 const REFUSAL_BACKOFF_NS: u64 = 500_000_000;
 
@@ -343,14 +346,33 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 self.path_from_home.truncate(self.sent_offset + j.index);
             }
             _ => {
-                let continues = self.path_from_home.last().is_some_and(|q| {
+                // From rest: where the arm stopped on the recorded path (the end of the last
+                // plan, a brake's end near one of its samples, a return cut short) the path
+                // is cut there; anywhere else a new excursion begins here.
+                let gap = |q: &Joints| {
                     q.iter()
                         .zip(&start.q_rad)
-                        .all(|(a, b)| (a - b).abs() < 1e-3)
-                });
-                if !continues || self.sent_is_return {
-                    self.path_from_home.clear();
-                    self.path_from_home.push(start.q_rad);
+                        .map(|(a, b)| (a - b).abs())
+                        .fold(0.0, f64::max)
+                };
+                let on_path = self
+                    .path_from_home
+                    .iter()
+                    .enumerate()
+                    .map(|(i, q)| (i, gap(q)))
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+                    .filter(|(_, g)| *g <= ON_PATH_TOLERANCE_RAD);
+                match on_path {
+                    Some((i, g)) => {
+                        self.path_from_home.truncate(i + 1);
+                        if g > 1e-9 {
+                            self.path_from_home.push(start.q_rad);
+                        }
+                    }
+                    _ => {
+                        self.path_from_home.clear();
+                        self.path_from_home.push(start.q_rad);
+                    }
                 }
             }
         }
