@@ -110,6 +110,20 @@ impl Rig {
         self.cycle.link().q_rad()
     }
 
+    /// Every command so far moved each joint within its velocity limit.
+    pub fn assert_commands_within_velocity_limits(&self) {
+        let period_s = 1.0 / self.cfg.rate_hz;
+        for w in self.reports.windows(2) {
+            for j in 0..DOF {
+                let v = (w[1].cmd.q_rad[j] - w[0].cmd.q_rad[j]) / period_s;
+                assert!(
+                    v.abs() <= self.cfg.limits.max_velocity_rad_s[j] + 1e-6,
+                    "joint {j}: {v} rad/s"
+                );
+            }
+        }
+    }
+
     pub fn near(a: &Joints, b: &Joints, tol: f64) -> bool {
         (0..DOF).all(|j| (a[j] - b[j]).abs() <= tol)
     }

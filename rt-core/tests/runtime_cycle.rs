@@ -31,15 +31,7 @@ fn an_approved_plan_is_followed_to_the_policy_target_and_the_arm_rests() {
     assert_eq!(r.stops, 0);
     assert!(r.cmd.dq_rad_s.iter().all(|v| *v == 0.0));
     // every command respected the velocity limit
-    for w in rig.reports.windows(2) {
-        for j in 0..5 {
-            let v = (w[1].cmd.q_rad[j] - w[0].cmd.q_rad[j]) / 0.004;
-            assert!(
-                v.abs() <= rig.cfg.limits.max_velocity_rad_s[j] + 1e-6,
-                "{v}"
-            );
-        }
-    }
+    rig.assert_commands_within_velocity_limits();
 }
 
 #[test]
@@ -75,15 +67,7 @@ fn after_the_goal_the_arm_rests_then_returns_home_along_its_path_and_stays() {
         "{resting_at_goal} cycles at rest at the goal"
     );
     // The way back respected the velocity limit like every plan.
-    for w in rig.reports.windows(2) {
-        for j in 0..5 {
-            let v = (w[1].cmd.q_rad[j] - w[0].cmd.q_rad[j]) / 0.004;
-            assert!(
-                v.abs() <= rig.cfg.limits.max_velocity_rad_s[j] + 1e-6,
-                "{v}"
-            );
-        }
-    }
+    rig.assert_commands_within_velocity_limits();
     assert_eq!(rig.cycle.report().stops, 0);
 }
 

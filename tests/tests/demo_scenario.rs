@@ -97,6 +97,17 @@ fn run_folder(out: &Path) -> PathBuf {
     dirs.pop().expect("a run folder")
 }
 
+/// The run's `timeline.jsonl`, checked to hold no phase timeout (every world change came
+/// from the arm finishing its goal, not from the director giving up).
+fn timeline_without_timeouts(run: &Path) -> String {
+    let timeline = std::fs::read_to_string(run.join("timeline.jsonl")).expect("timeline");
+    assert!(
+        !timeline.contains("\"kind\":\"timeout\""),
+        "a phase timed out: {timeline}"
+    );
+    timeline
+}
+
 fn summary(run: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(run.join("summary.json")).expect("summary.json");
     serde_json::from_str(&text).expect("summary.json is JSON")
@@ -193,11 +204,7 @@ fn the_self_improving_loop_predicts_retrains_and_reaches_the_goal_without_collis
         let len = std::fs::metadata(run.join(file)).map_or(0, |m| m.len());
         assert!(len > 0, "{file} missing or empty in {}", run.display());
     }
-    let timeline = std::fs::read_to_string(run.join("timeline.jsonl")).expect("timeline");
-    assert!(
-        !timeline.contains("\"kind\":\"timeout\""),
-        "a phase timed out: {timeline}"
-    );
+    let timeline = timeline_without_timeouts(&run);
     let kinds: Vec<String> = timeline
         .lines()
         .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
@@ -253,11 +260,7 @@ fn the_launcher_survives_kill_9_of_perception_and_of_the_learner() {
     let code = wait_exit(&mut guard, Duration::from_secs(300));
     let run = run_folder(&out);
     let s = summary(&run);
-    let timeline = std::fs::read_to_string(run.join("timeline.jsonl")).expect("timeline");
-    assert!(
-        !timeline.contains("\"kind\":\"timeout\""),
-        "a phase timed out: {timeline}"
-    );
+    let timeline = timeline_without_timeouts(&run);
     for name in ["perception", "learner"] {
         assert!(
             timeline.contains(&format!("{name} restarted")),
