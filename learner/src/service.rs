@@ -404,7 +404,15 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
             "{}",
             serde_json::json!({"request_id": req.request_id, "policy_id": id, "stop": format!("{:?}", sum.stop), "steps": sum.steps, "wall_s": sum.wall_s, "before": before, "best": best.meta.eval})
         );
-        base_path = out_dir.join(checkpoint::BEST);
+        // The next request resumes from here: the best checkpoint once converged; after an
+        // exhausted budget the last one, which holds all the training so far (the best by
+        // evaluation may be an early one when nothing has succeeded yet), so that repeated
+        // requests for a hard scene accumulate training instead of starting over.
+        base_path = if sum.stop == StopReason::Converged {
+            out_dir.join(checkpoint::BEST)
+        } else {
+            out_dir.join(checkpoint::LAST)
+        };
         answered += 1;
         if args.max_requests > 0 && answered >= args.max_requests {
             break;
