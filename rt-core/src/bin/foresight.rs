@@ -259,6 +259,19 @@ fn run_scenario(
                 env: vec![],
                 restart: false,
             })?;
+            // The simulator binds its control port last: once that answers, every port
+            // rt-core needs is listening.
+            let deadline = Instant::now() + Duration::from_secs(15);
+            while sim_status(control_port).is_none() {
+                let _ = sup.poll();
+                if !sup.is_running("xarm-sim") || Instant::now() > deadline {
+                    bail!(
+                        "xarm-sim did not come up (see {})",
+                        run.path.join("logs/xarm-sim.log").display()
+                    );
+                }
+                std::thread::sleep(Duration::from_millis(50));
+            }
             format!("127.0.0.1:{}", 502 + offset)
         }
     };
