@@ -83,8 +83,9 @@ struct Args {
     /// Retraining wall-time budget per request (s).
     #[arg(long, default_value_t = 30.0)]
     retrain_budget_s: f64,
-    /// Retraining step budget per request.
-    #[arg(long, default_value_t = 100_000)]
+    /// Retraining step budget per request (a request that runs out is answered with the
+    /// best policy so far; the next request resumes where it stopped).
+    #[arg(long, default_value_t = 400_000)]
     retrain_steps: u64,
     /// Longest one scene may take (s).
     #[arg(long, default_value_t = 90.0)]
