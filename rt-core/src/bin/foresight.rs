@@ -26,9 +26,6 @@ use rt_core::runtime::config::RuntimeConfig;
 use rt_core::twin::{ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
 use shm_schemas::scene_file::{SceneFile, WorldScript};
 
-/// Default xArm command port offset for the simulated arm (unprivileged ports).
-const SIM_PORT_BASE_OFFSET: u16 = 20_000;
-
 #[derive(Debug, Parser)]
 #[command(
     name = "foresight",
@@ -192,6 +189,31 @@ fn sim_control(port: u16, line: &str) -> Result<String> {
     Ok(reply.trim().to_owned())
 }
 
+/// The ports `xarm-sim` announced.
+#[derive(Debug, Clone, Copy)]
+struct SimPortsSeen {
+    command: u16,
+    report_real: u16,
+    control: u16,
+}
+
+/// The ports in `xarm-sim`'s `{"event":"listening","ports":{…}}` line, once it is in its log.
+fn read_sim_ports(log: &Path) -> Option<SimPortsSeen> {
+    let text = std::fs::read_to_string(log).ok()?;
+    text.lines().find_map(|l| {
+        let v: serde_json::Value = serde_json::from_str(l.trim()).ok()?;
+        if v["event"] != "listening" {
+            return None;
+        }
+        let port = |k: &str| v["ports"][k].as_u64().and_then(|p| u16::try_from(p).ok());
+        Some(SimPortsSeen {
+            command: port("command")?,
+            report_real: port("report_real")?,
+            control: port("control")?,
+        })
+    })
+}
+
 /// `xarm-sim`'s `status` reply (JSON), if it answers.
 fn sim_status(port: u16) -> Option<serde_json::Value> {
     sim_control(port, "status")
@@ -242,44 +264,51 @@ fn run_scenario(
     let live = run.file("world/live.toml")?;
     write_atomic(&live, world[0].1.to_toml_string().as_bytes())?;
 
-    let offset = SIM_PORT_BASE_OFFSET + (std::process::id() % 10_000) as u16;
-    let control_port = 30_010 + offset;
     let mut sup = Supervisor::new(&run.file("logs/.keep")?.with_file_name(""));
+    // The simulator binds free ports the OS picks (no clash with another run or with
+    // outgoing connections) and announces them in its first stdout line, in its log.
+    let mut sim_ports: Option<SimPortsSeen> = None;
     let robot_addr = match &args.robot {
         Some(host) => host.clone(),
         None => {
+            let mut sim_args: Vec<String> = vec!["--bind".into(), "127.0.0.1".into()];
+            for flag in [
+                "--command-port",
+                "--report-rt-port",
+                "--report-normal-port",
+                "--report-rich-port",
+                "--report-real-port",
+                "--control-port",
+            ] {
+                sim_args.extend([flag.into(), "0".into()]);
+            }
+            sim_args.extend(["--scene".into(), s(&live), "--urdf".into(), s(&args.urdf)]);
             sup.start(ProcessSpec {
                 name: "xarm-sim".into(),
                 program: bins.join("xarm-sim"),
-                args: vec![
-                    "--bind".into(),
-                    "127.0.0.1".into(),
-                    "--port-offset".into(),
-                    offset.to_string(),
-                    "--scene".into(),
-                    s(&live),
-                    "--urdf".into(),
-                    s(&args.urdf),
-                ],
+                args: sim_args,
                 env: vec![],
                 restart: false,
             })?;
-            // The simulator binds its control port last: once that answers, every port
-            // rt-core needs is listening.
+            let sim_log = run.path.join("logs/xarm-sim.log");
             let deadline = Instant::now() + Duration::from_secs(15);
-            while sim_status(control_port).is_none() {
+            let ports = loop {
                 let _ = sup.poll();
+                if let Some(p) = read_sim_ports(&sim_log)
+                    && sim_status(p.control).is_some()
+                {
+                    break p;
+                }
                 if !sup.is_running("xarm-sim") || Instant::now() > deadline {
-                    bail!(
-                        "xarm-sim did not come up (see {})",
-                        run.path.join("logs/xarm-sim.log").display()
-                    );
+                    bail!("xarm-sim did not come up (see {})", sim_log.display());
                 }
                 std::thread::sleep(Duration::from_millis(50));
-            }
-            format!("127.0.0.1:{}", 502 + offset)
+            };
+            sim_ports = Some(ports);
+            format!("127.0.0.1:{}", ports.command)
         }
     };
+    let control_port = sim_ports.map_or(0, |p| p.control);
     let source = if args.camera == "synthetic" {
         format!("synthetic:{}", s(&live))
     } else {
@@ -345,8 +374,8 @@ fn run_scenario(
         "--policy".into(),
         s(&args.checkpoint.join("policy.blob")),
     ];
-    if args.robot.is_none() {
-        rt_args.extend(["--report-port".into(), (30_003 + offset).to_string()]);
+    if let Some(p) = sim_ports {
+        rt_args.extend(["--report-port".into(), p.report_real.to_string()]);
     }
     if args.no_lookahead {
         rt_args.push("--no-lookahead".into());

@@ -68,8 +68,8 @@ impl SceneSnapshot {
     }
 }
 
-/// The shield model on the twin: FK and capsule distances to the scene's boxes (the table
-/// is kept off by the shield's workspace box). Allocation-free.
+/// The shield model on the twin: FK and capsule distances to the scene's boxes and to the
+/// table (links 2–5, as in the task's contact rule). Allocation-free.
 #[derive(Debug, Clone)]
 pub struct TwinModel {
     model: RobotModel,
@@ -108,17 +108,14 @@ impl ShieldModel for TwinModel {
     }
 
     fn min_distance_m(&mut self, q_rad: &Joints, scene: &SceneSnapshot) -> f64 {
-        if scene.count == 0 {
-            return f64::INFINITY;
-        }
         if self.cached.as_ref() != Some(scene) {
             scene.write_scene(&mut self.scene);
             self.cached = Some(*scene);
         }
         self.model.fk_into(q_rad, &mut self.poses);
-        self.geometry
-            .distance_to_boxes(&self.poses, &self.scene)
-            .map_or(f64::INFINITY, |d| d.distance_m)
+        // The boxes and the table (links 2–5): the TCP workspace box alone does not keep
+        // the wrist off the table.
+        self.geometry.distance(&self.poses, &self.scene).distance_m
     }
 }
 

@@ -302,8 +302,11 @@ impl TwinEnv {
 
         let (boxes, table) = self.geometry.distances(&self.poses, &self.scene);
         let clearance_m = self.cfg.success.min_box_clearance_m;
-        let contact =
-            table.colliding || boxes.is_some_and(|b| b.colliding || b.distance_m < clearance_m);
+        // Closer than the clearance to a box or (links 2–5) to the table is contact: the
+        // runtime's shield keeps `shield.min_distance_m` from both.
+        let contact = table.colliding
+            || table.distance_m < clearance_m
+            || boxes.is_some_and(|b| b.colliding || b.distance_m < clearance_m);
         self.last_distance = boxes.unwrap_or(table);
 
         let goal_dist_m = (self.target_m - tcp).norm();

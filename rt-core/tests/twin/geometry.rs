@@ -160,3 +160,40 @@ fn real_model_reports_the_nearest_link() {
     let dist = (Vector3::from(d.robot_point_m) - Vector3::from(d.obstacle_point_m)).norm();
     assert!((dist - d.distance_m).abs() < TOL_M);
 }
+
+/// The runtime shield's distance (`TwinModel`) covers the table as well as the boxes, so
+/// a plan dipping the wrist to the table is refused even without any box in the scene.
+#[test]
+fn the_shield_model_measures_the_table_too() {
+    use rt_core::runtime::shield::ShieldModel;
+    use rt_core::runtime::twin_adapter::{SceneSnapshot, TwinModel};
+    use rt_core::twin::{Goal, Scene};
+
+    let model = super::common::model();
+    let task = super::common::task();
+    let mut shield = TwinModel::new(model.clone());
+    let empty = SceneSnapshot::from_scene(&Scene::empty(
+        0.0,
+        Goal {
+            center_m: [0.3, 0.0, 0.025],
+            size_m: 0.05,
+        },
+    ));
+    let start = task.start.joints_rad;
+    let high = shield.min_distance_m(&start, &empty);
+    assert!(high.is_finite() && high > 0.1, "start posture: {high} m");
+    // Shoulder forward, elbow open: the wrist goes down to the table.
+    let mut low = start;
+    low[1] += 0.9;
+    let d_low = shield.min_distance_m(&low, &empty);
+    assert!(
+        d_low < high - 0.05,
+        "lowering the arm must bring it closer to the table: {d_low} vs {high}"
+    );
+    let tcp = model.tcp_m(&low);
+    assert!(
+        (d_low - tcp.z).abs() < 0.2,
+        "the distance is the table's, near the TCP height {}: {d_low}",
+        tcp.z
+    );
+}

@@ -296,3 +296,30 @@ fn joint_change_per_step_respects_the_velocity_limit() {
         q = out.joints;
     }
 }
+
+/// Closer to the table than the task's clearance (links 2–5) ends the episode unsafe, as a
+/// box does: the lookahead never passes what the shield would refuse near the table.
+#[test]
+fn table_clearance_is_contact() {
+    let mut e = env();
+    let s = super::common::scene("small_box.toml");
+    e.reset(&s);
+    // Straight down from the start posture.
+    for _ in 0..200 {
+        let out = e.step(&[0.0, 0.0, -1.0]);
+        if out.terminated {
+            assert!(!out.safe, "{out:?}");
+            let table = e.geometry().distance_to_table(e.poses(), &s);
+            assert!(
+                table.distance_m < e.config().success.min_box_clearance_m,
+                "{table:?}"
+            );
+            assert!(
+                table.distance_m > -0.02,
+                "stopped at the clearance, not deep in: {table:?}"
+            );
+            return;
+        }
+    }
+    panic!("driving down must end at the table");
+}
