@@ -147,9 +147,15 @@ fn scene_from_detection(
             }
             Ok(ObjectClass::Obstacle) => {
                 if scene.obstacles.len() < MAX_OBSTACLES {
+                    // Snap the top and the bottom (not the centre and the height): a box
+                    // standing on the table must not reach below it after rounding, or the
+                    // learner would refuse the scene of a retrain request.
+                    let top = snap(o.center_m[2] + o.size_m[2] / 2.0);
+                    let bottom = snap(o.center_m[2] - o.size_m[2] / 2.0).max(table_height_m);
+                    let height = (top - bottom).max(0.005);
                     let _ = scene.obstacles.push(BoxObstacle {
-                        center_m,
-                        size_m: size_m.map(|s| s.max(0.005)),
+                        center_m: [center_m[0], center_m[1], bottom + height / 2.0],
+                        size_m: [size_m[0].max(0.005), size_m[1].max(0.005), height],
                     });
                 }
             }
@@ -641,4 +647,57 @@ fn publish_state(
     st.link_ok = u8::from(r.stop_reason != StopReason::LinkLost || r.mode == Mode::Following);
     s.send().context("sending a robot state")?;
     Ok(())
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use shm_schemas::DetectedObject;
+    use shm_schemas::scene_file::SceneFile;
+
+    /// A tall box on the table whose centre and height both round up (0.1614 → 0.160 and
+    /// 0.3227 → 0.325 on the 5 mm grid) once made a box reaching 2.5 mm below the table:
+    /// a scene the learner refused, leaving the arm waiting for a policy that never came.
+    #[test]
+    fn a_detected_box_on_the_table_stays_on_it_after_snapping() {
+        let mut frame = DetectionFrame::default();
+        assert!(frame.push(DetectedObject::new(
+            1,
+            ObjectClass::Goal,
+            0.9,
+            [0.28, -0.32, 0.025],
+            [0.05, 0.05, 0.05]
+        )));
+        assert!(frame.push(DetectedObject::new(
+            2,
+            ObjectClass::Obstacle,
+            0.9,
+            [0.2887, -0.1333, 0.16136],
+            [0.053, 0.0518, 0.32272]
+        )));
+        let mut goal = Goal {
+            center_m: [0.3, 0.0, 0.025],
+            size_m: 0.05,
+        };
+        let scene = scene_from_detection(&frame, 0.0, &mut goal).to_scene();
+        let b = scene.obstacles[0];
+        let bottom = b.center_m[2] - b.size_m[2] / 2.0;
+        assert!(bottom >= -1e-12, "box bottom {bottom} below the table");
+        assert!((b.center_m[2] + b.size_m[2] / 2.0 - 0.3227).abs() <= 0.0025);
+        // The scene a retrain request carries validates like a scene file.
+        let file = SceneFile {
+            name: "detected".into(),
+            table: shm_schemas::scene_file::TableSpec { height_m: 0.0 },
+            goal: shm_schemas::scene_file::GoalSpec {
+                center_m: scene.goal.center_m,
+                size_m: scene.goal.size_m,
+            },
+            obstacles: vec![shm_schemas::scene_file::BoxSpec {
+                center_m: b.center_m,
+                size_m: b.size_m,
+            }],
+        };
+        file.validate().unwrap();
+    }
 }

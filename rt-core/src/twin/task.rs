@@ -69,8 +69,8 @@ pub struct SuccessConfig {
     pub tolerance_m: f64,
     /// Height of the goal target point above the goal cube's top face (m).
     pub goal_hover_m: f64,
-    /// Robot–box distance (between the inflated capsules and the box) below which a step
-    /// counts as contact: the episode ends unsafe. At least the runtime shield's
+    /// Robot–box and robot–table distance (from the inflated capsules; the table for links
+    /// 2–5) below which a step counts as contact: the episode ends unsafe. At least the runtime shield's
     /// `min_distance_m` plus a few mm for smoothing, so that an episode the lookahead
     /// passes is a plan the shield accepts (rt-core checks this at start). Default 0.
     #[serde(default)]
