@@ -281,9 +281,12 @@ fn ports_of_a_crashed_process_do_not_block_a_restart() {
     let mut config = Config::global_config().clone();
     config.global.node.cleanup_dead_nodes_on_creation = false;
     config.global.service.cleanup_dead_nodes_on_open = false;
-    let (node, cleanup) =
+    let (node, _cleanup) =
         services::create_node_with_config::<ipc::Service>("restarted", &config).unwrap();
-    assert_eq!(cleanup.failed_cleanups, 0);
+    // No assertion on the cleanup counts: the other tests of this binary create nodes in
+    // parallel with iceoryx2's own cleanup on, and may remove the dead child first (then
+    // this pass counts a failed cleanup of a node that is already gone). What matters is
+    // below: every publisher slot the dead child held is free again.
     let first = open_publisher::<RobotState, _>(&node, &prefix).unwrap();
     let second = open_publisher::<RobotState, _>(&node, &prefix).unwrap();
     let subscriber = open_subscriber::<RobotState, _>(&node, &prefix).unwrap();
