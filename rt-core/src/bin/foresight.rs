@@ -308,7 +308,6 @@ fn run_scenario(
             format!("127.0.0.1:{}", ports.command)
         }
     };
-    let control_port = sim_ports.map_or(0, |p| p.control);
     let source = if args.camera == "synthetic" {
         format!("synthetic:{}", s(&live))
     } else {
@@ -481,9 +480,11 @@ fn run_scenario(
             break;
         }
         // Ground truth from the simulated arm, twice a second.
-        if args.robot.is_none() && t_s - last_status_s >= 0.5 {
+        if let Some(sim) = sim_ports
+            && t_s - last_status_s >= 0.5
+        {
             last_status_s = t_s;
-            if let Some(n) = sim_collisions(control_port)
+            if let Some(n) = sim_collisions(sim.control)
                 && n > collisions_seen
             {
                 extra_events.push(TimelineEvent {
@@ -506,9 +507,9 @@ fn run_scenario(
             match a {
                 Action::SwitchScene(k) => {
                     write_atomic(&live, world[k].1.to_toml_string().as_bytes())?;
-                    if args.robot.is_none() {
+                    if let Some(sim) = sim_ports {
                         let reply =
-                            sim_control(control_port, &format!("scene {}", s(&scene_paths[k])))?;
+                            sim_control(sim.control, &format!("scene {}", s(&scene_paths[k])))?;
                         if reply != "ok" {
                             bail!("xarm-sim refused the scene change: {reply}");
                         }
@@ -532,15 +533,13 @@ fn run_scenario(
     let _ = timeline.flush();
 
     // Ground truth from the arm, then an orderly stop.
-    let sim_status = if args.robot.is_none() {
-        let status = sim_status(control_port);
+    let sim_status = sim_ports.and_then(|sim| {
+        let status = sim_status(sim.control);
         if status.is_none() {
             notes.push("could not read xarm-sim's status".into());
         }
         status
-    } else {
-        None
-    };
+    });
     let collisions = sim_status
         .as_ref()
         .and_then(|v| v["collisions"].as_u64())

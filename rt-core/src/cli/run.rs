@@ -176,7 +176,16 @@ fn stop_code(reason: StopReason) -> shm_schemas::StopReason {
     }
 }
 
-fn twin_verdict(v: &Verdict, id: u64, seq: u64, now_ns: u64, elapsed_s: f64) -> TwinVerdict {
+/// The published verdict; with the lookahead gate off (`--no-lookahead`) every plan goes
+/// to the arm, so every verdict reads approved.
+fn twin_verdict(
+    v: &Verdict,
+    id: u64,
+    seq: u64,
+    now_ns: u64,
+    elapsed_s: f64,
+    gate: bool,
+) -> TwinVerdict {
     let mut t = TwinVerdict {
         verdict_id: id,
         scene_sequence: seq,
@@ -195,7 +204,7 @@ fn twin_verdict(v: &Verdict, id: u64, seq: u64, now_ns: u64, elapsed_s: f64) -> 
         },
         ..TwinVerdict::default()
     };
-    t.set_flags(v.task_ok, v.safe, v.task_ok && v.safe);
+    t.set_flags(v.task_ok, v.safe, (v.task_ok && v.safe) || !gate);
     t
 }
 
@@ -411,11 +420,14 @@ fn serve<L: RobotLink + 'static>(
                     verdict, elapsed_s, ..
                 } => {
                     verdict_id += 1;
-                    let mut v = twin_verdict(&verdict, verdict_id, scene_seq, now, elapsed_s);
-                    if args.no_lookahead {
-                        // Blind: the plan goes to the arm whatever the verdict says.
-                        v.set_flags(verdict.task_ok, verdict.safe, true);
-                    }
+                    let v = twin_verdict(
+                        &verdict,
+                        verdict_id,
+                        scene_seq,
+                        now,
+                        elapsed_s,
+                        !args.no_lookahead,
+                    );
                     tracing::info!(
                         policy_id = verdict.policy_id,
                         task_ok = verdict.task_ok,

@@ -18,6 +18,7 @@ use shm_schemas::{RetrainPhase, RobotState};
 
 use super::observer::Observations;
 use super::report::{PathSample, Summary};
+use crate::runtime::max_joint_gap_rad;
 
 /// Director settings.
 #[derive(Debug, Clone)]
@@ -314,9 +315,7 @@ impl Director {
                 } else if !last {
                     let at_home = self.cfg.home_q_rad.is_none_or(|h| {
                         self.last_state.is_some_and(|s| {
-                            h.iter()
-                                .zip(s.joints_rad.iter())
-                                .all(|(a, b)| (a - b).abs() <= HOME_TOLERANCE_RAD)
+                            max_joint_gap_rad(&h, &s.joints_rad) <= HOME_TOLERANCE_RAD
                         })
                     });
                     let settled = at_home

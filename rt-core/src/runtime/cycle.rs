@@ -24,7 +24,7 @@ use super::plan::Plan;
 use super::rt_log::{self, LogCode, RtLogDrain, RtLogger};
 use super::shield::{Shield, ShieldModel, ShieldViolation};
 use super::smoothing::{Brake, MotionState};
-use super::{DOF, Joints};
+use super::{DOF, Joints, max_joint_gap_rad};
 
 /// What the cycle is doing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
@@ -328,8 +328,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         match self.mode {
             Mode::Idle | Mode::Stopped => {
                 let close = p.q_rad.first().is_some_and(|q0| {
-                    (0..DOF)
-                        .all(|j| (q0[j] - self.cmd.q_rad[j]).abs() <= self.cfg.start_tolerance_rad)
+                    max_joint_gap_rad(q0, &self.cmd.q_rad) <= self.cfg.start_tolerance_rad
                 });
                 if p.join.is_none() && p.id > self.fresh_after_id && close && inputs_ok {
                     if let Some(old) = self.plan.replace(p) {

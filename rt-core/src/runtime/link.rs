@@ -155,21 +155,18 @@ impl RobotLink for InProcessArm {
 #[derive(Debug)]
 pub struct DryRunLink<L: RobotLink> {
     inner: L,
-    withheld: Arc<std::sync::atomic::AtomicU64>,
+    withheld: u64,
 }
 
 impl<L: RobotLink> DryRunLink<L> {
     /// Wraps `inner`; nothing reaches its `send_servo`.
     pub fn new(inner: L) -> Self {
-        Self {
-            inner,
-            withheld: Arc::default(),
-        }
+        Self { inner, withheld: 0 }
     }
 
-    /// A handle on the count of withheld commands.
-    pub fn withheld(&self) -> Arc<std::sync::atomic::AtomicU64> {
-        self.withheld.clone()
+    /// Commands computed and withheld so far.
+    pub fn withheld(&self) -> u64 {
+        self.withheld
     }
 }
 
@@ -179,7 +176,7 @@ impl<L: RobotLink> RobotLink for DryRunLink<L> {
     }
 
     fn send_servo(&mut self, _now_ns: u64, _q_rad: &Joints) -> Result<(), LinkError> {
-        self.withheld.fetch_add(1, Ordering::Relaxed);
+        self.withheld += 1;
         Ok(())
     }
 }
@@ -192,12 +189,11 @@ mod tests {
     #[test]
     fn a_dry_run_reads_the_arm_and_moves_nothing() {
         let mut d = DryRunLink::new(arm());
-        let withheld = d.withheld();
         d.send_servo(0, &[0.0; DOF]).unwrap();
         d.send_servo(4_000_000, &[0.3; DOF]).unwrap();
         assert_eq!(d.read_state(4_000_000).unwrap().q_rad, [0.0; DOF]);
         assert_eq!(d.inner.commands(), 0);
-        assert_eq!(withheld.load(Ordering::Relaxed), 2);
+        assert_eq!(d.withheld(), 2);
     }
 
     fn arm() -> InProcessArm {

@@ -37,3 +37,12 @@ pub mod twin_thread;
 /// Degrees of freedom of the xArm5 and a joint-space vector (rad, or rad/s, rad/s² by
 /// context): the twin's definitions.
 pub use crate::twin::{DOF, Joints};
+
+/// The largest per-joint difference between two joint vectors, rad (no allocation: used in
+/// the cycle too).
+pub fn max_joint_gap_rad(a: &Joints, b: &Joints) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}

@@ -17,7 +17,7 @@ use crate::twin::{
 
 use super::shield::ShieldModel;
 use super::twin_thread::{Lookahead, Verdict};
-use super::{DOF, Joints};
+use super::{DOF, Joints, max_joint_gap_rad};
 
 /// A `Copy` snapshot of a twin scene (what travels to the cycle).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -187,9 +187,7 @@ impl Lookahead for TwinLookahead {
     ) -> Verdict {
         let scene = scene.to_scene();
         waypoints.clear();
-        let gap = (0..DOF)
-            .map(|j| (self.start_q_rad[j] - start_q_rad[j]).abs())
-            .fold(0.0, f64::max);
+        let gap = max_joint_gap_rad(&self.start_q_rad, start_q_rad);
         if gap > 1e-3 {
             let n = (gap / (self.approach_speed_rad_s * self.step_s))
                 .ceil()

@@ -19,12 +19,12 @@
 //! [`TwinWorker::step`] is one iteration; the `run` binary calls it in a loop between polls
 //! of its iceoryx2 subscribers, the tests call it directly.
 
-use super::Joints;
 use super::config::RuntimeConfig;
 use super::cycle::{CycleReport, Mode, SceneUpdate, TwinIo};
 use super::plan::{JoinPoint, Plan};
 use super::shield::{Shield, ShieldModel, ShieldViolation};
 use super::smoothing::{MotionState, PlanSmoother, SmoothError};
+use super::{Joints, max_joint_gap_rad};
 
 /// Result of one lookahead.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -149,7 +149,6 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     waypoints: Vec<Joints>,
     last_mode: Mode,
     refused_seen: u64,
-    step_s: f64,
     return_home: bool,
     dwell_ns: u64,
     /// Cycle-rate samples from where the excursion began (at rest) to the end of the last
@@ -169,6 +168,10 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     no_plan_before_ns: u64,
 }
 
+/// Why a smoothed plan was not approved: the smoothing error or the shield's first
+/// violation (sample index and kind).
+type NotApproved = (Option<SmoothError>, Option<(usize, ShieldViolation)>);
+
 /// A rest pose this close (every joint) to a sample of the recorded path lies on it, rad.
 const ON_PATH_TOLERANCE_RAD: f64 = 0.05;
 
@@ -179,7 +182,6 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// A worker over a lookahead and a shield model, talking to a cycle through `io`.
     pub fn new(cfg: &RuntimeConfig, la: L, shield: Shield<M>, io: TwinIo<L::Scene>) -> Self {
         let period_s = 1.0 / cfg.rate_hz;
-        let step_s = la.step_s();
         Self {
             la,
             shield,
@@ -197,7 +199,6 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             waypoints: Vec::new(),
             last_mode: Mode::Idle,
             refused_seen: 0,
-            step_s,
             return_home: cfg.return_home,
             dwell_ns: (cfg.dwell_at_goal_s * 1e9) as u64,
             path_from_home: Vec::new(),
@@ -349,17 +350,11 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 // From rest: where the arm stopped on the recorded path (the end of the last
                 // plan, a brake's end near one of its samples, a return cut short) the path
                 // is cut there; anywhere else a new excursion begins here.
-                let gap = |q: &Joints| {
-                    q.iter()
-                        .zip(&start.q_rad)
-                        .map(|(a, b)| (a - b).abs())
-                        .fold(0.0, f64::max)
-                };
                 let on_path = self
                     .path_from_home
                     .iter()
                     .enumerate()
-                    .map(|(i, q)| (i, gap(q)))
+                    .map(|(i, q)| (i, max_joint_gap_rad(q, &start.q_rad)))
                     .min_by(|a, b| a.1.total_cmp(&b.1))
                     .filter(|(_, g)| *g <= ON_PATH_TOLERANCE_RAD);
                 match on_path {
@@ -416,7 +411,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let sent_id = sent.id;
         let policy_id = sent.policy_id;
         // The executed path reversed, one waypoint per twin step; ends exactly at its start.
-        let stride = ((self.step_s / self.period_s).round() as usize).max(1);
+        let stride = ((self.la.step_s() / self.period_s).round() as usize).max(1);
         let n = self.path_from_home.len();
         self.waypoints.clear();
         let mut i = n - 1;
@@ -426,43 +421,61 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         }
         self.waypoints.push(self.path_from_home[0]);
         let start = MotionState::at_rest(r.cmd.q_rad);
+        let plan = match self.smoothed_checked_plan(&start, None, policy_id, &scene) {
+            Ok(plan) => plan,
+            Err((smooth, shield)) => {
+                self.return_refused_for = sent_id;
+                self.want_plan = true;
+                events.push(TwinEvent::ReturnHomeRefused { shield, smooth });
+                return false;
+            }
+        };
+        let (plan_id, samples) = (plan.id, plan.len());
+        if self.send_plan(plan) {
+            self.sent_is_return = true;
+            events.push(TwinEvent::ReturningHome { plan_id, samples });
+        } else {
+            self.return_refused_for = 0;
+        }
+        true
+    }
+
+    /// Smooths `self.waypoints` from `start` into a new plan and checks every sample with
+    /// the shield in `scene` (what every plan passes before it reaches the cycle).
+    fn smoothed_checked_plan(
+        &mut self,
+        start: &MotionState,
+        join: Option<JoinPoint>,
+        policy_id: u64,
+        scene: &L::Scene,
+    ) -> Result<Plan, NotApproved> {
         let id = self.next_plan_id;
         self.next_plan_id += 1;
         let mut plan = Plan::with_capacity(id, policy_id, self.period_s, 0);
-        let checked = self
-            .smoother
+        plan.join = join;
+        self.smoother
             .smooth(
-                &start,
+                start,
                 &self.waypoints,
-                self.step_s,
+                self.la.step_s(),
                 self.shield.model_mut(),
                 &mut plan,
             )
-            .map_err(|e| (None, Some(e)))
-            .and_then(|()| {
-                self.shield
-                    .check_path(&start.q_rad, &plan.q_rad, self.period_s, &scene)
-                    .map_err(|v| (Some(v), None))
-            });
-        if let Err((shield, smooth)) = checked {
-            self.return_refused_for = sent_id;
-            self.want_plan = true;
-            events.push(TwinEvent::ReturnHomeRefused { shield, smooth });
+            .map_err(|e| (Some(e), None))?;
+        self.shield
+            .check_path(&start.q_rad, &plan.q_rad, self.period_s, scene)
+            .map_err(|v| (None, Some(v)))?;
+        Ok(plan)
+    }
+
+    /// Hands a checked plan to the cycle and keeps a copy as the sent plan; false when the
+    /// hand-over slot is full.
+    fn send_plan(&mut self, plan: Plan) -> bool {
+        let copy = plan.clone();
+        if self.io.plans.send(Box::new(plan)).is_err() {
             return false;
         }
-        let samples = plan.len();
-        let copy = plan.clone();
-        match self.io.plans.send(Box::new(plan)) {
-            Ok(()) => {
-                self.sent = Some(copy);
-                self.sent_is_return = true;
-                events.push(TwinEvent::ReturningHome {
-                    plan_id: id,
-                    samples,
-                });
-            }
-            Err(_) => self.return_refused_for = 0,
-        }
+        self.sent = Some(copy);
         true
     }
 
@@ -498,47 +511,30 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             // Already at the goal: nothing to do.
             return;
         }
-        let id = self.next_plan_id;
-        self.next_plan_id += 1;
-        let mut plan = Plan::with_capacity(id, verdict.policy_id, self.period_s, 0);
-        plan.join = join;
-        if let Err(e) = self.smoother.smooth(
-            &start,
-            &self.waypoints,
-            self.la.step_s(),
-            self.shield.model_mut(),
-            &mut plan,
-        ) {
-            events.push(TwinEvent::PlanRejected {
-                policy_id: verdict.policy_id,
-                smooth: Some(e),
-                shield: None,
-            });
-            return;
-        }
-        if let Err(v) = self
-            .shield
-            .check_path(&start.q_rad, &plan.q_rad, self.period_s, &scene)
-        {
-            events.push(TwinEvent::PlanRejected {
-                policy_id: verdict.policy_id,
-                smooth: None,
-                shield: Some(v),
-            });
-            return;
-        }
-        let copy = plan.clone();
-        match self.io.plans.send(Box::new(plan)) {
-            Ok(()) => {
-                self.record_episode_plan(&start, join, &copy);
-                self.sent = Some(copy);
-                events.push(TwinEvent::PlanApproved {
-                    plan_id: id,
+        let plan = match self.smoothed_checked_plan(&start, join, verdict.policy_id, &scene) {
+            Ok(plan) => plan,
+            Err((smooth, shield)) => {
+                events.push(TwinEvent::PlanRejected {
                     policy_id: verdict.policy_id,
-                    joins: join.is_some(),
+                    smooth,
+                    shield,
                 });
+                return;
             }
-            Err(_) => self.want_plan = true,
+        };
+        let plan_id = plan.id;
+        if !self.send_plan(plan) {
+            self.want_plan = true;
+            return;
         }
+        if let Some(sent) = self.sent.take() {
+            self.record_episode_plan(&start, join, &sent);
+            self.sent = Some(sent);
+        }
+        events.push(TwinEvent::PlanApproved {
+            plan_id,
+            policy_id: verdict.policy_id,
+            joins: join.is_some(),
+        });
     }
 }
