@@ -27,7 +27,7 @@ use iceoryx2::sample_mut::SampleMut;
 use iceoryx2::service::Service;
 use iceoryx2::service::attribute::{AttributeKey, AttributeValue};
 use iceoryx2::service::builder::publish_subscribe::{
-    PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+    PublishSubscribeCreateError, PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
 };
 
 use crate::error::SchemaError;
@@ -223,24 +223,63 @@ pub fn open_service_with_version<T: ShmMessage, S: Service>(
     let name = ServiceName::new(&full).map_err(|_| ShmOpenError::InvalidName(T::SERVICE))?;
     let verifier = schema_verifier(T::SERVICE, version)?;
     let q = T::QUEUE;
-    node.service_builder(&name)
-        .publish_subscribe::<T>()
-        .history_size(q.history_size)
-        .subscriber_max_buffer_size(q.subscriber_buffer)
-        .max_publishers(q.max_publishers)
-        .max_subscribers(q.max_subscribers)
-        .enable_safe_overflow(true)
-        .open_or_create_with_attributes(&verifier)
-        .map_err(|error| match error {
-            PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+    let deadline = std::time::Instant::now() + OPEN_RETRY_WINDOW;
+    loop {
+        let attempt = node
+            .service_builder(&name)
+            .publish_subscribe::<T>()
+            .history_size(q.history_size)
+            .subscriber_max_buffer_size(q.subscriber_buffer)
+            .max_publishers(q.max_publishers)
+            .max_subscribers(q.max_subscribers)
+            .enable_safe_overflow(true)
+            .open_or_create_with_attributes(&verifier);
+        match attempt {
+            Ok(factory) => return Ok(factory),
+            Err(PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
                 PublishSubscribeOpenError::IncompatibleAttributes
                 | PublishSubscribeOpenError::IncompatibleTypes,
-            ) => ShmOpenError::SchemaMismatch(T::SERVICE),
-            error => ShmOpenError::Service {
-                service: T::SERVICE,
-                error,
-            },
-        })
+            )) => return Err(ShmOpenError::SchemaMismatch(T::SERVICE)),
+            Err(error) if is_transient(error) && std::time::Instant::now() < deadline => {
+                std::thread::sleep(OPEN_RETRY_PAUSE);
+            }
+            Err(error) => {
+                return Err(ShmOpenError::Service {
+                    service: T::SERVICE,
+                    error,
+                });
+            }
+        }
+    }
+}
+
+/// How long [`open_service`] keeps retrying a service that another process is creating or
+/// removing at the same moment. The launcher starts four processes that open the same
+/// services together; on a loaded two-core machine one of them can be descheduled in the
+/// middle of a creation for longer than iceoryx2's creation timeout, and the others then see
+/// `HangsInCreation`, or `DoesNotExist` after a create/open ping-pong (seen in CI). A
+/// service that is still in that state after this window is reported.
+pub const OPEN_RETRY_WINDOW: std::time::Duration = std::time::Duration::from_secs(15);
+const OPEN_RETRY_PAUSE: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// The least creation timeout [`create_node`] gives iceoryx2 (its default is 500 ms): how
+/// long an opener waits for a creation in progress before it calls the service hung.
+pub const MIN_CREATION_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// Errors that mean "another process is creating or removing this service right now".
+fn is_transient(error: PublishSubscribeOpenOrCreateError) -> bool {
+    use PublishSubscribeCreateError as C;
+    use PublishSubscribeOpenError as O;
+    matches!(
+        error,
+        PublishSubscribeOpenOrCreateError::SystemInFlux
+            | PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+                O::DoesNotExist | O::HangsInCreation | O::IsMarkedForDestruction
+            )
+            | PublishSubscribeOpenOrCreateError::PublishSubscribeCreateError(
+                C::AlreadyExists | C::IsBeingCreatedByAnotherInstance | C::HangsInCreation
+            )
+    )
 }
 
 /// A publisher of `T` on `<prefix>/<T::SERVICE>` (see [`open_service`]).
@@ -326,8 +365,13 @@ pub enum NodeCreateError {
 ///
 /// iceoryx2's default configuration also cleans dead nodes on node creation and service
 /// open; this explicit pass keeps the guarantee when a deployment's config turns those off.
+///
+/// The node uses iceoryx2's global configuration (a deployment's config file, or the
+/// defaults) with the creation timeout raised to at least [`MIN_CREATION_TIMEOUT`].
 pub fn create_node<S: Service>(name: &str) -> Result<(Node<S>, CleanupState), NodeCreateError> {
-    create_node_with_config(name, Config::global_config())
+    let mut config = Config::global_config().clone();
+    config.global.creation_timeout = config.global.creation_timeout.max(MIN_CREATION_TIMEOUT);
+    create_node_with_config(name, &config)
 }
 
 /// As [`create_node`] with an explicit iceoryx2 configuration.

@@ -108,6 +108,37 @@ fn timeline_without_timeouts(run: &Path) -> String {
     timeline
 }
 
+/// On a failing test, prints the tail of every process log of the newest run under `out`
+/// (the test output then says why a process stopped, not only that it did).
+struct LogsOnFailure<'a>(&'a Path);
+
+impl Drop for LogsOnFailure<'_> {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            return;
+        }
+        let Some(run) = std::fs::read_dir(self.0).ok().and_then(|dirs| {
+            dirs.filter_map(Result::ok)
+                .map(|e| e.path())
+                .filter(|p| p.is_dir() && !p.is_symlink())
+                .max()
+        }) else {
+            return;
+        };
+        let Ok(logs) = std::fs::read_dir(run.join("logs")) else {
+            return;
+        };
+        for log in logs.filter_map(Result::ok).map(|e| e.path()) {
+            let text = std::fs::read_to_string(&log).unwrap_or_default();
+            let lines: Vec<&str> = text.lines().collect();
+            println!("---- last lines of {}", log.display());
+            for line in &lines[lines.len().saturating_sub(25)..] {
+                println!("  {line}");
+            }
+        }
+    }
+}
+
 fn summary(run: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(run.join("summary.json")).expect("summary.json");
     serde_json::from_str(&text).expect("summary.json is JSON")
@@ -167,6 +198,7 @@ fn wait_line(rx: &mpsc::Receiver<String>, needle: &str, limit: Duration) -> Stri
 fn the_self_improving_loop_predicts_retrains_and_reaches_the_goal_without_collision() {
     let _one = one_at_a_time();
     let out = scratch("loop");
+    let _logs = LogsOnFailure(&out);
     let (mut guard, _rx) = launch(&out, 60, &[]);
     let code = wait_exit(&mut guard, Duration::from_secs(240));
     let run = run_folder(&out);
@@ -228,6 +260,7 @@ fn the_self_improving_loop_predicts_retrains_and_reaches_the_goal_without_collis
 fn without_the_lookahead_the_old_policy_collides() {
     let _one = one_at_a_time();
     let out = scratch("blind");
+    let _logs = LogsOnFailure(&out);
     let (mut guard, _rx) = launch(&out, 60, &["--no-lookahead"]);
     let code = wait_exit(&mut guard, Duration::from_secs(240));
     let s = summary(&run_folder(&out));
@@ -245,16 +278,17 @@ fn without_the_lookahead_the_old_policy_collides() {
 fn the_launcher_survives_kill_9_of_perception_and_of_the_learner() {
     let _one = one_at_a_time();
     let out = scratch("kill9");
+    let _logs = LogsOnFailure(&out);
     let (mut guard, rx) = launch(&out, 60, &[]);
     let pid = guard.child.id();
     // Perception dies while the arm works on the first goal: rt-core must hold the arm
     // (stale detections) until the restarted perception publishes again.
-    wait_line(&rx, "verdict", Duration::from_secs(60));
+    wait_line(&rx, " verdict ", Duration::from_secs(60));
     let perception = child_named(pid, "perception").expect("perception is running");
     kill_9(perception);
     // The learner dies in the middle of retraining: the restarted learner must pick the
     // request up again from the service's history.
-    wait_line(&rx, "retrain_request", Duration::from_secs(120));
+    wait_line(&rx, " retrain_request ", Duration::from_secs(120));
     let learner = child_named(pid, "learner").expect("learner is running");
     kill_9(learner);
     let code = wait_exit(&mut guard, Duration::from_secs(300));
@@ -278,6 +312,7 @@ fn the_launcher_survives_kill_9_of_perception_and_of_the_learner() {
 fn a_dry_run_computes_and_logs_commands_and_sends_none() {
     let _one = one_at_a_time();
     let out = scratch("dry");
+    let _logs = LogsOnFailure(&out);
     let (mut guard, _rx) = launch(&out, 8, &["--dry-run"]);
     wait_exit(&mut guard, Duration::from_secs(120));
     let run = run_folder(&out);

@@ -476,7 +476,11 @@ fn run_scenario(
             });
         }
         if !sup.is_running("rt-core") {
-            notes.push("rt-core exited".to_owned());
+            let log = run.path.join("logs/rt-core.log");
+            notes.push(match last_error_line(&log) {
+                Some(line) => format!("rt-core exited: {line}"),
+                None => "rt-core exited".to_owned(),
+            });
             break;
         }
         // Ground truth from the simulated arm, twice a second.
@@ -568,6 +572,17 @@ fn run_scenario(
     );
     println!("report: {}", run.path.join("report.md").display());
     Ok(summary)
+}
+
+/// The last `ERROR` line of a process log (why it exited, when it says so), trimmed.
+fn last_error_line(log: &Path) -> Option<String> {
+    let text = std::fs::read_to_string(log).ok()?;
+    text.lines().rev().find(|l| l.contains(" ERROR ")).map(|l| {
+        l.split_once(" ERROR ")
+            .map_or(l, |(_, rest)| rest)
+            .trim()
+            .to_owned()
+    })
 }
 
 /// Cycle compute p99 and p99.9 (µs) from the JSON line `rt-core run` prints at exit.

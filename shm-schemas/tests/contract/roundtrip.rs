@@ -294,3 +294,47 @@ fn ports_of_a_crashed_process_do_not_block_a_restart() {
     assert!(subscriber.receive().unwrap().is_some());
     drop(first);
 }
+
+/// Four processes' worth of nodes open the same services at the same instant (what the
+/// launcher's start-up does). With iceoryx2's creation timeout cut to 1 ms, every opener that
+/// finds a creation in progress gets `HangsInCreation` or a create/open ping-pong at once:
+/// the helpers must ride those out and every port must open, round after round.
+#[test]
+fn concurrent_openers_of_the_same_services_all_succeed() {
+    const OPENERS: usize = 4;
+    const ROUNDS: usize = 15;
+    let mut config = Config::global_config().clone();
+    config.global.creation_timeout = core::time::Duration::from_millis(1);
+    for round in 0..ROUNDS {
+        let prefix = unique_prefix(&format!("concurrent{round}"));
+        let barrier = std::sync::Barrier::new(OPENERS);
+        let failures: Vec<String> = std::thread::scope(|scope| {
+            let workers: Vec<_> = (0..OPENERS)
+                .map(|i| {
+                    let (prefix, barrier, config) = (&prefix, &barrier, &config);
+                    scope.spawn(move || -> Result<(), ShmOpenError> {
+                        let (node, _) = services::create_node_with_config::<ipc::Service>(
+                            &format!("opener{i}"),
+                            config,
+                        )
+                        .expect("node");
+                        barrier.wait();
+                        let _d = open_subscriber::<DetectionFrame, _>(&node, prefix)?;
+                        let _p = open_subscriber::<PolicyBlob, _>(&node, prefix)?;
+                        let _r = open_subscriber::<RetrainRequest, _>(&node, prefix)?;
+                        let _g = open_subscriber::<RetrainProgress, _>(&node, prefix)?;
+                        let _s = open_subscriber::<RobotState, _>(&node, prefix)?;
+                        let _v = open_subscriber::<TwinVerdict, _>(&node, prefix)?;
+                        Ok(())
+                    })
+                })
+                .collect();
+            workers
+                .into_iter()
+                .filter_map(|w| w.join().expect("opener thread").err())
+                .map(|e| e.to_string())
+                .collect()
+        });
+        assert!(failures.is_empty(), "round {round}: {failures:?}");
+    }
+}
