@@ -307,11 +307,29 @@ fn collision_with_the_ground_truth_scene_raises_error_31_and_stops() {
     assert_eq!(summary.error_code, 31);
 }
 
+/// A driver on `cfg`, reconnecting inline or (`off_cycle`) on its helper thread.
+fn driver(cfg: XArmConfig, off_cycle: bool) -> XArmDriver {
+    let mut d = XArmDriver::connect(cfg).expect("connect");
+    if off_cycle {
+        d.reconnect_off_cycle().expect("reconnect helper");
+    }
+    d
+}
+
 #[test]
 fn reconnects_and_resumes_only_from_the_reread_joints() {
+    reconnects_and_resumes(false);
+}
+
+#[test]
+fn reconnects_off_the_cycle_and_resumes_only_from_the_reread_joints() {
+    reconnects_and_resumes(true);
+}
+
+fn reconnects_and_resumes(off_cycle: bool) {
     let s = sim(Vec::new());
     let clock = Clock(Instant::now());
-    let mut d = XArmDriver::connect(cfg(&s)).expect("connect");
+    let mut d = driver(cfg(&s), off_cycle);
     let q0 = d.start_servo_mode().expect("servo mode");
     d.send_servo(clock.ns(), &q0).expect("send");
     d.flush().expect("flush");
@@ -501,10 +519,19 @@ fn bad_controller_bytes_are_typed_errors() {
 
 #[test]
 fn survives_a_controller_restart_with_backoff_and_resumes_from_the_actual_joints() {
+    survives_a_controller_restart(false);
+}
+
+#[test]
+fn survives_a_controller_restart_reconnecting_off_the_cycle() {
+    survives_a_controller_restart(true);
+}
+
+fn survives_a_controller_restart(off_cycle: bool) {
     let a = sim(Vec::new());
     let ports = a.ports();
     let clock = Clock(Instant::now());
-    let mut d = XArmDriver::connect(cfg(&a)).expect("connect");
+    let mut d = driver(cfg(&a), off_cycle);
     let q0 = d.start_servo_mode().expect("servo mode");
     let mut q1 = q0;
     q1[0] += 0.02;
@@ -556,4 +583,84 @@ fn survives_a_controller_restart_with_backoff_and_resumes_from_the_actual_joints
     d.flush().expect("flush");
     let summary = b.shutdown();
     assert_eq!(summary.counters.servo_accepted, 1);
+}
+
+/// Waits (up to 5 s) for `read_state` to answer with a state; panics on other errors.
+fn wait_for_state(d: &mut XArmDriver, clock: &Clock) -> rt_core::xarm::driver::DriverState {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        match d.read_state(clock.ns()) {
+            Ok(st) => return st,
+            Err(XArmError::Disconnected | XArmError::NoState) if Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            Err(e) => panic!("no state: {e:?}"),
+        }
+    }
+}
+
+/// A controller that accepts the connection and never answers holds a reconnect attempt for
+/// the whole reply timeout. Off the cycle, `read_state` keeps answering `Disconnected` at once
+/// meanwhile, without allocating; once a real controller is back, the link resumes.
+#[test]
+fn a_hanging_reconnect_never_blocks_read_state() {
+    let a = sim(Vec::new());
+    let ports = a.ports();
+    let clock = Clock(Instant::now());
+    let mut c = cfg(&a);
+    c.reply_timeout = Duration::from_secs(3);
+    let mut d = driver(c, true);
+    let q0 = d.start_servo_mode().expect("servo mode");
+    d.send_servo(clock.ns(), &q0).expect("send");
+    d.flush().expect("flush");
+    a.shutdown();
+    // Silent listeners on the controller's ports: the kernel completes the TCP handshake,
+    // nobody ever replies.
+    let silent = [ports.command, ports.report_real]
+        .map(|p| TcpListener::bind(("127.0.0.1", p)).expect("bind the silent controller"));
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while !d.reconnect_progress().is_some_and(|(busy, _)| busy) {
+        let _ = d.read_state(clock.ns());
+        assert!(
+            Instant::now() < deadline,
+            "the helper never started an attempt: {:?}",
+            d.reconnect_progress()
+        );
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let mut answers = Vec::with_capacity(100);
+    COUNTING.with(|c| c.set(true));
+    for _ in 0..100 {
+        answers.push(d.read_state(clock.ns()).err());
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    COUNTING.with(|c| c.set(false));
+    let (busy_after, _) = d.reconnect_progress().expect("helper");
+    assert!(
+        busy_after,
+        "the attempt (3 s reply timeout) must still be running after 100 calls of ~1 ms"
+    );
+    assert!(
+        answers.iter().all(|a| *a == Some(XArmError::Disconnected)),
+        "{answers:?}"
+    );
+    assert_eq!(
+        ALLOCS.with(Cell::get),
+        0,
+        "read_state allocated while the link was down"
+    );
+    drop(silent);
+    let b = SimServer::start(SimOptions {
+        ports,
+        urdf: urdf(),
+        q0_rad: q0,
+        ..SimOptions::default()
+    })
+    .expect("restart on the same ports");
+    let st = wait_for_state(&mut d, &clock);
+    assert_eq!(st.reconnects, 1);
+    d.send_servo(clock.ns(), &q0)
+        .expect("resume from the actual joints");
+    d.flush().expect("flush");
+    assert_eq!(b.shutdown().counters.servo_accepted, 1);
 }

@@ -234,6 +234,10 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
             }
             let mut driver = XArmDriver::connect(xarm_cfg)
                 .map_err(|e| anyhow::anyhow!("connecting to the xArm at {host}: {e:?}"))?;
+            // A lost link is re-opened by a helper thread: the cycle never blocks on it.
+            driver
+                .reconnect_off_cycle()
+                .context("starting the xArm reconnect helper")?;
             if args.dry_run {
                 tracing::warn!(
                     host,

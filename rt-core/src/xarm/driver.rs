@@ -13,9 +13,12 @@
 //! (transaction id, protocol, register, status bits). An error bit makes the driver ask
 //! `GET_ERROR` (pipelined too) and refuse further motion with the typed controller error.
 //!
-//! On a lost connection the driver stops commanding, retries with exponential back-off from
-//! `read_state`, and after reconnecting re-reads the actual joints: the next target must lie
-//! within `max_resume_step_rad` of them (no jump).
+//! On a lost connection the driver stops commanding, retries with exponential back-off, and
+//! after reconnecting re-reads the actual joints: the next target must lie within
+//! `max_resume_step_rad` of them (no jump). By default the retry happens inside `read_state`
+//! (blocking: fine for tools); the cycle calls [`XArmDriver::reconnect_off_cycle`] at start-up
+//! so a helper thread does the blocking work and `read_state` stays non-blocking
+//! (see [`super::reconnect`]).
 
 use std::io::{ErrorKind, Read, Write};
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
@@ -27,6 +30,7 @@ use super::codec::{
 };
 use super::codes::{ControllerError, ControllerWarning};
 use super::limits::{JointCheckError, check_xarm5_joints};
+use super::reconnect::Reconnector;
 use super::report::{self, ArmReport, ReportError, ReportFramer, ReportKind};
 
 /// Most requests in flight (sent, not yet answered).
@@ -245,7 +249,7 @@ impl InFlightQueue {
     }
 }
 
-struct Conn {
+pub(super) struct Conn {
     cmd: TcpStream,
     report: TcpStream,
     rx: [u8; 4 * MAX_FRAME_LEN],
@@ -405,6 +409,8 @@ pub struct XArmDriver {
     stats: DriverStats,
     servo_frame: [u8; SERVOJ_FRAME_LEN],
     origin: Instant,
+    /// Reconnects off the cycle when set ([`XArmDriver::reconnect_off_cycle`]).
+    reconnector: Option<Reconnector>,
 }
 
 impl std::fmt::Debug for XArmDriver {
@@ -444,6 +450,7 @@ impl XArmDriver {
             stats: DriverStats::default(),
             servo_frame: [0; SERVOJ_FRAME_LEN],
             origin: Instant::now(),
+            reconnector: None,
         };
         d.handshake()?;
         Ok(d)
@@ -497,6 +504,32 @@ impl XArmDriver {
     /// Whether the command connection is up.
     pub fn is_connected(&self) -> bool {
         self.conn.is_some()
+    }
+
+    /// From now on a lost link is re-opened by a helper thread (start-up: spawns it), so
+    /// [`XArmDriver::read_state`] never blocks: it answers `Disconnected` until the helper
+    /// hands the new connection over, then resumes exactly like an inline reconnect (joints
+    /// re-read, the next target within `max_resume_step_rad` of them).
+    ///
+    /// # Errors
+    /// The thread could not be spawned.
+    pub fn reconnect_off_cycle(&mut self) -> std::io::Result<()> {
+        if self.reconnector.is_none() {
+            self.reconnector = Some(Reconnector::spawn(self.cfg.clone())?);
+        }
+        Ok(())
+    }
+
+    /// With [`XArmDriver::reconnect_off_cycle`]: whether the helper is inside a connection
+    /// attempt now, and how many attempts it has made.
+    pub fn reconnect_progress(&self) -> Option<(bool, u32)> {
+        self.reconnector.as_ref().map(|r| (r.busy(), r.attempts()))
+    }
+
+    /// The connection, leaving the driver disconnected (the reconnect helper hands it to
+    /// the cycle's driver).
+    pub(super) fn take_conn(&mut self) -> Option<Conn> {
+        self.conn.take()
     }
 
     /// One blocking request/response (setup and tools, not the cycle). Waits for replies
@@ -713,8 +746,14 @@ impl XArmDriver {
     }
 
     fn lose(&mut self, why: XArmError) -> XArmError {
-        if self.conn.take().is_some() {
-            tracing::warn!("xArm link lost: {why}");
+        if let Some(dead) = self.conn.take() {
+            if let Some(r) = self.reconnector.as_mut() {
+                // The helper logs, closes the dead sockets and reconnects.
+                r.request(why, self.servo_mode_wanted, Some(dead));
+            } else {
+                drop(dead);
+                tracing::warn!("xArm link lost: {why}");
+            }
             self.next_attempt_ns = 0;
             self.backoff_ns = self.cfg.backoff_initial_ns;
         }
@@ -724,6 +763,23 @@ impl XArmDriver {
     }
 
     fn try_reconnect(&mut self, now_ns: u64) -> Result<(), XArmError> {
+        if let Some(r) = self.reconnector.as_mut() {
+            let Some(new) = r.take() else {
+                r.request(XArmError::Disconnected, self.servo_mode_wanted, None);
+                return Err(XArmError::Disconnected);
+            };
+            self.conn = Some(new.conn);
+            self.version = new.version;
+            self.error = new.error;
+            self.warning = new.warning;
+            self.error_bit_seen = new.error != ControllerError::None;
+            self.not_ready_seen = false;
+            self.state = None;
+            self.prev_q = None;
+            self.resume_from = Some(new.q_rad);
+            self.reconnects += 1;
+            return Ok(());
+        }
         if now_ns < self.next_attempt_ns {
             return Err(XArmError::Disconnected);
         }
@@ -910,8 +966,9 @@ impl XArmDriver {
     }
 
     /// The latest state from the report stream (non-blocking, bounded work). While the link
-    /// is down this is where reconnection is attempted, with back-off (a reconnect attempt
-    /// blocks for at most the connect and reply timeouts).
+    /// is down this is where reconnection happens, with back-off: inline by default (an
+    /// attempt blocks for at most the connect and reply timeouts), or by taking over the
+    /// connection the helper of [`XArmDriver::reconnect_off_cycle`] re-opened (never blocks).
     ///
     /// # Errors
     /// [`XArmError::Disconnected`] while down, [`XArmError::NoState`] when stale,

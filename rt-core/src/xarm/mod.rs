@@ -14,5 +14,6 @@ pub mod codes;
 pub mod driver;
 pub mod limits;
 pub mod link;
+pub mod reconnect;
 pub mod report;
 pub mod sim;
