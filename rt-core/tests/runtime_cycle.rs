@@ -225,6 +225,41 @@ fn a_lost_link_brings_the_command_to_a_controlled_stop() {
 }
 
 #[test]
+fn when_the_link_returns_the_arm_is_held_where_it_is_and_a_fresh_plan_moves_it() {
+    let mut rig = Rig::new();
+    rig.policy(1, TARGET_A);
+    rig.run(150);
+    assert_eq!(rig.mode(), Mode::Following);
+    let conn = rig.cycle.link().connection();
+    conn.store(false, Ordering::Release);
+    rig.run(300);
+    assert_eq!(rig.mode(), Mode::Stopped);
+    // The arm got no commands while the link was down; the brake ran on without it.
+    let arm_at = rig.arm_q();
+    let braked_to = rig.cycle.report().cmd.q_rad;
+    assert!(
+        !Rig::near(&arm_at, &braked_to, 1e-3),
+        "{arm_at:?} {braked_to:?}"
+    );
+    conn.store(true, Ordering::Release);
+    rig.run(1);
+    let r = rig.cycle.report();
+    assert_eq!(
+        r.cmd.q_rad, arm_at,
+        "the first command after the link returns holds the arm"
+    );
+    assert!(r.cmd.dq_rad_s.iter().all(|v| *v == 0.0));
+    // A fresh policy's plan starts from there and reaches its target.
+    rig.policy(2, TARGET_B);
+    rig.run(1500);
+    assert!(
+        Rig::near(&rig.arm_q(), &TARGET_B, 0.03),
+        "{:?}",
+        rig.arm_q()
+    );
+}
+
+#[test]
 fn runs_are_deterministic_under_the_manual_clock() {
     let run = || {
         let mut rig = Rig::new();

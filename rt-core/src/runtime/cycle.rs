@@ -376,6 +376,13 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         let mut inputs_ok = self.started;
         match self.link.read_state(now_ns) {
             Ok(st) => {
+                if !self.link_ok && matches!(self.mode, Mode::Idle | Mode::Stopped) {
+                    // The link is back while at rest: hold where the arm is, not where the
+                    // commands left off (the arm got none while the link was down, a brake
+                    // may have run on without it, and a restarted controller may report the
+                    // arm elsewhere). A fresh plan must then start from this pose.
+                    self.cmd = MotionState::at_rest(st.q_rad);
+                }
                 self.link_ok = true;
                 self.report.measured_q_rad = st.q_rad;
                 if now_ns.saturating_sub(st.stamp_ns) > self.cfg.max_robot_state_age_ns {
