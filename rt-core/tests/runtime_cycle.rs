@@ -195,15 +195,38 @@ fn after_a_stop_on_the_way_the_arm_still_finds_its_way_home() {
     rig.run(200);
     assert_eq!(rig.mode(), Mode::Stopped);
     let stopped_at = rig.arm_q();
+    let (events_at_stop, reports_at_stop) = (rig.events.len(), rig.reports.len());
     rig.detections_on = true;
     rig.run(4000);
     assert!(rig.approvals().len() >= 2, "{:?}", rig.approvals());
+    // First back along the path from where the brake left the arm (no new episode plan
+    // from the stop pose), then the episode again from home, then home after the goal.
+    let after_stop: Vec<_> = rig.events[events_at_stop..]
+        .iter()
+        .filter(|e| {
+            matches!(
+                e,
+                TwinEvent::ReturningHome { .. } | TwinEvent::PlanApproved { .. }
+            )
+        })
+        .collect();
     assert!(
-        rig.events
+        matches!(after_stop.first(), Some(TwinEvent::ReturningHome { .. })),
+        "{after_stop:?}"
+    );
+    let path: Vec<_> = rig.reports[reports_at_stop..]
+        .iter()
+        .map(|r| r.measured_q_rad)
+        .collect();
+    let home_again = path
+        .iter()
+        .position(|q| Rig::near(q, &START, 1e-3))
+        .expect("the arm went home first");
+    assert!(
+        path[home_again..]
             .iter()
-            .any(|e| matches!(e, TwinEvent::ReturningHome { .. })),
-        "{:?}",
-        rig.events
+            .any(|q| Rig::near(q, &TARGET_A, 0.03)),
+        "then it reached the goal from home"
     );
     // Home is where the excursion began, not where the brake left the arm.
     assert!(!Rig::near(&stopped_at, &START, 0.01));

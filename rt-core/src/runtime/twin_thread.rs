@@ -14,7 +14,10 @@
 //! arm has rested `dwell_at_goal_s`, the worker plans the way back to where the episode
 //! began — its own executed path reversed (joined plans included), smoothed, and checked
 //! by the shield in the scene then in force. If that check fails (the world changed around
-//! the arm) the arm holds and the ordinary lookahead from its pose takes over.
+//! the arm) the arm holds and the ordinary lookahead from its pose takes over. A controlled
+//! stop on the way (stale inputs, a revoked plan) is handled the same way at once: back along
+//! the path from where the brake left the arm, then the episode again from its start — the
+//! posture every episode starts from in training — instead of an unverified approach.
 //!
 //! [`TwinWorker::step`] is one iteration; the `run` binary calls it in a loop between polls
 //! of its iceoryx2 subscribers, the tests call it directly.
@@ -162,6 +165,8 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     rest_since_ns: Option<(u64, u64)>,
     /// The plan whose return home was refused (not retried).
     return_refused_for: u64,
+    /// The return under way follows a stop on the way: run the episode again once home.
+    replan_at_home: bool,
     /// Motion waits for a passing lookahead (off only for `--no-lookahead`).
     gate: bool,
     /// After a refusal, no planning before this (cycle clock, ns).
@@ -206,6 +211,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             sent_is_return: false,
             rest_since_ns: None,
             return_refused_for: 0,
+            replan_at_home: false,
             gate: true,
             no_plan_before_ns: 0,
         }
@@ -383,12 +389,17 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let (Some(r), Some(sent)) = (self.report, self.sent.as_ref()) else {
             return false;
         };
-        if r.mode != Mode::Idle || r.plan_id != sent.id || r.next_index < sent.len() {
+        let at_end = r.mode == Mode::Idle && r.plan_id == sent.id && r.next_index >= sent.len();
+        let stopped = r.mode == Mode::Stopped && self.want_plan;
+        if !at_end && !stopped {
             return false;
         }
-        if self.sent_is_return {
+        if at_end && self.sent_is_return {
             // Home: the next excursion starts here.
             self.path_from_home.clear();
+            if std::mem::take(&mut self.replan_at_home) {
+                self.want_plan = true;
+            }
             return false;
         }
         if !self.return_home || self.path_from_home.len() < 2 || self.return_refused_for == sent.id
@@ -398,15 +409,39 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let Some(scene) = self.scene else {
             return false;
         };
-        let since = match self.rest_since_ns {
-            Some((id, t)) if id == sent.id => t,
-            _ => {
-                self.rest_since_ns = Some((sent.id, r.t_ns));
-                r.t_ns
+        if stopped {
+            if r.t_ns < self.no_plan_before_ns {
+                return true;
             }
-        };
-        if r.t_ns.saturating_sub(since) < self.dwell_ns {
-            return true;
+            // Cut the path where the brake left the arm; off the path, plan as usual.
+            let Some((i, gap)) = self
+                .path_from_home
+                .iter()
+                .enumerate()
+                .map(|(i, q)| (i, max_joint_gap_rad(q, &r.cmd.q_rad)))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .filter(|(_, g)| *g <= ON_PATH_TOLERANCE_RAD)
+            else {
+                return false;
+            };
+            self.path_from_home.truncate(i + 1);
+            if gap > 1e-9 {
+                self.path_from_home.push(r.cmd.q_rad);
+            }
+            if self.path_from_home.len() < 2 {
+                return false;
+            }
+        } else {
+            let since = match self.rest_since_ns {
+                Some((id, t)) if id == sent.id => t,
+                _ => {
+                    self.rest_since_ns = Some((sent.id, r.t_ns));
+                    r.t_ns
+                }
+            };
+            if r.t_ns.saturating_sub(since) < self.dwell_ns {
+                return true;
+            }
         }
         let sent_id = sent.id;
         let policy_id = sent.policy_id;
@@ -433,6 +468,10 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let (plan_id, samples) = (plan.id, plan.len());
         if self.send_plan(plan) {
             self.sent_is_return = true;
+            if stopped {
+                self.want_plan = false;
+                self.replan_at_home = true;
+            }
             events.push(TwinEvent::ReturningHome { plan_id, samples });
         } else {
             self.return_refused_for = 0;
