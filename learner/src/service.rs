@@ -85,8 +85,11 @@ pub struct ServeArgs {
     #[arg(long, default_value_t = 0.01)]
     pub ent_coef: f64,
     /// Height curriculum: box heights start scaled by a factor in `[h, 1]` and `h` rises
-    /// to 1 over the first half of the step budget (1 = off).
-    #[arg(long, default_value_t = 1.0)]
+    /// to 1 over the first half of the step budget (1 = off). 0.3 by default: on the 20
+    /// tall-box scenes of `foresight --runs 20 --seed 7`, offline from the bundled policy
+    /// with a 4e5-step budget, 17 converged (median 9.8e4 steps, 5.3 s) against 14 with the
+    /// curriculum off (median 1.1e5 steps, 6.2 s). Evaluation is always on the full heights.
+    #[arg(long, default_value_t = 0.3)]
     pub height_start: f32,
     /// Rollout worker threads (0 = the checkpoint's setting).
     #[arg(long, default_value_t = 0)]
