@@ -372,6 +372,7 @@ fn a_scene_change_that_makes_the_plan_unsafe_stops_the_arm_and_requests_retraini
             .any(|(_, x)| matches!(x, Seen::State(_)))
             .then_some(())
     });
+    let home_q = rig.last_state().expect("state").joints_rad;
     rig.publish_policy(&straight_line_blob(1, &task, 0.0), false);
     rig.wait(
         "the arm moving under policy 1",
@@ -423,15 +424,37 @@ fn a_scene_change_that_makes_the_plan_unsafe_stops_the_arm_and_requests_retraini
     );
     assert!(r.validate().is_ok());
     assert!((r.obstacles[0].size_m[2] - 0.40).abs() < 0.01, "{r:?}");
-    // The arm comes to rest and stays there (no fresh approved plan for this scene).
-    std::thread::sleep(Duration::from_millis(800));
+    // The arm then goes back along the path it came (clear of the box; the shield checks
+    // it) to where the episode began, and waits there for a new policy: no episode plan for
+    // this scene, and one retrain request for this policy and scene, not one per attempt.
+    let home = rig.wait(
+        "the arm back where the episode began, at rest",
+        Duration::from_secs(20),
+        |s| {
+            s.iter().rev().find_map(|(_, x)| match x {
+                Seen::State(st)
+                    if max_gap(&st.joints_rad, &home_q) < 1e-3
+                        && st.joint_velocities_rad_s.iter().all(|v| v.abs() < 1e-9) =>
+                {
+                    Some(*st)
+                }
+                _ => None,
+            })
+        },
+    );
+    std::thread::sleep(Duration::from_millis(1500));
     rig.pump();
     let last = rig.last_state().expect("state");
-    assert_eq!(last.controlled_stop, 1);
     assert!(
-        last.joint_velocities_rad_s.iter().all(|v| v.abs() < 1e-9),
+        max_gap(&last.joints_rad, &home.joints_rad) < 1e-6,
         "{last:?}"
     );
+    let requests = rig
+        .seen
+        .iter()
+        .filter(|(_, x)| matches!(x, Seen::Retrain(r) if r.failed_policy_id == 1))
+        .count();
+    assert_eq!(requests, 1, "one retrain request per policy and scene");
     println!(
         "box published -> controlled stop seen after {:.1} ms",
         (t_stop - t_box).as_secs_f64() * 1e3
@@ -450,4 +473,12 @@ fn a_scene_change_that_makes_the_plan_unsafe_stops_the_arm_and_requests_retraini
     );
     println!("{}", find("detection capture -> visible"));
     println!("{fin}");
+}
+
+/// The largest joint difference, rad.
+fn max_gap(a: &[f64; 5], b: &[f64; 5]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
 }

@@ -167,6 +167,9 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     return_refused_for: u64,
     /// The return under way follows a stop on the way: run the episode again once home.
     replan_at_home: bool,
+    /// The policy and scene of the last retrain request: a failing lookahead asks once per
+    /// pair (the learner restarts its training on every new request).
+    last_retrain: Option<(u64, L::Scene)>,
     /// Motion waits for a passing lookahead (off only for `--no-lookahead`).
     gate: bool,
     /// After a refusal, no planning before this (cycle clock, ns).
@@ -212,6 +215,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             rest_since_ns: None,
             return_refused_for: 0,
             replan_at_home: false,
+            last_retrain: None,
             gate: true,
             no_plan_before_ns: 0,
         }
@@ -538,12 +542,15 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             elapsed_s: t0.elapsed().as_secs_f64(),
         });
         if self.gate && !(verdict.task_ok && verdict.safe) {
-            events.push(TwinEvent::Retrain {
-                request_id: self.next_request_id,
-                verdict,
-                scene,
-            });
-            self.next_request_id += 1;
+            if self.last_retrain != Some((verdict.policy_id, scene)) {
+                self.last_retrain = Some((verdict.policy_id, scene));
+                events.push(TwinEvent::Retrain {
+                    request_id: self.next_request_id,
+                    verdict,
+                    scene,
+                });
+                self.next_request_id += 1;
+            }
             return;
         }
         if self.waypoints.is_empty() {
