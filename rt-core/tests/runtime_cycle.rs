@@ -233,14 +233,22 @@ fn after_a_stop_on_the_way_the_arm_still_finds_its_way_home() {
     assert!(Rig::near(&rig.arm_q(), &START, 1e-6), "{:?}", rig.arm_q());
 }
 
-#[test]
-fn a_lost_link_brings_the_command_to_a_controlled_stop() {
+/// A rig whose link was cut 150 cycles into plan 1 (while following) and then run 300 more
+/// cycles; the link's connection flag is returned to restore it.
+fn link_lost_while_following() -> (Rig, std::sync::Arc<std::sync::atomic::AtomicBool>) {
     let mut rig = Rig::new();
     rig.policy(1, TARGET_A);
     rig.run(150);
+    assert_eq!(rig.mode(), Mode::Following);
     let conn = rig.cycle.link().connection();
     conn.store(false, Ordering::Release);
     rig.run(300);
+    (rig, conn)
+}
+
+#[test]
+fn a_lost_link_brings_the_command_to_a_controlled_stop() {
+    let (rig, _conn) = link_lost_while_following();
     assert_eq!(rig.mode(), Mode::Stopped);
     assert_eq!(rig.cycle.report().stop_reason, StopReason::LinkLost);
     let r = rig.cycle.report();
@@ -249,13 +257,7 @@ fn a_lost_link_brings_the_command_to_a_controlled_stop() {
 
 #[test]
 fn when_the_link_returns_the_arm_is_held_where_it_is_and_a_fresh_plan_moves_it() {
-    let mut rig = Rig::new();
-    rig.policy(1, TARGET_A);
-    rig.run(150);
-    assert_eq!(rig.mode(), Mode::Following);
-    let conn = rig.cycle.link().connection();
-    conn.store(false, Ordering::Release);
-    rig.run(300);
+    let (mut rig, conn) = link_lost_while_following();
     assert_eq!(rig.mode(), Mode::Stopped);
     // The arm got no commands while the link was down; the brake ran on without it.
     let arm_at = rig.arm_q();

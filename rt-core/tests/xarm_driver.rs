@@ -98,6 +98,20 @@ fn sleep_until(deadline: Instant) {
     }
 }
 
+/// Waits (up to 5 s) for `read_state` to answer with a state; panics on other errors.
+fn wait_for_state(d: &mut XArmDriver, clock: &Clock) -> rt_core::xarm::driver::DriverState {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        match d.read_state(clock.ns()) {
+            Ok(st) => return st,
+            Err(XArmError::Disconnected | XArmError::NoState) if Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            Err(e) => panic!("no state (reconnect failed?): {e:?}"),
+        }
+    }
+}
+
 // ---- the SDK-like session --------------------------------------------------------------------
 
 #[test]
@@ -335,16 +349,7 @@ fn reconnects_and_resumes(off_cycle: bool) {
     d.flush().expect("flush");
     d.disconnect();
     assert_eq!(d.send_servo(clock.ns(), &q0), Err(XArmError::Disconnected));
-    let deadline = Instant::now() + Duration::from_secs(5);
-    let state = loop {
-        match d.read_state(clock.ns()) {
-            Ok(st) => break st,
-            Err(XArmError::Disconnected | XArmError::NoState) if Instant::now() < deadline => {
-                std::thread::sleep(Duration::from_millis(5));
-            }
-            Err(e) => panic!("reconnect failed: {e:?}"),
-        }
-    };
+    let state = wait_for_state(&mut d, &clock);
     assert_eq!(state.reconnects, 1);
     let mut far = q0;
     far[0] += 0.3;
@@ -561,16 +566,7 @@ fn survives_a_controller_restart(off_cycle: bool) {
         ..SimOptions::default()
     })
     .expect("restart on the same ports");
-    let deadline = Instant::now() + Duration::from_secs(5);
-    let st = loop {
-        match d.read_state(clock.ns()) {
-            Ok(st) => break st,
-            Err(XArmError::Disconnected | XArmError::NoState) if Instant::now() < deadline => {
-                std::thread::sleep(Duration::from_millis(5));
-            }
-            Err(e) => panic!("reconnect failed: {e:?}"),
-        }
-    };
+    let st = wait_for_state(&mut d, &clock);
     assert_eq!(st.reconnects, 1);
     assert!((f64::from(st.report.joints_rad[0]) - moved[0]).abs() < 1e-5);
     // The old target would jump; the re-read joints are accepted (servo mode was restored).
@@ -583,20 +579,6 @@ fn survives_a_controller_restart(off_cycle: bool) {
     d.flush().expect("flush");
     let summary = b.shutdown();
     assert_eq!(summary.counters.servo_accepted, 1);
-}
-
-/// Waits (up to 5 s) for `read_state` to answer with a state; panics on other errors.
-fn wait_for_state(d: &mut XArmDriver, clock: &Clock) -> rt_core::xarm::driver::DriverState {
-    let deadline = Instant::now() + Duration::from_secs(5);
-    loop {
-        match d.read_state(clock.ns()) {
-            Ok(st) => return st,
-            Err(XArmError::Disconnected | XArmError::NoState) if Instant::now() < deadline => {
-                std::thread::sleep(Duration::from_millis(5));
-            }
-            Err(e) => panic!("no state: {e:?}"),
-        }
-    }
 }
 
 /// A controller that accepts the connection and never answers holds a reconnect attempt for

@@ -357,27 +357,11 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 self.path_from_home.truncate(self.sent_offset + j.index);
             }
             _ => {
-                // From rest: where the arm stopped on the recorded path (the end of the last
-                // plan, a brake's end near one of its samples, a return cut short) the path
-                // is cut there; anywhere else a new excursion begins here.
-                let on_path = self
-                    .path_from_home
-                    .iter()
-                    .enumerate()
-                    .map(|(i, q)| (i, max_joint_gap_rad(q, &start.q_rad)))
-                    .min_by(|a, b| a.1.total_cmp(&b.1))
-                    .filter(|(_, g)| *g <= ON_PATH_TOLERANCE_RAD);
-                match on_path {
-                    Some((i, g)) => {
-                        self.path_from_home.truncate(i + 1);
-                        if g > 1e-9 {
-                            self.path_from_home.push(start.q_rad);
-                        }
-                    }
-                    _ => {
-                        self.path_from_home.clear();
-                        self.path_from_home.push(start.q_rad);
-                    }
+                // From rest: on the recorded path the path is cut there; anywhere else a
+                // new excursion begins here.
+                if !self.cut_path_at(&start.q_rad) {
+                    self.path_from_home.clear();
+                    self.path_from_home.push(start.q_rad);
                 }
             }
         }
@@ -387,13 +371,35 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         self.rest_since_ns = None;
     }
 
+    /// Where the arm rests at `q` on the recorded path (the end of the last plan, a brake's
+    /// end near one of its samples, a return cut short), cuts the path there, ending exactly
+    /// at `q`, and returns true; false (path untouched) when `q` is off the path.
+    fn cut_path_at(&mut self, q: &Joints) -> bool {
+        let Some((i, gap)) = self
+            .path_from_home
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (i, max_joint_gap_rad(p, q)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .filter(|(_, g)| *g <= ON_PATH_TOLERANCE_RAD)
+        else {
+            return false;
+        };
+        self.path_from_home.truncate(i + 1);
+        if gap > 1e-9 {
+            self.path_from_home.push(*q);
+        }
+        true
+    }
+
     /// Whether the return home is in hand this iteration (planned now, or waiting out the
     /// dwell at the goal); the ordinary planning waits meanwhile.
     fn return_home_due(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) -> bool {
         let (Some(r), Some(sent)) = (self.report, self.sent.as_ref()) else {
             return false;
         };
-        let at_end = r.mode == Mode::Idle && r.plan_id == sent.id && r.next_index >= sent.len();
+        let (sent_id, policy_id) = (sent.id, sent.policy_id);
+        let at_end = r.mode == Mode::Idle && r.plan_id == sent_id && r.next_index >= sent.len();
         let stopped = r.mode == Mode::Stopped && self.want_plan;
         if !at_end && !stopped {
             return false;
@@ -406,7 +412,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             }
             return false;
         }
-        if !self.return_home || self.path_from_home.len() < 2 || self.return_refused_for == sent.id
+        if !self.return_home || self.path_from_home.len() < 2 || self.return_refused_for == sent_id
         {
             return false;
         }
@@ -418,28 +424,14 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 return true;
             }
             // Cut the path where the brake left the arm; off the path, plan as usual.
-            let Some((i, gap)) = self
-                .path_from_home
-                .iter()
-                .enumerate()
-                .map(|(i, q)| (i, max_joint_gap_rad(q, &r.cmd.q_rad)))
-                .min_by(|a, b| a.1.total_cmp(&b.1))
-                .filter(|(_, g)| *g <= ON_PATH_TOLERANCE_RAD)
-            else {
-                return false;
-            };
-            self.path_from_home.truncate(i + 1);
-            if gap > 1e-9 {
-                self.path_from_home.push(r.cmd.q_rad);
-            }
-            if self.path_from_home.len() < 2 {
+            if !self.cut_path_at(&r.cmd.q_rad) || self.path_from_home.len() < 2 {
                 return false;
             }
         } else {
             let since = match self.rest_since_ns {
-                Some((id, t)) if id == sent.id => t,
+                Some((id, t)) if id == sent_id => t,
                 _ => {
-                    self.rest_since_ns = Some((sent.id, r.t_ns));
+                    self.rest_since_ns = Some((sent_id, r.t_ns));
                     r.t_ns
                 }
             };
@@ -447,8 +439,6 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 return true;
             }
         }
-        let sent_id = sent.id;
-        let policy_id = sent.policy_id;
         // The executed path reversed, one waypoint per twin step; ends exactly at its start.
         let stride = ((self.la.step_s() / self.period_s).round() as usize).max(1);
         let n = self.path_from_home.len();
