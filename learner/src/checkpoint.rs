@@ -5,7 +5,7 @@
 //! the old or the new checkpoint, never a torn one.
 //!
 //! A run directory holds `last.ckpt` (after every evaluation) and `best.ckpt` (best evaluation
-//! so far), plus `metrics.csv` and `reward.png`.
+//! so far), plus `metrics.csv` and `reward.svg`.
 
 use std::io::{Cursor, Write};
 use std::path::{Path, PathBuf};
@@ -14,9 +14,10 @@ use serde::{Deserialize, Serialize};
 use tch::Tensor;
 
 use crate::env::Env;
-use crate::net::{ActorCritic, NetSpec};
+use crate::net::{ActorCritic, NetFromFlatError, NetSpec};
 use crate::normalize::RunningMeanStd;
-use crate::ppo::{EvalResult, PpoConfig, RngState, Trainer};
+use crate::ppo::{EvalResult, PpoConfig, Trainer};
+use crate::random::RngState;
 
 /// File format tag stored in every checkpoint.
 pub const FORMAT: &str = "foresight-learner-ckpt-v1";
@@ -42,6 +43,9 @@ pub enum CheckpointError {
     /// The content is not a consistent checkpoint.
     #[error("invalid checkpoint: {0}")]
     Invalid(String),
+    /// The weights do not make a network of the stored shape.
+    #[error("checkpoint weights: {0}")]
+    Network(#[from] NetFromFlatError),
 }
 
 /// Running statistics as stored.
@@ -168,8 +172,7 @@ impl Checkpoint {
             )));
         }
         let dev = t.net.device();
-        t.net = ActorCritic::from_flat(self.meta.spec.clone(), &self.theta, dev)
-            .map_err(CheckpointError::Invalid)?;
+        t.net = ActorCritic::from_flat(self.meta.spec.clone(), &self.theta, dev)?;
         t.adam.m = Tensor::from_slice(&self.adam_m).to_device(dev);
         t.adam.v = Tensor::from_slice(&self.adam_v).to_device(dev);
         t.adam.t = self.meta.adam_t;
@@ -185,10 +188,13 @@ impl Checkpoint {
     /// The network these weights describe.
     ///
     /// # Errors
-    /// [`CheckpointError::Invalid`] on a length mismatch.
+    /// [`CheckpointError::Network`] on a length mismatch.
     pub fn network(&self, device: tch::Device) -> Result<ActorCritic, CheckpointError> {
-        ActorCritic::from_flat(self.meta.spec.clone(), &self.theta, device)
-            .map_err(CheckpointError::Invalid)
+        Ok(ActorCritic::from_flat(
+            self.meta.spec.clone(),
+            &self.theta,
+            device,
+        )?)
     }
 
     /// Encodes to bytes (torch zip format).

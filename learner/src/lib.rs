@@ -1,10 +1,26 @@
-//! Foresight's learner: PPO in tch on the rt-core twin.
+//! Foresight's learner: PPO in tch on the twin (`twin` crate), pre-training, retraining on
+//! failed scenes and export of the policy to the `PolicyBlob` that rt-core runs.
 //!
-//! - [`env`]: the environment interface ([`env::Env`]) and a toy task for tests;
+//! # Map
+//! Start with [`ppo::Trainer`] (one [`ppo::Trainer::iterate`] = one rollout + one update),
+//! then [`run::train`] (the loop around it) and [`service`] (retraining on request).
+//!
+//! - [`env`]: the environment interface ([`env::Env`], [`env::SceneSampler`]) and a toy task
+//!   for tests; [`twin_env`]: the twin behind it and the scene distributions (pre-training
+//!   curriculum, retraining around a reported scene);
 //! - [`net`]: the Gaussian actor-critic (one flat parameter tensor);
-//! - [`adam`]: Adam with saveable state;
-//! - [`normalize`]: running observation/return statistics;
-//! - [`ppo`]: GAE, the loss pieces, the vectorised trainer and evaluation.
+//! - [`adam`]: Adam with saveable state; [`normalize`]: running observation/return
+//!   statistics; [`random`]: seeded normal samples and saveable random-stream state;
+//! - [`ppo`]: configuration, GAE, the loss pieces, threaded rollouts, the trainer and
+//!   evaluation;
+//! - [`run`]: a training run (periodic evaluation, checkpoints, metrics, stop rules);
+//!   [`checkpoint`]: atomic one-file checkpoints; [`metrics`]: `metrics.csv` and the
+//!   `reward.svg` curve, drawn by [`chart`];
+//! - [`export`]: checkpoint → `PolicyBlob` and the blob file format;
+//! - [`service`]: the iceoryx2 retraining service behind `learner serve`.
+//!
+//! The `learner` binary (`main.rs`, one module per subcommand under `cli/`) is a thin layer
+//! over these modules.
 //!
 //! ```no_run
 //! use learner::{env::{PointReach, PointScene}, ppo::{PpoConfig, Trainer}};
@@ -14,6 +30,7 @@
 //! ```
 
 pub mod adam;
+pub mod chart;
 pub mod checkpoint;
 pub mod env;
 pub mod export;
@@ -21,6 +38,7 @@ pub mod metrics;
 pub mod net;
 pub mod normalize;
 pub mod ppo;
+pub mod random;
 pub mod run;
 pub mod service;
 pub mod twin_env;

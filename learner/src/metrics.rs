@@ -1,11 +1,11 @@
 //! Per-run metrics: one CSV row per PPO iteration (rewritten atomically, so a reader or a
-//! crash never sees a torn file) and a PNG reward curve drawn with plotters.
+//! crash never sees a torn file) and an SVG reward curve (`reward.svg`, drawn by
+//! [`crate::chart`], also replaced atomically: temporary file, then rename).
 
 use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use plotters::prelude::*;
-
+use crate::chart::{Chart, Panel, Series};
 use crate::checkpoint::{CheckpointError, write_atomic};
 use crate::ppo::{EvalResult, IterStats};
 
@@ -131,12 +131,10 @@ impl MetricsLog {
         write_atomic(path, self.to_csv().as_bytes())
     }
 
-    /// Draws the reward curve (training mean return and evaluation return over steps, and
-    /// success rates below) into a PNG.
-    ///
-    /// # Errors
-    /// A message from plotters.
-    pub fn plot(&self, path: &Path, title: &str) -> Result<(), String> {
+    /// The reward curve as an SVG document: training mean return and evaluation return
+    /// over environment steps, evaluation success rate below; `None` while no training
+    /// episode has finished.
+    pub fn reward_svg(&self, title: &str) -> Option<String> {
         let train: Vec<(f64, f64)> = self
             .rows
             .iter()
@@ -154,7 +152,7 @@ impl MetricsLog {
             .filter_map(|r| r.eval.map(|e| (r.iter.steps as f64, e.success_rate)))
             .collect();
         if train.is_empty() {
-            return Ok(());
+            return None;
         }
         let x_max = train.iter().map(|p| p.0).fold(1.0, f64::max);
         let ys = train.iter().chain(&eval).map(|p| p.1);
@@ -165,53 +163,86 @@ impl MetricsLog {
             y_max += 1.0;
         }
         let pad = (y_max - y_min) * 0.05;
-        let tmp = path.with_extension("tmp.png");
-        {
-            let root = BitMapBackend::new(&tmp, (900, 600)).into_drawing_area();
-            root.fill(&WHITE).map_err(|e| e.to_string())?;
-            let (top, bottom) = root.split_vertically(400);
-            let mut c = ChartBuilder::on(&top)
-                .caption(title, ("sans-serif", 22))
-                .margin(10)
-                .x_label_area_size(30)
-                .y_label_area_size(60)
-                .build_cartesian_2d(0.0..x_max, (y_min - pad)..(y_max + pad))
-                .map_err(|e| e.to_string())?;
-            c.configure_mesh()
-                .y_desc("episode return")
-                .draw()
-                .map_err(|e| e.to_string())?;
-            c.draw_series(LineSeries::new(train, &BLUE))
-                .map_err(|e| e.to_string())?
-                .label("training (mean of finished episodes)")
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
-            c.draw_series(LineSeries::new(eval.clone(), RED.stroke_width(2)))
-                .map_err(|e| e.to_string())?
-                .label("evaluation (deterministic)")
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
-            c.configure_series_labels()
-                .background_style(WHITE.mix(0.8))
-                .border_style(BLACK)
-                .position(SeriesLabelPosition::LowerRight)
-                .draw()
-                .map_err(|e| e.to_string())?;
-            let mut c2 = ChartBuilder::on(&bottom)
-                .margin(10)
-                .x_label_area_size(30)
-                .y_label_area_size(60)
-                .build_cartesian_2d(0.0..x_max, 0.0..1.05)
-                .map_err(|e| e.to_string())?;
-            c2.configure_mesh()
-                .x_desc("environment steps")
-                .y_desc("eval success")
-                .draw()
-                .map_err(|e| e.to_string())?;
-            c2.draw_series(LineSeries::new(succ, GREEN.stroke_width(2)))
-                .map_err(|e| e.to_string())?;
-            root.present().map_err(|e| e.to_string())?;
-        }
-        std::fs::rename(&tmp, path).map_err(|e| e.to_string())
+        let returns = [
+            Series {
+                name: "training (mean of finished episodes)",
+                class: "train",
+                color: "blue",
+                width: 1.0,
+                points: &train,
+            },
+            Series {
+                name: "evaluation (deterministic)",
+                class: "eval",
+                color: "red",
+                width: 2.0,
+                points: &eval,
+            },
+        ];
+        let success = [Series {
+            name: "evaluation success rate",
+            class: "success",
+            color: "green",
+            width: 2.0,
+            points: &succ,
+        }];
+        let panels = [
+            Panel {
+                top: 40.0,
+                height: 330.0,
+                y_range: (y_min - pad, y_max + pad),
+                y_label: "episode return",
+                series: &returns,
+                legend: true,
+            },
+            Panel {
+                top: 410.0,
+                height: 140.0,
+                y_range: (0.0, 1.05),
+                y_label: "eval success",
+                series: &success,
+                legend: false,
+            },
+        ];
+        let chart = Chart {
+            title,
+            x_label: "environment steps",
+            x_range: (0.0, x_max),
+            panels: &panels,
+        };
+        Some(chart.to_svg())
     }
+
+    /// Writes [`MetricsLog::reward_svg`] to `path` (temporary file beside it, then rename);
+    /// writes nothing while no training episode has finished.
+    ///
+    /// # Errors
+    /// [`MetricsPlotError::Io`] naming the file that could not be written or renamed.
+    pub fn plot(&self, path: &Path, title: &str) -> Result<(), MetricsPlotError> {
+        let Some(svg) = self.reward_svg(title) else {
+            return Ok(());
+        };
+        let tmp = path.with_extension("tmp.svg");
+        let io = |p: &Path| {
+            let path = p.to_path_buf();
+            move |source| MetricsPlotError::Io { path, source }
+        };
+        std::fs::write(&tmp, svg).map_err(io(&tmp))?;
+        std::fs::rename(&tmp, path).map_err(io(path))
+    }
+}
+
+/// Why [`MetricsLog::plot`] could not write the reward curve.
+#[derive(Debug, thiserror::Error)]
+pub enum MetricsPlotError {
+    /// Writing the temporary file or renaming it failed.
+    #[error("reward plot {}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
 }
 
 #[cfg(test)]
@@ -255,9 +286,20 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         log.write_csv(&dir.join("m.csv")).unwrap();
         assert_eq!(std::fs::read_to_string(dir.join("m.csv")).unwrap(), csv);
-        log.plot(&dir.join("r.png"), "test").unwrap();
-        let png = std::fs::read(dir.join("r.png")).unwrap();
-        assert_eq!(&png[1..4], b"PNG");
+        log.plot(&dir.join("r.svg"), "test <&>").unwrap();
+        let svg = std::fs::read_to_string(dir.join("r.svg")).unwrap();
+        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+        assert!(svg.contains("test &lt;&amp;&gt;"));
+        let points = |class: &str| {
+            let tag = format!(r#"<polyline class="{class}" points=""#);
+            let start = svg.find(&tag).expect("polyline") + tag.len();
+            let end = start + svg[start..].find('"').unwrap();
+            svg[start..end].split(' ').count()
+        };
+        assert_eq!(points("train"), 3);
+        assert_eq!(points("eval"), 1);
+        assert_eq!(svg.matches("<polyline").count(), 3);
+        assert!(!dir.join("r.tmp.svg").exists());
         std::fs::remove_dir_all(&dir).ok();
     }
 }

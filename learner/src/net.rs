@@ -10,6 +10,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use tch::{Device, Kind, Tensor};
 
+use crate::random::randn;
+
 /// `ln(2π) / 2`.
 pub const HALF_LOG_2PI: f32 = 0.918_938_5;
 
@@ -83,6 +85,22 @@ impl NetSpec {
     }
 }
 
+/// Why [`ActorCritic::from_flat`] could not build a network.
+#[derive(Debug, thiserror::Error)]
+pub enum NetFromFlatError {
+    /// The parameter vector's length does not match the layout.
+    #[error("parameter vector has {got} values, the network needs {expected}")]
+    Length {
+        /// Values given.
+        got: usize,
+        /// Values the layout needs.
+        expected: usize,
+    },
+    /// torch could not create the parameter tensor.
+    #[error("parameter tensor: {0}")]
+    Tensor(#[from] tch::TchError),
+}
+
 /// The actor-critic's parameters and forward passes.
 #[derive(Debug)]
 pub struct ActorCritic {
@@ -99,7 +117,7 @@ fn orthogonal(n_out: usize, n_in: usize, gain: f64, rng: &mut ChaCha8Rng) -> Ten
     // comes from the seeded ChaCha stream, not torch's global generator, so initialisation
     // is reproducible even with other torch users in the process.
     let (rows, cols) = (n_out.max(n_in) as i64, n_out.min(n_in) as i64);
-    let g: Vec<f32> = (0..rows * cols).map(|_| crate::ppo::randn(rng)).collect();
+    let g: Vec<f32> = (0..rows * cols).map(|_| randn(rng)).collect();
     let a = Tensor::from_slice(&g).view([rows, cols]);
     let (q, r) = Tensor::linalg_qr(&a, "reduced");
     let d = r.diagonal(0, 0, 1).sign();
@@ -142,18 +160,22 @@ impl ActorCritic {
     /// A network with the given flat parameters (length must match the spec's layout).
     ///
     /// # Errors
-    /// A message when the length does not match.
-    pub fn from_flat(spec: NetSpec, flat: &[f32], device: Device) -> Result<Self, String> {
+    /// [`NetFromFlatError::Length`] when the length does not match,
+    /// [`NetFromFlatError::Tensor`] when torch cannot place the parameters on `device`.
+    pub fn from_flat(
+        spec: NetSpec,
+        flat: &[f32],
+        device: Device,
+    ) -> Result<Self, NetFromFlatError> {
         let layout = spec.layout();
         if flat.len() != layout.len {
-            return Err(format!(
-                "parameter vector has {} values, the network needs {}",
-                flat.len(),
-                layout.len
-            ));
+            return Err(NetFromFlatError::Length {
+                got: flat.len(),
+                expected: layout.len,
+            });
         }
-        let theta = Tensor::from_slice(flat)
-            .to_device(device)
+        let theta = Tensor::f_from_slice(flat)?
+            .f_to_device(device)?
             .set_requires_grad(true);
         Ok(Self {
             spec,
@@ -280,6 +302,21 @@ mod tests {
         assert!(err < 1e-4, "{err}");
         let ls = a.log_std().detach();
         assert_eq!(ls.abs().sum(Kind::Float).double_value(&[]), 0.0);
+    }
+
+    #[test]
+    fn from_flat_checks_the_length() {
+        let n = spec().layout().len;
+        let e = ActorCritic::from_flat(spec(), &vec![0.0; n - 1], Device::Cpu).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "parameter vector has {} values, the network needs {n}",
+                n - 1
+            )
+        );
+        let net = ActorCritic::from_flat(spec(), &vec![0.5; n], Device::Cpu).unwrap();
+        assert_eq!(net.flat(), vec![0.5; n]);
     }
 
     #[test]

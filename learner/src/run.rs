@@ -1,6 +1,6 @@
 //! A training run: iterate PPO, evaluate periodically on fixed scenes, keep `best.ckpt` and
-//! `last.ckpt`, write `metrics.csv` and the reward-curve PNG next to them, show progress,
-//! and stop on a step budget, a time budget or a success rule.
+//! `last.ckpt`, write `metrics.csv` and the reward curve `reward.svg` next to them, show
+//! progress, and stop on a step budget, a time budget or a success rule.
 
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -106,6 +106,11 @@ pub fn better(a: &EvalResult, b: &EvalResult) -> bool {
         > (b.success_rate, -b.collision_rate, b.mean_return)
 }
 
+/// File name of the metrics CSV in a run directory.
+pub const METRICS_CSV: &str = "metrics.csv";
+/// File name of the reward curve in a run directory.
+pub const REWARD_SVG: &str = "reward.svg";
+
 /// Runs training until a stop condition; `on_iter` sees every iteration (and can cancel by
 /// returning `false`).
 ///
@@ -122,30 +127,8 @@ pub fn train<E: Env + Clone, S: SceneSampler<E::Scene>>(
         path: opts.out_dir.clone(),
         source,
     })?;
-    let start = Instant::now();
-    let start_steps = trainer.steps;
-    // A resumed run continues its log (rows past the checkpoint, written before a crash,
-    // are dropped: training repeats them).
-    let mut log = std::fs::read_to_string(opts.out_dir.join("metrics.csv"))
-        .ok()
-        .filter(|_| trainer.steps > 0)
-        .map(|t| MetricsLog::from_csv(&t))
-        .unwrap_or_default();
-    log.rows.retain(|r| r.iter.steps <= trainer.steps);
-    let mut best: Option<EvalResult> = Checkpoint::load(&opts.out_dir.join(BEST))
-        .ok()
-        .and_then(|c| c.meta.best_eval);
-    let mut last_eval: Option<EvalResult> = None;
-    let mut next_eval = trainer.steps + opts.eval_every_steps;
-    let bar = (opts.progress && std::io::stderr().is_terminal()).then(|| {
-        let b = ProgressBar::new(opts.total_steps);
-        b.set_style(
-            ProgressStyle::with_template("{bar:40} {pos}/{len} steps  {per_sec}  ETA {eta}  {msg}")
-                .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        b.set_position(trainer.steps.min(opts.total_steps));
-        b
-    });
+    let mut run = Run::resume(trainer, opts);
+    let bar = progress_bar(opts, trainer.steps);
     let mut stop = StopReason::Steps;
     while trainer.steps < opts.total_steps {
         let t0 = Instant::now();
@@ -153,27 +136,14 @@ pub fn train<E: Env + Clone, S: SceneSampler<E::Scene>>(
         let it_s = t0.elapsed().as_secs_f64();
         let batch = (trainer.cfg.n_envs * trainer.cfg.n_steps) as f64;
         let done = trainer.steps >= opts.total_steps;
-        let out_of_time = opts.time_budget.is_some_and(|b| start.elapsed() >= b);
+        let out_of_time = opts.time_budget.is_some_and(|b| run.start.elapsed() >= b);
         let mut eval = None;
-        if trainer.steps >= next_eval || done || out_of_time {
-            next_eval = trainer.steps + opts.eval_every_steps;
-            let e = trainer.evaluate(eval_scenes);
-            let is_best = best.is_none_or(|b| better(&e, &b));
-            if is_best {
-                best = Some(e);
-            }
-            let mut ck = Checkpoint::capture(trainer, opts.seed, opts.task_hash);
-            ck.meta.eval = Some(e);
-            ck.meta.best_eval = best;
-            if is_best {
-                ck.save(&opts.out_dir.join(BEST))?;
-            }
-            ck.save(&opts.out_dir.join(LAST))?;
-            eval = Some(e);
+        if trainer.steps >= run.next_eval || done || out_of_time {
+            eval = Some(run.evaluate(trainer, eval_scenes, opts)?);
         }
-        log.rows.push(MetricsRow {
+        run.log.rows.push(MetricsRow {
             iter: st.clone(),
-            wall_s: start.elapsed().as_secs_f64(),
+            wall_s: run.start.elapsed().as_secs_f64(),
             steps_per_s: batch / it_s,
             eval,
         });
@@ -183,27 +153,11 @@ pub fn train<E: Env + Clone, S: SceneSampler<E::Scene>>(
                 b.set_message(format!("eval success {:.0}%", e.success_rate * 100.0));
             }
         }
-        if let Some(e) = &eval {
-            log.write_csv(&opts.out_dir.join("metrics.csv"))?;
-            if let Err(msg) = log.plot(&opts.out_dir.join("reward.png"), &opts.title) {
-                tracing::warn!("reward plot not drawn: {msg}");
-            }
-            tracing::info!(
-                steps = trainer.steps,
-                success = e.success_rate,
-                collision = e.collision_rate,
-                eval_return = e.mean_return,
-                train_return = st.mean_return,
-                "evaluation"
-            );
-            if let Some(rule) = &opts.success_rule
-                && rule.met(last_eval.as_ref(), e)
-            {
-                last_eval = eval;
-                stop = StopReason::Converged;
-                break;
-            }
-            last_eval = eval;
+        if let Some(e) = &eval
+            && run.record_eval(e, &st, trainer.steps, opts)?
+        {
+            stop = StopReason::Converged;
+            break;
         }
         if !on_iter(&st, eval.as_ref()) {
             stop = StopReason::Cancelled;
@@ -214,23 +168,130 @@ pub fn train<E: Env + Clone, S: SceneSampler<E::Scene>>(
             break;
         }
     }
-    log.write_csv(&opts.out_dir.join("metrics.csv"))?;
-    if let Err(msg) = log.plot(&opts.out_dir.join("reward.png"), &opts.title) {
-        tracing::warn!("reward plot not drawn: {msg}");
-    }
+    run.write_metrics(opts)?;
     if let Some(b) = bar {
         b.finish_and_clear();
     }
-    let wall_s = start.elapsed().as_secs_f64();
-    let steps = trainer.steps - start_steps;
-    Ok(RunSummary {
-        stop,
-        steps,
-        total_steps: trainer.steps,
-        wall_s,
-        last_eval,
-        best_eval: best,
-        steps_per_s: steps as f64 / wall_s.max(1e-9),
+    Ok(run.summary(stop, trainer.steps))
+}
+
+/// The bookkeeping of a run in progress.
+struct Run {
+    start: Instant,
+    start_steps: u64,
+    log: MetricsLog,
+    best: Option<EvalResult>,
+    last_eval: Option<EvalResult>,
+    next_eval: u64,
+}
+
+impl Run {
+    /// Starts at the trainer's state; a resumed run continues its log (rows past the
+    /// checkpoint, written before a crash, are dropped: training repeats them) and its best
+    /// evaluation.
+    fn resume<E: Env + Clone>(trainer: &Trainer<E>, opts: &RunOptions) -> Self {
+        let start = Instant::now();
+        let mut log = std::fs::read_to_string(opts.out_dir.join(METRICS_CSV))
+            .ok()
+            .filter(|_| trainer.steps > 0)
+            .map(|t| MetricsLog::from_csv(&t))
+            .unwrap_or_default();
+        log.rows.retain(|r| r.iter.steps <= trainer.steps);
+        let best = Checkpoint::load(&opts.out_dir.join(BEST))
+            .ok()
+            .and_then(|c| c.meta.best_eval);
+        Self {
+            start,
+            start_steps: trainer.steps,
+            log,
+            best,
+            last_eval: None,
+            next_eval: trainer.steps + opts.eval_every_steps,
+        }
+    }
+
+    /// Evaluates, then saves `last.ckpt` (and `best.ckpt` when this is the best so far).
+    fn evaluate<E: Env + Clone>(
+        &mut self,
+        trainer: &Trainer<E>,
+        eval_scenes: &[E::Scene],
+        opts: &RunOptions,
+    ) -> Result<EvalResult, CheckpointError> {
+        self.next_eval = trainer.steps + opts.eval_every_steps;
+        let e = trainer.evaluate(eval_scenes);
+        let is_best = self.best.is_none_or(|b| better(&e, &b));
+        if is_best {
+            self.best = Some(e);
+        }
+        let mut ck = Checkpoint::capture(trainer, opts.seed, opts.task_hash);
+        ck.meta.eval = Some(e);
+        ck.meta.best_eval = self.best;
+        if is_best {
+            ck.save(&opts.out_dir.join(BEST))?;
+        }
+        ck.save(&opts.out_dir.join(LAST))?;
+        Ok(e)
+    }
+
+    /// After an evaluation: writes the metrics, logs, and tells whether the success rule is
+    /// met.
+    fn record_eval(
+        &mut self,
+        e: &EvalResult,
+        st: &IterStats,
+        steps: u64,
+        opts: &RunOptions,
+    ) -> Result<bool, CheckpointError> {
+        self.write_metrics(opts)?;
+        tracing::info!(
+            steps,
+            success = e.success_rate,
+            collision = e.collision_rate,
+            eval_return = e.mean_return,
+            train_return = st.mean_return,
+            "evaluation"
+        );
+        let met = opts
+            .success_rule
+            .is_some_and(|rule| rule.met(self.last_eval.as_ref(), e));
+        self.last_eval = Some(*e);
+        Ok(met)
+    }
+
+    /// Rewrites `metrics.csv` and `reward.svg` (a plot failure is only logged).
+    fn write_metrics(&self, opts: &RunOptions) -> Result<(), CheckpointError> {
+        self.log.write_csv(&opts.out_dir.join(METRICS_CSV))?;
+        if let Err(e) = self.log.plot(&opts.out_dir.join(REWARD_SVG), &opts.title) {
+            tracing::warn!("reward plot not drawn: {e}");
+        }
+        Ok(())
+    }
+
+    fn summary(&self, stop: StopReason, total_steps: u64) -> RunSummary {
+        let wall_s = self.start.elapsed().as_secs_f64();
+        let steps = total_steps - self.start_steps;
+        RunSummary {
+            stop,
+            steps,
+            total_steps,
+            wall_s,
+            last_eval: self.last_eval,
+            best_eval: self.best,
+            steps_per_s: steps as f64 / wall_s.max(1e-9),
+        }
+    }
+}
+
+/// An indicatif bar over the step budget, when asked for and stderr is a terminal.
+fn progress_bar(opts: &RunOptions, steps: u64) -> Option<ProgressBar> {
+    (opts.progress && std::io::stderr().is_terminal()).then(|| {
+        let b = ProgressBar::new(opts.total_steps);
+        b.set_style(
+            ProgressStyle::with_template("{bar:40} {pos}/{len} steps  {per_sec}  ETA {eta}  {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        b.set_position(steps.min(opts.total_steps));
+        b
     })
 }
 

@@ -5,95 +5,76 @@
 //! budget runs out, and publishes the best policy as a validated [`PolicyBlob`] plus
 //! [`RetrainProgress`] along the way. Requests that arrive during training are coalesced:
 //! the running training is abandoned and the latest request is trained instead.
+//!
+//! [`retrain`] is one retraining (also what `learner retrain` runs offline); [`serve`] is
+//! the request loop around it. The command-line flags behind [`ServiceConfig`] and
+//! [`RetrainSettings`] are documented in `learner serve --help` (`cli/serve.rs`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use iceoryx2::prelude::*;
-use rt_core::twin::Scene;
+use iceoryx2::node::Node;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::ipc;
+use shm_schemas::checksum::Fnv1a64;
 use shm_schemas::services;
 use shm_schemas::{PolicyBlob, PolicyBuildError, RetrainPhase, RetrainProgress, RetrainRequest};
+use twin::Scene;
 
 use crate::checkpoint::{self, Checkpoint, CheckpointError};
 use crate::export;
-use crate::ppo::{EvalResult, Trainer};
+use crate::ppo::{EvalResult, IterStats, Trainer, TrainerBuildError};
 use crate::run::{RunOptions, RunSummary, StopReason, SuccessRule, train};
 use crate::twin_env::{Jitter, RetrainSampler, TaskLoadError, TwinTask};
 
-/// Arguments of `learner serve`.
-#[derive(Debug, Clone, clap::Args)]
-pub struct ServeArgs {
-    /// Base checkpoint: a run directory (its best.ckpt) or a checkpoint file.
-    #[arg(long)]
-    pub checkpoint: PathBuf,
-    /// Service-name prefix (unique per run/test).
-    #[arg(long, default_value = "")]
-    pub prefix: String,
-    /// Task configuration.
-    #[arg(long, default_value = "assets/task.toml")]
-    pub task: PathBuf,
-    /// Where retraining runs write checkpoints, metrics and plots (default: a `retrain`
-    /// folder beside the base checkpoint).
-    #[arg(long)]
-    pub out: Option<PathBuf>,
-    /// Step budget per request (the tall-box scene needs about 2e5–6e5 from the bundled
-    /// policy, see the learner README).
-    #[arg(long, default_value_t = 600_000)]
+/// How one retraining runs (each field is the `learner serve` / `learner retrain` flag of
+/// the same name; see `--help` for the measurements behind the defaults).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RetrainSettings {
+    /// Step budget.
     pub max_steps: u64,
-    /// Wall-time budget per request (s).
-    #[arg(long, default_value_t = 90.0)]
+    /// Wall-time budget (s).
     pub time_budget_s: f64,
     /// Evaluate every this many steps.
-    #[arg(long, default_value_t = 8_192)]
     pub eval_every: u64,
     /// Evaluation episodes (the reported scene and lightly jittered variants).
-    #[arg(long, default_value_t = 20)]
     pub eval_episodes: usize,
-    /// Jitter of the evaluation variants as a fraction of the training jitter (2 cm, 10 %):
-    /// 0 (default) evaluates the reported scene exactly as reported (the lookahead re-checks
-    /// the live scene anyway); 0.5 asks for robustness to ±1 cm / ±5 % and takes ~5× longer.
-    #[arg(long, default_value_t = 0.0)]
+    /// Jitter of the evaluation variants as a fraction of the training jitter.
     pub eval_jitter: f64,
-    /// Share of training episodes from the old (pre-training) distribution. 0 by default:
-    /// with the 15 mm clearance, mixing in old scenes kept most random tall-box scenes from
-    /// converging (0.3: 0 of 4; 0: 5 of 5 with `--explore-std 2`). The policy may then
-    /// forget the old scenes; the lookahead re-checks every scene, so that costs retraining,
-    /// never safety.
-    #[arg(long, default_value_t = 0.0)]
+    /// Share of training episodes from the old (pre-training) distribution.
     pub old_share: f64,
-    /// Exit after answering this many requests (0: serve forever).
-    #[arg(long, default_value_t = 0)]
-    pub max_requests: u64,
-    /// Raise the policy's standard deviation to at least this at the start of a retraining
-    /// (a converged policy barely explores; 0 keeps it). 2.0 measured best of 0.7, 1.0, 1.5
-    /// and 2.0 on four random tall-box scenes and the demo's (5 of 5 converged within
-    /// 3.5e5 steps; 0.7: 0 of 4 random ones within 4e5).
-    #[arg(long, default_value_t = 2.0)]
+    /// Floor of the policy's standard deviation at the start (0 keeps it).
     pub explore_std: f64,
-    /// Keep the pre-training observation/return statistics fixed while retraining (off by
-    /// default: measured worse — the unseen tall-box features saturate at the clip).
-    #[arg(long, default_value_t = false, action = clap::ArgAction::Set)]
+    /// Keep the observation/return statistics fixed.
     pub freeze_stats: bool,
-    /// Minibatch size during retraining (0: the checkpoint's).
-    #[arg(long, default_value_t = 0)]
+    /// Minibatch size (0: the checkpoint's).
     pub batch: usize,
-    /// Learning rate during retraining (0: the checkpoint's).
-    #[arg(long, default_value_t = 0.0)]
+    /// Learning rate (0: the checkpoint's).
     pub lr: f64,
-    /// Entropy bonus coefficient during retraining (keeps the raised exploration alive;
-    /// 0.01 measured best of 0, 0.005, 0.01 on the tall-box scene).
-    #[arg(long, default_value_t = 0.01)]
+    /// Entropy bonus coefficient.
     pub ent_coef: f64,
-    /// Height curriculum: box heights start scaled by a factor in `[h, 1]` and `h` rises
-    /// to 1 over the first half of the step budget (1 = off). 0.3 by default: on the 20
-    /// tall-box scenes of `foresight --runs 20 --seed 7`, offline from the bundled policy
-    /// with a 4e5-step budget, 17 converged (median 9.8e4 steps, 5.3 s) against 14 with the
-    /// curriculum off (median 1.1e5 steps, 6.2 s). Evaluation is always on the full heights.
-    #[arg(long, default_value_t = 0.3)]
+    /// Start of the box-height curriculum (1 = off).
     pub height_start: f32,
-    /// Rollout worker threads (0 = the checkpoint's setting).
-    #[arg(long, default_value_t = 0)]
+    /// Rollout worker threads (0: the checkpoint's setting).
     pub workers: usize,
+}
+
+/// The set-up of `learner serve`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServiceConfig {
+    /// Base checkpoint: a run directory (its best.ckpt) or a checkpoint file.
+    pub checkpoint: PathBuf,
+    /// Service-name prefix.
+    pub prefix: String,
+    /// Task configuration.
+    pub task: PathBuf,
+    /// Where retraining runs write (default: a `retrain` folder beside the base checkpoint).
+    pub out: Option<PathBuf>,
+    /// Exit after answering this many requests (0: serve forever).
+    pub max_requests: u64,
+    /// Each retraining.
+    pub retrain: RetrainSettings,
 }
 
 /// Why retraining or the service failed.
@@ -105,9 +86,9 @@ pub enum ServeError {
     /// A checkpoint could not be read or written.
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
-    /// The PPO configuration is invalid.
-    #[error("PPO configuration: {0}")]
-    Config(String),
+    /// The trainer could not be built (invalid PPO configuration).
+    #[error(transparent)]
+    Trainer(#[from] TrainerBuildError),
     /// The policy could not be packed into a blob.
     #[error("policy blob: {0}")]
     Blob(#[from] PolicyBuildError),
@@ -118,19 +99,11 @@ pub enum ServeError {
 
 /// A policy id for a checkpoint: FNV-1a of its weights and step count, never 0.
 pub fn policy_id_for(ck: &Checkpoint) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut eat = |b: &[u8]| {
-        for x in b {
-            h ^= u64::from(*x);
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    };
-    for w in &ck.theta {
-        eat(&w.to_le_bytes());
-    }
-    eat(&ck.meta.steps.to_le_bytes());
-    eat(&ck.meta.task_hash.to_le_bytes());
-    h.max(1)
+    let mut h = Fnv1a64::new();
+    h.write_f32s(&ck.theta);
+    h.write_u64(ck.meta.steps);
+    h.write_u64(ck.meta.task_hash);
+    h.finish().max(1)
 }
 
 fn progress(
@@ -154,6 +127,41 @@ fn progress(
     }
 }
 
+/// A trainer restored from `base` with the retraining's overrides (workers, entropy bonus,
+/// frozen statistics, minibatch, learning rate) and the exploration floor applied.
+fn retrain_trainer(
+    base: &Checkpoint,
+    env: &TwinTask,
+    s: &RetrainSettings,
+    device: tch::Device,
+) -> Result<Trainer<TwinTask>, ServeError> {
+    let mut cfg = base.meta.ppo.clone();
+    if s.workers > 0 {
+        cfg.workers = s.workers;
+    }
+    let mut trainer = Trainer::new(cfg, env.clone(), base.meta.seed, device)?;
+    base.restore(&mut trainer)?;
+    trainer.cfg.ent_coef = s.ent_coef;
+    trainer.cfg.update_stats = !s.freeze_stats;
+    if s.batch > 0 {
+        trainer.cfg.batch_size = s.batch;
+    }
+    if s.lr > 0.0 {
+        trainer.cfg.learning_rate = s.lr;
+        trainer.adam.lr = s.lr;
+    }
+    let std_before = trainer.net.log_std().detach().exp();
+    if s.explore_std > 0.0 {
+        let floor = s.explore_std.ln();
+        tch::no_grad(|| {
+            let mut ls = trainer.net.log_std();
+            let _ = ls.clamp_min_(floor);
+        });
+    }
+    tracing::info!(std_before = ?Vec::<f32>::try_from(&std_before).unwrap_or_default(), explore_std = s.explore_std, "exploration");
+    Ok(trainer)
+}
+
 /// Retrains `base` on `scene` (with randomisation and a share of the old distribution) into
 /// `out_dir` (best/last checkpoints, metrics, plot). `on_iter` sees every iteration with the
 /// steps taken in this retraining; returning `false` cancels. Returns the run summary and
@@ -166,47 +174,24 @@ pub fn retrain(
     base: &Checkpoint,
     env: &TwinTask,
     scene: Scene,
-    args: &ServeArgs,
-    out_dir: &std::path::Path,
+    settings: &RetrainSettings,
+    out_dir: &Path,
     eval_seed: u64,
     device: tch::Device,
-    mut on_iter: impl FnMut(&crate::ppo::IterStats, Option<&EvalResult>) -> bool,
+    mut on_iter: impl FnMut(&IterStats, Option<&EvalResult>) -> bool,
 ) -> Result<(RunSummary, EvalResult), ServeError> {
-    let mut cfg = base.meta.ppo.clone();
-    if args.workers > 0 {
-        cfg.workers = args.workers;
-    }
-    let mut trainer =
-        Trainer::new(cfg, env.clone(), base.meta.seed, device).map_err(ServeError::Config)?;
-    base.restore(&mut trainer)?;
-    trainer.cfg.ent_coef = args.ent_coef;
-    trainer.cfg.update_stats = !args.freeze_stats;
-    if args.batch > 0 {
-        trainer.cfg.batch_size = args.batch;
-    }
-    if args.lr > 0.0 {
-        trainer.cfg.learning_rate = args.lr;
-        trainer.adam.lr = args.lr;
-    }
-    let std_before = trainer.net.log_std().detach().exp();
-    if args.explore_std > 0.0 {
-        let floor = args.explore_std.ln();
-        tch::no_grad(|| {
-            let mut ls = trainer.net.log_std();
-            let _ = ls.clamp_min_(floor);
-        });
-    }
-    tracing::info!(std_before = ?Vec::<f32>::try_from(&std_before).unwrap_or_default(), explore_std = args.explore_std, "exploration");
-    let sampler = RetrainSampler::new(env, scene, Jitter::default(), args.old_share);
-    let eval_scenes = sampler.eval_scenes(args.eval_episodes, eval_seed, args.eval_jitter);
+    let s = settings;
+    let mut trainer = retrain_trainer(base, env, s, device)?;
+    let sampler = RetrainSampler::new(env, scene, Jitter::default(), s.old_share);
+    let eval_scenes = sampler.eval_scenes(s.eval_episodes, eval_seed, s.eval_jitter);
     let _ = std::fs::remove_dir_all(out_dir);
     let opts = RunOptions {
         out_dir: out_dir.to_path_buf(),
-        total_steps: trainer.steps + args.max_steps,
-        eval_every_steps: args.eval_every,
+        total_steps: trainer.steps + s.max_steps,
+        eval_every_steps: s.eval_every,
         seed: base.meta.seed,
         task_hash: env.task_hash(),
-        time_budget: Some(Duration::from_secs_f64(args.time_budget_s)),
+        time_budget: Some(Duration::from_secs_f64(s.time_budget_s)),
         success_rule: Some(SuccessRule::default()),
         title: format!("retraining ({})", out_dir.display()),
         progress: false,
@@ -218,13 +203,13 @@ pub fn retrain(
         collision = before.collision_rate,
         "base policy on the reported scene"
     );
-    sampler.set_height_lo(args.height_start);
-    let ramp_steps = (args.max_steps / 2).max(1) as f32;
+    sampler.set_height_lo(s.height_start);
+    let ramp_steps = (s.max_steps / 2).max(1) as f32;
     let sum = train(&mut trainer, &sampler, &eval_scenes, &opts, |st, e| {
         let mut st = st.clone();
         st.steps -= start_steps;
         let f = (st.steps as f32 / ramp_steps).min(1.0);
-        sampler.set_height_lo(args.height_start + (1.0 - args.height_start) * f);
+        sampler.set_height_lo(s.height_start + (1.0 - s.height_start) * f);
         on_iter(&st, e)
     })?;
     Ok((sum, before))
@@ -251,36 +236,115 @@ pub fn next_height_start(current: f32, configured: f32, stop: StopReason) -> f32
 /// # Errors
 /// Setup failures (task, checkpoint, iceoryx2); per-request failures are logged and the
 /// service carries on.
-pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
-    let env = TwinTask::load(&args.task, None)?;
-    let hash = env.task_hash();
-    let mut base_path = checkpoint::resolve(&args.checkpoint);
-    let base = Checkpoint::load(&base_path)?;
-    if base.meta.task_hash != hash {
-        tracing::warn!(
-            "base checkpoint task hash {:#x} differs from {}'s {hash:#x}: blobs will carry {hash:#x}",
-            base.meta.task_hash,
-            args.task.display()
-        );
+pub fn serve(cfg: &ServiceConfig, device: tch::Device) -> Result<(), ServeError> {
+    let mut server = Server::open(cfg, device)?;
+    let mut answered = 0u64;
+    let mut pending: Option<RetrainRequest> = None;
+    loop {
+        if pending.is_none() {
+            server.drain(&mut pending);
+        }
+        let Some(req) = pending.take() else {
+            if server.node.wait(Duration::from_millis(20)).is_err() {
+                break;
+            }
+            continue;
+        };
+        match server.handle(&req)? {
+            Handled::Skipped => {}
+            Handled::Stop => break,
+            Handled::Superseded(newer) => pending = newer,
+            Handled::Answered(newer) => {
+                answered += 1;
+                if cfg.max_requests > 0 && answered >= cfg.max_requests {
+                    break;
+                }
+                pending = newer;
+            }
+        }
     }
-    let out_root = args.out.clone().unwrap_or_else(|| {
-        base_path
-            .parent()
-            .map_or_else(|| PathBuf::from("retrain"), |p| p.join("retrain"))
-    });
-    let (node, _) = services::create_node::<ipc::Service>("learner")
-        .map_err(|e| ServeError::Shm(format!("node: {e}")))?;
-    let requests = services::open_subscriber::<RetrainRequest, _>(&node, &args.prefix)
-        .map_err(|e| ServeError::Shm(e.to_string()))?;
-    let blobs = services::open_publisher::<PolicyBlob, _>(&node, &args.prefix)
-        .map_err(|e| ServeError::Shm(e.to_string()))?;
-    let progress_pub = services::open_publisher::<RetrainProgress, _>(&node, &args.prefix)
-        .map_err(|e| ServeError::Shm(e.to_string()))?;
-    tracing::info!(prefix = %args.prefix, base = %base_path.display(), "learner serve: waiting for retrain requests");
+    Ok(())
+}
 
-    let drain = |latest: &mut Option<RetrainRequest>| {
+/// What became of one request.
+enum Handled {
+    /// Unusable scene or failed retraining (logged).
+    Skipped,
+    /// SIGINT/SIGTERM during training.
+    Stop,
+    /// A newer request arrived during training and supersedes it.
+    Superseded(Option<RetrainRequest>),
+    /// A policy was published; a request that arrived meanwhile, if any.
+    Answered(Option<RetrainRequest>),
+}
+
+/// The service's state between requests. Ports are declared before the node so that they
+/// are dropped first.
+struct Server<'a> {
+    cfg: &'a ServiceConfig,
+    device: tch::Device,
+    env: TwinTask,
+    hash: u64,
+    out_root: PathBuf,
+    /// The checkpoint the next retraining resumes from.
+    base_path: PathBuf,
+    /// The settings of the next retraining (its height curriculum changes between requests,
+    /// see [`next_height_start`]).
+    settings: RetrainSettings,
+    requests: Subscriber<ipc::Service, RetrainRequest, ()>,
+    blobs: Publisher<ipc::Service, PolicyBlob, ()>,
+    progress: Publisher<ipc::Service, RetrainProgress, ()>,
+    node: Node<ipc::Service>,
+}
+
+impl<'a> Server<'a> {
+    /// Loads the task and the base checkpoint and opens the iceoryx2 ports.
+    fn open(cfg: &'a ServiceConfig, device: tch::Device) -> Result<Self, ServeError> {
+        let env = TwinTask::load(&cfg.task, None)?;
+        let hash = env.task_hash();
+        let base_path = checkpoint::resolve(&cfg.checkpoint);
+        let base = Checkpoint::load(&base_path)?;
+        if base.meta.task_hash != hash {
+            tracing::warn!(
+                "base checkpoint task hash {:#x} differs from {}'s {hash:#x}: blobs will carry {hash:#x}",
+                base.meta.task_hash,
+                cfg.task.display()
+            );
+        }
+        let out_root = cfg.out.clone().unwrap_or_else(|| {
+            base_path
+                .parent()
+                .map_or_else(|| PathBuf::from("retrain"), |p| p.join("retrain"))
+        });
+        let shm = |e: &dyn std::fmt::Display| ServeError::Shm(e.to_string());
+        let (node, _) = services::create_node::<ipc::Service>("learner")
+            .map_err(|e| ServeError::Shm(format!("node: {e}")))?;
+        let requests = services::open_subscriber::<RetrainRequest, _>(&node, &cfg.prefix)
+            .map_err(|e| shm(&e))?;
+        let blobs =
+            services::open_publisher::<PolicyBlob, _>(&node, &cfg.prefix).map_err(|e| shm(&e))?;
+        let progress = services::open_publisher::<RetrainProgress, _>(&node, &cfg.prefix)
+            .map_err(|e| shm(&e))?;
+        tracing::info!(prefix = %cfg.prefix, base = %base_path.display(), "learner serve: waiting for retrain requests");
+        Ok(Self {
+            cfg,
+            device,
+            env,
+            hash,
+            out_root,
+            base_path,
+            settings: cfg.retrain.clone(),
+            requests,
+            blobs,
+            progress,
+            node,
+        })
+    }
+
+    /// Receives every waiting request; the latest valid one ends up in `latest`.
+    fn drain(&self, latest: &mut Option<RetrainRequest>) {
         loop {
-            let s = match requests.receive() {
+            let s = match self.requests.receive() {
                 Ok(Some(s)) => s,
                 Ok(None) => break,
                 Err(e) => {
@@ -295,21 +359,11 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
                 Err(e) => tracing::warn!("rejected retrain request: {e}"),
             }
         }
-    };
-    let mut answered = 0u64;
-    let mut pending: Option<RetrainRequest> = None;
-    // The height curriculum of the next retraining (see `next_height_start`).
-    let mut req_args = args.clone();
-    loop {
-        if pending.is_none() {
-            drain(&mut pending);
-        }
-        let Some(req) = pending.take() else {
-            if node.wait(Duration::from_millis(20)).is_err() {
-                break;
-            }
-            continue;
-        };
+    }
+
+    /// Retrains for `req` and publishes the result.
+    fn handle(&mut self, req: &RetrainRequest) -> Result<Handled, ServeError> {
+        let hash = self.hash;
         if req.task_config_hash != 0 && req.task_config_hash != hash {
             tracing::warn!(
                 request = req.request_id,
@@ -321,7 +375,7 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
             Ok(s) => s,
             Err(e) => {
                 tracing::warn!(request = req.request_id, "unusable scene: {e:?}");
-                continue;
+                return Ok(Handled::Skipped);
             }
         };
         let t0 = Instant::now();
@@ -330,46 +384,25 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
             obstacles = scene.obstacles.len(),
             "retraining"
         );
-        let base = Checkpoint::load(&base_path)?;
-        let out_dir = out_root.join(format!("request-{}", req.request_id));
+        let base = Checkpoint::load(&self.base_path)?;
+        let out_dir = self.out_root.join(format!("request-{}", req.request_id));
         let mut newer: Option<RetrainRequest> = None;
         let mut stop_requested = false;
         let res = retrain(
             &base,
-            &env,
+            &self.env,
             scene,
-            &req_args,
+            &self.settings,
             &out_dir,
             req.request_id,
-            device,
-            |st, eval| {
-                let (ret, succ) = eval.map_or((st.mean_return, st.success_rate), |e| {
-                    (e.mean_return, e.success_rate)
-                });
-                let phase = if eval.is_some() {
-                    RetrainPhase::Evaluating
-                } else {
-                    RetrainPhase::Training
-                };
-                let _ = progress_pub.send_copy(progress(&req, phase, st.steps, ret, succ, t0, 0));
-                if node.wait(Duration::ZERO).is_err() {
-                    // SIGINT/SIGTERM: stop training; the loop below exits.
-                    stop_requested = true;
-                    return false;
-                }
-                drain(&mut newer);
-                // A repeat of the request in training is not a new one.
-                if newer.is_some_and(|n| n.request_id == req.request_id) {
-                    newer = None;
-                }
-                newer.is_none()
-            },
+            self.device,
+            |st, eval| self.on_iter(req, st, eval, t0, &mut newer, &mut stop_requested),
         );
         let (sum, before) = match res {
             Ok(s) => s,
             Err(e) => {
                 tracing::error!(request = req.request_id, "retraining failed: {e}");
-                continue;
+                return Ok(Handled::Skipped);
             }
         };
         if stop_requested {
@@ -377,26 +410,84 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
                 request = req.request_id,
                 "termination requested; abandoning the retraining"
             );
-            break;
+            return Ok(Handled::Stop);
         }
         if sum.stop == StopReason::Cancelled {
             tracing::info!(request = req.request_id, "superseded by a newer request");
-            pending = newer;
-            continue;
+            return Ok(Handled::Superseded(newer));
         }
+        self.publish(req, &sum, &before, &out_dir, t0)?;
+        // The next request resumes from here: the best checkpoint once converged; after an
+        // exhausted budget the last one, which holds all the training so far (the best by
+        // evaluation may be an early one when nothing has succeeded yet), so that repeated
+        // requests for a hard scene accumulate training instead of starting over.
+        self.base_path = if sum.stop == StopReason::Converged {
+            out_dir.join(checkpoint::BEST)
+        } else {
+            out_dir.join(checkpoint::LAST)
+        };
+        self.settings.height_start = next_height_start(
+            self.settings.height_start,
+            self.cfg.retrain.height_start,
+            sum.stop,
+        );
+        Ok(Handled::Answered(newer))
+    }
+
+    /// Per training iteration: publishes progress, notices termination signals and newer
+    /// requests; `false` cancels the retraining.
+    fn on_iter(
+        &self,
+        req: &RetrainRequest,
+        st: &IterStats,
+        eval: Option<&EvalResult>,
+        t0: Instant,
+        newer: &mut Option<RetrainRequest>,
+        stop_requested: &mut bool,
+    ) -> bool {
+        let (ret, succ) = eval.map_or((st.mean_return, st.success_rate), |e| {
+            (e.mean_return, e.success_rate)
+        });
+        let phase = if eval.is_some() {
+            RetrainPhase::Evaluating
+        } else {
+            RetrainPhase::Training
+        };
+        let _ = self
+            .progress
+            .send_copy(progress(req, phase, st.steps, ret, succ, t0, 0));
+        if self.node.wait(Duration::ZERO).is_err() {
+            // SIGINT/SIGTERM: stop training; the request loop exits.
+            *stop_requested = true;
+            return false;
+        }
+        self.drain(newer);
+        // A repeat of the request in training is not a new one.
+        if newer.is_some_and(|n| n.request_id == req.request_id) {
+            *newer = None;
+        }
+        newer.is_none()
+    }
+
+    /// Publishes the retraining's best policy (with the served task hash) and the final
+    /// progress message, and prints a JSON line.
+    fn publish(
+        &self,
+        req: &RetrainRequest,
+        sum: &RunSummary,
+        before: &EvalResult,
+        out_dir: &Path,
+        t0: Instant,
+    ) -> Result<(), ServeError> {
         let best = Checkpoint::load(&out_dir.join(checkpoint::BEST))?;
         let id = policy_id_for(&best);
         let mut ck = best.clone();
-        ck.meta.task_hash = hash;
+        ck.meta.task_hash = self.hash;
         let builder = export::builder(&ck, id);
         // Written in place in shared memory: no stack copy of the ~320 KB blob.
-        let mut sample = blobs
-            .loan_uninit()
+        let mut sample = services::loan_zeroed(&self.blobs)
             .map_err(|e| ServeError::Shm(format!("loan: {e:?}")))?;
-        builder.write_into(PolicyBlob::init_zeroed(sample.payload_mut()))?;
-        // SAFETY: `init_zeroed` initialised every byte of the payload and `write_into`
-        // wrote a validated blob over it.
-        let sample = unsafe { sample.assume_init() };
+        builder.write_into(sample.payload_mut())?;
         sample
             .send()
             .map_err(|e| ServeError::Shm(format!("send: {e:?}")))?;
@@ -406,15 +497,8 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
         } else {
             RetrainPhase::BudgetExhausted
         };
-        let _ = progress_pub.send_copy(progress(
-            &req,
-            phase,
-            sum.steps,
-            e.mean_return,
-            e.success_rate,
-            t0,
-            id,
-        ));
+        let msg = progress(req, phase, sum.steps, e.mean_return, e.success_rate, t0, id);
+        let _ = self.progress.send_copy(msg);
         if sum.stop == StopReason::Converged {
             tracing::info!(
                 request = req.request_id,
@@ -431,31 +515,17 @@ pub fn serve(args: &ServeArgs, device: tch::Device) -> Result<(), ServeError> {
             "{}",
             serde_json::json!({"request_id": req.request_id, "policy_id": id, "stop": format!("{:?}", sum.stop), "steps": sum.steps, "wall_s": sum.wall_s, "before": before, "best": best.meta.eval})
         );
-        // The next request resumes from here: the best checkpoint once converged; after an
-        // exhausted budget the last one, which holds all the training so far (the best by
-        // evaluation may be an early one when nothing has succeeded yet), so that repeated
-        // requests for a hard scene accumulate training instead of starting over.
-        base_path = if sum.stop == StopReason::Converged {
-            out_dir.join(checkpoint::BEST)
-        } else {
-            out_dir.join(checkpoint::LAST)
-        };
-        req_args.height_start =
-            next_height_start(req_args.height_start, args.height_start, sum.stop);
-        answered += 1;
-        if args.max_requests > 0 && answered >= args.max_requests {
-            break;
-        }
-        if pending.is_none() {
-            pending = newer;
-        }
+        Ok(())
     }
-    Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::checkpoint::{CheckpointMeta, FORMAT, StatsState};
+    use crate::net::NetSpec;
+    use crate::ppo::PpoConfig;
+    use crate::random::RngState;
 
     #[test]
     fn an_exhausted_budget_switches_the_height_curriculum_and_a_success_restores_it() {
@@ -467,5 +537,65 @@ mod tests {
         assert_eq!(next_height_start(0.3, 0.3, StopReason::Converged), 0.3);
         // With the curriculum configured off there is nothing to switch to.
         assert_eq!(next_height_start(1.0, 1.0, exhausted), 1.0);
+    }
+
+    /// The policy id as it was computed before the shared hasher (FNV-1a written out here).
+    fn old_policy_id(ck: &Checkpoint) -> u64 {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |b: &[u8]| {
+            for x in b {
+                h ^= u64::from(*x);
+                h = h.wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        };
+        for w in &ck.theta {
+            eat(&w.to_le_bytes());
+        }
+        eat(&ck.meta.steps.to_le_bytes());
+        eat(&ck.meta.task_hash.to_le_bytes());
+        h.max(1)
+    }
+
+    #[test]
+    fn policy_id_is_unchanged_by_the_shared_fnv_hasher() {
+        let stats = StatsState {
+            mean: vec![0.0],
+            var: vec![1.0],
+            count: 1.0,
+        };
+        let rng = RngState {
+            seed: [0; 32],
+            stream: 0,
+            word_pos: [0, 0],
+        };
+        let mut ck = Checkpoint {
+            meta: CheckpointMeta {
+                format: FORMAT.into(),
+                spec: NetSpec {
+                    obs_dim: 1,
+                    act_dim: 1,
+                    hidden: vec![1],
+                },
+                ppo: PpoConfig::default(),
+                seed: 1,
+                task_hash: 0xfeed_beef_0123_4567,
+                steps: 123_456,
+                iteration: 0,
+                adam_t: 0,
+                obs_rms: stats.clone(),
+                ret_rms: stats,
+                trainer_rng: rng,
+                env_rngs: vec![],
+                eval: None,
+                best_eval: None,
+            },
+            theta: vec![0.5, -1.25, 3.0e-7, f32::MIN_POSITIVE, -0.0, 1.0e9],
+            adam_m: vec![],
+            adam_v: vec![],
+        };
+        assert_eq!(policy_id_for(&ck), old_policy_id(&ck));
+        ck.theta.clear();
+        ck.meta.steps = 0;
+        assert_eq!(policy_id_for(&ck), old_policy_id(&ck));
     }
 }

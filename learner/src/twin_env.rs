@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rt_core::twin::{ACT_DIM, OBS_DIM, ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
+use twin::{ACT_DIM, OBS_DIM, ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
 
 use crate::env::{Env, SceneSampler, StepInfo};
 
@@ -140,7 +140,7 @@ impl Default for Jitter {
 /// `scene` with goal and boxes moved/scaled at random within `jitter` (boxes stay on the
 /// table).
 pub fn jittered(scene: &Scene, jitter: Jitter, rng: &mut ChaCha8Rng) -> Scene {
-    let mut s = scene.clone();
+    let mut s = *scene;
     let mut d = |r: f64| {
         if r > 0.0 {
             rng.random_range(-r..=r)
@@ -198,7 +198,7 @@ impl RetrainSampler {
             xy_m: self.jitter.xy_m * scale,
             size_frac: self.jitter.size_frac * scale,
         };
-        std::iter::once(self.scene.clone())
+        std::iter::once(self.scene)
             .chain((1..n).map(|_| jittered(&self.scene, half, &mut rng)))
             .collect()
     }

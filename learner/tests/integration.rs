@@ -122,7 +122,7 @@ fn run_driver_trains_checkpoints_and_writes_metrics() {
     );
     let csv = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
     assert_eq!(csv.lines().count(), 21);
-    assert!(std::fs::metadata(dir.join("reward.png")).unwrap().len() > 1000);
+    assert!(std::fs::metadata(dir.join("reward.svg")).unwrap().len() > 1000);
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -132,10 +132,11 @@ mod export_equivalence {
     use learner::export;
     use learner::net::ActorCritic;
     use learner::normalize::ObsNormalizer;
-    use learner::ppo::{PpoConfig, Trainer, randn};
+    use learner::ppo::{PpoConfig, Trainer};
+    use learner::random::randn;
+    use policy::{PolicyExpectation, PolicyLoader};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
-    use rt_core::policy::{PolicyExpectation, PolicyLoader};
     use tch::{Device, Tensor};
 
     /// An environment with the twin's dimensions; only its shape matters here.
@@ -144,10 +145,10 @@ mod export_equivalence {
     impl Env for Shape {
         type Scene = ();
         fn obs_dim(&self) -> usize {
-            rt_core::twin::OBS_DIM
+            twin::OBS_DIM
         }
         fn act_dim(&self) -> usize {
-            rt_core::twin::ACT_DIM
+            twin::ACT_DIM
         }
         fn reset(&mut self, _: &(), obs: &mut [f32]) {
             obs.fill(0.0);
@@ -182,7 +183,7 @@ mod export_equivalence {
 
         let norm = ObsNormalizer::from_stats(&t.obs_rms, t.cfg.clip_obs);
         let n = 2000;
-        let d = rt_core::twin::OBS_DIM;
+        let d = twin::OBS_DIM;
         // Wide observations so that the normalisation clip and the action clip both bite.
         let raw: Vec<f32> = (0..n * d).map(|_| rng.random_range(-3.0..3.0)).collect();
         let mut x = vec![0.0f32; n * d];
@@ -194,11 +195,11 @@ mod export_equivalence {
                 .actor_mean(&Tensor::from_slice(&x).view([n as i64, d as i64]))
                 .clamp(-1.0, 1.0)
         });
-        let a = rt_core::twin::ACT_DIM;
+        let a = twin::ACT_DIM;
         let mut tch_out = vec![0.0f32; n * a];
         mean.copy_data(&mut tch_out, n * a);
         let (mut max_diff, mut clipped) = (0.0f32, 0usize);
-        let mut out = [0.0f32; rt_core::twin::ACT_DIM];
+        let mut out = [0.0f32; twin::ACT_DIM];
         for (i, obs) in raw.chunks(d).enumerate() {
             policy.evaluate(obs, &mut out).unwrap();
             for k in 0..a {

@@ -1,6 +1,8 @@
 //! Annotated images: detection boxes with class, world position and size drawn on the
 //! colour image (what `perception detect` writes next to its JSON).
 
+use std::path::{Path, PathBuf};
+
 use opencv::core::{Mat, Point, Rect, Scalar, Vector};
 use opencv::imgproc;
 use opencv::prelude::*;
@@ -67,17 +69,38 @@ pub fn annotate(bgr: &Mat, detections: &[Detection]) -> Result<Mat, opencv::Erro
     Ok(out)
 }
 
+/// Why [`write_image`] failed; each message names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageWriteError {
+    /// The encoder for the extension refused the image.
+    #[error("cannot write {path}: the encoder refused")]
+    Refused {
+        /// The file.
+        path: PathBuf,
+    },
+    /// OpenCV failed (unknown extension, unwritable folder, …).
+    #[error("cannot write {path}: {}", source.message)]
+    OpenCv {
+        /// The file.
+        path: PathBuf,
+        /// OpenCV's error.
+        source: opencv::Error,
+    },
+}
+
 /// Writes an image (format from the extension).
 ///
 /// # Errors
-/// OpenCV errors, or a message when the encoder refuses.
-pub fn write_image(path: &std::path::Path, image: &Mat) -> Result<(), String> {
+/// [`ImageWriteError`].
+pub fn write_image(path: &Path, image: &Mat) -> Result<(), ImageWriteError> {
     match opencv::imgcodecs::imwrite(path, image, &Vector::new()) {
         Ok(true) => Ok(()),
-        Ok(false) => Err(format!(
-            "cannot write {}: the encoder refused",
-            path.display()
-        )),
-        Err(e) => Err(format!("cannot write {}: {}", path.display(), e.message)),
+        Ok(false) => Err(ImageWriteError::Refused {
+            path: path.to_path_buf(),
+        }),
+        Err(source) => Err(ImageWriteError::OpenCv {
+            path: path.to_path_buf(),
+            source,
+        }),
     }
 }

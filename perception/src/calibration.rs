@@ -90,92 +90,12 @@ impl Calibration {
     /// puts the camera below the table or a reprojection error above
     /// [`MAX_REPROJECTION_ERROR_PX`]; [`CalibrationError::OpenCv`] when OpenCV fails.
     pub fn new(file: CalibrationFile) -> Result<Self, CalibrationError> {
-        file.intrinsics
-            .validate()
-            .map_err(CalibrationError::Invalid)?;
-        file.workspace
-            .validate()
-            .map_err(CalibrationError::Invalid)?;
-        if !(file.rectified_px_per_m.is_finite()
-            && (10.0..=10_000.0).contains(&file.rectified_px_per_m))
-        {
-            return Err(CalibrationError::Invalid(format!(
-                "rectified_px_per_m = {} must be in 10..=10000",
-                file.rectified_px_per_m
-            )));
-        }
-        let (w, h) = (
-            f64::from(file.intrinsics.width_px),
-            f64::from(file.intrinsics.height_px),
-        );
-        for (i, c) in file.corners_px.iter().enumerate() {
-            if !(c[0].is_finite()
-                && c[1].is_finite()
-                && (0.0..w).contains(&c[0])
-                && (0.0..h).contains(&c[1]))
-            {
-                return Err(CalibrationError::Invalid(format!(
-                    "corners_px[{i}] = {c:?} lies outside the {w}x{h} image"
-                )));
-            }
-        }
-        if !is_convex_quad(&file.corners_px) {
-            return Err(CalibrationError::Invalid(format!(
-                "corners_px {:?} do not form a convex quadrilateral (wrong order or a misplaced corner?)",
-                file.corners_px
-            )));
-        }
-        let table = file.workspace.corners_xy_m();
-        let src: Vector<Point2f> = file
-            .corners_px
-            .iter()
-            .map(|c| Point2f::new(c[0] as f32, c[1] as f32))
-            .collect();
-        let dst: Vector<Point2f> = table
-            .iter()
-            .map(|c| Point2f::new(c[0] as f32, c[1] as f32))
-            .collect();
-        let hm = opencv::imgproc::get_perspective_transform(&src, &dst, opencv::core::DECOMP_LU)?;
-        let pixel_to_table = mat3_from_cv(&hm)?;
-
+        check_file(&file)?;
+        let pixel_to_table = pixel_to_table_homography(&file)?;
         let z = file.workspace.table_height_m;
-        let object: Vector<Point3d> = table.iter().map(|c| Point3d::new(c[0], c[1], z)).collect();
-        let image: Vector<Point2d> = file
-            .corners_px
-            .iter()
-            .map(|c| Point2d::new(c[0], c[1]))
-            .collect();
-        let k = file.intrinsics;
-        let camera_matrix = Mat::from_slice_2d(&[
-            [k.fx_px, 0.0, k.cx_px],
-            [0.0, k.fy_px, k.cy_px],
-            [0.0, 0.0, 1.0],
-        ])?;
-        let mut rvec = Mat::default();
-        let mut tvec = Mat::default();
-        let ok = opencv::calib3d::solve_pnp(
-            &object,
-            &image,
-            &camera_matrix,
-            &Mat::default(),
-            &mut rvec,
-            &mut tvec,
-            false,
-            opencv::calib3d::SOLVEPNP_IPPE,
-        )?;
-        if !ok {
-            return Err(CalibrationError::Invalid(
-                "solvePnP found no camera pose for these corners".into(),
-            ));
-        }
-        let r = vec3_from_cv(&rvec)?;
-        let t = vec3_from_cv(&tvec)?;
-        let pose = CameraPose {
-            rotation: Rotation3::from_scaled_axis(r),
-            translation_m: t,
-        };
+        let pose = solve_pose(&file)?;
         let model = CameraModel {
-            intrinsics: k,
+            intrinsics: file.intrinsics,
             pose,
         };
         if pose.eye_m().z <= z {
@@ -184,13 +104,7 @@ impl Calibration {
                 pose.eye_m().z
             )));
         }
-        let mut err = 0.0;
-        for (c, px) in table.iter().zip(file.corners_px.iter()) {
-            let (p, _) = model.project([c[0], c[1], z]).ok_or_else(|| {
-                CalibrationError::Invalid("a workspace corner lies behind the camera".into())
-            })?;
-            err += ((p[0] - px[0]).powi(2) + (p[1] - px[1]).powi(2)).sqrt() / 4.0;
-        }
+        let err = reprojection_error_px(&model, &file)?;
         if err > MAX_REPROJECTION_ERROR_PX {
             return Err(CalibrationError::Invalid(format!(
                 "corners reproject with a mean error of {err:.2} px (> {MAX_REPROJECTION_ERROR_PX} px): intrinsics and corners disagree"
@@ -293,6 +207,128 @@ impl Calibration {
     }
 }
 
+/// Checks the numbers of a calibration file: intrinsics, workspace, scale, corners inside
+/// the image and forming a convex quadrilateral.
+fn check_file(file: &CalibrationFile) -> Result<(), CalibrationError> {
+    file.intrinsics
+        .validate()
+        .map_err(|e| CalibrationError::Invalid(e.to_string()))?;
+    file.workspace
+        .validate()
+        .map_err(|e| CalibrationError::Invalid(e.to_string()))?;
+    if !(file.rectified_px_per_m.is_finite()
+        && (10.0..=10_000.0).contains(&file.rectified_px_per_m))
+    {
+        return Err(CalibrationError::Invalid(format!(
+            "rectified_px_per_m = {} must be in 10..=10000",
+            file.rectified_px_per_m
+        )));
+    }
+    let (w, h) = (
+        f64::from(file.intrinsics.width_px),
+        f64::from(file.intrinsics.height_px),
+    );
+    for (i, c) in file.corners_px.iter().enumerate() {
+        if !(c[0].is_finite()
+            && c[1].is_finite()
+            && (0.0..w).contains(&c[0])
+            && (0.0..h).contains(&c[1]))
+        {
+            return Err(CalibrationError::Invalid(format!(
+                "corners_px[{i}] = {c:?} lies outside the {w}x{h} image"
+            )));
+        }
+    }
+    if !is_convex_quad(&file.corners_px) {
+        return Err(CalibrationError::Invalid(format!(
+            "corners_px {:?} do not form a convex quadrilateral (wrong order or a misplaced corner?)",
+            file.corners_px
+        )));
+    }
+    Ok(())
+}
+
+/// Image pixel → table (x, y) from the four corners (OpenCV `getPerspectiveTransform`).
+fn pixel_to_table_homography(file: &CalibrationFile) -> Result<Matrix3<f64>, CalibrationError> {
+    let src: Vector<Point2f> = file
+        .corners_px
+        .iter()
+        .map(|c| Point2f::new(c[0] as f32, c[1] as f32))
+        .collect();
+    let dst: Vector<Point2f> = file
+        .workspace
+        .corners_xy_m()
+        .iter()
+        .map(|c| Point2f::new(c[0] as f32, c[1] as f32))
+        .collect();
+    let hm = opencv::imgproc::get_perspective_transform(&src, &dst, opencv::core::DECOMP_LU)?;
+    mat3_from_cv(&hm)
+}
+
+/// The camera pose from the four corners and the intrinsics (OpenCV `solvePnP`, IPPE).
+fn solve_pose(file: &CalibrationFile) -> Result<CameraPose, CalibrationError> {
+    let z = file.workspace.table_height_m;
+    let object: Vector<Point3d> = file
+        .workspace
+        .corners_xy_m()
+        .iter()
+        .map(|c| Point3d::new(c[0], c[1], z))
+        .collect();
+    let image: Vector<Point2d> = file
+        .corners_px
+        .iter()
+        .map(|c| Point2d::new(c[0], c[1]))
+        .collect();
+    let k = file.intrinsics;
+    let camera_matrix = Mat::from_slice_2d(&[
+        [k.fx_px, 0.0, k.cx_px],
+        [0.0, k.fy_px, k.cy_px],
+        [0.0, 0.0, 1.0],
+    ])?;
+    let mut rvec = Mat::default();
+    let mut tvec = Mat::default();
+    let ok = opencv::calib3d::solve_pnp(
+        &object,
+        &image,
+        &camera_matrix,
+        &Mat::default(),
+        &mut rvec,
+        &mut tvec,
+        false,
+        opencv::calib3d::SOLVEPNP_IPPE,
+    )?;
+    if !ok {
+        return Err(CalibrationError::Invalid(
+            "solvePnP found no camera pose for these corners".into(),
+        ));
+    }
+    Ok(CameraPose {
+        rotation: Rotation3::from_scaled_axis(vec3_from_cv(&rvec)?),
+        translation_m: vec3_from_cv(&tvec)?,
+    })
+}
+
+/// Mean distance between the given corners and the workspace corners projected by `model`.
+fn reprojection_error_px(
+    model: &CameraModel,
+    file: &CalibrationFile,
+) -> Result<f64, CalibrationError> {
+    let z = file.workspace.table_height_m;
+    let mut err = 0.0;
+    for (c, px) in file
+        .workspace
+        .corners_xy_m()
+        .iter()
+        .zip(file.corners_px.iter())
+    {
+        let (p, _) = model.project([c[0], c[1], z]).ok_or_else(|| {
+            CalibrationError::Invalid("a workspace corner lies behind the camera".into())
+        })?;
+        err += ((p[0] - px[0]).powi(2) + (p[1] - px[1]).powi(2)).sqrt() / 4.0;
+    }
+    Ok(err)
+}
+
 fn mat3_from_cv(m: &Mat) -> Result<Matrix3<f64>, CalibrationError> {
     let mut out = Matrix3::zeros();
     for r in 0..3 {
@@ -365,23 +401,48 @@ pub fn find_workspace_corners(
     bgr: &Mat,
     tape: HsvRange,
 ) -> Result<[[f64; 2]; 4], CalibrationError> {
+    let contour = largest_tape_contour(bgr, tape)?;
+    let rough = rough_quad(&contour)?;
+    let centroid = [
+        rough.iter().map(|p| p[0]).sum::<f64>() / 4.0,
+        rough.iter().map(|p| p[1]).sum::<f64>() / 4.0,
+    ];
+    let pts: Vec<[f64; 2]> = contour
+        .iter()
+        .map(|p| [f64::from(p.x), f64::from(p.y)])
+        .collect();
+    let mut lines = [([0.0; 2], 0.0); 4];
+    for (i, line) in lines.iter_mut().enumerate() {
+        *line = fit_side(&pts, rough[i], rough[(i + 1) % 4], centroid).ok_or_else(|| {
+            CalibrationError::Invalid(format!("side {i} of the tape outline is too short to fit"))
+        })?;
+    }
+    let mut corners = [[0.0; 2]; 4];
+    for (i, corner) in corners.iter_mut().enumerate() {
+        *corner = intersect(lines[(i + 3) % 4], lines[i])
+            .ok_or_else(|| CalibrationError::Invalid("two tape sides are parallel".into()))?;
+    }
+    Ok(order_image_corners(corners))
+}
+
+/// The largest outer contour of the tape-coloured pixels.
+fn largest_tape_contour(
+    bgr: &Mat,
+    tape: HsvRange,
+) -> Result<Vector<opencv::core::Point>, CalibrationError> {
     use opencv::imgproc;
     let mut hsv = Mat::default();
     imgproc::cvt_color(bgr, &mut hsv, imgproc::COLOR_BGR2HSV, 0)?;
     let mut mask = Mat::default();
-    let lo = opencv::core::Scalar::new(
-        f64::from(tape.hsv_min[0]),
-        f64::from(tape.hsv_min[1]),
-        f64::from(tape.hsv_min[2]),
-        0.0,
-    );
-    let hi = opencv::core::Scalar::new(
-        f64::from(tape.hsv_max[0]),
-        f64::from(tape.hsv_max[1]),
-        f64::from(tape.hsv_max[2]),
-        0.0,
-    );
-    opencv::core::in_range(&hsv, &lo, &hi, &mut mask)?;
+    let scalar = |v: [u8; 3]| {
+        opencv::core::Scalar::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]), 0.0)
+    };
+    opencv::core::in_range(
+        &hsv,
+        &scalar(tape.hsv_min),
+        &scalar(tape.hsv_max),
+        &mut mask,
+    )?;
     let mut contours: Vector<Vector<opencv::core::Point>> = Vector::new();
     imgproc::find_contours(
         &mask,
@@ -404,9 +465,15 @@ pub fn find_workspace_corners(
             "the largest tape-coloured region covers only {area:.0} px²: is the taped rectangle in view?"
         )));
     }
-    // The convex hull bridges stretches of tape hidden behind objects standing in front.
+    Ok(contour)
+}
+
+/// The contour's convex hull (which bridges stretches of tape hidden behind objects
+/// standing in front) simplified to a 4-gon by `approxPolyDP`.
+fn rough_quad(contour: &Vector<opencv::core::Point>) -> Result<Vec<[f64; 2]>, CalibrationError> {
+    use opencv::imgproc;
     let mut hull: Vector<opencv::core::Point> = Vector::new();
-    imgproc::convex_hull(&contour, &mut hull, false, true)?;
+    imgproc::convex_hull(contour, &mut hull, false, true)?;
     let mut approx: Vector<opencv::core::Point> = Vector::new();
     let perimeter = imgproc::arc_length(&hull, true)?;
     imgproc::approx_poly_dp(&hull, &mut approx, 0.02 * perimeter, true)?;
@@ -416,63 +483,54 @@ pub fn find_workspace_corners(
             approx.len()
         )));
     }
-    let rough: Vec<[f64; 2]> = approx
+    Ok(approx
         .iter()
         .map(|p| [f64::from(p.x), f64::from(p.y)])
-        .collect();
-    let centroid = [
-        rough.iter().map(|p| p[0]).sum::<f64>() / 4.0,
-        rough.iter().map(|p| p[1]).sum::<f64>() / 4.0,
-    ];
-    let pts: Vec<[f64; 2]> = contour
+        .collect())
+}
+
+/// The side from rough corner `a` to `b` refined by a line through the contour points near
+/// its middle 80 %, as (normal n, offset d) with n·p = d, n pointing away from the centroid
+/// and moved out by half a pixel; `None` when fewer than 10 points support it.
+fn fit_side(
+    pts: &[[f64; 2]],
+    a: [f64; 2],
+    b: [f64; 2],
+    centroid: [f64; 2],
+) -> Option<([f64; 2], f64)> {
+    let len = ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt();
+    let dir = [(b[0] - a[0]) / len, (b[1] - a[1]) / len];
+    let nrm = [-dir[1], dir[0]];
+    let near: Vec<[f64; 2]> = pts
         .iter()
-        .map(|p| [f64::from(p.x), f64::from(p.y)])
+        .copied()
+        .filter(|p| {
+            let s = (p[0] - a[0]) * dir[0] + (p[1] - a[1]) * dir[1];
+            let dist = ((p[0] - a[0]) * nrm[0] + (p[1] - a[1]) * nrm[1]).abs();
+            s > 0.1 * len && s < 0.9 * len && dist < 4.0
+        })
         .collect();
-    // Lines as (normal n, offset d) with n·p = d, n pointing away from the centroid.
-    let mut lines = Vec::with_capacity(4);
-    for i in 0..4 {
-        let a = rough[i];
-        let b = rough[(i + 1) % 4];
-        let len = ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt();
-        let dir = [(b[0] - a[0]) / len, (b[1] - a[1]) / len];
-        let nrm = [-dir[1], dir[0]];
-        let near: Vec<[f64; 2]> = pts
-            .iter()
-            .copied()
-            .filter(|p| {
-                let s = (p[0] - a[0]) * dir[0] + (p[1] - a[1]) * dir[1];
-                let dist = ((p[0] - a[0]) * nrm[0] + (p[1] - a[1]) * nrm[1]).abs();
-                s > 0.1 * len && s < 0.9 * len && dist < 4.0
-            })
-            .collect();
-        if near.len() < 10 {
-            return Err(CalibrationError::Invalid(format!(
-                "side {i} of the tape outline is too short to fit"
-            )));
-        }
-        let (mut n, mut d) = fit_line(&near);
-        if n[0] * centroid[0] + n[1] * centroid[1] > d {
-            n = [-n[0], -n[1]];
-            d = -d;
-        }
-        lines.push((n, d + 0.5));
+    if near.len() < 10 {
+        return None;
     }
-    let mut corners = [[0.0; 2]; 4];
-    for (i, corner) in corners.iter_mut().enumerate() {
-        let (n1, d1) = lines[(i + 3) % 4];
-        let (n2, d2) = lines[i];
-        let det = n1[0] * n2[1] - n1[1] * n2[0];
-        if det.abs() < 1e-9 {
-            return Err(CalibrationError::Invalid(
-                "two tape sides are parallel".into(),
-            ));
-        }
-        *corner = [
-            (d1 * n2[1] - d2 * n1[1]) / det,
-            (n1[0] * d2 - n2[0] * d1) / det,
-        ];
+    let (mut n, mut d) = fit_line(&near);
+    if n[0] * centroid[0] + n[1] * centroid[1] > d {
+        n = [-n[0], -n[1]];
+        d = -d;
     }
-    Ok(order_image_corners(corners))
+    Some((n, d + 0.5))
+}
+
+/// The intersection of two lines n·p = d; `None` when they are parallel.
+fn intersect((n1, d1): ([f64; 2], f64), (n2, d2): ([f64; 2], f64)) -> Option<[f64; 2]> {
+    let det = n1[0] * n2[1] - n1[1] * n2[0];
+    if det.abs() < 1e-9 {
+        return None;
+    }
+    Some([
+        (d1 * n2[1] - d2 * n1[1]) / det,
+        (n1[0] * d2 - n2[0] * d1) / det,
+    ])
 }
 
 /// Total-least-squares line through points: unit normal `n` and offset `d` with `n·p = d`.

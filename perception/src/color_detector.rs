@@ -74,7 +74,47 @@ impl Default for ColourDetectorConfig {
     }
 }
 
-/// Why a detector configuration was rejected.
+/// Why [`ColourDetectorConfig::validate`] rejected a configuration; each message names the
+/// field.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ColourDetectorConfigError {
+    /// `classes` is empty.
+    #[error("at least one [[class]] is needed")]
+    NoClasses,
+    /// `min_area_px` is 0.
+    #[error("min_area_px must be > 0")]
+    MinArea,
+    /// `depth_edge_m` is not a positive number.
+    #[error("depth_edge_m = {0} must be > 0")]
+    DepthEdge(f32),
+    /// `max_object_height_m` is not a positive number.
+    #[error("max_object_height_m = {0} must be > 0")]
+    MaxObjectHeight(f64),
+    /// A class's hue bound exceeds OpenCV's 0..=180.
+    #[error(
+        "class {class:?}: hue is 0..=180 in OpenCV's scale (hsv_min {hsv_min:?}, hsv_max {hsv_max:?})"
+    )]
+    Hue {
+        /// The class's name.
+        class: String,
+        /// Its lower bound.
+        hsv_min: [u8; 3],
+        /// Its upper bound.
+        hsv_max: [u8; 3],
+    },
+    /// A class's lower bound exceeds its upper bound.
+    #[error("class {class:?}: hsv_min {hsv_min:?} exceeds hsv_max {hsv_max:?}")]
+    Range {
+        /// The class's name.
+        class: String,
+        /// Its lower bound.
+        hsv_min: [u8; 3],
+        /// Its upper bound.
+        hsv_max: [u8; 3],
+    },
+}
+
+/// Why a detector configuration file was rejected.
 #[derive(Debug, thiserror::Error)]
 pub enum DetectorConfigError {
     /// The file could not be read.
@@ -85,13 +125,21 @@ pub enum DetectorConfigError {
         /// The OS error.
         source: std::io::Error,
     },
-    /// Malformed TOML or bad values.
+    /// Malformed TOML.
     #[error("invalid detector config {path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// What the parser said.
+        message: String,
+    },
+    /// Bad values.
+    #[error("invalid detector config {path}: {source}")]
     Invalid {
         /// The file.
         path: PathBuf,
-        /// What was wrong.
-        message: String,
+        /// The first bad value.
+        source: ColourDetectorConfigError,
     },
 }
 
@@ -99,35 +147,37 @@ impl ColourDetectorConfig {
     /// Checks the values.
     ///
     /// # Errors
-    /// A message naming the first bad value.
-    pub fn validate(&self) -> Result<(), String> {
+    /// [`ColourDetectorConfigError`] naming the first bad value.
+    pub fn validate(&self) -> Result<(), ColourDetectorConfigError> {
         if self.classes.is_empty() {
-            return Err("at least one [[class]] is needed".into());
+            return Err(ColourDetectorConfigError::NoClasses);
         }
         if self.min_area_px == 0 {
-            return Err("min_area_px must be > 0".into());
+            return Err(ColourDetectorConfigError::MinArea);
         }
         if !(self.depth_edge_m.is_finite() && self.depth_edge_m > 0.0) {
-            return Err(format!("depth_edge_m = {} must be > 0", self.depth_edge_m));
+            return Err(ColourDetectorConfigError::DepthEdge(self.depth_edge_m));
         }
         if !(self.max_object_height_m.is_finite() && self.max_object_height_m > 0.0) {
-            return Err(format!(
-                "max_object_height_m = {} must be > 0",
-                self.max_object_height_m
+            return Err(ColourDetectorConfigError::MaxObjectHeight(
+                self.max_object_height_m,
             ));
         }
         for c in &self.classes {
-            if c.hsv_min[0] > 180 || c.hsv_max[0] > 180 {
-                return Err(format!(
-                    "class {:?}: hue is 0..=180 in OpenCV's scale",
-                    c.name
-                ));
+            let (class, hsv_min, hsv_max) = (c.name.clone(), c.hsv_min, c.hsv_max);
+            if hsv_min[0] > 180 || hsv_max[0] > 180 {
+                return Err(ColourDetectorConfigError::Hue {
+                    class,
+                    hsv_min,
+                    hsv_max,
+                });
             }
-            if (0..3).any(|i| c.hsv_min[i] > c.hsv_max[i]) {
-                return Err(format!(
-                    "class {:?}: hsv_min {:?} exceeds hsv_max {:?}",
-                    c.name, c.hsv_min, c.hsv_max
-                ));
+            if (0..3).any(|i| hsv_min[i] > hsv_max[i]) {
+                return Err(ColourDetectorConfigError::Range {
+                    class,
+                    hsv_min,
+                    hsv_max,
+                });
             }
         }
         Ok(())
@@ -142,12 +192,15 @@ impl ColourDetectorConfig {
             path: path.to_path_buf(),
             source,
         })?;
-        let invalid = |message: String| DetectorConfigError::Invalid {
+        let c: Self = toml::from_str(&text).map_err(|e| DetectorConfigError::Parse {
             path: path.to_path_buf(),
-            message,
-        };
-        let c: Self = toml::from_str(&text).map_err(|e| invalid(e.to_string()))?;
-        c.validate().map_err(invalid)?;
+            message: e.to_string(),
+        })?;
+        c.validate()
+            .map_err(|source| DetectorConfigError::Invalid {
+                path: path.to_path_buf(),
+                source,
+            })?;
         Ok(c)
     }
 }
@@ -179,8 +232,8 @@ impl ColourDetector {
     /// A detector with a validated configuration.
     ///
     /// # Errors
-    /// The validation message.
-    pub fn new(config: ColourDetectorConfig) -> Result<Self, String> {
+    /// [`ColourDetectorConfigError`] naming the first bad value.
+    pub fn new(config: ColourDetectorConfig) -> Result<Self, ColourDetectorConfigError> {
         config.validate()?;
         Ok(Self {
             config,

@@ -27,17 +27,48 @@ pub struct Intrinsics {
     pub height_px: u32,
 }
 
+/// Why [`Intrinsics::validate`] rejected a camera; each message names the field.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum IntrinsicsValidateError {
+    /// `fx_px` or `fy_px` is not a finite focal length above 1 px.
+    #[error("intrinsics.{field} = {value} must be a finite focal length > 1 px")]
+    FocalLength {
+        /// `"fx_px"` or `"fy_px"`.
+        field: &'static str,
+        /// The value given.
+        value: f64,
+    },
+    /// `width_px` or `height_px` is outside 16..16384.
+    #[error("intrinsics image size {width_px}x{height_px} must be within 16..16384 px")]
+    ImageSize {
+        /// The width given.
+        width_px: u32,
+        /// The height given.
+        height_px: u32,
+    },
+    /// `cx_px` or `cy_px` lies outside the image.
+    #[error("intrinsics.{field} = {value} must lie inside the image {extent} {limit_px}")]
+    PrincipalPoint {
+        /// `"cx_px"` or `"cy_px"`.
+        field: &'static str,
+        /// The value given.
+        value: f64,
+        /// `"width"` or `"height"`.
+        extent: &'static str,
+        /// The image width or height (px).
+        limit_px: f64,
+    },
+}
+
 impl Intrinsics {
     /// Checks that the numbers describe a usable camera.
     ///
     /// # Errors
-    /// A message naming the first bad value.
-    pub fn validate(&self) -> Result<(), String> {
-        for (name, v) in [("fx_px", self.fx_px), ("fy_px", self.fy_px)] {
-            if !(v.is_finite() && v > 1.0) {
-                return Err(format!(
-                    "intrinsics.{name} = {v} must be a finite focal length > 1 px"
-                ));
+    /// [`IntrinsicsValidateError`] naming the first bad value.
+    pub fn validate(&self) -> Result<(), IntrinsicsValidateError> {
+        for (field, value) in [("fx_px", self.fx_px), ("fy_px", self.fy_px)] {
+            if !(value.is_finite() && value > 1.0) {
+                return Err(IntrinsicsValidateError::FocalLength { field, value });
             }
         }
         if self.width_px < 16
@@ -45,23 +76,24 @@ impl Intrinsics {
             || self.width_px > 16384
             || self.height_px > 16384
         {
-            return Err(format!(
-                "intrinsics image size {}x{} must be within 16..16384 px",
-                self.width_px, self.height_px
-            ));
+            return Err(IntrinsicsValidateError::ImageSize {
+                width_px: self.width_px,
+                height_px: self.height_px,
+            });
         }
         let (w, h) = (f64::from(self.width_px), f64::from(self.height_px));
-        if !(self.cx_px.is_finite() && self.cx_px > 0.0 && self.cx_px < w) {
-            return Err(format!(
-                "intrinsics.cx_px = {} must lie inside the image width {w}",
-                self.cx_px
-            ));
-        }
-        if !(self.cy_px.is_finite() && self.cy_px > 0.0 && self.cy_px < h) {
-            return Err(format!(
-                "intrinsics.cy_px = {} must lie inside the image height {h}",
-                self.cy_px
-            ));
+        for (field, value, extent, limit_px) in [
+            ("cx_px", self.cx_px, "width", w),
+            ("cy_px", self.cy_px, "height", h),
+        ] {
+            if !(value.is_finite() && value > 0.0 && value < limit_px) {
+                return Err(IntrinsicsValidateError::PrincipalPoint {
+                    field,
+                    value,
+                    extent,
+                    limit_px,
+                });
+            }
         }
         Ok(())
     }
@@ -83,20 +115,31 @@ pub struct CameraPose {
     pub translation_m: Vector3<f64>,
 }
 
+/// Why [`CameraPose::look_at`] found no pose.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error(
+    "cannot look from eye_m = {eye_m:?} at target_m = {target_m:?}: degenerate or vertical view"
+)]
+pub struct CameraPoseLookAtError {
+    /// The camera centre given (m).
+    pub eye_m: [f64; 3],
+    /// The target given (m).
+    pub target_m: [f64; 3],
+}
+
 impl CameraPose {
     /// A camera at `eye_m` looking at `target_m`, image "up" towards world +z.
     ///
     /// # Errors
-    /// When the eye and target coincide or the view direction is vertical.
-    pub fn look_at(eye_m: [f64; 3], target_m: [f64; 3]) -> Result<Self, String> {
+    /// [`CameraPoseLookAtError`] when the eye and target coincide or the view direction is
+    /// vertical.
+    pub fn look_at(eye_m: [f64; 3], target_m: [f64; 3]) -> Result<Self, CameraPoseLookAtError> {
         let eye = Vector3::from(eye_m);
         let forward = Vector3::from(target_m) - eye;
         let up = Vector3::z();
         let right = forward.cross(&up);
         if forward.norm() < 1e-6 || right.norm() < 1e-6 * forward.norm() {
-            return Err(format!(
-                "cannot look from {eye_m:?} at {target_m:?}: degenerate or vertical view"
-            ));
+            return Err(CameraPoseLookAtError { eye_m, target_m });
         }
         let f = forward.normalize();
         let r = right.normalize();
@@ -216,9 +259,14 @@ mod tests {
         let mut k = model().intrinsics;
         assert!(k.validate().is_ok());
         k.cx_px = 2000.0;
-        assert!(k.validate().unwrap_err().contains("cx_px"));
+        assert!(k.validate().unwrap_err().to_string().contains("cx_px"));
         k.cx_px = 640.0;
         k.fx_px = f64::NAN;
-        assert!(k.validate().unwrap_err().contains("fx_px"));
+        let e = k.validate().unwrap_err();
+        assert!(matches!(
+            e,
+            IntrinsicsValidateError::FocalLength { field: "fx_px", .. }
+        ));
+        assert!(e.to_string().contains("fx_px"), "{e}");
     }
 }

@@ -1,10 +1,32 @@
 //! Foresight's perception: camera frames to goal and obstacle positions in the twin's frame,
 //! published over iceoryx2 as `DetectionFrame`s.
 //!
-//! - [`synthetic`]: a synthetic camera rendering scene files (colour, depth, exact ground truth);
-//! - [`calibration`]: the taped workspace rectangle → homography and camera pose;
-//! - [`color_detector`]: per-class HSV thresholds + depth → boxes in the twin's frame;
-//! - [`measure`]: a blob of pixels with depth → position, footprint and height.
+//! ```text
+//! source → Frame (BGR + depth m) → detector (colour | YOLOv8) → measure → tracker → publisher
+//! ```
+//!
+//! Where to start reading: [`pipeline`] (one frame end to end, and the paced loop of
+//! `perception run`), then [`color_detector`] and [`calibration`]. The binary
+//! (`src/main.rs`, one file per subcommand under `src/cli/`) only parses arguments and wires
+//! these modules together.
+//!
+//! - Frames in: [`frame`] (the [`frame::Frame`] type, image and depth file I/O); [`source`]
+//!   (synthetic, file and ROS 2 sources behind [`source::FrameSource`]); [`ros2_source`]
+//!   (`sensor_msgs` topics, ZED wrapper names by default); [`synthetic`] (a ray-cast camera
+//!   rendering scene files with exact depth and ground truth).
+//! - Geometry: [`geometry`] (intrinsics, camera pose, project / unproject); [`workspace`]
+//!   (the taped rectangle on the table); [`calibration`] (that rectangle → homography and
+//!   camera pose, TOML save/load).
+//! - Detection: [`color_detector`] (per-class HSV thresholds + depth); [`runs`] (run-based
+//!   connected components); [`measure`] (a blob with depth → position, footprint, height);
+//!   [`yolo`] and [`onnx_patch`] (YOLOv8 ONNX through OpenCV 4.6 DNN); [`detection`] (the
+//!   [`detection::Detection`] every detector returns).
+//! - Out: [`tracker`] (stable ids, debouncing); [`publisher`] (`DetectionFrame`s over
+//!   iceoryx2); [`annotate`] (detections drawn on the image).
+//!
+//! Errors are typed per operation (`thiserror` enums such as
+//! [`tracker::TrackerConfigError`] or [`calibration::CalibrationError`]), each message
+//! naming the offending field or file; `anyhow` appears only in the binary.
 //!
 //! ```no_run
 //! use perception::{calibration::Calibration, color_detector::*, frame::Frame, synthetic::SyntheticCamera};

@@ -20,6 +20,8 @@
 //!
 //! A model needing neither rewrite is passed through untouched.
 
+use std::collections::HashMap;
+
 /// Why a model could not be read or patched.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum OnnxPatchError {
@@ -293,82 +295,102 @@ fn renamed_tensor(raw: &[u8], name: &str) -> Result<Vec<u8>, OnnxPatchError> {
     Ok(out)
 }
 
-/// Applies the rewrite described in the module docs.
-///
-/// # Errors
-/// [`OnnxPatchError`] for bytes that are not an ONNX model, or a strides constant stored
-/// in a type other than float32.
-pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
-    let fields = parse(model)?;
-    let graph_field = fields
-        .iter()
-        .find(|f| f.num == 7)
-        .ok_or(OnnxPatchError::NoGraph)?;
-    let graph = bytes_of(graph_field).ok_or(OnnxPatchError::NoGraph)?;
-    let gfields = parse(graph)?;
-    let mut constants: std::collections::HashMap<String, Tensor> = std::collections::HashMap::new();
-    let mut initializer_bytes: std::collections::HashMap<String, &[u8]> =
-        std::collections::HashMap::new();
-    let mut nodes = Vec::new();
-    let mut graph_outputs = Vec::new();
-    for f in &gfields {
+/// The parts of a `GraphProto` the rewrites look at.
+struct Graph<'a> {
+    /// All fields, in order (rebuilding copies the untouched ones verbatim).
+    fields: Vec<Field<'a>>,
+    /// The nodes, in order.
+    nodes: Vec<Node<'a>>,
+    /// Initializers and `Constant` node outputs, by name.
+    constants: HashMap<String, Tensor>,
+    /// Serialized initializers, by name.
+    initializer_bytes: HashMap<String, &'a [u8]>,
+    /// Names of the graph outputs.
+    outputs: Vec<String>,
+}
+
+fn parse_graph(graph: &[u8]) -> Result<Graph<'_>, OnnxPatchError> {
+    let mut g = Graph {
+        fields: parse(graph)?,
+        nodes: Vec::new(),
+        constants: HashMap::new(),
+        initializer_bytes: HashMap::new(),
+        outputs: Vec::new(),
+    };
+    for f in &g.fields {
         match f.num {
-            1 => nodes.push(parse_node(
+            1 => g.nodes.push(parse_node(
                 bytes_of(f).ok_or(OnnxPatchError::Malformed("node is not a message"))?,
             )?),
             5 => {
                 let raw =
                     bytes_of(f).ok_or(OnnxPatchError::Malformed("initializer is not a message"))?;
                 let (name, t) = parse_tensor(raw)?;
-                initializer_bytes.insert(name.clone(), raw);
-                constants.insert(name, t);
+                g.initializer_bytes.insert(name.clone(), raw);
+                g.constants.insert(name, t);
             }
             12 => {
                 // ValueInfoProto: name = 1
                 if let Some(b) = bytes_of(f)
                     && let Some(nf) = parse(b)?.iter().find(|x| x.num == 1)
                 {
-                    graph_outputs.push(string_of(nf));
+                    g.outputs.push(string_of(nf));
                 }
             }
             _ => {}
         }
     }
-    for n in &mut nodes {
+    for n in &mut g.nodes {
         if n.op_type == "Constant"
             && let (Some(t), Some(o)) = (n.constant.take(), n.outputs.first())
         {
-            constants.insert(o.clone(), t);
+            g.constants.insert(o.clone(), t);
         }
     }
-    let mut replace: Vec<(usize, Vec<u8>)> = Vec::new();
-    let mut box_scale = None;
-    let mut rewritten = Vec::new();
-    for (i, n) in nodes.iter().enumerate() {
-        if n.op_type != "Mul" || n.inputs.len() != 2 || n.outputs.len() != 1 {
-            continue;
-        }
-        let Some(ci) = (0..2).find(|&k| {
-            constants
-                .get(&n.inputs[k])
-                .is_some_and(|t| t.dims.len() == 2 && t.dims[0] == 1 && t.dims[1] > 1)
-        }) else {
+    Ok(g)
+}
+
+/// The strides `Mul`s turned into `Identity`s.
+#[derive(Default)]
+struct StrideRewrite {
+    /// Node index → its replacement `NodeProto` bytes.
+    replace: Vec<(usize, Vec<u8>)>,
+    /// The strides the decoder applies instead.
+    box_scale: Option<Vec<f32>>,
+    /// Names of the rewritten nodes.
+    rewritten: Vec<String>,
+}
+
+/// Index of the `[1, N]` (`N > 1`) constant input of node `n` whose other input is not a
+/// constant, when `n` is a two-input `Mul` feeding the `Concat` of a graph output.
+fn stride_mul_constant(g: &Graph<'_>, n: &Node<'_>) -> Option<usize> {
+    if n.op_type != "Mul" || n.inputs.len() != 2 || n.outputs.len() != 1 {
+        return None;
+    }
+    let ci = (0..2).find(|&k| {
+        g.constants
+            .get(&n.inputs[k])
+            .is_some_and(|t| t.dims.len() == 2 && t.dims[0] == 1 && t.dims[1] > 1)
+    })?;
+    if g.constants.contains_key(&n.inputs[1 - ci]) {
+        return None;
+    }
+    let out = &n.outputs[0];
+    let feeds_output_concat = g.nodes.iter().any(|c| {
+        c.op_type == "Concat"
+            && c.inputs.first() == Some(out)
+            && c.outputs.iter().any(|o| g.outputs.contains(o))
+    });
+    feeds_output_concat.then_some(ci)
+}
+
+fn rewrite_stride_muls(g: &Graph<'_>) -> Result<StrideRewrite, OnnxPatchError> {
+    let mut r = StrideRewrite::default();
+    for (i, n) in g.nodes.iter().enumerate() {
+        let Some(ci) = stride_mul_constant(g, n) else {
             continue;
         };
-        let var = &n.inputs[1 - ci];
-        if constants.contains_key(var) {
-            continue;
-        }
-        let out = &n.outputs[0];
-        let feeds_output_concat = nodes.iter().any(|c| {
-            c.op_type == "Concat"
-                && c.inputs.first() == Some(out)
-                && c.outputs.iter().any(|o| graph_outputs.contains(o))
-        });
-        if !feeds_output_concat {
-            continue;
-        }
-        let t = &constants[&n.inputs[ci]];
+        let t = &g.constants[&n.inputs[ci]];
         let floats = t
             .floats
             .clone()
@@ -379,38 +401,46 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
                     n.inputs[ci], t.data_type
                 ))
             })?;
-        replace.push((i, identity_node(n, var)?));
-        rewritten.push(if n.name.is_empty() {
-            out.clone()
+        r.replace.push((i, identity_node(n, &n.inputs[1 - ci])?));
+        r.rewritten.push(if n.name.is_empty() {
+            n.outputs[0].clone()
         } else {
             n.name.clone()
         });
-        box_scale = Some(floats);
+        r.box_scale = Some(floats);
     }
-    let mut dropped: Vec<usize> = Vec::new();
-    let mut new_initializers: Vec<Vec<u8>> = Vec::new();
-    for (i, n) in nodes.iter().enumerate() {
+    Ok(r)
+}
+
+/// `Identity` nodes of initializers: their indices, and the initializers that replace
+/// them (copies under the outputs' names).
+fn fold_identity_initializers(g: &Graph<'_>) -> Result<(Vec<usize>, Vec<Vec<u8>>), OnnxPatchError> {
+    let mut dropped = Vec::new();
+    let mut new_initializers = Vec::new();
+    for (i, n) in g.nodes.iter().enumerate() {
         if n.op_type == "Identity"
             && n.inputs.len() == 1
             && n.outputs.len() == 1
-            && let Some(raw) = initializer_bytes.get(&n.inputs[0])
+            && let Some(raw) = g.initializer_bytes.get(&n.inputs[0])
         {
             new_initializers.push(renamed_tensor(raw, &n.outputs[0])?);
             dropped.push(i);
         }
     }
-    let folded_identities = dropped.len();
-    if replace.is_empty() && dropped.is_empty() {
-        return Ok(PatchedModel {
-            onnx: model.to_vec(),
-            box_scale: None,
-            rewritten_nodes: rewritten,
-            folded_identities,
-        });
-    }
-    let mut new_graph = Vec::with_capacity(graph.len());
+    Ok((dropped, new_initializers))
+}
+
+/// The graph with nodes replaced or dropped and initializers appended.
+fn rebuild_graph(
+    g: &Graph<'_>,
+    size_hint: usize,
+    replace: &[(usize, Vec<u8>)],
+    dropped: &[usize],
+    new_initializers: &[Vec<u8>],
+) -> Vec<u8> {
+    let mut new_graph = Vec::with_capacity(size_hint);
     let mut node_idx = 0;
-    for f in &gfields {
+    for f in &g.fields {
         if f.num == 1 {
             if dropped.contains(&node_idx) {
                 // folded into an initializer below
@@ -424,9 +454,43 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
             new_graph.extend_from_slice(f.raw);
         }
     }
-    for t in &new_initializers {
+    for t in new_initializers {
         write_bytes_field(&mut new_graph, 5, t);
     }
+    new_graph
+}
+
+/// Applies the rewrite described in the module docs.
+///
+/// # Errors
+/// [`OnnxPatchError`] for bytes that are not an ONNX model, or a strides constant stored
+/// in a type other than float32.
+pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
+    let fields = parse(model)?;
+    let graph_field = fields
+        .iter()
+        .find(|f| f.num == 7)
+        .ok_or(OnnxPatchError::NoGraph)?;
+    let graph = bytes_of(graph_field).ok_or(OnnxPatchError::NoGraph)?;
+    let g = parse_graph(graph)?;
+    let strides = rewrite_stride_muls(&g)?;
+    let (dropped, new_initializers) = fold_identity_initializers(&g)?;
+    let folded_identities = dropped.len();
+    if strides.replace.is_empty() && dropped.is_empty() {
+        return Ok(PatchedModel {
+            onnx: model.to_vec(),
+            box_scale: None,
+            rewritten_nodes: strides.rewritten,
+            folded_identities,
+        });
+    }
+    let new_graph = rebuild_graph(
+        &g,
+        graph.len(),
+        &strides.replace,
+        &dropped,
+        &new_initializers,
+    );
     let mut new_model = Vec::with_capacity(model.len());
     for f in &fields {
         if f.num == 7 {
@@ -437,8 +501,8 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
     }
     Ok(PatchedModel {
         onnx: new_model,
-        box_scale,
-        rewritten_nodes: rewritten,
+        box_scale: strides.box_scale,
+        rewritten_nodes: strides.rewritten,
         folded_identities,
     })
 }

@@ -240,7 +240,8 @@ pub fn colour_from_msg(msg: &Image) -> Result<Mat, FrameError> {
             )));
         }
     };
-    let m = image_mat(msg, channels, 1, cv_type).map_err(FrameError::BadColour)?;
+    let m =
+        image_mat(msg, channels, 1, cv_type).map_err(|e| FrameError::BadColour(e.to_string()))?;
     match code {
         None => Ok(m),
         Some(c) => {
@@ -257,9 +258,10 @@ pub fn colour_from_msg(msg: &Image) -> Result<Mat, FrameError> {
 /// [`FrameError::BadDepth`].
 pub fn depth_from_msg(msg: &Image) -> Result<Mat, FrameError> {
     match msg.encoding.as_str() {
-        "32FC1" => image_mat(msg, 1, 4, CV_32FC1).map_err(FrameError::BadDepth),
+        "32FC1" => image_mat(msg, 1, 4, CV_32FC1).map_err(|e| FrameError::BadDepth(e.to_string())),
         "16UC1" | "mono16" => {
-            let m = image_mat(msg, 1, 2, CV_16UC1).map_err(FrameError::BadDepth)?;
+            let m =
+                image_mat(msg, 1, 2, CV_16UC1).map_err(|e| FrameError::BadDepth(e.to_string()))?;
             let mut out = Mat::default();
             m.convert_to(&mut out, CV_32FC1, 1e-3, 0.0)?;
             for d in out.data_typed_mut::<f32>()?.iter_mut() {
@@ -275,31 +277,86 @@ pub fn depth_from_msg(msg: &Image) -> Result<Mat, FrameError> {
     }
 }
 
-fn image_mat(msg: &Image, channels: usize, bytes_per: usize, cv_type: i32) -> Result<Mat, String> {
+/// Why a `sensor_msgs/Image` could not be copied into a `Mat`; each message names the field.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageMsgConvertError {
+    /// `is_bigendian` is set on a multi-byte encoding.
+    #[error("is_bigendian = {is_bigendian}: big-endian {encoding} images are not supported")]
+    BigEndian {
+        /// The flag as received.
+        is_bigendian: u8,
+        /// The encoding.
+        encoding: String,
+    },
+    /// `width` or `height` is 0.
+    #[error("empty image (0 rows or columns): width = {width}, height = {height}")]
+    Empty {
+        /// Columns.
+        width: u32,
+        /// Rows.
+        height: u32,
+    },
+    /// `step` is shorter than a row or `data` shorter than the image.
+    #[error(
+        "{width}x{height} {encoding} image needs {row_bytes} bytes per row, got step {step} and {data_len} bytes"
+    )]
+    TooShort {
+        /// Columns.
+        width: u32,
+        /// Rows.
+        height: u32,
+        /// The encoding.
+        encoding: String,
+        /// Bytes one row needs.
+        row_bytes: usize,
+        /// `step` as received.
+        step: u32,
+        /// `data.len()` as received.
+        data_len: usize,
+    },
+    /// OpenCV could not allocate or expose the `Mat`.
+    #[error("OpenCV: {}", .0.message)]
+    OpenCv(#[from] opencv::Error),
+}
+
+fn image_mat(
+    msg: &Image,
+    channels: usize,
+    bytes_per: usize,
+    cv_type: i32,
+) -> Result<Mat, ImageMsgConvertError> {
     if msg.is_bigendian != 0 && bytes_per > 1 {
-        return Err("big-endian images are not supported".into());
+        return Err(ImageMsgConvertError::BigEndian {
+            is_bigendian: msg.is_bigendian,
+            encoding: msg.encoding.clone(),
+        });
     }
     let (w, h) = (msg.width as usize, msg.height as usize);
     if w == 0 || h == 0 {
-        return Err("empty image (0 rows or columns)".into());
+        return Err(ImageMsgConvertError::Empty {
+            width: msg.width,
+            height: msg.height,
+        });
     }
     let row = w * channels * bytes_per;
     let step = msg.step as usize;
     if step < row || msg.data.len() < step * (h - 1) + row {
-        return Err(format!(
-            "{w}x{h} {} image needs {row} bytes per row, got step {step} and {} bytes",
-            msg.encoding,
-            msg.data.len()
-        ));
+        return Err(ImageMsgConvertError::TooShort {
+            width: msg.width,
+            height: msg.height,
+            encoding: msg.encoding.clone(),
+            row_bytes: row,
+            step: msg.step,
+            data_len: msg.data.len(),
+        });
     }
     let mut m = Mat::new_rows_cols_with_default(
         h as i32,
         w as i32,
         cv_type,
         opencv::core::Scalar::all(0.0),
-    )
-    .map_err(|e| e.message)?;
-    let dst = m.data_bytes_mut().map_err(|e| e.message)?;
+    )?;
+    let dst = m.data_bytes_mut()?;
     for y in 0..h {
         dst[y * row..(y + 1) * row].copy_from_slice(&msg.data[y * step..y * step + row]);
     }

@@ -47,6 +47,27 @@ fn find(parent: &mut [u32], mut i: u32) -> u32 {
     i
 }
 
+/// Clears every set pixel of `row` whose right neighbour (in `row`) or lower neighbour (in
+/// `below`) is set and differs in depth by more than `cut.edge_m`. `drow` is the index in
+/// `cut.depth_m` of the row's first pixel.
+fn cut_depth_edges(row: &mut [u8], below: Option<&[u8]>, drow: usize, cut: &DepthCut<'_>) {
+    let width = row.len();
+    for x in 0..width {
+        if row[x] == 0 {
+            continue;
+        }
+        let d = cut.depth_m[drow + x];
+        let right =
+            x + 1 < width && row[x + 1] != 0 && (cut.depth_m[drow + x + 1] - d).abs() > cut.edge_m;
+        let down = below.is_some_and(|b| {
+            b[x] != 0 && (cut.depth_m[drow + cut.width_px + x] - d).abs() > cut.edge_m
+        });
+        if right || down {
+            row[x] = 0;
+        }
+    }
+}
+
 impl RunLabeller {
     /// Labels `mask` (`width × height`, row-major, non-zero = set) whose top-left pixel is
     /// image pixel `origin`. With `cut`, a set pixel whose right or lower set neighbour
@@ -67,71 +88,64 @@ impl RunLabeller {
             if let Some(c) = cut {
                 let drow = (y + origin.1 as usize) * c.width_px + origin.0 as usize;
                 let (row, below) = mask[y * width..].split_at_mut(width);
-                let below = if y + 1 < height {
-                    Some(&below[..width])
-                } else {
-                    None
-                };
-                let mut x = 0;
-                while x < width {
-                    if row[x] == 0 {
-                        x += 1;
-                        continue;
-                    }
-                    let d = c.depth_m[drow + x];
-                    let right = x + 1 < width
-                        && row[x + 1] != 0
-                        && (c.depth_m[drow + x + 1] - d).abs() > c.edge_m;
-                    let down = below.is_some_and(|b| {
-                        b[x] != 0 && (c.depth_m[drow + c.width_px + x] - d).abs() > c.edge_m
-                    });
-                    if right || down {
-                        row[x] = 0;
-                    }
-                    x += 1;
-                }
+                let below = (y + 1 < height).then(|| &below[..width]);
+                cut_depth_edges(row, below, drow, c);
             }
-            let row = &mask[y * width..(y + 1) * width];
             let start = self.runs.len();
-            let mut x = 0;
-            while x < width {
-                match row[x..].iter().position(|&b| b != 0) {
-                    None => break,
-                    Some(p) => {
-                        let x0 = x + p;
-                        let len = row[x0..].iter().position(|&b| b == 0).unwrap_or(width - x0);
-                        self.runs.push(Run {
-                            y: y as i32 + origin.1,
-                            x0: x0 as i32 + origin.0,
-                            x1: (x0 + len) as i32 + origin.0,
-                        });
-                        self.parent.push((self.runs.len() - 1) as u32);
-                        x = x0 + len;
-                    }
-                }
-            }
+            self.push_runs(&mask[y * width..(y + 1) * width], y, origin);
             let cur = start..self.runs.len();
-            // Union with overlapping runs of the previous row (4-connectivity).
-            let (mut i, mut j) = (prev_row.start, cur.start);
-            while i < prev_row.end && j < cur.end {
-                let (a, b) = (self.runs[i], self.runs[j]);
-                if a.x0 < b.x1 && b.x0 < a.x1 {
-                    let ra = find(&mut self.parent, i as u32);
-                    let rb = find(&mut self.parent, j as u32);
-                    if ra != rb {
-                        let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
-                        self.parent[hi as usize] = lo;
-                    }
-                }
-                if a.x1 <= b.x1 {
-                    i += 1;
-                } else {
-                    j += 1;
-                }
-            }
+            self.union_rows(prev_row, cur.clone());
             prev_row = cur;
         }
-        // Components: area, bbox, then runs grouped by component.
+        self.collect_components();
+        self.group_runs();
+        &self.components
+    }
+
+    /// Appends the runs of set pixels of mask row `y`, each its own union-find root.
+    fn push_runs(&mut self, row: &[u8], y: usize, origin: (i32, i32)) {
+        let width = row.len();
+        let mut x = 0;
+        while x < width {
+            let Some(p) = row[x..].iter().position(|&b| b != 0) else {
+                break;
+            };
+            let x0 = x + p;
+            let len = row[x0..].iter().position(|&b| b == 0).unwrap_or(width - x0);
+            self.runs.push(Run {
+                y: y as i32 + origin.1,
+                x0: x0 as i32 + origin.0,
+                x1: (x0 + len) as i32 + origin.0,
+            });
+            self.parent.push((self.runs.len() - 1) as u32);
+            x = x0 + len;
+        }
+    }
+
+    /// Unions the runs of the current row with the overlapping runs of the previous row
+    /// (4-connectivity); both ranges are sorted by column.
+    fn union_rows(&mut self, prev: std::ops::Range<usize>, cur: std::ops::Range<usize>) {
+        let (mut i, mut j) = (prev.start, cur.start);
+        while i < prev.end && j < cur.end {
+            let (a, b) = (self.runs[i], self.runs[j]);
+            if a.x0 < b.x1 && b.x0 < a.x1 {
+                let ra = find(&mut self.parent, i as u32);
+                let rb = find(&mut self.parent, j as u32);
+                if ra != rb {
+                    let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
+                    self.parent[hi as usize] = lo;
+                }
+            }
+            if a.x1 <= b.x1 {
+                i += 1;
+            } else {
+                j += 1;
+            }
+        }
+    }
+
+    /// One [`Component`] per union-find root: area, bounding box and run count.
+    fn collect_components(&mut self) {
         let n = self.runs.len();
         self.comp_of_root.clear();
         self.comp_of_root.resize(n, u32::MAX);
@@ -161,6 +175,12 @@ impl RunLabeller {
                 c.bbox_px[3] = c.bbox_px[3].max(run.y + 1);
             }
         }
+    }
+
+    /// Turns the bounding boxes into `[x, y, w, h]` and copies the runs into `sorted`,
+    /// grouped by component.
+    fn group_runs(&mut self) {
+        let n = self.runs.len();
         let mut offset = 0;
         self.fill.clear();
         for c in &mut self.components {
@@ -182,7 +202,6 @@ impl RunLabeller {
             self.sorted[self.fill[ci]] = self.runs[r];
             self.fill[ci] += 1;
         }
-        &self.components
     }
 
     /// The components found by the last [`RunLabeller::label`].

@@ -22,8 +22,10 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use shm_schemas::scene_file::SceneFile;
 
-use crate::geometry::{CameraModel, CameraPose, Intrinsics};
-use crate::workspace::WorkspaceRect;
+use crate::geometry::{
+    CameraModel, CameraPose, CameraPoseLookAtError, Intrinsics, IntrinsicsValidateError,
+};
+use crate::workspace::{WorkspaceRect, WorkspaceValidateError};
 
 /// Label of a pixel that sees nothing (sky): depth is NaN there.
 pub const LABEL_NONE: u8 = 0;
@@ -36,7 +38,30 @@ pub const LABEL_GOAL: u8 = 3;
 /// Label of obstacle `i` is `LABEL_OBSTACLE0 + i`.
 pub const LABEL_OBSTACLE0: u8 = 4;
 
-/// Why a synthetic camera description was rejected.
+/// Why [`SyntheticCamera::new`] rejected a description; each message names the field.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SyntheticCameraConfigError {
+    /// Bad `[intrinsics]`.
+    #[error(transparent)]
+    Intrinsics(#[from] IntrinsicsValidateError),
+    /// Bad `[workspace]`.
+    #[error(transparent)]
+    Workspace(#[from] WorkspaceValidateError),
+    /// `tape_width_m` is negative or not finite.
+    #[error("tape_width_m = {0} must be ≥ 0")]
+    TapeWidth(f64),
+    /// `tape_width_m` is at least half the workspace's shorter side.
+    #[error("tape_width_m = {0}: the tape is wider than half the workspace")]
+    TapeTooWide(f64),
+    /// `table_half_extent_m` is not a positive number.
+    #[error("table_half_extent_m = {0} must be > 0")]
+    TableHalfExtent(f64),
+    /// `[pose]` gives no usable view.
+    #[error(transparent)]
+    Pose(#[from] CameraPoseLookAtError),
+}
+
+/// Why a synthetic camera description file was rejected.
 #[derive(Debug, thiserror::Error)]
 pub enum SyntheticCameraLoadError {
     /// The file could not be read.
@@ -47,13 +72,21 @@ pub enum SyntheticCameraLoadError {
         /// The OS error.
         source: std::io::Error,
     },
-    /// Malformed TOML or out-of-range values.
+    /// Malformed TOML.
     #[error("invalid synthetic camera file {path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// What the parser said.
+        message: String,
+    },
+    /// Out-of-range values.
+    #[error("invalid synthetic camera file {path}: {source}")]
     Invalid {
         /// The file.
         path: PathBuf,
-        /// What was wrong.
-        message: String,
+        /// The first bad value.
+        source: SyntheticCameraConfigError,
     },
 }
 
@@ -157,23 +190,20 @@ impl SyntheticCamera {
     /// Builds a camera from its description.
     ///
     /// # Errors
-    /// A message naming the first bad value.
-    pub fn new(config: SyntheticCameraConfig) -> Result<Self, String> {
+    /// [`SyntheticCameraConfigError`] naming the first bad value.
+    pub fn new(config: SyntheticCameraConfig) -> Result<Self, SyntheticCameraConfigError> {
         config.intrinsics.validate()?;
         config.workspace.validate()?;
-        if !(config.tape_width_m.is_finite() && config.tape_width_m >= 0.0) {
-            return Err(format!(
-                "tape_width_m = {} must be ≥ 0",
-                config.tape_width_m
-            ));
+        let tape = config.tape_width_m;
+        if !(tape.is_finite() && tape >= 0.0) {
+            return Err(SyntheticCameraConfigError::TapeWidth(tape));
         }
-        if config.tape_width_m * 2.0 >= config.workspace.size_m[0].min(config.workspace.size_m[1]) {
-            return Err("the tape is wider than half the workspace".into());
+        if tape * 2.0 >= config.workspace.size_m[0].min(config.workspace.size_m[1]) {
+            return Err(SyntheticCameraConfigError::TapeTooWide(tape));
         }
         if !(config.table_half_extent_m.is_finite() && config.table_half_extent_m > 0.0) {
-            return Err(format!(
-                "table_half_extent_m = {} must be > 0",
-                config.table_half_extent_m
+            return Err(SyntheticCameraConfigError::TableHalfExtent(
+                config.table_half_extent_m,
             ));
         }
         let pose = CameraPose::look_at(config.pose.eye_m, config.pose.target_m)?;
@@ -196,13 +226,15 @@ impl SyntheticCamera {
                 path: path.to_path_buf(),
                 source,
             })?;
-        let invalid = |message: String| SyntheticCameraLoadError::Invalid {
-            path: path.to_path_buf(),
-            message,
-        };
         let config: SyntheticCameraConfig =
-            toml::from_str(&text).map_err(|e| invalid(e.to_string()))?;
-        Self::new(config).map_err(invalid)
+            toml::from_str(&text).map_err(|e| SyntheticCameraLoadError::Parse {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            })?;
+        Self::new(config).map_err(|source| SyntheticCameraLoadError::Invalid {
+            path: path.to_path_buf(),
+            source,
+        })
     }
 
     /// The workspace rectangle on the table of `scene`.
@@ -223,25 +255,15 @@ impl SyntheticCamera {
         Some(out)
     }
 
-    /// Renders `scene`.
-    pub fn render(&self, scene: &SceneFile) -> RenderedFrame {
-        let k = self.config.intrinsics;
-        let (w, h) = (k.width_px as usize, k.height_px as usize);
+    /// The goal cube and the obstacle boxes of `scene` as labelled, coloured solids.
+    fn solids(&self, scene: &SceneFile) -> Vec<Solid> {
         let pal = self.config.palette;
         let mut solids = Vec::with_capacity(1 + scene.obstacles.len());
         let g = &scene.goal;
         let half = g.size_m / 2.0;
         solids.push(Solid {
-            min: [
-                g.center_m[0] - half,
-                g.center_m[1] - half,
-                g.center_m[2] - half,
-            ],
-            max: [
-                g.center_m[0] + half,
-                g.center_m[1] + half,
-                g.center_m[2] + half,
-            ],
+            min: g.center_m.map(|c| c - half),
+            max: g.center_m.map(|c| c + half),
             label: LABEL_GOAL,
             bgr: pal.goal_bgr,
         });
@@ -260,13 +282,32 @@ impl SyntheticCamera {
                 bgr: pal.obstacle_bgr,
             });
         }
+        solids
+    }
+
+    /// The table top of `scene` with the taped rectangle on it.
+    fn table_top(&self, scene: &SceneFile) -> TableTop {
         let ws = self.workspace_for(scene);
-        let table_z = ws.table_height_m;
-        let [wx0, wy0] = ws.min_xy_m;
-        let [wx1, wy1] = [wx0 + ws.size_m[0], wy0 + ws.size_m[1]];
-        let tape = self.config.tape_width_m;
-        let centre = [(wx0 + wx1) / 2.0, (wy0 + wy1) / 2.0];
-        let table_half = self.config.table_half_extent_m;
+        let [x0, y0] = ws.min_xy_m;
+        let [x1, y1] = [x0 + ws.size_m[0], y0 + ws.size_m[1]];
+        TableTop {
+            z: ws.table_height_m,
+            workspace: [x0, y0, x1, y1],
+            tape: self.config.tape_width_m,
+            centre: [(x0 + x1) / 2.0, (y0 + y1) / 2.0],
+            half_extent: self.config.table_half_extent_m,
+            table_bgr: self.config.palette.table_bgr,
+            tape_bgr: self.config.palette.tape_bgr,
+        }
+    }
+
+    /// Renders `scene`.
+    pub fn render(&self, scene: &SceneFile) -> RenderedFrame {
+        let k = self.config.intrinsics;
+        let (w, h) = (k.width_px as usize, k.height_px as usize);
+        let solids = self.solids(scene);
+        let table = self.table_top(scene);
+        let background = self.config.palette.background_bgr;
 
         let rot_inv = self.model.pose.rotation.inverse();
         let m = rot_inv.matrix();
@@ -286,56 +327,14 @@ impl SyntheticCamera {
                 let a = (u as f64 - k.cx_px) / k.fx_px;
                 // Camera-frame direction (a, b, 1): the ray parameter equals the depth.
                 let dv = col_x * a + row_dir;
-                let d = [dv.x, dv.y, dv.z];
-                let mut best_t = f64::INFINITY;
-                let mut hit_label = LABEL_NONE;
-                let mut hit_bgr = pal.background_bgr;
-                let mut shade = 1.0;
-                if d[2] < -1e-12 {
-                    let t = (table_z - o[2]) / d[2];
-                    if t > 0.0 {
-                        let x = o[0] + t * d[0];
-                        let y = o[1] + t * d[1];
-                        if (x - centre[0]).abs() <= table_half
-                            && (y - centre[1]).abs() <= table_half
-                        {
-                            best_t = t;
-                            let inside = x >= wx0 && x <= wx1 && y >= wy0 && y <= wy1;
-                            let inner = x >= wx0 + tape
-                                && x <= wx1 - tape
-                                && y >= wy0 + tape
-                                && y <= wy1 - tape;
-                            if inside && !inner {
-                                hit_label = LABEL_TAPE;
-                                hit_bgr = pal.tape_bgr;
-                            } else {
-                                hit_label = LABEL_TABLE;
-                                hit_bgr = pal.table_bgr;
-                            }
-                        }
-                    }
-                }
-                for s in &solids {
-                    if let Some((t, axis)) = ray_box(o, d, s)
-                        && t < best_t
-                    {
-                        best_t = t;
-                        hit_label = s.label;
-                        hit_bgr = s.bgr;
-                        shade = match axis {
-                            2 => 1.0,
-                            0 => 0.78,
-                            _ => 0.62,
-                        };
-                    }
-                }
+                let hit = trace(o, [dv.x, dv.y, dv.z], &table, &solids, background);
                 let i = v * w + u;
-                label[i] = hit_label;
-                if best_t.is_finite() {
-                    depth[i] = best_t as f32;
+                label[i] = hit.label;
+                if hit.t.is_finite() {
+                    depth[i] = hit.t as f32;
                 }
                 for c in 0..3 {
-                    bgr[i * 3 + c] = (f64::from(hit_bgr[c]) * shade).round() as u8;
+                    bgr[i * 3 + c] = (f64::from(hit.bgr[c]) * hit.shade).round() as u8;
                 }
             }
         }
@@ -347,6 +346,83 @@ impl SyntheticCamera {
             label,
         }
     }
+}
+
+/// The table top: a square around the workspace centre at height `z`, with the tape along
+/// the inside of the workspace rectangle.
+struct TableTop {
+    z: f64,
+    /// `[xmin, ymin, xmax, ymax]` (m).
+    workspace: [f64; 4],
+    tape: f64,
+    centre: [f64; 2],
+    half_extent: f64,
+    table_bgr: [u8; 3],
+    tape_bgr: [u8; 3],
+}
+
+impl TableTop {
+    /// Where a ray from `o` along `d` meets the table top: distance, label and colour.
+    fn hit(&self, o: [f64; 3], d: [f64; 3]) -> Option<(f64, u8, [u8; 3])> {
+        let t = (self.z - o[2]) / d[2];
+        let (x, y) = (o[0] + t * d[0], o[1] + t * d[1]);
+        let on_table = d[2] < -1e-12
+            && t > 0.0
+            && (x - self.centre[0]).abs() <= self.half_extent
+            && (y - self.centre[1]).abs() <= self.half_extent;
+        if !on_table {
+            return None;
+        }
+        let [x0, y0, x1, y1] = self.workspace;
+        let tape = self.tape;
+        let inside = x >= x0 && x <= x1 && y >= y0 && y <= y1;
+        let inner = x >= x0 + tape && x <= x1 - tape && y >= y0 + tape && y <= y1 - tape;
+        Some(if inside && !inner {
+            (t, LABEL_TAPE, self.tape_bgr)
+        } else {
+            (t, LABEL_TABLE, self.table_bgr)
+        })
+    }
+}
+
+/// What a pixel's ray hits first.
+struct Hit {
+    /// Ray parameter (= depth); infinite for nothing.
+    t: f64,
+    label: u8,
+    bgr: [u8; 3],
+    /// Brightness of the face (top 1.0, sides darker).
+    shade: f64,
+}
+
+/// Casts the ray from `o` along `d` against the table and the solids.
+fn trace(o: [f64; 3], d: [f64; 3], table: &TableTop, solids: &[Solid], background: [u8; 3]) -> Hit {
+    let mut hit = Hit {
+        t: f64::INFINITY,
+        label: LABEL_NONE,
+        bgr: background,
+        shade: 1.0,
+    };
+    if let Some((t, label, bgr)) = table.hit(o, d) {
+        (hit.t, hit.label, hit.bgr) = (t, label, bgr);
+    }
+    for s in solids {
+        if let Some((t, axis)) = ray_box(o, d, s)
+            && t < hit.t
+        {
+            hit = Hit {
+                t,
+                label: s.label,
+                bgr: s.bgr,
+                shade: match axis {
+                    2 => 1.0,
+                    0 => 0.78,
+                    _ => 0.62,
+                },
+            };
+        }
+    }
+    hit
 }
 
 /// Slab test: entry distance and the axis of the entry face, for a ray starting outside.
@@ -477,11 +553,14 @@ mod tests {
         assert!(
             SyntheticCamera::new(c.clone())
                 .unwrap_err()
+                .to_string()
                 .contains("tape")
         );
         c.tape_width_m = 0.02;
         c.pose.target_m = c.pose.eye_m;
-        assert!(SyntheticCamera::new(c).unwrap_err().contains("degenerate"));
+        let e = SyntheticCamera::new(c).unwrap_err();
+        assert!(matches!(e, SyntheticCameraConfigError::Pose(_)), "{e:?}");
+        assert!(e.to_string().contains("degenerate"), "{e}");
         let err = SyntheticCamera::load(Path::new("/nonexistent/cam.toml")).unwrap_err();
         assert!(err.to_string().contains("cannot read"));
     }

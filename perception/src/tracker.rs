@@ -36,23 +36,42 @@ impl Default for TrackerConfig {
     }
 }
 
+/// Why [`TrackerConfig::validate`] rejected the settings; each message names the field.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TrackerConfigError {
+    /// `match_gate_m` is not a positive number.
+    #[error("match_gate_m = {0} must be > 0")]
+    MatchGate(f64),
+    /// `persist_frames` is 0.
+    #[error("persist_frames must be ≥ 1")]
+    PersistFrames,
+    /// `noise_tolerance_m` is negative or not below `jump_m`.
+    #[error("need 0 ≤ noise_tolerance_m ({noise_tolerance_m}) < jump_m ({jump_m})")]
+    NoiseVsJump {
+        /// The tolerance given (m).
+        noise_tolerance_m: f64,
+        /// The jump threshold given (m).
+        jump_m: f64,
+    },
+}
+
 impl TrackerConfig {
     /// Checks the values.
     ///
     /// # Errors
-    /// A message naming the first bad value.
-    pub fn validate(&self) -> Result<(), String> {
+    /// [`TrackerConfigError`] naming the first bad value.
+    pub fn validate(&self) -> Result<(), TrackerConfigError> {
         if !(self.match_gate_m.is_finite() && self.match_gate_m > 0.0) {
-            return Err(format!("match_gate_m = {} must be > 0", self.match_gate_m));
+            return Err(TrackerConfigError::MatchGate(self.match_gate_m));
         }
         if self.persist_frames == 0 {
-            return Err("persist_frames must be ≥ 1".into());
+            return Err(TrackerConfigError::PersistFrames);
         }
         if !(self.noise_tolerance_m >= 0.0 && self.jump_m > self.noise_tolerance_m) {
-            return Err(format!(
-                "need 0 ≤ noise_tolerance_m ({}) < jump_m ({})",
-                self.noise_tolerance_m, self.jump_m
-            ));
+            return Err(TrackerConfigError::NoiseVsJump {
+                noise_tolerance_m: self.noise_tolerance_m,
+                jump_m: self.jump_m,
+            });
         }
         Ok(())
     }
@@ -110,8 +129,8 @@ impl Tracker {
     /// A tracker with validated settings.
     ///
     /// # Errors
-    /// The validation message.
-    pub fn new(config: TrackerConfig) -> Result<Self, String> {
+    /// [`TrackerConfigError`] naming the first bad value.
+    pub fn new(config: TrackerConfig) -> Result<Self, TrackerConfigError> {
         config.validate()?;
         Ok(Self {
             config,
@@ -326,19 +345,20 @@ mod tests {
         let objs = t.objects();
         assert_eq!(objs.len(), 2, "{objs:?}");
         assert_ne!(objs[0].id, objs[1].id);
-        assert!(
+        assert_eq!(
             Tracker::new(TrackerConfig {
                 persist_frames: 0,
                 ..TrackerConfig::default()
             })
-            .is_err()
+            .unwrap_err(),
+            TrackerConfigError::PersistFrames
         );
-        assert!(
-            Tracker::new(TrackerConfig {
-                jump_m: 0.001,
-                ..TrackerConfig::default()
-            })
-            .is_err()
-        );
+        let e = Tracker::new(TrackerConfig {
+            jump_m: 0.001,
+            ..TrackerConfig::default()
+        })
+        .unwrap_err();
+        assert!(matches!(e, TrackerConfigError::NoiseVsJump { .. }), "{e:?}");
+        assert!(e.to_string().contains("jump_m"), "{e}");
     }
 }

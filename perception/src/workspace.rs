@@ -29,34 +29,39 @@ impl WorkspaceRect {
     /// Checks the numbers.
     ///
     /// # Errors
-    /// A message naming the first bad value.
-    pub fn validate(&self) -> Result<(), String> {
+    /// [`WorkspaceValidateError`] naming the first bad value.
+    pub fn validate(&self) -> Result<(), WorkspaceValidateError> {
         if self
             .min_xy_m
             .iter()
             .any(|v| !v.is_finite() || v.abs() > 3.0)
         {
-            return Err(format!(
-                "workspace.min_xy_m = {:?} must be finite and within ±3 m",
-                self.min_xy_m
-            ));
+            return Err(WorkspaceValidateError::MinXy(self.min_xy_m));
         }
         if self
             .size_m
             .iter()
             .any(|v| !(v.is_finite() && *v > 0.01 && *v < 3.0))
         {
-            return Err(format!(
-                "workspace.size_m = {:?}: each side must be in (0.01, 3) m",
-                self.size_m
-            ));
+            return Err(WorkspaceValidateError::Size(self.size_m));
         }
         if !(self.table_height_m.is_finite() && self.table_height_m.abs() < 3.0) {
-            return Err(format!(
-                "workspace.table_height_m = {} must be finite and within ±3 m",
-                self.table_height_m
-            ));
+            return Err(WorkspaceValidateError::TableHeight(self.table_height_m));
         }
         Ok(())
     }
+}
+
+/// Why [`WorkspaceRect::validate`] rejected a rectangle; each message names the field.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum WorkspaceValidateError {
+    /// `min_xy_m` is not finite or lies more than 3 m from the base.
+    #[error("workspace.min_xy_m = {0:?} must be finite and within ±3 m")]
+    MinXy([f64; 2]),
+    /// A side of `size_m` is outside (0.01, 3) m.
+    #[error("workspace.size_m = {0:?}: each side must be in (0.01, 3) m")]
+    Size([f64; 2]),
+    /// `table_height_m` is not finite or beyond ±3 m.
+    #[error("workspace.table_height_m = {0} must be finite and within ±3 m")]
+    TableHeight(f64),
 }

@@ -1,12 +1,29 @@
-//! Foresight's real-time core: the xArm5 digital twin (kinematics, geometry, the task), and,
-//! as they land, policy inference, the safety shield, smoothing, the xArm protocol and the
-//! control cycle. The `rt-core` binary wires them into threads; the learner links this
-//! library for its training environments, so training and lookahead share one task.
+//! Foresight's real-time process, `rt-core run`: two threads around a robot link.
+//!
+//! ```text
+//!  detections ──▶ twin_thread ──scene──────────▶ cycle ──servo──▶ RobotLink (xArm / sim)
+//!  policies   ──▶ (worker:      ──Box<Plan>─────▶ (control,  ◀─state──
+//!                  lookahead,   ◀─retired plans── shield,
+//!                  smoother,    ◀─CycleReport──── brake)
+//!                  node)
+//! ```
+//!
+//! - [`cycle`]: the real-time thread (control cycle, shield, brake, plan, the robot port and
+//!   its xArm adapter, the thread itself). Start reading at [`cycle::Cycle::process`].
+//! - [`twin_thread`]: the twin thread (worker, lookahead, smoother, its iceoryx2 node).
+//!   Start reading at [`twin_thread::TwinWorker::step`].
+//! - [`rt`]: the toolkit beneath both (hand-overs, log ring, clock, RT set-up, histograms,
+//!   the counting allocator).
+//! - [`config`]: `assets/runtime.toml`, validated at load.
+//!
+//! The libraries it builds on are crates of their own: `twin` (model, kinematics, geometry,
+//! the task), `policy` (allocation-free inference), `xarm` (the controller protocol and
+//! driver) and `shm-schemas` (the contract with the other processes).
 
 #![deny(clippy::unwrap_used)]
-pub mod launcher;
-pub mod policy;
-pub mod ros_bridge;
-pub mod runtime;
-pub mod twin;
-pub mod xarm;
+pub mod config;
+pub mod cycle;
+pub mod rt;
+#[cfg(any(test, feature = "testing"))]
+pub mod testing;
+pub mod twin_thread;

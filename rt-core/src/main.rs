@@ -9,8 +9,7 @@ mod cli;
 /// Counts allocations of threads that opt in (the cycle thread of `run` and `bench-loop`);
 /// a plain pass-through to the system allocator otherwise.
 #[global_allocator]
-static ALLOC: rt_core::runtime::alloc_count::CountingAlloc =
-    rt_core::runtime::alloc_count::CountingAlloc;
+static ALLOC: rt_core::rt::alloc_count::CountingAlloc = rt_core::rt::alloc_count::CountingAlloc;
 
 fn main() -> std::process::ExitCode {
     cli::main()

@@ -43,8 +43,8 @@ pub mod verdict;
 pub use detection::{DetectedObject, DetectionFrame, MAX_DETECTIONS, ObjectClass};
 pub use error::{SchemaError, flag_byte};
 pub use policy_blob::{
-    Activation, LayerView, MAX_ACT, MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_OBS, MAX_WEIGHTS,
-    POLICY_FORMAT_VERSION, PolicyBlob, required_weights,
+    ACT_DIM, Activation, LayerView, MAX_ACT, MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_OBS,
+    MAX_WEIGHTS, OBS_DIM, POLICY_FORMAT_VERSION, PolicyBlob, required_weights,
 };
 pub use policy_builder::{PolicyBlobBuilder, PolicyBuildError};
 pub use retrain::{ObstacleBox, RetrainPhase, RetrainProgress, RetrainRequest};

@@ -39,6 +39,13 @@ use crate::error::{SchemaError, count_within, finite_f32};
 
 /// Largest observation dimension a blob can describe.
 pub const MAX_OBS: usize = 32;
+/// Observation length of the reaching task the policies are trained for (the twin's
+/// observation, see the `twin` crate): part of the contract between the learner, which
+/// exports blobs, and the controller, which evaluates them.
+pub const OBS_DIM: usize = 17;
+/// Action length of the reaching task: a Cartesian TCP step `[dx, dy, dz]`.
+pub const ACT_DIM: usize = 3;
+const _: () = assert!(OBS_DIM <= MAX_OBS && ACT_DIM <= MAX_ACT);
 /// Largest action dimension a blob can describe.
 pub const MAX_ACT: usize = 8;
 /// Most hidden layers.

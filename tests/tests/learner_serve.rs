@@ -11,12 +11,12 @@ use std::time::Duration;
 
 use foresight_tests::{ChildGuard, asset, bin_path, unique_prefix, wait_for};
 use iceoryx2::prelude::*;
-use rt_core::policy::{PolicyExpectation, PolicyLoader};
-use rt_core::twin::TaskConfig;
+use policy::{PolicyExpectation, PolicyLoader};
 use shm_schemas::scene_file::SceneFile;
 use shm_schemas::{
     EpisodeEnd, PolicyBlob, RetrainPhase, RetrainProgress, RetrainRequest, services,
 };
+use twin::TaskConfig;
 
 #[test]
 fn serve_answers_a_retrain_request_with_a_valid_policy_blob() {

@@ -1,4 +1,4 @@
-//! ROS 2 interop: the real `rt-core ros-bridge` process turns iceoryx2 `RobotState`,
+//! ROS 2 interop: the real `ros-bridge` process turns iceoryx2 `RobotState`,
 //! `DetectionFrame` and `TwinVerdict` samples into `/joint_states` and
 //! `/foresight/scene_markers`, and a ros2-client subscriber receives them over DDS.
 //!
@@ -13,9 +13,9 @@ use foresight_tests::{
     ChildGuard, NetnsOutcome, asset, bin_path, run_in_private_netns, unique_prefix,
 };
 use iceoryx2::prelude::*;
+use ros_bridge::msgs::{JointState, Marker, MarkerArray};
+use ros_bridge::{ros_context, stream_qos};
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
-use rt_core::ros_bridge::msgs::{JointState, Marker, MarkerArray};
-use rt_core::ros_bridge::{ros_context, stream_qos};
 use shm_schemas::{
     DetectedObject, DetectionFrame, EpisodeEnd, ObjectClass, RobotState, TwinVerdict, services,
 };
@@ -38,17 +38,9 @@ fn bridge_publishes_joint_states_and_scene_markers_over_dds() {
     let verdict_pub = services::open_publisher::<TwinVerdict, _>(&node, &prefix).unwrap();
 
     let mut bridge = ChildGuard::spawn(
-        "rt-core ros-bridge",
-        Command::new(bin_path("rt-core"))
-            .args([
-                "ros-bridge",
-                "--prefix",
-                &prefix,
-                "--rate-hz",
-                "100",
-                "--seconds",
-                "60",
-            ])
+        "ros-bridge",
+        Command::new(bin_path("ros-bridge"))
+            .args(["--prefix", &prefix, "--rate-hz", "100", "--seconds", "60"])
             .args(["--urdf", asset("xarm5.urdf").to_str().unwrap()])
             .stdout(Stdio::piped()),
     );

@@ -15,12 +15,12 @@ use std::time::{Duration, Instant};
 
 use foresight_tests::{ChildGuard, bin_path, repo_root, unique_prefix};
 use iceoryx2::prelude::*;
-use rt_core::twin::{ACT_DIM, OBS_DIM, TaskConfig};
 use shm_schemas::services::create_node;
 use shm_schemas::{
     Activation, DetectedObject, DetectionFrame, ObjectClass, PolicyBlob, PolicyBlobBuilder,
     RetrainRequest, RobotState, TwinVerdict, loan_zeroed, open_publisher, open_subscriber,
 };
+use twin::{ACT_DIM, OBS_DIM, TaskConfig};
 
 const GOAL_M: [f32; 3] = [0.40, 0.15, 0.025];
 
@@ -137,7 +137,7 @@ impl Rig {
                 seq += 1;
                 let mut frame = DetectionFrame {
                     sequence: seq,
-                    capture_time_ns: rt_core::runtime::rt_setup::monotonic_now_ns(),
+                    capture_time_ns: rt_core::rt::rt_setup::monotonic_now_ns(),
                     camera_id: 1,
                     ..DetectionFrame::default()
                 };

@@ -5,13 +5,13 @@
 //! Detections travel the same way. (The two-process test is the runtime's.)
 
 use iceoryx2::prelude::*;
-use rt_core::policy::{MlpPolicy, PolicyExpectation, PolicyLoader, PolicyRejectReason};
-use rt_core::twin::{ACT_DIM, OBS_DIM};
+use policy::{MlpPolicy, PolicyExpectation, PolicyLoader, PolicyRejectReason};
 use shm_schemas::services::{self, create_node};
 use shm_schemas::{
     DetectedObject, DetectionFrame, ObjectClass, PolicyBlob, PolicyBlobBuilder, loan_zeroed,
     open_publisher, open_subscriber,
 };
+use twin::{ACT_DIM, OBS_DIM};
 
 fn prefix(test: &str) -> String {
     format!("foresight-tests/{test}/{}", std::process::id())

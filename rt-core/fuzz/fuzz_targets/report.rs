@@ -1,7 +1,7 @@
 //! Report packets of every stream kind.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use rt_core_fuzz::xarm::report::{ReportKind, decode};
+use xarm::report::{ReportKind, decode};
 
 fuzz_target!(|data: &[u8]| {
     for kind in [

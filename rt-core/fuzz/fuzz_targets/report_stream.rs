@@ -1,7 +1,7 @@
 //! A report byte stream cut into chunks (first byte picks the chunk size) through the framer.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use rt_core_fuzz::xarm::report::{ReportFramer, ReportKind, decode};
+use xarm::report::{ReportFramer, ReportKind, decode};
 
 fuzz_target!(|data: &[u8]| {
     let Some((&chunk, rest)) = data.split_first() else {

@@ -1,7 +1,7 @@
 //! Client → controller requests (what xarm-sim parses), and re-encoding what parsed.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use rt_core_fuzz::xarm::codec::Request;
+use xarm::codec::Request;
 
 fuzz_target!(|data: &[u8]| {
     if let Ok((h, req)) = Request::decode(data) {

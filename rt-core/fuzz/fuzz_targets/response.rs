@@ -1,7 +1,7 @@
 //! Controller → driver replies on port 502: framing, SDK-order checks, typed accessors.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use rt_core_fuzz::xarm::codec::{Response, VersionInfo, frame_len};
+use xarm::codec::{Response, VersionInfo, frame_len};
 
 fuzz_target!(|data: &[u8]| {
     if let Ok(Some(n)) = frame_len(data, 2) {

@@ -2,9 +2,9 @@
 //! never a motion outside the joint limits.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use rt_core_fuzz::xarm::codec::{MAX_FRAME_LEN, frame_len};
-use rt_core_fuzz::xarm::limits::{LIMIT_SLACK_RAD, XARM5_JOINT_LIMITS_RAD};
-use rt_core_fuzz::xarm::sim::controller::Controller;
+use xarm::codec::{MAX_FRAME_LEN, frame_len};
+use xarm::limits::{LIMIT_SLACK_RAD, XARM5_JOINT_LIMITS_RAD};
+use xarm_sim::Controller;
 
 fuzz_target!(|data: &[u8]| {
     let mut c = Controller::default();

@@ -13,18 +13,19 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::Args;
-use rt_core::policy::{MlpPolicy, PolicyExpectation, PolicyLoader};
-use rt_core::runtime::clock::{Clock, MonotonicClock};
-use rt_core::runtime::config::RuntimeConfig;
-use rt_core::runtime::cycle::{self, Cycle, CycleConfig, LoopShared};
-use rt_core::runtime::cycle_thread::spawn_cycle_thread;
-use rt_core::runtime::link::InProcessArm;
-use rt_core::runtime::shield::{Shield, ShieldLimits};
-use rt_core::runtime::smoothing::Brake;
-use rt_core::runtime::twin_adapter::{LookaheadActions, SceneSnapshot, TwinLookahead, TwinModel};
-use rt_core::runtime::twin_thread::{TwinEvent, TwinWorker};
-use rt_core::twin::{ACT_DIM, BoxObstacle, Goal, OBS_DIM, RobotModel, Scene, TaskConfig};
+use policy::{MlpPolicy, PolicyExpectation, PolicyLoader};
+use rt_core::config::RuntimeConfig;
+use rt_core::cycle::brake::Brake;
+use rt_core::cycle::link::InProcessArm;
+use rt_core::cycle::shield::{Shield, ShieldLimits};
+use rt_core::cycle::thread::spawn_cycle_thread;
+use rt_core::cycle::twin_model::TwinModel;
+use rt_core::cycle::{self, Cycle, CycleConfig, LoopShared};
+use rt_core::rt::clock::{Clock, MonotonicClock};
+use rt_core::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
+use rt_core::twin_thread::{TwinEvent, TwinWorker};
 use shm_schemas::PolicyBlobBuilder;
+use twin::{ACT_DIM, BoxObstacle, Goal, OBS_DIM, RobotModel, Scene, TaskConfig};
 
 /// Arguments of `bench-loop`.
 #[derive(Debug, Args)]
@@ -65,7 +66,7 @@ pub(crate) fn load_assets(
 }
 
 /// The bench's synthetic scene: a goal in reach and one small box off the path.
-pub(crate) fn synthetic_scene() -> SceneSnapshot {
+pub(crate) fn synthetic_scene() -> Scene {
     let mut s = Scene::empty(
         0.0,
         Goal {
@@ -77,7 +78,7 @@ pub(crate) fn synthetic_scene() -> SceneSnapshot {
         center_m: [0.30, -0.30, 0.03],
         size_m: [0.04, 0.04, 0.06],
     });
-    SceneSnapshot::from_scene(&s)
+    s
 }
 
 /// A prepared random-weight policy for the running task.
@@ -110,7 +111,7 @@ fn full_lookahead_ms(
     task: &TaskConfig,
     task_hash: u64,
 ) -> anyhow::Result<serde_json::Value> {
-    use rt_core::runtime::twin_thread::Lookahead;
+    use rt_core::twin_thread::Lookahead;
     let loader = PolicyLoader::new(PolicyExpectation::for_task(task_hash));
     let mut la = TwinLookahead::new(model.clone(), *task, LookaheadActions::Policy);
     let start = la.start_q_rad();
@@ -157,7 +158,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     );
     let start_q = lookahead.start_q_rad();
     let full = full_lookahead_ms(&model, &task_for_probe, task_hash)?;
-    let (twin_io, cycle_io, log_drain) = cycle::wire::<SceneSnapshot>();
+    let (twin_io, cycle_io, log_drain) = cycle::wire::<Scene>();
     let arm = InProcessArm::new(
         start_q,
         cfg.limits.joint_min_rad,
@@ -174,7 +175,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     );
     cyc.start(clock.now_ns())
         .map_err(|e| anyhow::anyhow!("starting the cycle: {e}"))?;
-    let mut twin = TwinWorker::new(
+    let twin = TwinWorker::new(
         &cfg,
         lookahead,
         Shield::new(TwinModel::new(model), limits),
@@ -187,78 +188,35 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
 
     // Twin thread: detections at 30 Hz, a new random policy every swap period.
     let loader = PolicyLoader::new(PolicyExpectation::for_task(task_hash));
-    let scene = synthetic_scene();
     let swap_every = Duration::from_millis(args.swap_every_ms);
     let twin_stop = stop.clone();
-    let twin_thread =
-        std::thread::Builder::new()
-            .name("twin".into())
-            .spawn(move || -> anyhow::Result<_> {
-                let mut events = Vec::new();
-                let mut lookahead_s = Vec::new();
-                let (mut swaps, mut approved, mut retrains, mut rejected) =
-                    (0u64, 0u64, 0u64, 0u64);
-                let mut next_id = 1;
-                let mut last_det = Instant::now() - Duration::from_secs(1);
-                let mut last_swap: Option<Instant> = None;
-                while !twin_stop.load(Ordering::Acquire) {
-                    if last_det.elapsed() >= Duration::from_millis(33) {
-                        twin.on_detection(scene, clock.now_ns(), &mut events);
-                        last_det = Instant::now();
-                    }
-                    let due = match last_swap {
-                        None => true,
-                        Some(t) => !swap_every.is_zero() && t.elapsed() >= swap_every,
-                    };
-                    if due {
-                        twin.on_policy(random_policy(&loader, next_id, task_hash)?, &mut events);
-                        next_id += 1;
-                        swaps += 1;
-                        last_swap = Some(Instant::now());
-                    }
-                    twin.step(&mut events);
-                    for e in events.drain(..) {
-                        match e {
-                            TwinEvent::Verdict { elapsed_s, .. } => lookahead_s.push(elapsed_s),
-                            TwinEvent::PlanApproved { .. } => approved += 1,
-                            TwinEvent::Retrain { .. } => retrains += 1,
-                            TwinEvent::PlanRejected { .. } => rejected += 1,
-                            _ => {}
-                        }
-                    }
-                    std::thread::sleep(Duration::from_millis(1));
-                }
-                Ok((lookahead_s, swaps, approved, retrains, rejected))
-            })?;
+    let twin_thread = std::thread::Builder::new()
+        .name("twin".into())
+        .spawn(move || drive_twin(twin, &loader, task_hash, clock, swap_every, &twin_stop))?;
 
     // Cycle thread.
     let req = args.rt.request();
     let cycle_thread = spawn_cycle_thread(cyc, clock, req, stop.clone(), shared.clone())?;
 
-    // Watchdog.
-    let t0 = Instant::now();
-    let mut last_beat = 0;
-    let mut last_change = Instant::now();
-    while t0.elapsed().as_secs_f64() < args.seconds {
-        std::thread::sleep(Duration::from_millis(100));
-        let b = shared.heartbeat.load(Ordering::Acquire);
-        if b != last_beat {
-            last_beat = b;
-            last_change = Instant::now();
-        } else if last_change.elapsed() > Duration::from_secs(2) {
-            println!(
-                "{}",
-                serde_json::json!({"error": "watchdog: the cycle stopped beating", "cycles": b})
-            );
-            return Ok(ExitCode::from(3));
-        }
+    if let Some(beats) = watch_heartbeat(&shared, args.seconds) {
+        println!(
+            "{}",
+            serde_json::json!({"error": "watchdog: the cycle stopped beating", "cycles": beats})
+        );
+        return Ok(ExitCode::from(3));
     }
     stop.store(true, Ordering::Release);
     let done = cycle_thread
         .join()
         .map_err(|_| anyhow::anyhow!("cycle thread panicked"))?;
     let (stats, rt, allocs, report) = (done.stats, done.rt, done.allocations, *done.cycle.report());
-    let (mut lookahead_s, swaps, approved, retrains, rejected) = twin_thread
+    let TwinCounts {
+        mut lookahead_s,
+        swaps,
+        approved,
+        retrains,
+        rejected,
+    } = twin_thread
         .join()
         .map_err(|_| anyhow::anyhow!("twin thread panicked"))??;
     let _ = log_thread.join();
@@ -290,4 +248,84 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     });
     println!("{out}");
     Ok(ExitCode::SUCCESS)
+}
+
+/// What the bench's twin thread counted.
+struct TwinCounts {
+    lookahead_s: Vec<f64>,
+    swaps: u64,
+    approved: u64,
+    retrains: u64,
+    rejected: u64,
+}
+
+/// The bench's twin thread: detections at 30 Hz, a new random policy every `swap_every`
+/// (once only when zero), the worker stepped every millisecond.
+fn drive_twin(
+    mut twin: TwinWorker<TwinLookahead, TwinModel>,
+    loader: &PolicyLoader,
+    task_hash: u64,
+    clock: MonotonicClock,
+    swap_every: Duration,
+    stop: &AtomicBool,
+) -> anyhow::Result<TwinCounts> {
+    let scene = synthetic_scene();
+    let mut events = Vec::new();
+    let mut c = TwinCounts {
+        lookahead_s: Vec::new(),
+        swaps: 0,
+        approved: 0,
+        retrains: 0,
+        rejected: 0,
+    };
+    let mut next_id = 1;
+    let mut last_det = Instant::now() - Duration::from_secs(1);
+    let mut last_swap: Option<Instant> = None;
+    while !stop.load(Ordering::Acquire) {
+        if last_det.elapsed() >= Duration::from_millis(33) {
+            twin.on_detection(scene, clock.now_ns(), &mut events);
+            last_det = Instant::now();
+        }
+        let due = match last_swap {
+            None => true,
+            Some(t) => !swap_every.is_zero() && t.elapsed() >= swap_every,
+        };
+        if due {
+            twin.on_policy(random_policy(loader, next_id, task_hash)?, &mut events);
+            next_id += 1;
+            c.swaps += 1;
+            last_swap = Some(Instant::now());
+        }
+        twin.step(&mut events);
+        for e in events.drain(..) {
+            match e {
+                TwinEvent::Verdict { elapsed_s, .. } => c.lookahead_s.push(elapsed_s),
+                TwinEvent::PlanApproved { .. } => c.approved += 1,
+                TwinEvent::Retrain { .. } => c.retrains += 1,
+                TwinEvent::PlanRejected { .. } => c.rejected += 1,
+                _ => {}
+            }
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    Ok(c)
+}
+
+/// Watches the cycle's heartbeat for `seconds`; the last beat count if it stopped moving
+/// for 2 s (a stalled or dead cycle thread).
+fn watch_heartbeat(shared: &LoopShared, seconds: f64) -> Option<u64> {
+    let t0 = Instant::now();
+    let mut last_beat = 0;
+    let mut last_change = Instant::now();
+    while t0.elapsed().as_secs_f64() < seconds {
+        std::thread::sleep(Duration::from_millis(100));
+        let b = shared.heartbeat.load(Ordering::Acquire);
+        if b != last_beat {
+            last_beat = b;
+            last_change = Instant::now();
+        } else if last_change.elapsed() > Duration::from_secs(2) {
+            return Some(b);
+        }
+    }
+    None
 }

@@ -4,10 +4,9 @@
 use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand};
-use rt_core::runtime::rt_setup::RtRequest;
+use rt_core::rt::rt_setup::RtRequest;
 
 mod bench_loop;
-mod ros_bridge;
 mod run;
 mod twin;
 mod xarm;
@@ -25,8 +24,6 @@ enum Command {
     /// Query the digital twin (kinematics, distances, rollouts); prints one JSON object.
     #[command(subcommand)]
     Twin(twin::TwinCommand),
-    /// Republish robot state, scene and verdicts over ROS 2 (for RViz).
-    RosBridge(ros_bridge::RosBridgeArgs),
     /// Latency and jitter harness of the full cycle; prints one JSON object.
     BenchLoop(bench_loop::BenchLoopArgs),
     /// The runtime: twin thread + control cycle with iceoryx2 I/O.
@@ -41,7 +38,6 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Twin(cmd) => twin::run(cmd),
-        Command::RosBridge(args) => ros_bridge::run(args),
         Command::BenchLoop(args) => bench_loop::run(args),
         Command::Run(args) => run::run(args),
         Command::Xarm(cmd) => xarm::run(cmd),

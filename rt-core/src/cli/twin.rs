@@ -19,12 +19,12 @@ use clap::{Args, Subcommand};
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rt_core::twin::{
+use serde_json::{Value, json};
+use shm_schemas::scene_file::{MAX_OBSTACLES, SceneFile};
+use twin::{
     BoxObstacle, DOF, Goal, IkConfig, IkSolver, Joints, N_FRAMES, ObstacleClass, RobotGeometry,
     RobotModel, Scene, TaskConfig, TwinEnv, rollout,
 };
-use serde_json::{Value, json};
-use shm_schemas::scene_file::{MAX_OBSTACLES, SceneFile};
 
 /// Twin queries.
 #[derive(Debug, Subcommand)]
@@ -274,7 +274,7 @@ fn rollouts(args: &RolloutArgs) -> anyhow::Result<Value> {
     let started = Instant::now();
     for _ in 0..args.episodes {
         let scene = match &fixed {
-            Some(s) => s.clone(),
+            Some(s) => *s,
             None => env.sample_scene(&mut rng, args.class),
         };
         env.reset(&scene);

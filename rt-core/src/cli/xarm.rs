@@ -9,9 +9,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
-use rt_core::xarm::codes::ControllerError;
-use rt_core::xarm::driver::{XArmConfig, XArmDriver};
 use serde_json::json;
+use xarm::codes::ControllerError;
+use xarm::driver::{XArmConfig, XArmDriver};
 
 /// xArm driver tools.
 #[derive(Debug, Subcommand)]

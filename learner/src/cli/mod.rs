@@ -1,0 +1,91 @@
+//! The subcommands of the `learner` binary, one module each; every module owns its
+//! `clap::Args` struct and a `run` function (the only place, with `main.rs`, where `anyhow`
+//! is used):
+//!
+//! - [`pretrain`]: PPO on random small-obstacle scenes, checkpoints in `--out`;
+//! - [`eval`]: evaluate a checkpoint (JSON);
+//! - [`bench`]: training throughput (JSON);
+//! - [`export`]: a checkpoint's policy as a `PolicyBlob` file;
+//! - [`serve`]: the retraining service over iceoryx2 (also owns the retraining flags);
+//! - [`retrain`]: one retraining offline, as `serve` does for one request.
+//!
+//! Shared here: the PPO flags of `pretrain` and `bench` ([`PpoArgs`]), the seed of the fixed
+//! evaluation scenes and scene-file loading.
+
+pub mod bench;
+pub mod eval;
+pub mod export;
+pub mod pretrain;
+pub mod retrain;
+pub mod serve;
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use learner::ppo::PpoConfig;
+use shm_schemas::scene_file::SceneFile;
+use twin::Scene;
+
+/// Seed of the fixed evaluation scenes (distinct from every training stream).
+pub const EVAL_SEED: u64 = 0x00E0_A15E;
+
+/// PPO overrides shared by `pretrain` and `bench` (unset: [`PpoConfig::default`]).
+#[derive(clap::Args, Clone)]
+pub struct PpoArgs {
+    /// Parallel environments.
+    #[arg(long)]
+    envs: Option<usize>,
+    /// Rollout worker threads (0 = one per core).
+    #[arg(long)]
+    workers: Option<usize>,
+    /// Steps per environment per rollout.
+    #[arg(long)]
+    n_steps: Option<usize>,
+    /// Minibatch size.
+    #[arg(long)]
+    batch: Option<usize>,
+    /// Epochs per rollout.
+    #[arg(long)]
+    epochs: Option<usize>,
+    /// Learning rate.
+    #[arg(long)]
+    lr: Option<f64>,
+    /// Torch intra-op threads.
+    #[arg(long, default_value_t = 1)]
+    pub torch_threads: i32,
+}
+
+impl PpoArgs {
+    /// The default configuration with the given overrides.
+    pub fn config(&self) -> PpoConfig {
+        let mut c = PpoConfig::default();
+        if let Some(v) = self.envs {
+            c.n_envs = v;
+        }
+        if let Some(v) = self.workers {
+            c.workers = v;
+        }
+        if let Some(v) = self.n_steps {
+            c.n_steps = v;
+        }
+        if let Some(v) = self.batch {
+            c.batch_size = v;
+        }
+        if let Some(v) = self.epochs {
+            c.n_epochs = v;
+        }
+        if let Some(v) = self.lr {
+            c.learning_rate = v;
+        }
+        c
+    }
+}
+
+/// Loads a scene file as a twin scene.
+///
+/// # Errors
+/// The file cannot be read or parsed, or does not describe a valid scene.
+pub fn load_scene(path: &Path) -> Result<Scene> {
+    let file = SceneFile::load(path).with_context(|| format!("scene {}", path.display()))?;
+    Scene::from_file(&file).map_err(|e| anyhow::anyhow!("scene {}: {e:?}", path.display()))
+}

@@ -1,0 +1,548 @@
+//! The self-improving scenario end to end: [`run_all`] starts the processes under one
+//! unique service prefix ([`processes`]), directs the world script against them
+//! ([`crate::scenario::Director`]), watches the ground truth of the simulated arm, stops
+//! everything in order, and writes the report. The `foresight` binary parses
+//! [`LaunchArgs`] and calls [`run_all`].
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use rand::SeedableRng;
+use shm_schemas::scene_file::{SceneFile, WorldScript};
+use twin::{ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
+
+use crate::observer::Observer;
+use crate::processes::{self, Started};
+use crate::report::{self, View};
+use crate::run_dir::{RunDir, write_atomic};
+use crate::runtime_view::RuntimeView;
+use crate::scenario::{Action, Director, ScenarioConfig, TimelineEvent};
+use crate::sim_link::{sim_collisions, sim_control, sim_status};
+use crate::supervisor::{ProcessEvent, Supervisor, send_signal};
+
+/// Command line of `foresight`.
+#[derive(Debug, Clone, clap::Parser)]
+#[command(
+    name = "foresight",
+    version,
+    about = "Run Foresight's self-improving reaching loop end to end"
+)]
+pub struct LaunchArgs {
+    /// World script (timeline of scenes). Default: the demo world.
+    #[arg(long, default_value = "assets/scenes/demo_world.toml")]
+    pub world: PathBuf,
+    /// Task configuration (goal tolerance, scene sampling).
+    #[arg(long, default_value = "assets/task.toml")]
+    pub task: PathBuf,
+    /// Runtime configuration for `rt-core run`.
+    #[arg(long, default_value = "assets/runtime.toml")]
+    pub runtime: PathBuf,
+    /// Robot model.
+    #[arg(long, default_value = "assets/xarm5.urdf")]
+    pub urdf: PathBuf,
+    /// Pre-trained policy checkpoint the learner resumes from.
+    #[arg(long, default_value = "assets/policy")]
+    pub checkpoint: PathBuf,
+    /// Drive a real xArm5 at this address instead of starting `xarm-sim`.
+    #[arg(long)]
+    pub robot: Option<String>,
+    /// Camera source for perception (`synthetic` plays the world; `ros2`; `file:PATH`).
+    #[arg(long, default_value = "synthetic")]
+    pub camera: String,
+    /// Frame rate of the synthetic camera (Hz). 60 is the ZED's 720p rate; perception
+    /// confirms a new object after 3 frames, so a world change is seen within ≈ 50–70 ms.
+    #[arg(long, default_value_t = 60.0)]
+    pub camera_rate_hz: f64,
+    /// Calibration file for a real camera.
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
+    /// Execute the policy without the lookahead gate (shows why Foresight exists).
+    #[arg(long)]
+    pub no_lookahead: bool,
+    /// Compute and log every command but send none to the arm.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// Also publish to ROS 2 (starts the `ros-bridge` process).
+    #[arg(long)]
+    pub ros: bool,
+    /// Randomised scenarios: run this many, each with a world drawn from the task's
+    /// sampling ranges (a small obstacle, then a large one).
+    #[arg(long, default_value_t = 0)]
+    pub runs: u32,
+    /// Seed of the randomised scenarios.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Retraining wall-time budget per request (s).
+    #[arg(long, default_value_t = 30.0)]
+    pub retrain_budget_s: f64,
+    /// Retraining step budget per request (a request that runs out is answered with the
+    /// best policy so far; the next request resumes where it stopped).
+    #[arg(long, default_value_t = 400_000)]
+    pub retrain_steps: u64,
+    /// Longest one scene may take (s).
+    #[arg(long, default_value_t = 90.0)]
+    pub phase_timeout_s: f64,
+    /// Where run folders go.
+    #[arg(long, default_value = "runs")]
+    pub out: PathBuf,
+}
+
+/// Runs one scenario, or `--runs N` randomised ones; true when every run met its goal.
+pub fn run_all(args: &LaunchArgs) -> Result<bool> {
+    let stop = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, stop.clone()).context("installing the signal handler")?;
+    }
+    let task =
+        TaskConfig::load(&args.task).with_context(|| format!("loading {}", args.task.display()))?;
+    if args.runs == 0 {
+        let world = WorldScript::load(&args.world)
+            .with_context(|| format!("loading {}", args.world.display()))?;
+        let summary = run_scenario(args, &task, world.steps, &stop)?;
+        return Ok(judge(args, &summary));
+    }
+    let model =
+        RobotModel::load(&args.urdf).with_context(|| format!("loading {}", args.urdf.display()))?;
+    let env = TwinEnv::new(model, task);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(args.seed);
+    let mut all_ok = true;
+    let mut collisions = 0;
+    for i in 0..args.runs {
+        if stop.load(Ordering::Relaxed) {
+            break;
+        }
+        let small: Scene = env.sample_scene(&mut rng, ObstacleClass::Small);
+        let large: Scene = env.sample_scene(&mut rng, ObstacleClass::Large);
+        let (mut a, mut b) = (small.to_file(), large.to_file());
+        a.name = format!("random-{i}-small");
+        b.name = format!("random-{i}-large");
+        println!(
+            "=== scenario {}/{} (seed {}) ===",
+            i + 1,
+            args.runs,
+            args.seed
+        );
+        let summary = run_scenario(args, &task, vec![(0.0, a), (5.0, b)], &stop)?;
+        collisions += summary.collisions;
+        all_ok &= judge(args, &summary);
+    }
+    println!(
+        "=== {} scenario(s): {collisions} collision(s) in total ===",
+        args.runs
+    );
+    Ok(all_ok)
+}
+
+fn judge(args: &LaunchArgs, s: &report::Summary) -> bool {
+    if args.no_lookahead {
+        true
+    } else {
+        s.goal_reached && s.collisions == 0
+    }
+}
+
+fn print_event(e: &TimelineEvent) {
+    println!("{:>8.3} s  {:<20} {}", e.t_s, e.kind, e.detail);
+}
+
+/// One run's folder, world files and service prefix.
+struct RunSetup {
+    run: RunDir,
+    prefix: String,
+    live: PathBuf,
+    scene_paths: Vec<PathBuf>,
+}
+
+/// Creates the run folder and saves the world: every scene, and the one in force in
+/// `world/live.toml`.
+fn set_up_run(args: &LaunchArgs, world: &[(f64, SceneFile)]) -> Result<RunSetup> {
+    let run = RunDir::create(&args.out).context("creating the run folder")?;
+    let prefix = format!(
+        "fs{}_{}",
+        std::process::id(),
+        run.path
+            .file_name()
+            .map(|n| n.to_string_lossy().replace('-', ""))
+            .unwrap_or_default()
+    );
+    println!(
+        "foresight: run folder {}, service prefix {prefix}",
+        run.path.display()
+    );
+    let mut scene_paths = Vec::new();
+    for (i, (_, scene)) in world.iter().enumerate() {
+        let p = run.file(&format!("world/scene_{i}.toml"))?;
+        write_atomic(&p, scene.to_toml_string().as_bytes())?;
+        scene_paths.push(p);
+    }
+    let live = run.file("world/live.toml")?;
+    write_atomic(&live, world[0].1.to_toml_string().as_bytes())?;
+    Ok(RunSetup {
+        run,
+        prefix,
+        live,
+        scene_paths,
+    })
+}
+
+/// Subscribes to the run's services (they appear as the processes come up).
+fn open_observer(prefix: &str) -> Result<Observer> {
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        match Observer::open(prefix) {
+            Ok(o) => return Ok(o),
+            Err(e) if Instant::now() > deadline => {
+                return Err(e).context("subscribing to the run's services");
+            }
+            Err(_) => std::thread::sleep(Duration::from_millis(100)),
+        }
+    }
+}
+
+/// Runs one scenario: processes up, the world script directed against them, an orderly
+/// stop, the report.
+fn run_scenario(
+    args: &LaunchArgs,
+    task: &TaskConfig,
+    world: Vec<(f64, SceneFile)>,
+    stop: &Arc<AtomicBool>,
+) -> Result<report::Summary> {
+    let runtime = RuntimeView::load(&args.runtime)
+        .with_context(|| format!("loading {}", args.runtime.display()))?;
+    let setup = set_up_run(args, &world)?;
+    let mut sup = Supervisor::new(&setup.run.file("logs/.keep")?.with_file_name(""));
+    let started = processes::start_all(&mut sup, args, &setup.run, &setup.prefix, &setup.live)?;
+    let observer = open_observer(&setup.prefix)?;
+    let mut director = Director::new(ScenarioConfig {
+        world: world.clone(),
+        goal_tolerance_m: task.success.tolerance_m,
+        goal_hover_m: task.success.goal_hover_m,
+        phase_timeout_s: args.phase_timeout_s,
+        settle_s: 1.0,
+        lookahead: !args.no_lookahead,
+        home_q_rad: runtime.return_home.then_some(task.start.joints_rad),
+    });
+    let mut watch = Watch {
+        args,
+        setup: &setup,
+        world: &world,
+        started,
+        sup: &mut sup,
+        notes: Vec::new(),
+        extra_events: Vec::new(),
+        last_status_s: f64::NEG_INFINITY,
+        collisions_seen: 0,
+        blind_collided: false,
+    };
+    watch.direct(&mut director, &observer, stop)?;
+    let notes = std::mem::take(&mut watch.notes);
+    let summary = finish(args, &setup, started, &mut sup, &director, notes)?;
+    write_report(&setup.run, args, &world, &director, &summary)?;
+    println!(
+        "\n{}",
+        serde_json::to_string_pretty(&summary).unwrap_or_default()
+    );
+    println!("report: {}", setup.run.path.join("report.md").display());
+    Ok(summary)
+}
+
+/// The launcher's watch over a running scenario.
+struct Watch<'a> {
+    args: &'a LaunchArgs,
+    setup: &'a RunSetup,
+    world: &'a [(f64, SceneFile)],
+    started: Started,
+    sup: &'a mut Supervisor,
+    notes: Vec<String>,
+    extra_events: Vec<TimelineEvent>,
+    last_status_s: f64,
+    collisions_seen: u64,
+    blind_collided: bool,
+}
+
+impl Watch<'_> {
+    /// Directs the world script until it is done, rt-core exits, a blind run collides, the
+    /// user interrupts, or the overall time runs out; prints and saves the timeline.
+    fn direct(
+        &mut self,
+        director: &mut Director,
+        observer: &Observer,
+        stop: &AtomicBool,
+    ) -> Result<()> {
+        let t0 = Instant::now();
+        let mut timeline = std::fs::File::create(self.setup.run.file("timeline.jsonl")?)?;
+        let mut printed = 0;
+        let overall_timeout =
+            Duration::from_secs_f64(self.args.phase_timeout_s * (self.world.len() as f64) + 60.0);
+        loop {
+            let t_s = t0.elapsed().as_secs_f64();
+            if stop.load(Ordering::Relaxed) {
+                self.notes.push("interrupted (Ctrl-C)".to_owned());
+                break;
+            }
+            if t0.elapsed() > overall_timeout {
+                self.notes.push(format!(
+                    "gave up after {:.0} s",
+                    overall_timeout.as_secs_f64()
+                ));
+                break;
+            }
+            self.poll_processes(t_s);
+            if !self.sup.is_running("rt-core") {
+                let log = self.setup.run.path.join("logs/rt-core.log");
+                self.notes.push(match last_error_line(&log) {
+                    Some(line) => format!("rt-core exited: {line}"),
+                    None => "rt-core exited".to_owned(),
+                });
+                break;
+            }
+            self.check_ground_truth(t_s);
+            for a in director.step(t_s, &observer.poll()) {
+                self.apply(a)?;
+            }
+            let mut new: Vec<TimelineEvent> = director.events()[printed..].to_vec();
+            printed = director.events().len();
+            new.append(&mut self.extra_events);
+            for e in &new {
+                print_event(e);
+                let _ = writeln!(timeline, "{}", serde_json::to_string(e).unwrap_or_default());
+            }
+            if director.is_done() || self.blind_collided {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = timeline.flush();
+        Ok(())
+    }
+
+    /// Process exits and restarts become timeline events.
+    fn poll_processes(&mut self, t_s: f64) {
+        for ev in self.sup.poll() {
+            let detail = match &ev {
+                ProcessEvent::Exited {
+                    name,
+                    status,
+                    will_restart,
+                } => format!(
+                    "{name} exited ({status}){}",
+                    if *will_restart { "; restarting" } else { "" }
+                ),
+                ProcessEvent::Restarted { name, restarts } => {
+                    format!("{name} restarted (#{restarts})")
+                }
+            };
+            self.extra_events.push(TimelineEvent {
+                t_s,
+                kind: "process",
+                detail,
+            });
+        }
+    }
+
+    /// Ground truth from the simulated arm, twice a second: a new collision is an event
+    /// (and ends a blind run).
+    fn check_ground_truth(&mut self, t_s: f64) {
+        let Some(sim) = self.started.sim else { return };
+        if t_s - self.last_status_s < 0.5 {
+            return;
+        }
+        self.last_status_s = t_s;
+        if let Some(n) = sim_collisions(sim.control)
+            && n > self.collisions_seen
+        {
+            self.extra_events.push(TimelineEvent {
+                t_s,
+                kind: "collision",
+                detail: format!("xarm-sim reports {n} collision(s)"),
+            });
+            self.collisions_seen = n;
+            if self.args.no_lookahead {
+                self.notes
+                    .push("the blind run collided: this is what the lookahead prevents".to_owned());
+                self.blind_collided = true;
+            }
+        }
+    }
+
+    /// Carries out the director's action: a scene change reaches the camera's world and
+    /// the simulated arm's ground truth.
+    fn apply(&mut self, action: Action) -> Result<()> {
+        match action {
+            Action::SwitchScene(k) => {
+                write_atomic(
+                    &self.setup.live,
+                    self.world[k].1.to_toml_string().as_bytes(),
+                )?;
+                if let Some(sim) = self.started.sim {
+                    let line = format!("scene {}", self.setup.scene_paths[k].display());
+                    let reply = sim_control(sim.control, &line)?;
+                    if reply != "ok" {
+                        bail!("xarm-sim refused the scene change: {reply}");
+                    }
+                }
+            }
+            Action::Finish => {}
+        }
+        Ok(())
+    }
+}
+
+/// Ground truth from the arm, then an orderly stop (rt-core first), then the summary.
+fn finish(
+    args: &LaunchArgs,
+    setup: &RunSetup,
+    started: Started,
+    sup: &mut Supervisor,
+    director: &Director,
+    mut notes: Vec<String>,
+) -> Result<report::Summary> {
+    let sim_status = started.sim.and_then(|sim| {
+        let status = sim_status(sim.control);
+        if status.is_none() {
+            notes.push("could not read xarm-sim's status".into());
+        }
+        status
+    });
+    let collisions = sim_status
+        .as_ref()
+        .and_then(|v| v["collisions"].as_u64())
+        .unwrap_or(0);
+    let arm_rejected_commands = sim_status
+        .as_ref()
+        .and_then(|v| v["counters"]["servo_rejected"].as_u64());
+    if let Some(pid) = sup.pid("rt-core") {
+        send_signal(pid, "INT");
+    }
+    sup.stop_all(Duration::from_secs(5));
+    let (p99, p999) = read_cycle_stats(&setup.run.path.join("logs/rt-core.log"));
+    let restarts = ["perception", "learner"]
+        .iter()
+        .map(|n| u64::from(sup.restarts(n)))
+        .sum();
+    let mut summary = director.summary(collisions, p999, restarts, args.seed);
+    summary.arm_rejected_commands = arm_rejected_commands;
+    summary.cycle_p99_us = p99.or(summary.cycle_p99_us);
+    summary.notes.extend(notes);
+    Ok(summary)
+}
+
+/// The last `ERROR` line of a process log (why it exited, when it says so), trimmed.
+fn last_error_line(log: &Path) -> Option<String> {
+    let text = std::fs::read_to_string(log).ok()?;
+    text.lines().rev().find(|l| l.contains(" ERROR ")).map(|l| {
+        l.split_once(" ERROR ")
+            .map_or(l, |(_, rest)| rest)
+            .trim()
+            .to_owned()
+    })
+}
+
+/// Cycle compute p99 and p99.9 (µs) from the JSON line `rt-core run` prints at exit.
+fn read_cycle_stats(log: &Path) -> (Option<f64>, Option<f64>) {
+    let Ok(text) = std::fs::read_to_string(log) else {
+        return (None, None);
+    };
+    text.lines()
+        .rev()
+        .find_map(|l| {
+            let v: serde_json::Value = serde_json::from_str(l.trim()).ok()?;
+            let c = v.get("cycle_compute_us")?;
+            Some((
+                c.get("p99").and_then(serde_json::Value::as_f64),
+                c.get("p999").and_then(serde_json::Value::as_f64),
+            ))
+        })
+        .unwrap_or((None, None))
+}
+
+fn write_report(
+    run: &RunDir,
+    args: &LaunchArgs,
+    world: &[(f64, SceneFile)],
+    director: &Director,
+    summary: &report::Summary,
+) -> Result<()> {
+    report::write_summary(&run.path.join("summary.json"), summary)?;
+    report::plot_path(
+        &run.path.join("tcp_path_top.png"),
+        View::Top,
+        director.path(),
+        world,
+    )?;
+    report::plot_path(
+        &run.path.join("tcp_path_side.png"),
+        View::Side,
+        director.path(),
+        world,
+    )?;
+    let mut images = vec![
+        ("TCP path, top view", "tcp_path_top.png"),
+        ("TCP path, side view", "tcp_path_side.png"),
+    ];
+    let mut curves = Vec::new();
+    if let Some(csv) = find_csv(&args.checkpoint)
+        && let Ok(c) = report::read_reward_curve(&csv)
+    {
+        curves.push(("pre-training (bundled policy)".to_owned(), c));
+    }
+    let retrain_dir = run.path.join("retrain");
+    if let Some(csv) = find_csv(&retrain_dir)
+        && let Ok(c) = report::read_reward_curve(&csv)
+    {
+        curves.push(("retraining on the new scene".to_owned(), c));
+    }
+    if !curves.is_empty() {
+        report::plot_reward_curves(
+            &run.path.join("reward_curves.png"),
+            "Reward curves",
+            &curves,
+        )?;
+        images.push(("Reward curves", "reward_curves.png"));
+    }
+    let timeline: Vec<String> = director
+        .events()
+        .iter()
+        .map(|e| format!("{:>8.3} s  {:<20} {}", e.t_s, e.kind, e.detail))
+        .collect();
+    report::write_markdown(
+        &run.path.join("report.md"),
+        summary,
+        &timeline,
+        &images,
+        &[
+            ("summary.json", "summary.json"),
+            ("verdict timeline (JSONL)", "timeline.jsonl"),
+            ("process logs", "logs/"),
+            ("world scenes", "world/"),
+        ],
+    )?;
+    Ok(())
+}
+
+/// The newest `*.csv` under `dir` (depth ≤ 3).
+fn find_csv(dir: &Path) -> Option<PathBuf> {
+    fn walk(dir: &Path, depth: u32, best: &mut Option<(std::time::SystemTime, PathBuf)>) {
+        let Ok(rd) = std::fs::read_dir(dir) else {
+            return;
+        };
+        for e in rd.flatten() {
+            let p = e.path();
+            if p.is_dir() && depth < 3 {
+                walk(&p, depth + 1, best);
+            } else if p.extension().is_some_and(|x| x == "csv")
+                && let Ok(m) = e.metadata().and_then(|m| m.modified())
+                && best.as_ref().is_none_or(|(t, _)| m > *t)
+            {
+                *best = Some((m, p));
+            }
+        }
+    }
+    let mut best = None;
+    walk(dir, 0, &mut best);
+    best.map(|(_, p)| p)
+}

@@ -1,0 +1,63 @@
+//! What the launcher reads of rt-core's configuration (`assets/runtime.toml`): only the keys
+//! that shape the scenario. rt-core itself validates the whole file, with bounds, when it
+//! starts; the launcher reports rt-core's refusal if the file is bad.
+
+use std::path::Path;
+
+use serde::Deserialize;
+
+/// The launcher's view of the runtime configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+pub struct RuntimeView {
+    /// Whether rt-core brings the arm home after each goal (rt-core's default: true).
+    #[serde(default = "yes")]
+    pub return_home: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// Why the runtime configuration could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum RuntimeViewError {
+    /// The file could not be read.
+    #[error("cannot read {path}: {source}")]
+    Read {
+        /// The file.
+        path: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The file is not TOML of the expected shape.
+    #[error("invalid runtime config: {0}")]
+    Parse(#[from] toml::de::Error),
+}
+
+impl RuntimeView {
+    /// Reads the keys the launcher needs.
+    ///
+    /// # Errors
+    /// [`RuntimeViewError`] when unreadable or malformed.
+    pub fn load(path: &Path) -> Result<Self, RuntimeViewError> {
+        let text = std::fs::read_to_string(path).map_err(|source| RuntimeViewError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Ok(toml::from_str(&text)?)
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_return_home_from_the_shipped_config() {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/runtime.toml");
+        assert!(RuntimeView::load(&p).unwrap().return_home);
+        let off: RuntimeView = toml::from_str("return_home = false\nrate_hz = 250.0").unwrap();
+        assert!(!off.return_home);
+    }
+}

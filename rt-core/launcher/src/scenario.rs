@@ -1,0 +1,683 @@
+//! The scenario director: plays a world script against the running system and measures the
+//! self-improving loop (the research system's Algorithm 1) from the outside.
+//!
+//! Scene 0 is in force at start. When the arm has reached scene k's goal (or scene k's
+//! phase timed out), and scene k+1's `at_s` has passed, the director asks the launcher to
+//! switch the world to scene k+1 (ground truth in `xarm-sim`, the synthetic camera's view).
+//! From then on it timestamps, from what the processes publish: the first detection of the
+//! new scene, the first verdict on it (and whether it flagged a collision before the arm had
+//! moved), the retrain request, the new policy, the arm moving again, and the goal reached.
+//!
+//! The director is a pure state machine over [`Observations`] and a clock value, so it is
+//! tested without processes; the `foresight` binary feeds it.
+
+use nalgebra::Vector3;
+use serde::Serialize;
+use shm_schemas::scene_file::SceneFile;
+use shm_schemas::{RetrainPhase, RetrainProgress, RetrainRequest, RobotState, TwinVerdict};
+
+use super::observer::{Observations, SeenScene};
+use super::report::{PathSample, Summary};
+use twin::max_joint_gap_rad;
+
+/// Director settings.
+#[derive(Debug, Clone)]
+pub struct ScenarioConfig {
+    /// The world: `(at_s, scene)`, first at 0.
+    pub world: Vec<(f64, SceneFile)>,
+    /// TCP within this of the goal target = reached (the task's success tolerance, m).
+    pub goal_tolerance_m: f64,
+    /// The goal target is this far above the goal cube's top (m).
+    pub goal_hover_m: f64,
+    /// Longest a scene may take before the director gives up on its goal (s).
+    pub phase_timeout_s: f64,
+    /// The arm must be still this long before the world changes (s).
+    pub settle_s: f64,
+    /// Whether rt-core gates motion on the lookahead (reported only).
+    pub lookahead: bool,
+    /// Where the arm rests between episodes (rt-core's `return_home`: the task's start
+    /// posture), rad; the world changes only once the arm has settled there. `None`: the
+    /// world changes wherever the arm has settled.
+    pub home_q_rad: Option<[f64; 5]>,
+}
+
+/// Joints within this of home count as home, rad.
+const HOME_TOLERANCE_RAD: f64 = 0.02;
+
+/// What the launcher must do now.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Action {
+    /// Put scene `index` of the world in force.
+    SwitchScene(usize),
+    /// The scenario is over (goal of the last scene reached, or given up).
+    Finish,
+}
+
+/// One line of the timeline (`timeline.jsonl`).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct TimelineEvent {
+    /// Time since the launcher started (s).
+    pub t_s: f64,
+    /// Event kind (`world_change`, `detection`, `verdict`, `retrain_request`,
+    /// `retrain_progress`, `policy_swap`, `motion`, `goal_reached`, `timeout`, …).
+    pub kind: &'static str,
+    /// Human-readable detail.
+    pub detail: String,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Phase {
+    WaitingForSystem,
+    Reaching { scene: usize, since_s: f64 },
+    Done,
+}
+
+/// The state machine.
+#[derive(Debug)]
+pub struct Director {
+    cfg: ScenarioConfig,
+    phase: Phase,
+    events: Vec<TimelineEvent>,
+    path: Vec<PathSample>,
+    last_state: Option<RobotState>,
+    still_since_s: Option<f64>,
+    active_policy: Option<u64>,
+    // facts about the last world change
+    change_s: Option<f64>,
+    joints_at_change: Option<[f64; 5]>,
+    detect_s: Option<f64>,
+    verdict_s: Option<f64>,
+    request_s: Option<f64>,
+    published_s: Option<f64>,
+    motion_s: Option<f64>,
+    predicted_before_motion: bool,
+    moved_since_change: bool,
+    approved_after_change: bool,
+    policy_swaps: u64,
+    goals_reached: Vec<bool>,
+    p99_us: Option<f64>,
+    last_progress_print_s: f64,
+}
+
+fn tcp_of(state: &RobotState) -> Vector3<f64> {
+    Vector3::from(state.tcp_m)
+}
+
+impl Director {
+    /// A director for `cfg`.
+    pub fn new(cfg: ScenarioConfig) -> Self {
+        let n = cfg.world.len();
+        Self {
+            cfg,
+            phase: Phase::WaitingForSystem,
+            events: Vec::new(),
+            path: Vec::new(),
+            last_state: None,
+            still_since_s: None,
+            active_policy: None,
+            change_s: None,
+            joints_at_change: None,
+            detect_s: None,
+            verdict_s: None,
+            request_s: None,
+            published_s: None,
+            motion_s: None,
+            predicted_before_motion: false,
+            moved_since_change: false,
+            approved_after_change: false,
+            policy_swaps: 0,
+            goals_reached: vec![false; n],
+            p99_us: None,
+            last_progress_print_s: f64::NEG_INFINITY,
+        }
+    }
+
+    /// The timeline so far.
+    pub fn events(&self) -> &[TimelineEvent] {
+        &self.events
+    }
+
+    /// The executed TCP path so far.
+    pub fn path(&self) -> &[PathSample] {
+        &self.path
+    }
+
+    /// The scene index in force.
+    pub fn scene_index(&self) -> usize {
+        match self.phase {
+            Phase::Reaching { scene, .. } => scene,
+            Phase::WaitingForSystem => 0,
+            Phase::Done => self.cfg.world.len().saturating_sub(1),
+        }
+    }
+
+    /// Whether the scenario is over.
+    pub fn is_done(&self) -> bool {
+        self.phase == Phase::Done
+    }
+
+    fn log(&mut self, t_s: f64, kind: &'static str, detail: String) {
+        self.events.push(TimelineEvent { t_s, kind, detail });
+    }
+
+    fn target(&self, scene: usize) -> Vector3<f64> {
+        let g = &self.cfg.world[scene].1.goal;
+        Vector3::new(
+            g.center_m[0],
+            g.center_m[1],
+            g.center_m[2] + g.size_m / 2.0 + self.cfg.goal_hover_m,
+        )
+    }
+
+    fn tallest(scene: &SceneFile) -> f64 {
+        scene
+            .obstacles
+            .iter()
+            .map(|b| b.size_m[2])
+            .fold(0.0, f64::max)
+    }
+
+    /// Feeds one poll's observations at launcher time `t_s`; returns what to do.
+    pub fn step(&mut self, t_s: f64, obs: &Observations) -> Vec<Action> {
+        let mut actions = Vec::new();
+        let scene_idx = self.scene_index();
+        for s in &obs.states {
+            self.on_state(t_s, s, scene_idx);
+        }
+        if let Some(seen) = obs.scene {
+            self.on_scene_seen(t_s, &seen, scene_idx);
+        }
+        for v in &obs.verdicts {
+            self.on_verdict(t_s, v);
+        }
+        for r in &obs.retrain_requests {
+            self.on_retrain_request(t_s, r);
+        }
+        for p in &obs.progress {
+            self.on_progress(t_s, p);
+        }
+        if obs.rejected > 0 {
+            self.log(
+                t_s,
+                "rejected",
+                format!("{} malformed sample(s) rejected", obs.rejected),
+            );
+        }
+        self.advance_phase(t_s, &mut actions);
+        actions
+    }
+
+    /// The camera's view of the scene after a world change: detection time.
+    fn on_scene_seen(&mut self, t_s: f64, seen: &SeenScene, scene_idx: usize) {
+        if self.change_s.is_none() || self.detect_s.is_some() {
+            return;
+        }
+        let want = &self.cfg.world[scene_idx].1;
+        let height_ok = (f64::from(seen.tallest_obstacle_m) - Self::tallest(want)).abs() < 0.03;
+        let goal_ok = seen.goal_m.is_some_and(|g| {
+            (f64::from(g[0]) - want.goal.center_m[0]).abs() < 0.03
+                && (f64::from(g[1]) - want.goal.center_m[1]).abs() < 0.03
+        });
+        if height_ok && goal_ok {
+            self.detect_s = Some(t_s);
+            let dt = t_s - self.change_s.unwrap_or(t_s);
+            self.log(
+                t_s,
+                "detection",
+                format!(
+                    "camera sees the new scene (+{dt:.3} s): tallest obstacle {:.3} m, {} obstacle(s)",
+                    seen.tallest_obstacle_m, seen.obstacles
+                ),
+            );
+        }
+    }
+
+    /// A lookahead verdict: logged; the first after a change marks the prediction.
+    fn on_verdict(&mut self, t_s: f64, v: &TwinVerdict) {
+        let text = format!(
+            "policy {}: task_ok={} safe={} min_distance={:.3} m steps={} plan_approved={} ({} µs)",
+            v.policy_id,
+            v.is_task_ok(),
+            v.is_safe(),
+            v.min_distance_m,
+            v.steps,
+            v.is_plan_approved(),
+            v.lookahead_compute_us
+        );
+        self.log(t_s, "verdict", text);
+        if self.change_s.is_some() && v.is_plan_approved() {
+            self.approved_after_change = true;
+        }
+        if self.detect_s.is_some() && self.verdict_s.is_none() {
+            self.verdict_s = Some(t_s);
+            if !v.is_safe() && !self.moved_since_change && self.cfg.lookahead {
+                self.predicted_before_motion = true;
+                self.log(
+                    t_s,
+                    "collision_predicted",
+                    "the lookahead predicts a collision; the arm has not moved".into(),
+                );
+            }
+        } else if self.verdict_s.is_some()
+            && !v.is_safe()
+            && !self.moved_since_change
+            && self.cfg.lookahead
+        {
+            self.predicted_before_motion = true;
+        }
+    }
+
+    /// A retrain request: logged; the first after a change is timed.
+    fn on_retrain_request(&mut self, t_s: f64, r: &RetrainRequest) {
+        if self.request_s.is_none() && self.change_s.is_some() {
+            self.request_s = Some(t_s);
+        }
+        self.log(
+            t_s,
+            "retrain_request",
+            format!(
+                "request {} for policy {} ({} obstacle(s))",
+                r.request_id, r.failed_policy_id, r.obstacle_count
+            ),
+        );
+    }
+
+    /// Retraining progress: logged at most once a second, and when it ends.
+    fn on_progress(&mut self, t_s: f64, p: &RetrainProgress) {
+        let phase = RetrainPhase::try_from(p.phase).ok();
+        let published = phase == Some(RetrainPhase::Published);
+        if published && self.published_s.is_none() && self.request_s.is_some() {
+            self.published_s = Some(t_s);
+        }
+        if published
+            || phase == Some(RetrainPhase::BudgetExhausted)
+            || t_s - self.last_progress_print_s >= 1.0
+        {
+            self.last_progress_print_s = t_s;
+            self.log(
+                t_s,
+                "retrain_progress",
+                format!(
+                    "{:?}: {} steps, mean return {:.2}, success {:.0} %, {:.1} s",
+                    phase.unwrap_or(RetrainPhase::Training),
+                    p.steps_done,
+                    p.mean_return,
+                    p.success_rate * 100.0,
+                    p.wall_time_s
+                ),
+            );
+        }
+    }
+
+    /// Moves the scenario on: start, the next scene when due and settled, the end.
+    fn advance_phase(&mut self, t_s: f64, actions: &mut Vec<Action>) {
+        match self.phase {
+            Phase::WaitingForSystem => {
+                if self.last_state.is_some() {
+                    self.phase = Phase::Reaching {
+                        scene: 0,
+                        since_s: t_s,
+                    };
+                    self.log(t_s, "start", "system up; scene 0 in force".into());
+                }
+            }
+            Phase::Reaching { scene, since_s } => {
+                let last = scene + 1 == self.cfg.world.len();
+                let reached = self.goals_reached[scene];
+                let timed_out = t_s - since_s > self.cfg.phase_timeout_s;
+                if timed_out && !reached {
+                    self.log(
+                        t_s,
+                        "timeout",
+                        format!(
+                            "goal {scene} not reached within {:.0} s",
+                            self.cfg.phase_timeout_s
+                        ),
+                    );
+                }
+                if last && (reached || timed_out) {
+                    self.phase = Phase::Done;
+                    actions.push(Action::Finish);
+                } else if !last {
+                    let at_home = self.cfg.home_q_rad.is_none_or(|h| {
+                        self.last_state.is_some_and(|s| {
+                            max_joint_gap_rad(&h, &s.joints_rad) <= HOME_TOLERANCE_RAD
+                        })
+                    });
+                    let settled = at_home
+                        && self
+                            .still_since_s
+                            .is_some_and(|s| t_s - s >= self.cfg.settle_s);
+                    let due = t_s >= self.cfg.world[scene + 1].0;
+                    if due && ((reached && settled) || timed_out) {
+                        let next = scene + 1;
+                        self.phase = Phase::Reaching {
+                            scene: next,
+                            since_s: t_s,
+                        };
+                        self.change_s = Some(t_s);
+                        self.joints_at_change = self.last_state.map(|s| s.joints_rad);
+                        self.moved_since_change = false;
+                        (
+                            self.detect_s,
+                            self.verdict_s,
+                            self.request_s,
+                            self.published_s,
+                            self.motion_s,
+                        ) = (None, None, None, None, None);
+                        let name = self.cfg.world[next].1.name.clone();
+                        self.log(
+                            t_s,
+                            "world_change",
+                            format!(
+                                "world changes to scene {next} ({name}): tallest obstacle {:.2} m",
+                                Self::tallest(&self.cfg.world[next].1)
+                            ),
+                        );
+                        actions.push(Action::SwitchScene(next));
+                    }
+                }
+            }
+            Phase::Done => {}
+        }
+    }
+
+    fn on_state(&mut self, t_s: f64, s: &RobotState, scene: usize) {
+        let tcp = tcp_of(s);
+        if self
+            .path
+            .last()
+            .is_none_or(|p| (Vector3::from(p.tcp_m) - tcp).norm() > 0.001)
+        {
+            self.path.push(PathSample {
+                t_s,
+                tcp_m: s.tcp_m,
+                scene,
+            });
+        }
+        let moving = self.last_state.is_some_and(|prev| {
+            prev.joints_rad
+                .iter()
+                .zip(s.joints_rad.iter())
+                .any(|(a, b)| (a - b).abs() > 1e-4)
+        });
+        if moving {
+            self.still_since_s = None;
+        } else if self.still_since_s.is_none() {
+            self.still_since_s = Some(t_s);
+        }
+        if let Some(q0) = self.joints_at_change
+            && !self.moved_since_change
+            && q0
+                .iter()
+                .zip(s.joints_rad.iter())
+                .any(|(a, b)| (a - b).abs() > 2e-3)
+        {
+            self.moved_since_change = true;
+            self.motion_s = Some(t_s);
+            let dt = t_s - self.change_s.unwrap_or(t_s);
+            self.log(
+                t_s,
+                "motion",
+                format!("the arm moves in the new scene (+{dt:.3} s)"),
+            );
+        }
+        if self.active_policy != Some(s.active_policy_id) {
+            // The start policy taking over from none (id 0) is not a swap.
+            if self.active_policy.is_some_and(|p| p != 0) {
+                self.policy_swaps += 1;
+                if self.published_s.is_none() && self.request_s.is_some() {
+                    self.published_s = Some(t_s);
+                }
+                self.log(
+                    t_s,
+                    "policy_swap",
+                    format!("policy {} now active", s.active_policy_id),
+                );
+            }
+            self.active_policy = Some(s.active_policy_id);
+        }
+        if s.p99_compute_us.is_finite() && s.p99_compute_us > 0.0 {
+            self.p99_us = Some(f64::from(s.p99_compute_us));
+        }
+        if !self.goals_reached[scene]
+            && (tcp - self.target(scene)).norm() <= self.cfg.goal_tolerance_m
+        {
+            self.goals_reached[scene] = true;
+            self.log(
+                t_s,
+                "goal_reached",
+                format!(
+                    "goal {scene} reached (TCP within {:.3} m)",
+                    self.cfg.goal_tolerance_m
+                ),
+            );
+        }
+        self.last_state = Some(*s);
+    }
+
+    /// The summary of the run so far (collisions and p99.9 come from outside).
+    pub fn summary(
+        &self,
+        collisions: u64,
+        cycle_p999_us: Option<f64>,
+        restarts: u64,
+        seed: u64,
+    ) -> Summary {
+        let since = |t: Option<f64>| t.zip(self.change_s).map(|(t, c)| t - c);
+        let mut notes = Vec::new();
+        for (i, r) in self.goals_reached.iter().enumerate() {
+            if !r {
+                notes.push(format!("goal of scene {i} was not reached"));
+            }
+        }
+        if self.approved_after_change && !self.moved_since_change {
+            notes.push(
+                "a plan was approved after the world change but the arm never moved: the cycle \
+                 refused it (see `plan rejected` in logs/rt-core.log)"
+                    .to_owned(),
+            );
+        }
+        Summary {
+            goal_reached: self.goals_reached.last().copied().unwrap_or(false),
+            collisions,
+            collision_predicted_before_motion: self.predicted_before_motion,
+            policy_swaps: self.policy_swaps,
+            world_change_to_detection_s: since(self.detect_s),
+            world_change_to_verdict_s: since(self.verdict_s),
+            retrain_s: self.request_s.zip(self.published_s).map(|(a, b)| b - a),
+            world_change_to_motion_s: since(self.motion_s),
+            cycle_p99_us: self.p99_us,
+            cycle_p999_us,
+            lookahead: self.cfg.lookahead,
+            seed,
+            restarts,
+            arm_rejected_commands: None,
+            notes,
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use shm_schemas::EpisodeEnd;
+    use shm_schemas::scene_file::{BoxSpec, GoalSpec, TableSpec};
+
+    fn scene(goal: [f64; 3], h: f64) -> SceneFile {
+        SceneFile {
+            name: format!("h{h}"),
+            table: TableSpec::default(),
+            goal: GoalSpec {
+                center_m: goal,
+                size_m: 0.05,
+            },
+            obstacles: vec![BoxSpec {
+                center_m: [0.35, 0.0, h / 2.0],
+                size_m: [0.06, 0.06, h],
+            }],
+        }
+    }
+
+    fn state(tcp: [f64; 3], q0: f64, policy: u64) -> RobotState {
+        RobotState {
+            tcp_m: tcp,
+            joints_rad: [q0, 0.0, 0.0, 0.0, 0.0],
+            active_policy_id: policy,
+            p99_compute_us: 12.0,
+            ..RobotState::default()
+        }
+    }
+
+    fn obs_state(s: RobotState) -> Observations {
+        Observations {
+            states: vec![s],
+            ..Observations::default()
+        }
+    }
+
+    #[test]
+    fn measures_the_self_improving_loop_from_the_outside() {
+        let cfg = ScenarioConfig {
+            world: vec![
+                (0.0, scene([0.4, 0.2, 0.025], 0.06)),
+                (5.0, scene([0.4, -0.2, 0.025], 0.35)),
+            ],
+            goal_tolerance_m: 0.02,
+            goal_hover_m: 0.05,
+            phase_timeout_s: 60.0,
+            settle_s: 0.5,
+            lookahead: true,
+            home_q_rad: None,
+        };
+        let g0 = [0.4, 0.2, 0.1];
+        let g1 = [0.4, -0.2, 0.1];
+        let mut d = Director::new(cfg);
+        assert!(
+            d.step(0.0, &obs_state(state([0.3, 0.0, 0.25], 0.0, 1)))
+                .is_empty()
+        );
+        d.step(1.0, &obs_state(state([0.35, 0.1, 0.2], 0.1, 1)));
+        d.step(2.0, &obs_state(state(g0, 0.2, 1)));
+        // Reached but the switch is due only at 5 s, and the arm must settle.
+        assert!(d.step(3.0, &obs_state(state(g0, 0.2, 1))).is_empty());
+        let actions = d.step(5.1, &obs_state(state(g0, 0.2, 1)));
+        assert_eq!(actions, vec![Action::SwitchScene(1)]);
+        // Detection of the tall box.
+        let seen = Observations {
+            scene: Some(SeenScene {
+                goal_m: Some([0.4, -0.2, 0.025]),
+                tallest_obstacle_m: 0.35,
+                obstacles: 1,
+                sequence: 9,
+            }),
+            ..Observations::default()
+        };
+        d.step(5.2, &seen);
+        let mut v = TwinVerdict {
+            policy_id: 1,
+            episode_end: EpisodeEnd::Collision as u8,
+            ..TwinVerdict::default()
+        };
+        v.set_flags(false, false, false);
+        d.step(
+            5.21,
+            &Observations {
+                verdicts: vec![v],
+                retrain_requests: vec![RetrainRequest::default()],
+                ..Observations::default()
+            },
+        );
+        d.step(
+            7.0,
+            &Observations {
+                progress: vec![RetrainProgress {
+                    phase: RetrainPhase::Published as u8,
+                    ..RetrainProgress::default()
+                }],
+                states: vec![state(g0, 0.2, 2)],
+                ..Observations::default()
+            },
+        );
+        d.step(7.5, &obs_state(state([0.38, 0.0, 0.3], 0.3, 2)));
+        let actions = d.step(9.0, &obs_state(state(g1, 0.5, 2)));
+        assert_eq!(actions, vec![Action::Finish]);
+        let s = d.summary(0, Some(30.0), 0, 7);
+        assert!(s.goal_reached);
+        assert!(s.collision_predicted_before_motion);
+        assert_eq!(s.policy_swaps, 1);
+        assert!((s.world_change_to_detection_s.unwrap() - 0.1).abs() < 1e-9);
+        assert!((s.world_change_to_verdict_s.unwrap() - 0.11).abs() < 1e-9);
+        assert!((s.retrain_s.unwrap() - (7.0 - 5.21)).abs() < 1e-9);
+        assert!((s.world_change_to_motion_s.unwrap() - 2.4).abs() < 1e-9);
+        assert_eq!(s.cycle_p99_us, Some(12.0));
+        let kinds: Vec<&str> = d.events().iter().map(|e| e.kind).collect();
+        for k in [
+            "start",
+            "goal_reached",
+            "world_change",
+            "detection",
+            "verdict",
+            "collision_predicted",
+            "retrain_request",
+            "policy_swap",
+            "motion",
+        ] {
+            assert!(kinds.contains(&k), "timeline lacks {k}: {kinds:?}");
+        }
+        assert!(d.path().iter().any(|p| p.scene == 1));
+    }
+
+    #[test]
+    fn a_blind_run_that_moves_first_is_not_credited_with_a_prediction() {
+        let cfg = ScenarioConfig {
+            world: vec![
+                (0.0, scene([0.4, 0.2, 0.025], 0.06)),
+                (0.0, scene([0.4, -0.2, 0.025], 0.35)),
+            ],
+            goal_tolerance_m: 0.02,
+            goal_hover_m: 0.05,
+            phase_timeout_s: 3.0,
+            settle_s: 0.0,
+            lookahead: false,
+            home_q_rad: None,
+        };
+        let mut d = Director::new(cfg);
+        d.step(0.0, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1)));
+        // Goal 0 reached, arm still, scene 1 due at once: the world changes.
+        assert_eq!(
+            d.step(0.1, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1))),
+            vec![Action::SwitchScene(1)]
+        );
+        d.step(0.3, &obs_state(state([0.38, 0.0, 0.2], 0.3, 1)));
+        let seen = Observations {
+            scene: Some(SeenScene {
+                goal_m: Some([0.4, -0.2, 0.025]),
+                tallest_obstacle_m: 0.35,
+                obstacles: 1,
+                sequence: 3,
+            }),
+            ..Observations::default()
+        };
+        d.step(0.4, &seen);
+        let mut v = TwinVerdict {
+            episode_end: EpisodeEnd::Collision as u8,
+            ..TwinVerdict::default()
+        };
+        v.set_flags(false, false, false);
+        d.step(
+            0.5,
+            &Observations {
+                verdicts: vec![v],
+                ..Observations::default()
+            },
+        );
+        assert_eq!(d.step(4.0, &Observations::default()), vec![Action::Finish]);
+        let s = d.summary(1, None, 0, 0);
+        assert!(!s.collision_predicted_before_motion);
+        assert!(!s.goal_reached);
+        assert_eq!(s.collisions, 1);
+        assert!(s.notes.iter().any(|n| n.contains("scene 1")));
+    }
+}

@@ -1,0 +1,236 @@
+//! [`PolicyLoader`]: the acceptance gate for [`PolicyBlob`]s. A blob becomes an
+//! [`MlpPolicy`] only if it validates, has the expected dimensions and was trained for the
+//! running task; every rejection is counted per [`PolicyRejectReason`].
+
+use core::sync::atomic::{AtomicU64, Ordering};
+
+use shm_schemas::{PolicyBlob, SchemaError};
+
+use super::mlp::MlpPolicy;
+use shm_schemas::{ACT_DIM, OBS_DIM};
+
+/// Why a policy blob was refused. `Copy`, no `String`: the caller counts and logs it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, thiserror::Error)]
+#[repr(u8)]
+pub enum PolicyRejectReason {
+    /// NaN or ±Inf in the weights, normalisation or scaling.
+    #[error("non-finite number in the blob")]
+    NonFinite = 0,
+    /// Observation or action dimension differs from the running task's.
+    #[error("observation/action dimensions do not match the task")]
+    DimensionMismatch = 1,
+    /// Trained for another task configuration.
+    #[error("task-config hash does not match the running task")]
+    TaskHashMismatch = 2,
+    /// The checksum does not match the contents.
+    #[error("bad checksum")]
+    BadChecksum = 3,
+    /// Layer sizes, counts or enum bytes are inconsistent or out of capacity.
+    #[error("invalid layout (layer sizes, weight count or activation)")]
+    LayoutInvalid = 4,
+    /// A blob format this build does not read.
+    #[error("unsupported blob format version")]
+    VersionMismatch = 5,
+    /// A finite value out of range (non-positive std or clip).
+    #[error("normalisation or clipping value out of range")]
+    OutOfRange = 6,
+}
+
+impl PolicyRejectReason {
+    /// Every reason, in discriminant order.
+    pub const ALL: [PolicyRejectReason; 7] = [
+        Self::NonFinite,
+        Self::DimensionMismatch,
+        Self::TaskHashMismatch,
+        Self::BadChecksum,
+        Self::LayoutInvalid,
+        Self::VersionMismatch,
+        Self::OutOfRange,
+    ];
+
+    /// A short static name for logs and metrics.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::NonFinite => "non_finite",
+            Self::DimensionMismatch => "dimension_mismatch",
+            Self::TaskHashMismatch => "task_hash_mismatch",
+            Self::BadChecksum => "bad_checksum",
+            Self::LayoutInvalid => "layout_invalid",
+            Self::VersionMismatch => "version_mismatch",
+            Self::OutOfRange => "out_of_range",
+        }
+    }
+}
+
+impl From<SchemaError> for PolicyRejectReason {
+    fn from(e: SchemaError) -> Self {
+        match e {
+            SchemaError::NonFinite { .. } => Self::NonFinite,
+            SchemaError::ChecksumMismatch { .. } => Self::BadChecksum,
+            SchemaError::VersionMismatch { .. } => Self::VersionMismatch,
+            SchemaError::OutOfRange { .. } => Self::OutOfRange,
+            SchemaError::CountOverCapacity { .. }
+            | SchemaError::BadEnum { .. }
+            | SchemaError::LayoutInvalid { .. } => Self::LayoutInvalid,
+        }
+    }
+}
+
+/// Lock-free counters of accepted and rejected blobs, one per reason. Shareable between
+/// threads (`&self` methods, relaxed atomics).
+#[derive(Debug, Default)]
+pub struct RejectCounters {
+    rejected: [AtomicU64; PolicyRejectReason::ALL.len()],
+    accepted: AtomicU64,
+}
+
+impl RejectCounters {
+    /// Counts one rejection.
+    pub fn record(&self, reason: PolicyRejectReason) {
+        self.rejected[reason as usize].fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Rejections for `reason` so far.
+    pub fn count(&self, reason: PolicyRejectReason) -> u64 {
+        self.rejected[reason as usize].load(Ordering::Relaxed)
+    }
+
+    /// All rejections so far.
+    pub fn total_rejected(&self) -> u64 {
+        self.rejected
+            .iter()
+            .map(|c| c.load(Ordering::Relaxed))
+            .sum()
+    }
+
+    /// Accepted blobs so far.
+    pub fn accepted(&self) -> u64 {
+        self.accepted.load(Ordering::Relaxed)
+    }
+
+    /// A snapshot `(reason, count)` of every reason.
+    pub fn snapshot(&self) -> [(PolicyRejectReason, u64); PolicyRejectReason::ALL.len()] {
+        PolicyRejectReason::ALL.map(|r| (r, self.count(r)))
+    }
+}
+
+/// What the running task expects of a policy.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PolicyExpectation {
+    /// `TaskConfig::hash()` of the running task.
+    pub task_config_hash: u64,
+    /// Observation dimension.
+    pub obs_dim: usize,
+    /// Action dimension.
+    pub act_dim: usize,
+}
+
+impl PolicyExpectation {
+    /// The twin's dimensions ([`OBS_DIM`], [`ACT_DIM`]) and the given task hash.
+    pub const fn for_task(task_config_hash: u64) -> Self {
+        Self {
+            task_config_hash,
+            obs_dim: OBS_DIM,
+            act_dim: ACT_DIM,
+        }
+    }
+}
+
+/// Validates blobs and turns accepted ones into [`MlpPolicy`]s, counting rejections.
+///
+/// ```
+/// use policy::{MlpPolicy, PolicyExpectation, PolicyLoader, PolicyRejectReason};
+/// use shm_schemas::PolicyBlobBuilder;
+///
+/// let loader = PolicyLoader::new(PolicyExpectation::for_task(0xabc));
+/// let blob = PolicyBlobBuilder::random(1, 0xabc, 17, &[64, 64], 3, 7).build().unwrap();
+/// let policy = loader.prepare(&blob).unwrap();
+/// assert_eq!(policy.policy_id(), 1);
+///
+/// let other_task = PolicyBlobBuilder::random(2, 0xdef, 17, &[64, 64], 3, 7).build().unwrap();
+/// let mut spare = MlpPolicy::with_capacity(); // allocate once, reuse for every swap
+/// assert_eq!(loader.prepare_into(&other_task, &mut spare), Err(PolicyRejectReason::TaskHashMismatch));
+/// assert_eq!(loader.counters().count(PolicyRejectReason::TaskHashMismatch), 1);
+/// ```
+#[derive(Debug)]
+pub struct PolicyLoader {
+    expected: PolicyExpectation,
+    counters: RejectCounters,
+}
+
+impl PolicyLoader {
+    /// A loader for the given expectation, with zeroed counters.
+    pub fn new(expected: PolicyExpectation) -> Self {
+        Self {
+            expected,
+            counters: RejectCounters::default(),
+        }
+    }
+
+    /// The expectation blobs are checked against.
+    pub fn expected(&self) -> PolicyExpectation {
+        self.expected
+    }
+
+    /// The counters.
+    pub fn counters(&self) -> &RejectCounters {
+        &self.counters
+    }
+
+    /// Checks a blob without building anything: [`PolicyBlob::validate`] (format, layout,
+    /// checksum, finite values, ranges), then dimensions, then task hash. Counts the
+    /// outcome. No allocation.
+    ///
+    /// # Errors
+    /// The [`PolicyRejectReason`].
+    pub fn check(&self, blob: &PolicyBlob) -> Result<(), PolicyRejectReason> {
+        let result = Self::check_against(blob, self.expected);
+        match result {
+            Ok(()) => {
+                self.counters.accepted.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(reason) => self.counters.record(reason),
+        }
+        result
+    }
+
+    fn check_against(
+        blob: &PolicyBlob,
+        expected: PolicyExpectation,
+    ) -> Result<(), PolicyRejectReason> {
+        blob.validate()?;
+        if blob.obs_dim as usize != expected.obs_dim || blob.act_dim as usize != expected.act_dim {
+            return Err(PolicyRejectReason::DimensionMismatch);
+        }
+        if blob.task_config_hash != expected.task_config_hash {
+            return Err(PolicyRejectReason::TaskHashMismatch);
+        }
+        Ok(())
+    }
+
+    /// Checks a blob and builds a new policy from it (allocates the policy's buffers once).
+    ///
+    /// # Errors
+    /// The [`PolicyRejectReason`] (counted).
+    pub fn prepare(&self, blob: &PolicyBlob) -> Result<MlpPolicy, PolicyRejectReason> {
+        self.check(blob)?;
+        let mut policy = MlpPolicy::with_capacity();
+        policy.load_from(blob);
+        Ok(policy)
+    }
+
+    /// Checks a blob and loads it into an existing policy's buffers — no allocation, for
+    /// double-buffered hot swaps. On rejection `target` is left unchanged.
+    ///
+    /// # Errors
+    /// The [`PolicyRejectReason`] (counted).
+    pub fn prepare_into(
+        &self,
+        blob: &PolicyBlob,
+        target: &mut MlpPolicy,
+    ) -> Result<(), PolicyRejectReason> {
+        self.check(blob)?;
+        target.load_from(blob);
+        Ok(())
+    }
+}

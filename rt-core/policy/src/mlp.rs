@@ -1,0 +1,296 @@
+//! [`MlpPolicy`]: a [`PolicyBlob`]'s network copied into buffers allocated once, evaluated
+//! without allocation (the deterministic mean action).
+
+use shm_schemas::{
+    Activation, MAX_ACT, MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_OBS, MAX_WEIGHTS, PolicyBlob,
+};
+
+use super::kernel::{COLUMN_BLOCK, Simd, columns, rows, tanh};
+use shm_schemas::{ACT_DIM, OBS_DIM};
+
+/// Widest vector any layer reads or writes.
+const MAX_WIDTH: usize = {
+    let mut w = MAX_HIDDEN_WIDTH;
+    if MAX_OBS > w {
+        w = MAX_OBS;
+    }
+    if MAX_ACT > w {
+        w = MAX_ACT;
+    }
+    w
+};
+
+/// Most dense layers (hidden + output).
+const MAX_LAYERS: usize = MAX_HIDDEN_LAYERS + 1;
+
+/// Layers at least this wide are stored transposed for the column kernel; narrower ones
+/// (the action head) stay row-major.
+const COLUMN_MIN_OUT: usize = 16;
+
+/// Capacity of the policy's weight buffer: the blob capacity plus the worst-case padding
+/// of transposed layers (each input row padded to a multiple of [`COLUMN_BLOCK`]).
+const BUFFER_CAPACITY: usize = MAX_WEIGHTS + MAX_LAYERS * MAX_WIDTH * COLUMN_BLOCK;
+
+/// One dense layer's place in the weight buffer.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+struct DenseSpec {
+    in_dim: usize,
+    out_dim: usize,
+    /// Start of the layer's weights in the buffer; the bias (`out_dim` values) follows them.
+    offset: usize,
+    /// 0: weights row-major `[out, in]`; otherwise transposed, `wt[j * stride + o]`.
+    stride: usize,
+}
+
+impl DenseSpec {
+    fn weights_len(&self) -> usize {
+        if self.stride == 0 {
+            self.in_dim * self.out_dim
+        } else {
+            self.in_dim * self.stride
+        }
+    }
+}
+
+/// Why [`MlpPolicy::evaluate`] refused its arguments.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum PolicyEvalError {
+    /// No network is loaded.
+    #[error("no policy loaded")]
+    Empty,
+    /// `obs` or `out` has a length other than the policy's dimensions.
+    #[error("observation/action length does not match the policy")]
+    DimensionMismatch,
+}
+
+/// A multilayer perceptron ready for the real-time path.
+///
+/// All memory is allocated by [`MlpPolicy::with_capacity`] (one weight buffer sized to the
+/// blob format's [`MAX_WEIGHTS`] plus layout padding, fixed arrays for everything else); loading another blob
+/// into it ([`MlpPolicy::load_from`], used by [`super::PolicyLoader::prepare_into`]) and
+/// evaluating it ([`MlpPolicy::act`]) never allocate. Scratch vectors live on the stack
+/// (2 × 1 KB), so `act` takes `&self` and a policy can be shared read-only between threads.
+///
+/// # Performance
+/// Wide layers are stored transposed and evaluated 32–64 outputs at a time in registers
+/// (vectorised; an AVX2 build is picked at construction when the CPU has it), the narrow
+/// action head as row dot products with eight lane accumulators, and `tanh` is a fast,
+/// vectorisable 4-ulp version. The summation order is fixed, so results are bit-identical across runs
+/// and kernel builds. See `benches/policy.rs` for figures.
+#[derive(Debug, Clone)]
+pub struct MlpPolicy {
+    policy_id: u64,
+    task_config_hash: u64,
+    obs_dim: usize,
+    act_dim: usize,
+    n_layers: usize,
+    layers: [DenseSpec; MAX_LAYERS],
+    activation: Activation,
+    output_activation: Activation,
+    obs_mean: [f32; MAX_OBS],
+    obs_std: [f32; MAX_OBS],
+    obs_clip: f32,
+    action_scale: [f32; MAX_ACT],
+    action_clip: f32,
+    weights: Box<[f32]>,
+    simd: Simd,
+}
+
+impl MlpPolicy {
+    /// An empty policy holding buffers for the largest network a blob can describe (the
+    /// only allocation this type makes). [`Self::is_loaded`] is `false` until
+    /// [`Self::load_from`].
+    pub fn with_capacity() -> Self {
+        Self {
+            policy_id: 0,
+            task_config_hash: 0,
+            obs_dim: 0,
+            act_dim: 0,
+            n_layers: 0,
+            layers: [DenseSpec::default(); MAX_LAYERS],
+            activation: Activation::Tanh,
+            output_activation: Activation::Identity,
+            obs_mean: [0.0; MAX_OBS],
+            obs_std: [1.0; MAX_OBS],
+            obs_clip: 0.0,
+            action_scale: [0.0; MAX_ACT],
+            action_clip: 0.0,
+            weights: vec![0.0; BUFFER_CAPACITY].into_boxed_slice(),
+            simd: Simd::detect(),
+        }
+    }
+
+    /// Copies a blob's network into this policy's buffers. No allocation.
+    ///
+    /// The blob must already have passed [`PolicyBlob::validate`] (the loader does that);
+    /// a blob whose activation bytes are invalid leaves the policy unloaded.
+    pub(crate) fn load_from(&mut self, blob: &PolicyBlob) {
+        self.n_layers = 0;
+        let (Ok(activation), Ok(output_activation)) = (
+            Activation::try_from(blob.activation),
+            Activation::try_from(blob.output_activation),
+        ) else {
+            return;
+        };
+        let mut offset = 0usize;
+        let mut n_layers = 0usize;
+        for i in 0..blob.n_layers().min(MAX_LAYERS) {
+            let Some(layer) = blob.layer(i) else {
+                return;
+            };
+            let (n_in, n_out) = (layer.in_dim, layer.out_dim);
+            let stride = if n_out >= COLUMN_MIN_OUT {
+                n_out.div_ceil(COLUMN_BLOCK) * COLUMN_BLOCK
+            } else {
+                0
+            };
+            let spec = DenseSpec {
+                in_dim: n_in,
+                out_dim: n_out,
+                offset,
+                stride,
+            };
+            let w_end = offset + spec.weights_len();
+            let b_end = w_end + n_out;
+            if b_end > self.weights.len() || n_in > MAX_WIDTH || n_out > MAX_WIDTH {
+                return;
+            }
+            let dst = &mut self.weights[offset..w_end];
+            if stride == 0 {
+                dst.copy_from_slice(layer.weights);
+            } else {
+                dst.fill(0.0);
+                for (o, row) in layer.weights.chunks_exact(n_in.max(1)).enumerate() {
+                    for (j, w) in row.iter().enumerate() {
+                        dst[j * stride + o] = *w;
+                    }
+                }
+            }
+            self.weights[w_end..b_end].copy_from_slice(layer.bias);
+            self.layers[i] = spec;
+            offset = b_end;
+            n_layers += 1;
+        }
+        if n_layers != blob.n_layers() {
+            return;
+        }
+        self.policy_id = blob.policy_id;
+        self.task_config_hash = blob.task_config_hash;
+        self.obs_dim = blob.obs_dim as usize;
+        self.act_dim = blob.act_dim as usize;
+        self.activation = activation;
+        self.output_activation = output_activation;
+        self.obs_mean = blob.obs_mean;
+        self.obs_std = blob.obs_std;
+        self.obs_clip = blob.obs_clip;
+        self.action_scale = blob.action_scale;
+        self.action_clip = blob.action_clip;
+        self.n_layers = n_layers;
+    }
+
+    /// Whether a network is loaded.
+    pub fn is_loaded(&self) -> bool {
+        self.n_layers > 0
+    }
+
+    /// The loaded policy's id (0 when empty).
+    pub fn policy_id(&self) -> u64 {
+        if self.is_loaded() { self.policy_id } else { 0 }
+    }
+
+    /// The task-config hash the loaded policy was trained for.
+    pub fn task_config_hash(&self) -> u64 {
+        self.task_config_hash
+    }
+
+    /// Observation dimension (0 when empty).
+    pub fn obs_dim(&self) -> usize {
+        self.obs_dim
+    }
+
+    /// Action dimension (0 when empty).
+    pub fn act_dim(&self) -> usize {
+        self.act_dim
+    }
+
+    /// The deterministic mean action for a twin observation. No allocation, no panic.
+    ///
+    /// For a policy prepared for the twin's dimensions ([`OBS_DIM`] → [`ACT_DIM`], which
+    /// [`super::PolicyLoader::prepare`] with [`super::PolicyExpectation::for_task`]
+    /// guarantees). Any other policy — or an empty one — yields the zero action (no
+    /// motion); use [`Self::evaluate`] to see the error.
+    pub fn act(&self, obs: &[f32; OBS_DIM]) -> [f32; ACT_DIM] {
+        let mut out = [0.0; ACT_DIM];
+        if self.evaluate(obs, &mut out).is_err() {
+            out = [0.0; ACT_DIM];
+        }
+        out
+    }
+
+    /// Evaluates the network on `obs` (length `obs_dim`) into `out` (length `act_dim`).
+    /// No allocation.
+    ///
+    /// # Errors
+    /// [`PolicyEvalError`] when empty or the lengths differ from the policy's.
+    pub fn evaluate(&self, obs: &[f32], out: &mut [f32]) -> Result<(), PolicyEvalError> {
+        if !self.is_loaded() {
+            return Err(PolicyEvalError::Empty);
+        }
+        if obs.len() != self.obs_dim || out.len() != self.act_dim {
+            return Err(PolicyEvalError::DimensionMismatch);
+        }
+        let mut a = [0.0f32; MAX_WIDTH];
+        let mut b = [0.0f32; MAX_WIDTH];
+        let clip = self.obs_clip;
+        for (i, x) in a[..self.obs_dim].iter_mut().enumerate() {
+            *x = ((obs[i] - self.obs_mean[i]) / self.obs_std[i]).clamp(-clip, clip);
+        }
+        let (mut src, mut dst) = (&mut a, &mut b);
+        for (k, layer) in self.layers[..self.n_layers].iter().enumerate() {
+            let w_end = layer.offset + layer.weights_len();
+            let w = &self.weights[layer.offset..w_end];
+            let bias = &self.weights[w_end..w_end + layer.out_dim];
+            let x = &src[..layer.in_dim];
+            let act = if k + 1 == self.n_layers {
+                self.output_activation
+            } else {
+                self.activation
+            };
+            let y = &mut dst[..layer.out_dim];
+            if layer.stride == 0 {
+                rows(w, x, bias, y);
+            } else {
+                columns(self.simd, w, layer.stride, x, bias, y);
+            }
+            match act {
+                Activation::Identity => {}
+                Activation::Tanh => y.iter_mut().for_each(|v| *v = tanh(*v)),
+                Activation::Relu => y.iter_mut().for_each(|v| *v = v.max(0.0)),
+            }
+            core::mem::swap(&mut src, &mut dst);
+        }
+        let c = self.action_clip;
+        for (j, o) in out.iter_mut().enumerate() {
+            *o = src[j].clamp(-c, c) * self.action_scale[j];
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn empty_policy_yields_zero_action_and_an_error() {
+        let p = MlpPolicy::with_capacity();
+        assert!(!p.is_loaded());
+        assert_eq!(p.act(&[1.0; OBS_DIM]), [0.0; ACT_DIM]);
+        let mut out = [0.0; ACT_DIM];
+        assert_eq!(
+            p.evaluate(&[1.0; OBS_DIM], &mut out),
+            Err(PolicyEvalError::Empty)
+        );
+    }
+}

@@ -1,0 +1,534 @@
+//! The ROS 2 bridge: a non-real-time process (binary `ros-bridge`) that subscribes to the
+//! runtime's iceoryx2 topics and republishes them over DDS (ros2-client), so a ROS 2 user sees
+//! the arm, the scene and the lookahead verdict in RViz with no extra code:
+//!
+//! | ROS 2 topic | type | from |
+//! |---|---|---|
+//! | `/joint_states` | `sensor_msgs/JointState` | latest `RobotState`, at `rate_hz` (≥ 50 Hz) |
+//! | `/tf` | `tf2_msgs/TFMessage` | link frames from the twin's forward kinematics |
+//! | `/robot_description` | `std_msgs/String` (transient local) | `assets/xarm5.urdf` |
+//! | `/foresight/scene_markers` | `visualization_msgs/MarkerArray` | goal and obstacle boxes (from `DetectionFrame`s), the TCP trail, and the last `TwinVerdict` as text |
+//!
+//! The bridge never touches the cycle: it reads the same shared-memory samples as any other
+//! subscriber, so a slow DDS peer cannot delay a control cycle.
+//!
+//! DDS discovery: by default the participant is restricted to the loopback interface
+//! (`--ros-network 127.0.0.1`), which is right for a single machine and for tests; pass the
+//! robot PC's address to reach other hosts. rustdds also announces itself to same-host peers
+//! over unicast, so processes on one machine match even where `lo` has no MULTICAST flag.
+
+pub mod msgs;
+
+use std::collections::VecDeque;
+use std::net::IpAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use iceoryx2::prelude::*;
+use nalgebra::{Isometry3, Vector3};
+use ros2_client::{
+    Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, QosProfile,
+    dds::rustdds::DomainParticipantBuilder,
+    qos::{Durability, History, WhenFull},
+};
+use serde::{Deserialize, Serialize};
+use shm_schemas::{DetectionFrame, ObjectClass, RobotState, TwinVerdict, services};
+
+use msgs::{
+    ColorRgba, Header, JointState, Marker, MarkerArray, Point, Pose, Quaternion, Time,
+    Vector3 as RosVector3,
+};
+use twin::{DOF, LinkPoses, RobotModel};
+
+/// Why the bridge could not start or stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum RosBridgeError {
+    /// DDS participant, node, topic or publisher creation failed.
+    #[error("ROS 2 / DDS set-up failed: {0}")]
+    Dds(String),
+    /// An iceoryx2 port could not be opened.
+    #[error("shared-memory set-up failed: {0}")]
+    Shm(String),
+}
+
+/// Bridge settings.
+#[derive(Debug, Clone)]
+pub struct RosBridgeConfig {
+    /// iceoryx2 service-name prefix of the run to bridge.
+    pub prefix: String,
+    /// DDS domain id (ROS_DOMAIN_ID).
+    pub domain_id: u16,
+    /// Interfaces DDS may use; empty = rustdds' default (all interfaces).
+    pub networks: Vec<IpAddr>,
+    /// `/joint_states` rate (Hz).
+    pub rate_hz: f64,
+    /// Fixed frame of every published pose.
+    pub frame_id: String,
+    /// URDF text for `/robot_description`.
+    pub urdf: String,
+    /// Node name.
+    pub node_name: String,
+}
+
+/// What the bridge did (returned when it stops).
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
+pub struct RosBridgeStats {
+    /// `/joint_states` messages published.
+    pub joint_states: u64,
+    /// `/tf` messages published.
+    pub tf_messages: u64,
+    /// `/foresight/scene_markers` messages published.
+    pub marker_arrays: u64,
+    /// Shared-memory samples rejected by `validate()`.
+    pub rejected_samples: u64,
+}
+
+/// `geometry_msgs/Transform`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Transform {
+    /// Translation (m).
+    pub translation: RosVector3,
+    /// Rotation.
+    pub rotation: Quaternion,
+}
+
+/// `geometry_msgs/TransformStamped`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct TransformStamped {
+    /// Stamp and parent frame.
+    pub header: Header,
+    /// Child frame.
+    pub child_frame_id: String,
+    /// Pose of the child in the parent.
+    pub transform: Transform,
+}
+
+/// `tf2_msgs/TFMessage`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct TfMessage {
+    /// The transforms.
+    pub transforms: Vec<TransformStamped>,
+}
+impl ros2_client::Message for TfMessage {}
+
+/// `std_msgs/String`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct StringMsg {
+    /// The text.
+    pub data: String,
+}
+impl ros2_client::Message for StringMsg {}
+
+fn now_stamp() -> Time {
+    let ns = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0);
+    Time::from_unix_ns(ns)
+}
+
+fn dds(e: impl std::fmt::Debug) -> RosBridgeError {
+    RosBridgeError::Dds(format!("{e:?}"))
+}
+
+/// Creates a ROS 2 context whose DDS participant uses only `networks` (all when empty).
+///
+/// # Errors
+/// [`RosBridgeError::Dds`].
+pub fn ros_context(domain_id: u16, networks: &[IpAddr]) -> Result<Context, RosBridgeError> {
+    let mut builder = DomainParticipantBuilder::new(domain_id);
+    if !networks.is_empty() {
+        builder = builder.with_only_networks(networks.iter().copied());
+    }
+    let participant = builder.build().map_err(dds)?;
+    Context::from_domain_participant(participant).map_err(dds)
+}
+
+/// QoS of the streaming topics (`/joint_states`, `/tf`, markers): reliable, volatile, keep
+/// last 10 — what rviz2 and robot_state_publisher subscribe with.
+pub fn stream_qos() -> QosProfile {
+    QosProfile::publisher_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth: 10 })
+}
+
+/// QoS of `/robot_description`: transient local, so late subscribers get it.
+pub fn latched_qos() -> QosProfile {
+    stream_qos()
+        .durability(Durability::TransientLocal)
+        .history(History::KeepLast { depth: 1 })
+}
+
+/// Names of the joints as in `assets/xarm5.urdf`.
+pub const JOINT_NAMES: [&str; DOF] = ["joint1", "joint2", "joint3", "joint4", "joint5"];
+
+struct Publishers {
+    joint_states: Publisher<JointState>,
+    tf: Publisher<TfMessage>,
+    markers: Publisher<MarkerArray>,
+    _description: Publisher<StringMsg>,
+}
+
+fn make_publishers(node: &mut Node, urdf: &str) -> Result<Publishers, RosBridgeError> {
+    let qos = stream_qos();
+    let topic = |node: &mut Node, name: &str, pkg: &str, ty: &str, qos: &QosProfile| {
+        let (ns, base) = name.rsplit_once('/').unwrap_or(("/", name));
+        let ns = if ns.is_empty() { "/" } else { ns };
+        let name = Name::new(ns, base).map_err(dds)?;
+        node.create_topic(&name, MessageTypeName::new(pkg, ty), qos)
+            .map_err(dds)
+    };
+    let js_topic = topic(node, "/joint_states", "sensor_msgs", "JointState", &qos)?;
+    let tf_topic = topic(node, "/tf", "tf2_msgs", "TFMessage", &qos)?;
+    let mk_topic = topic(
+        node,
+        "/foresight/scene_markers",
+        "visualization_msgs",
+        "MarkerArray",
+        &qos,
+    )?;
+    let latched = latched_qos();
+    let rd_topic = topic(node, "/robot_description", "std_msgs", "String", &latched)?;
+    let description = node.create_publisher(&rd_topic, None).map_err(dds)?;
+    description
+        .publish(StringMsg {
+            data: urdf.to_owned(),
+        })
+        .map_err(dds)?;
+    Ok(Publishers {
+        joint_states: node.create_publisher(&js_topic, None).map_err(dds)?,
+        tf: node.create_publisher(&tf_topic, None).map_err(dds)?,
+        markers: node.create_publisher(&mk_topic, None).map_err(dds)?,
+        _description: description,
+    })
+}
+
+/// Converts one isometry to a ROS transform.
+fn to_transform(iso: &Isometry3<f64>) -> Transform {
+    let t = iso.translation.vector;
+    let q = iso.rotation.quaternion();
+    Transform {
+        translation: RosVector3 {
+            x: t.x,
+            y: t.y,
+            z: t.z,
+        },
+        rotation: Quaternion {
+            x: q.i,
+            y: q.j,
+            z: q.k,
+            w: q.w,
+        },
+    }
+}
+
+/// Builds the `/joint_states` message of a robot state.
+pub fn joint_state_msg(state: &RobotState, frame_id: &str) -> JointState {
+    JointState {
+        header: Header {
+            stamp: now_stamp(),
+            frame_id: frame_id.to_owned(),
+        },
+        name: JOINT_NAMES.iter().map(|s| (*s).to_owned()).collect(),
+        position: state.joints_rad.to_vec(),
+        velocity: state.joint_velocities_rad_s.to_vec(),
+        effort: Vec::new(),
+    }
+}
+
+/// Builds the `/tf` message: every link frame of the twin's FK, parented to `frame_id`.
+pub fn tf_msg(model: &RobotModel, poses: &LinkPoses, frame_id: &str) -> TfMessage {
+    let stamp = now_stamp();
+    let mut transforms = Vec::with_capacity(DOF + 1);
+    for (i, iso) in poses.links.iter().enumerate().skip(1) {
+        transforms.push(TransformStamped {
+            header: Header {
+                stamp,
+                frame_id: frame_id.to_owned(),
+            },
+            child_frame_id: model.link_name(i).to_owned(),
+            transform: to_transform(iso),
+        });
+    }
+    transforms.push(TransformStamped {
+        header: Header {
+            stamp,
+            frame_id: frame_id.to_owned(),
+        },
+        child_frame_id: "link_tcp".to_owned(),
+        transform: to_transform(&poses.tcp),
+    });
+    TfMessage { transforms }
+}
+
+fn color(r: f32, g: f32, b: f32, a: f32) -> ColorRgba {
+    ColorRgba { r, g, b, a }
+}
+
+fn box_marker(
+    id: i32,
+    ns: &str,
+    frame_id: &str,
+    center: [f32; 3],
+    size: [f32; 3],
+    c: ColorRgba,
+) -> Marker {
+    Marker {
+        header: Header {
+            stamp: now_stamp(),
+            frame_id: frame_id.to_owned(),
+        },
+        ns: ns.to_owned(),
+        id,
+        kind: Marker::CUBE,
+        action: Marker::ADD,
+        pose: Pose {
+            position: Point {
+                x: f64::from(center[0]),
+                y: f64::from(center[1]),
+                z: f64::from(center[2]),
+            },
+            orientation: Quaternion::default(),
+        },
+        scale: RosVector3 {
+            x: f64::from(size[0]),
+            y: f64::from(size[1]),
+            z: f64::from(size[2]),
+        },
+        color: c,
+        ..Marker::default()
+    }
+}
+
+/// Builds the scene marker array: a DELETEALL, then goal (green) and obstacles (red) from the
+/// latest detections, the TCP trail (blue line), and the verdict as text above the goal.
+pub fn scene_markers(
+    detections: Option<&DetectionFrame>,
+    tcp_trail_m: &VecDeque<[f64; 3]>,
+    verdict: Option<&TwinVerdict>,
+    frame_id: &str,
+) -> MarkerArray {
+    let mut markers = vec![Marker {
+        header: Header {
+            stamp: now_stamp(),
+            frame_id: frame_id.to_owned(),
+        },
+        ns: "foresight".to_owned(),
+        action: Marker::DELETE_ALL,
+        ..Marker::default()
+    }];
+    let mut goal_top = [0.4f64, 0.0, 0.3];
+    if let Some(frame) = detections {
+        for (i, obj) in frame.objects().iter().enumerate() {
+            let (ns, c) = match obj.class() {
+                Ok(ObjectClass::Goal) => {
+                    goal_top = [
+                        f64::from(obj.center_m[0]),
+                        f64::from(obj.center_m[1]),
+                        f64::from(obj.center_m[2] + obj.size_m[2] / 2.0) + 0.1,
+                    ];
+                    ("goal", color(0.1, 0.8, 0.2, 0.9))
+                }
+                Ok(ObjectClass::Obstacle) => ("obstacles", color(0.85, 0.15, 0.1, 0.8)),
+                Err(_) => continue,
+            };
+            markers.push(box_marker(
+                i as i32,
+                ns,
+                frame_id,
+                obj.center_m,
+                obj.size_m,
+                c,
+            ));
+        }
+    }
+    if tcp_trail_m.len() >= 2 {
+        markers.push(Marker {
+            header: Header {
+                stamp: now_stamp(),
+                frame_id: frame_id.to_owned(),
+            },
+            ns: "tcp_trail".to_owned(),
+            id: 0,
+            kind: Marker::LINE_STRIP,
+            action: Marker::ADD,
+            scale: RosVector3 {
+                x: 0.005,
+                ..RosVector3::default()
+            },
+            color: color(0.2, 0.4, 1.0, 1.0),
+            points: tcp_trail_m
+                .iter()
+                .map(|p| Point {
+                    x: p[0],
+                    y: p[1],
+                    z: p[2],
+                })
+                .collect(),
+            ..Marker::default()
+        });
+    }
+    if let Some(v) = verdict {
+        let text = format!(
+            "policy {}: {} {} (min {:.3} m, {} steps)",
+            v.policy_id,
+            if v.is_task_ok() {
+                "reaches goal"
+            } else {
+                "misses goal"
+            },
+            if v.is_safe() {
+                "safely"
+            } else {
+                "WITH CONTACT"
+            },
+            v.min_distance_m,
+            v.steps
+        );
+        let c = if v.is_plan_approved() {
+            color(0.1, 0.8, 0.2, 1.0)
+        } else {
+            color(0.9, 0.2, 0.1, 1.0)
+        };
+        markers.push(Marker {
+            header: Header {
+                stamp: now_stamp(),
+                frame_id: frame_id.to_owned(),
+            },
+            ns: "verdict".to_owned(),
+            id: 0,
+            kind: Marker::TEXT_VIEW_FACING,
+            action: Marker::ADD,
+            pose: Pose {
+                position: Point {
+                    x: goal_top[0],
+                    y: goal_top[1],
+                    z: goal_top[2],
+                },
+                orientation: Quaternion::default(),
+            },
+            scale: RosVector3 {
+                z: 0.03,
+                ..RosVector3::default()
+            },
+            color: c,
+            text,
+            ..Marker::default()
+        });
+    }
+    MarkerArray { markers }
+}
+
+/// Runs the bridge until `stop` is set. Publishes `/joint_states` and `/tf` at `rate_hz`
+/// once a robot state has arrived, and the scene markers at 5 Hz.
+///
+/// # Errors
+/// [`RosBridgeError`] when DDS or shared memory cannot be set up.
+pub fn run(
+    cfg: &RosBridgeConfig,
+    model: &RobotModel,
+    stop: &Arc<AtomicBool>,
+) -> Result<RosBridgeStats, RosBridgeError> {
+    let context = ros_context(cfg.domain_id, &cfg.networks)?;
+    let mut node = context
+        .new_node(
+            NodeName::new("/foresight", &cfg.node_name).map_err(dds)?,
+            NodeOptions::new().enable_rosout(false),
+        )
+        .map_err(dds)?;
+    let publishers = make_publishers(&mut node, &cfg.urdf)?;
+
+    let shm = |e: &dyn std::fmt::Debug| RosBridgeError::Shm(format!("{e:?}"));
+    let (shm_node, _cleanup) =
+        services::create_node::<ipc::Service>("ros-bridge").map_err(|e| shm(&e))?;
+    let state_sub =
+        services::open_subscriber::<RobotState, _>(&shm_node, &cfg.prefix).map_err(|e| shm(&e))?;
+    let det_sub = services::open_subscriber::<DetectionFrame, _>(&shm_node, &cfg.prefix)
+        .map_err(|e| shm(&e))?;
+    let verdict_sub =
+        services::open_subscriber::<TwinVerdict, _>(&shm_node, &cfg.prefix).map_err(|e| shm(&e))?;
+
+    let mut stats = RosBridgeStats::default();
+    let mut latest_state: Option<RobotState> = None;
+    let mut latest_det: Option<DetectionFrame> = None;
+    let mut latest_verdict: Option<TwinVerdict> = None;
+    let mut trail: VecDeque<[f64; 3]> = VecDeque::with_capacity(512);
+    let period = Duration::from_secs_f64(1.0 / cfg.rate_hz.max(1.0));
+    let marker_period = Duration::from_millis(200);
+    let mut next = Instant::now();
+    let mut next_markers = Instant::now();
+
+    while !stop.load(Ordering::Relaxed) {
+        while let Ok(Some(s)) = state_sub.receive() {
+            if s.validate().is_ok() {
+                latest_state = Some(*s);
+            } else {
+                stats.rejected_samples += 1;
+            }
+        }
+        while let Ok(Some(s)) = det_sub.receive() {
+            if s.validate().is_ok() {
+                latest_det = Some(*s);
+            } else {
+                stats.rejected_samples += 1;
+            }
+        }
+        while let Ok(Some(s)) = verdict_sub.receive() {
+            if s.validate().is_ok() {
+                latest_verdict = Some(*s);
+            } else {
+                stats.rejected_samples += 1;
+            }
+        }
+        if let Some(state) = &latest_state {
+            let poses = model.fk(&state.joints_rad);
+            if publishers
+                .joint_states
+                .publish(joint_state_msg(state, &cfg.frame_id))
+                .is_ok()
+            {
+                stats.joint_states += 1;
+            }
+            if publishers
+                .tf
+                .publish(tf_msg(model, &poses, &cfg.frame_id))
+                .is_ok()
+            {
+                stats.tf_messages += 1;
+            }
+            let tcp = poses.tcp_m();
+            let moved = trail
+                .back()
+                .is_none_or(|p| (Vector3::from(*p) - tcp).norm() > 0.002);
+            if moved {
+                if trail.len() == trail.capacity() {
+                    trail.pop_front();
+                }
+                trail.push_back([tcp.x, tcp.y, tcp.z]);
+            }
+        }
+        let now = Instant::now();
+        if now >= next_markers {
+            let msg = scene_markers(
+                latest_det.as_ref(),
+                &trail,
+                latest_verdict.as_ref(),
+                &cfg.frame_id,
+            );
+            if publishers.markers.publish(msg).is_ok() {
+                stats.marker_arrays += 1;
+            }
+            next_markers = now + marker_period;
+        }
+        next += period;
+        let now = Instant::now();
+        if next > now {
+            std::thread::sleep(next - now);
+        } else {
+            next = now;
+        }
+    }
+    Ok(stats)
+}

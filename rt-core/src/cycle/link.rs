@@ -1,0 +1,219 @@
+//! The robot link: how the cycle reads the arm's state and sends servo targets. The xArm
+//! implementation (TCP, the controller protocol) comes with the driver; [`InProcessArm`] is a
+//! simulated arm in the same process for tests and the bench: it integrates each servo
+//! target within the joint limits and a per-joint velocity limit.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use twin::{DOF, Joints};
+
+/// One reading of the arm.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct LinkState {
+    /// When the reading was taken (cycle clock), ns.
+    pub stamp_ns: u64,
+    /// Joint positions, rad.
+    pub q_rad: Joints,
+    /// Joint velocities, rad/s.
+    pub dq_rad_s: Joints,
+    /// Controller error code (0 = none).
+    pub error_code: u16,
+}
+
+/// Why the link failed (small and `Copy`: it travels through the cycle).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum LinkError {
+    /// The connection to the arm is lost.
+    #[error("robot link lost")]
+    Disconnected,
+    /// The controller reports an error code.
+    #[error("controller error {0}")]
+    ControllerError(u16),
+    /// No fresh reading was available this cycle.
+    #[error("no fresh state")]
+    NoState,
+    /// The target was refused before it reached the arm (outside the controller's joint
+    /// limits, a jump after a reconnect, or the controller not ready to move).
+    #[error("target refused")]
+    Refused,
+}
+
+/// The cycle's view of a robot. Implementations must not allocate or block in these calls.
+pub trait RobotLink: Send {
+    /// The latest state of the arm.
+    ///
+    /// # Errors
+    /// [`LinkError`] when the arm cannot be read.
+    fn read_state(&mut self, now_ns: u64) -> Result<LinkState, LinkError>;
+
+    /// Sends one servo target (joint positions, rad).
+    ///
+    /// # Errors
+    /// [`LinkError`] when the target cannot be delivered.
+    fn send_servo(&mut self, now_ns: u64, q_rad: &Joints) -> Result<(), LinkError>;
+}
+
+/// A simulated arm in the same process. Each servo target is clamped into the joint limits
+/// and approached at no more than the velocity limit over the time since the last command.
+#[derive(Debug, Clone)]
+pub struct InProcessArm {
+    q_rad: Joints,
+    dq_rad_s: Joints,
+    last_ns: Option<u64>,
+    joint_min_rad: Joints,
+    joint_max_rad: Joints,
+    max_velocity_rad_s: Joints,
+    connected: Arc<AtomicBool>,
+    commands: u64,
+}
+
+impl InProcessArm {
+    /// An arm at `q0_rad`.
+    pub fn new(
+        q0_rad: Joints,
+        joint_min_rad: Joints,
+        joint_max_rad: Joints,
+        max_velocity_rad_s: Joints,
+    ) -> Self {
+        Self {
+            q_rad: q0_rad,
+            dq_rad_s: [0.0; DOF],
+            last_ns: None,
+            joint_min_rad,
+            joint_max_rad,
+            max_velocity_rad_s,
+            connected: Arc::new(AtomicBool::new(true)),
+            commands: 0,
+        }
+    }
+
+    /// A handle that cuts (`store(false)`) or restores the connection from another thread.
+    pub fn connection(&self) -> Arc<AtomicBool> {
+        self.connected.clone()
+    }
+
+    /// Commands accepted so far.
+    pub fn commands(&self) -> u64 {
+        self.commands
+    }
+
+    /// Current joint positions, rad.
+    pub fn q_rad(&self) -> Joints {
+        self.q_rad
+    }
+}
+
+impl RobotLink for InProcessArm {
+    fn read_state(&mut self, now_ns: u64) -> Result<LinkState, LinkError> {
+        if !self.connected.load(Ordering::Acquire) {
+            return Err(LinkError::Disconnected);
+        }
+        Ok(LinkState {
+            stamp_ns: now_ns,
+            q_rad: self.q_rad,
+            dq_rad_s: self.dq_rad_s,
+            error_code: 0,
+        })
+    }
+
+    fn send_servo(&mut self, now_ns: u64, q_rad: &Joints) -> Result<(), LinkError> {
+        if !self.connected.load(Ordering::Acquire) {
+            return Err(LinkError::Disconnected);
+        }
+        let dt_s = self
+            .last_ns
+            .map_or(0.0, |t| now_ns.saturating_sub(t) as f64 * 1e-9);
+        self.last_ns = Some(now_ns);
+        #[allow(clippy::needless_range_loop)] // j indexes six per-joint arrays
+        for j in 0..DOF {
+            let target = q_rad[j].clamp(self.joint_min_rad[j], self.joint_max_rad[j]);
+            let max_step = self.max_velocity_rad_s[j] * dt_s;
+            let step = if dt_s > 0.0 {
+                (target - self.q_rad[j]).clamp(-max_step, max_step)
+            } else {
+                0.0
+            };
+            self.q_rad[j] += step;
+            self.dq_rad_s[j] = if dt_s > 0.0 { step / dt_s } else { 0.0 };
+        }
+        self.commands += 1;
+        Ok(())
+    }
+}
+
+/// A dry run (`rt-core run --dry-run`): reads the real arm, computes every command as in a
+/// live run, and sends none. The withheld commands are counted here; the runtime logs them
+/// from the cycle's reports.
+#[derive(Debug)]
+pub struct DryRunLink<L: RobotLink> {
+    inner: L,
+    withheld: u64,
+}
+
+impl<L: RobotLink> DryRunLink<L> {
+    /// Wraps `inner`; nothing reaches its `send_servo`.
+    pub fn new(inner: L) -> Self {
+        Self { inner, withheld: 0 }
+    }
+
+    /// Commands computed and withheld so far.
+    pub fn withheld(&self) -> u64 {
+        self.withheld
+    }
+}
+
+impl<L: RobotLink> RobotLink for DryRunLink<L> {
+    fn read_state(&mut self, now_ns: u64) -> Result<LinkState, LinkError> {
+        self.inner.read_state(now_ns)
+    }
+
+    fn send_servo(&mut self, _now_ns: u64, _q_rad: &Joints) -> Result<(), LinkError> {
+        self.withheld += 1;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_dry_run_reads_the_arm_and_moves_nothing() {
+        let mut d = DryRunLink::new(arm());
+        d.send_servo(0, &[0.0; DOF]).unwrap();
+        d.send_servo(4_000_000, &[0.3; DOF]).unwrap();
+        assert_eq!(d.read_state(4_000_000).unwrap().q_rad, [0.0; DOF]);
+        assert_eq!(d.inner.commands(), 0);
+        assert_eq!(d.withheld(), 2);
+    }
+
+    fn arm() -> InProcessArm {
+        InProcessArm::new([0.0; DOF], [-1.0; DOF], [1.0; DOF], [1.0; DOF])
+    }
+
+    #[test]
+    fn targets_are_followed_within_velocity_and_joint_limits() {
+        let mut a = arm();
+        a.send_servo(0, &[0.0; DOF]).unwrap();
+        a.send_servo(4_000_000, &[0.002, -0.5, 5.0, 0.0, 0.0])
+            .unwrap();
+        let q = a.read_state(4_000_000).unwrap().q_rad;
+        assert!((q[0] - 0.002).abs() < 1e-12);
+        assert!((q[1] + 0.004).abs() < 1e-12, "velocity limit: {q:?}");
+        for _ in 0..1000 {
+            a.send_servo(a.last_ns.unwrap() + 4_000_000, &[0.0, 0.0, 5.0, 0.0, 0.0])
+                .unwrap();
+        }
+        assert_eq!(a.q_rad()[2], 1.0, "joint limit");
+    }
+
+    #[test]
+    fn a_cut_connection_fails_reads_and_commands() {
+        let mut a = arm();
+        a.connection().store(false, Ordering::Release);
+        assert_eq!(a.read_state(0), Err(LinkError::Disconnected));
+        assert_eq!(a.send_servo(0, &[0.0; DOF]), Err(LinkError::Disconnected));
+    }
+}

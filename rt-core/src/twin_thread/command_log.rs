@@ -1,0 +1,95 @@
+//! The command log: one CSV line per cycle that followed a plan, from the cycle's reports
+//! (written by the twin thread; the cycle only fills its report). Lines are whole; the file
+//! is flushed at least every 100 ms and at the end.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use crate::cycle::{CycleReport, Mode};
+
+/// Why the command log could not be written.
+#[derive(Debug, thiserror::Error)]
+#[error("command log {path}: {source}")]
+pub struct CommandLogError {
+    /// The file.
+    pub path: PathBuf,
+    /// The I/O error.
+    pub source: std::io::Error,
+}
+
+/// An open command log.
+#[derive(Debug)]
+pub struct CommandLog {
+    path: PathBuf,
+    out: std::io::BufWriter<std::fs::File>,
+    last_cycle: u64,
+    lines: u64,
+    flushed: Instant,
+}
+
+impl CommandLog {
+    /// Creates (truncates) the log and writes its header.
+    ///
+    /// # Errors
+    /// [`CommandLogError`] when the file cannot be created or written.
+    pub fn create(path: &Path) -> Result<Self, CommandLogError> {
+        let err = |source| CommandLogError {
+            path: path.to_path_buf(),
+            source,
+        };
+        let file = std::fs::File::create(path).map_err(err)?;
+        let mut out = std::io::BufWriter::new(file);
+        writeln!(out, "t_ns,cycle,plan_id,q0_rad,q1_rad,q2_rad,q3_rad,q4_rad").map_err(err)?;
+        tracing::info!(path = %path.display(), "logging computed commands");
+        Ok(Self {
+            path: path.to_path_buf(),
+            out,
+            last_cycle: 0,
+            lines: 0,
+            flushed: Instant::now(),
+        })
+    }
+
+    fn err(&self, source: std::io::Error) -> CommandLogError {
+        CommandLogError {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    /// Logs the report's command if it is a new cycle that followed a plan.
+    ///
+    /// # Errors
+    /// [`CommandLogError`] on a write error (a full disk, say).
+    pub fn record(&mut self, r: &CycleReport) -> Result<(), CommandLogError> {
+        if r.cycles == self.last_cycle {
+            return Ok(());
+        }
+        self.last_cycle = r.cycles;
+        if r.mode == Mode::Following {
+            let q = r.cmd.q_rad;
+            writeln!(
+                self.out,
+                "{},{},{},{:.6},{:.6},{:.6},{:.6},{:.6}",
+                r.t_ns, r.cycles, r.plan_id, q[0], q[1], q[2], q[3], q[4]
+            )
+            .map_err(|e| self.err(e))?;
+            self.lines += 1;
+        }
+        if self.flushed.elapsed() >= Duration::from_millis(100) {
+            self.out.flush().map_err(|e| self.err(e))?;
+            self.flushed = Instant::now();
+        }
+        Ok(())
+    }
+
+    /// Flushes and closes the log; the number of command lines written.
+    ///
+    /// # Errors
+    /// [`CommandLogError`] when the last flush fails.
+    pub fn finish(mut self) -> Result<u64, CommandLogError> {
+        self.out.flush().map_err(|e| self.err(e))?;
+        Ok(self.lines)
+    }
+}

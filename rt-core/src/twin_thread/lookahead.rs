@@ -1,0 +1,131 @@
+//! The lookahead on the real twin: [`TwinLookahead`] runs the whole next episode through
+//! `twin::rollout` with an [`MlpPolicy`] (the worker's [`Lookahead`] trait).
+//!
+//! The twin's episodes start from the task's start posture (`[start] joints_rad`). When the
+//! arm stands elsewhere, the lookahead prepends a joint-space approach to the start posture
+//! (at most `approach_speed_rad_s`); that approach is not part of the episode, but like every
+//! sample of a plan it is checked by the shield against the scene before approval and again
+//! in the cycle.
+
+use policy::MlpPolicy;
+use twin::{
+    DOF, Joints, MAX_EPISODE_STEPS, RobotModel, Scene, TaskConfig, TwinEnv, max_joint_gap_rad,
+    rollout_until,
+};
+
+use crate::twin_thread::worker::{Lookahead, Verdict};
+
+/// How the lookahead picks the executed actions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LookaheadActions {
+    /// The policy's actions (production).
+    Policy,
+    /// The task's scripted straight-line actions, while still evaluating the policy at
+    /// every step (the bench: random-weight policies, plans that always pass).
+    ScriptedWithPolicyCost,
+}
+
+/// The lookahead on the twin: `twin::rollout` with an [`MlpPolicy`].
+#[derive(Debug, Clone)]
+pub struct TwinLookahead {
+    env: TwinEnv,
+    start_q_rad: Joints,
+    step_s: f64,
+    wps: heapless::Vec<Joints, MAX_EPISODE_STEPS>,
+    actions: LookaheadActions,
+    /// Speed of the approach to the start posture, rad/s.
+    pub approach_speed_rad_s: f64,
+    /// Blind (`--no-lookahead`): the episode runs on through contact, as the policy would
+    /// on an arm nobody checks.
+    pub blind: bool,
+}
+
+impl TwinLookahead {
+    /// Over a robot model and the task.
+    pub fn new(model: RobotModel, task: TaskConfig, actions: LookaheadActions) -> Self {
+        let start_q_rad = task.start.joints_rad;
+        let step_s = task.episode.step_period_s;
+        Self {
+            env: TwinEnv::new(model, task),
+            start_q_rad,
+            step_s,
+            wps: heapless::Vec::new(),
+            actions,
+            approach_speed_rad_s: 0.5,
+            blind: false,
+        }
+    }
+
+    /// The task's start posture, rad.
+    pub fn start_q_rad(&self) -> Joints {
+        self.start_q_rad
+    }
+}
+
+impl Lookahead for TwinLookahead {
+    type Scene = Scene;
+    type Policy = MlpPolicy;
+
+    fn step_s(&self) -> f64 {
+        self.step_s
+    }
+
+    fn policy_id(policy: &MlpPolicy) -> u64 {
+        policy.policy_id()
+    }
+
+    fn lookahead(
+        &mut self,
+        policy: &MlpPolicy,
+        scene: &Scene,
+        start_q_rad: &Joints,
+        waypoints: &mut Vec<Joints>,
+    ) -> Verdict {
+        waypoints.clear();
+        let gap = max_joint_gap_rad(&self.start_q_rad, start_q_rad);
+        if gap > 1e-3 {
+            let n = (gap / (self.approach_speed_rad_s * self.step_s))
+                .ceil()
+                .max(1.0) as usize;
+            for k in 1..=n {
+                let t = k as f64 / n as f64;
+                let mut q = [0.0; DOF];
+                for j in 0..DOF {
+                    q[j] = start_q_rad[j] + (self.start_q_rad[j] - start_q_rad[j]) * t;
+                }
+                waypoints.push(q);
+            }
+        }
+        let summary = match self.actions {
+            LookaheadActions::Policy => rollout_until(
+                &mut self.env,
+                scene,
+                |obs| policy.act(obs),
+                Some(&mut self.wps),
+                !self.blind,
+            ),
+            LookaheadActions::ScriptedWithPolicyCost => {
+                self.env.reset(scene);
+                let scripted = self.env.straight_line_policy();
+                rollout_until(
+                    &mut self.env,
+                    scene,
+                    |obs| {
+                        std::hint::black_box(policy.act(obs));
+                        scripted.act(obs)
+                    },
+                    Some(&mut self.wps),
+                    !self.blind,
+                )
+            }
+        };
+        waypoints.extend_from_slice(&self.wps);
+        Verdict {
+            task_ok: summary.success,
+            safe: summary.safe,
+            min_distance_m: summary.min_distance_m,
+            steps: summary.steps,
+            policy_id: policy.policy_id(),
+        }
+    }
+}

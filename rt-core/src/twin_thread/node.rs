@@ -1,0 +1,499 @@
+//! The twin thread's iceoryx2 ends: detections and policies in; robot state, verdicts and
+//! retrain requests out. [`TwinNode`] holds the ports and the counters of what crossed
+//! them; every incoming sample is validated before the worker sees it.
+
+use std::path::Path;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use iceoryx2::node::CleanupState;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::port::{LoanError, ReceiveError, SendError};
+use iceoryx2::prelude::*;
+use policy::{PolicyExpectation, PolicyLoader, PolicyRejectReason};
+use shm_schemas::services::{
+    NodeCreateError, ShmOpenError, create_node, loan_zeroed, open_publisher, open_subscriber,
+};
+use shm_schemas::{
+    DetectionFrame, EpisodeEnd, ObstacleBox, PolicyBlob, RetrainRequest, RobotState, SchemaError,
+    TwinVerdict,
+};
+use twin::{Goal, Scene};
+
+use crate::cycle::shield::ShieldModel;
+use crate::cycle::twin_model::TwinModel;
+use crate::cycle::{CycleReport, LoopShared, Mode, StopReason};
+use crate::rt::histogram::{Histogram, Summary};
+use crate::rt::rt_setup;
+use crate::twin_thread::intake::{detection_age_ns, scene_from_detection};
+use crate::twin_thread::lookahead::TwinLookahead;
+use crate::twin_thread::{TwinEvent, TwinWorker, Verdict};
+
+/// The production twin worker.
+pub type ProductionWorker = TwinWorker<TwinLookahead, TwinModel>;
+
+/// Robot state is published at most this often (the cycle reports every period).
+const STATE_PERIOD_NS: u64 = 4_000_000;
+
+/// Why an iceoryx2 operation of the twin thread failed.
+#[derive(Debug, thiserror::Error)]
+pub enum TwinNodeError {
+    /// The node could not be created.
+    #[error("creating the iceoryx2 node: {0}")]
+    NodeCreate(#[from] NodeCreateError),
+    /// A service could not be opened.
+    #[error("opening the {service} service: {cause}")]
+    Open {
+        /// The service.
+        service: &'static str,
+        /// iceoryx2's reason.
+        cause: ShmOpenError,
+    },
+    /// Receiving from a subscriber failed.
+    #[error("receiving {service}: {cause:?}")]
+    Receive {
+        /// The service.
+        service: &'static str,
+        /// iceoryx2's reason.
+        cause: ReceiveError,
+    },
+    /// Loaning a sample failed.
+    #[error("loaning a {service} sample: {cause:?}")]
+    Loan {
+        /// The service.
+        service: &'static str,
+        /// iceoryx2's reason.
+        cause: LoanError,
+    },
+    /// Sending a sample failed.
+    #[error("sending a {service} sample: {cause:?}")]
+    Send {
+        /// The service.
+        service: &'static str,
+        /// iceoryx2's reason.
+        cause: SendError,
+    },
+    /// The start policy file could not be read.
+    #[error("reading policy {path}: {cause}")]
+    PolicyRead {
+        /// The file.
+        path: String,
+        /// The I/O error.
+        cause: std::io::Error,
+    },
+    /// The start policy file is not a valid blob.
+    #[error("policy {path} is invalid: {cause}")]
+    PolicyInvalid {
+        /// The file.
+        path: String,
+        /// The first schema error.
+        cause: SchemaError,
+    },
+    /// The start policy is valid but not for this task.
+    #[error("policy {path} rejected: {reason:?}")]
+    PolicyRejected {
+        /// The file.
+        path: String,
+        /// Why.
+        reason: PolicyRejectReason,
+    },
+}
+
+/// The twin thread's ports and what crossed them.
+pub struct TwinNode {
+    _node: Node<ipc::Service>,
+    det_sub: Subscriber<ipc::Service, DetectionFrame, ()>,
+    pol_sub: Subscriber<ipc::Service, PolicyBlob, ()>,
+    state_pub: Publisher<ipc::Service, RobotState, ()>,
+    verdict_pub: Publisher<ipc::Service, TwinVerdict, ()>,
+    retrain_pub: Publisher<ipc::Service, RetrainRequest, ()>,
+    loader: PolicyLoader,
+    task_hash: u64,
+    table_height_m: f64,
+    /// `false` with `--no-lookahead`: every verdict reads approved.
+    gate: bool,
+    last_goal: Goal,
+    scene_seq: u64,
+    verdict_id: u64,
+    last_verdict: Option<TwinVerdict>,
+    last_state_ns: u64,
+    last_cycles: u64,
+    last_connections_update: Instant,
+    detection_age: Histogram,
+}
+
+impl TwinNode {
+    /// Creates the node and opens every service under `prefix`.
+    ///
+    /// # Errors
+    /// [`TwinNodeError::NodeCreate`], [`TwinNodeError::Open`].
+    pub fn open(
+        prefix: &str,
+        task_hash: u64,
+        table_height_m: f64,
+        gate: bool,
+    ) -> Result<(Self, CleanupState), TwinNodeError> {
+        let (node, cleanup) = create_node::<ipc::Service>("rt-core")?;
+        let open = |service| move |cause| TwinNodeError::Open { service, cause };
+        let det_sub =
+            open_subscriber::<DetectionFrame, _>(&node, prefix).map_err(open("detections"))?;
+        let pol_sub = open_subscriber::<PolicyBlob, _>(&node, prefix).map_err(open("policies"))?;
+        let state_pub =
+            open_publisher::<RobotState, _>(&node, prefix).map_err(open("robot state"))?;
+        let verdict_pub =
+            open_publisher::<TwinVerdict, _>(&node, prefix).map_err(open("verdicts"))?;
+        let retrain_pub =
+            open_publisher::<RetrainRequest, _>(&node, prefix).map_err(open("retrain requests"))?;
+        let node_ends = Self {
+            _node: node,
+            det_sub,
+            pol_sub,
+            state_pub,
+            verdict_pub,
+            retrain_pub,
+            loader: PolicyLoader::new(PolicyExpectation::for_task(task_hash)),
+            task_hash,
+            table_height_m,
+            gate,
+            last_goal: Goal {
+                center_m: [0.35, 0.0, table_height_m + 0.025],
+                size_m: 0.05,
+            },
+            scene_seq: 0,
+            verdict_id: 0,
+            last_verdict: None,
+            last_state_ns: 0,
+            last_cycles: 0,
+            last_connections_update: Instant::now(),
+            detection_age: Histogram::new(),
+        };
+        Ok((node_ends, cleanup))
+    }
+
+    /// Loads a start policy from a file; like any policy, it must pass the lookahead.
+    ///
+    /// # Errors
+    /// [`TwinNodeError::PolicyRead`], [`TwinNodeError::PolicyInvalid`],
+    /// [`TwinNodeError::PolicyRejected`].
+    pub fn load_policy_file(
+        &self,
+        path: &Path,
+        twin: &mut ProductionWorker,
+        events: &mut Vec<TwinEvent<Scene>>,
+    ) -> Result<(), TwinNodeError> {
+        let shown = path.display().to_string();
+        let bytes = std::fs::read(path).map_err(|cause| TwinNodeError::PolicyRead {
+            path: shown.clone(),
+            cause,
+        })?;
+        let blob =
+            PolicyBlob::from_bytes(&bytes).map_err(|cause| TwinNodeError::PolicyInvalid {
+                path: shown.clone(),
+                cause,
+            })?;
+        let policy =
+            self.loader
+                .prepare(&blob)
+                .map_err(|reason| TwinNodeError::PolicyRejected {
+                    path: shown.clone(),
+                    reason,
+                })?;
+        tracing::info!(policy_id = policy.policy_id(), path = %shown, "start policy loaded; it must pass the lookahead");
+        twin.on_policy(Box::new(policy), events);
+        Ok(())
+    }
+
+    /// Hands every new detection frame and policy blob to the worker (validated first;
+    /// bad input is logged, counted and dropped). `now_ns` is the cycle clock's time.
+    ///
+    /// # Errors
+    /// [`TwinNodeError::Receive`].
+    pub fn receive(
+        &mut self,
+        twin: &mut ProductionWorker,
+        now_ns: u64,
+        events: &mut Vec<TwinEvent<Scene>>,
+    ) -> Result<(), TwinNodeError> {
+        let recv_err = |service| move |cause| TwinNodeError::Receive { service, cause };
+        while let Some(sample) = self.det_sub.receive().map_err(recv_err("detections"))? {
+            let frame = *sample.payload();
+            if let Err(e) = frame.validate() {
+                tracing::warn!(sequence = frame.sequence, "detection frame rejected: {e}");
+                continue;
+            }
+            self.scene_seq = frame.sequence;
+            // Capture time is CLOCK_MONOTONIC of this machine: its age, carried into the
+            // cycle's clock, is what the staleness check sees (receipt time when absent).
+            let age_ns = detection_age_ns(frame.capture_time_ns, rt_setup::monotonic_now_ns());
+            self.detection_age.record_ns(age_ns);
+            let scene = scene_from_detection(&frame, self.table_height_m, &mut self.last_goal);
+            twin.on_detection(scene, now_ns.saturating_sub(age_ns), events);
+        }
+        while let Some(sample) = self.pol_sub.receive().map_err(recv_err("policies"))? {
+            let blob: &PolicyBlob = sample.payload();
+            match self.loader.prepare(blob) {
+                Ok(p) => {
+                    tracing::info!(
+                        policy_id = p.policy_id(),
+                        "policy accepted; re-running the lookahead"
+                    );
+                    twin.on_policy(Box::new(p), events);
+                }
+                Err(reason) => tracing::warn!(
+                    policy_id = blob.policy_id,
+                    ?reason,
+                    rejected_total = self.loader.counters().total_rejected(),
+                    "policy blob rejected; the running policy stays"
+                ),
+            }
+        }
+        Ok(())
+    }
+
+    /// Publishes (verdicts, retrain requests) and logs every event, leaving `events` empty.
+    ///
+    /// # Errors
+    /// [`TwinNodeError::Loan`], [`TwinNodeError::Send`].
+    pub fn publish_events(
+        &mut self,
+        events: &mut Vec<TwinEvent<Scene>>,
+        now_ns: u64,
+        rate_hz: f64,
+    ) -> Result<(), TwinNodeError> {
+        for e in events.drain(..) {
+            match e {
+                TwinEvent::Verdict {
+                    verdict, elapsed_s, ..
+                } => self.publish_verdict(&verdict, elapsed_s, now_ns)?,
+                TwinEvent::Retrain {
+                    request_id,
+                    verdict,
+                    scene,
+                } => self.publish_retrain(request_id, &verdict, &scene, now_ns)?,
+                other => log_event(&other, rate_hz),
+            }
+        }
+        Ok(())
+    }
+
+    fn publish_verdict(
+        &mut self,
+        verdict: &Verdict,
+        elapsed_s: f64,
+        now_ns: u64,
+    ) -> Result<(), TwinNodeError> {
+        self.verdict_id += 1;
+        let v = twin_verdict(
+            verdict,
+            self.verdict_id,
+            self.scene_seq,
+            now_ns,
+            elapsed_s,
+            self.gate,
+        );
+        tracing::info!(
+            policy_id = verdict.policy_id,
+            task_ok = verdict.task_ok,
+            safe = verdict.safe,
+            steps = verdict.steps,
+            min_distance_m = verdict.min_distance_m,
+            lookahead_ms = elapsed_s * 1e3,
+            "lookahead"
+        );
+        self.last_verdict = Some(v);
+        let mut s = loan_zeroed(&self.verdict_pub).map_err(|cause| TwinNodeError::Loan {
+            service: "verdicts",
+            cause,
+        })?;
+        *s.payload_mut() = v;
+        s.send().map_err(|cause| TwinNodeError::Send {
+            service: "verdicts",
+            cause,
+        })?;
+        Ok(())
+    }
+
+    fn publish_retrain(
+        &mut self,
+        request_id: u64,
+        verdict: &Verdict,
+        scene: &Scene,
+        now_ns: u64,
+    ) -> Result<(), TwinNodeError> {
+        let mut s = loan_zeroed(&self.retrain_pub).map_err(|cause| TwinNodeError::Loan {
+            service: "retrain requests",
+            cause,
+        })?;
+        let r = s.payload_mut();
+        r.request_id = request_id;
+        r.request_time_ns = now_ns;
+        r.task_config_hash = self.task_hash;
+        r.failed_policy_id = verdict.policy_id;
+        r.scene_sequence = self.scene_seq;
+        r.table_height_m = scene.table_height_m;
+        r.goal_center_m = scene.goal.center_m;
+        r.goal_size_m = scene.goal.size_m;
+        r.obstacle_count = scene.obstacles.len() as u32;
+        for (slot, b) in r.obstacles.iter_mut().zip(scene.obstacles.iter()) {
+            *slot = ObstacleBox {
+                center_m: b.center_m,
+                size_m: b.size_m,
+            };
+        }
+        r.verdict = self.last_verdict.unwrap_or_default();
+        tracing::warn!(
+            request_id,
+            policy_id = verdict.policy_id,
+            "lookahead failed: retrain requested"
+        );
+        s.send().map_err(|cause| TwinNodeError::Send {
+            service: "retrain requests",
+            cause,
+        })?;
+        Ok(())
+    }
+
+    /// Publishes the robot state from the cycle's latest report (at most every 4 ms and
+    /// once per cycle), and now and then lets the retrain publisher see new subscribers: a
+    /// learner that (re)connects gets the last retrain request from the service's history,
+    /// so a learner restarted mid-retraining picks the request up again.
+    ///
+    /// # Errors
+    /// [`TwinNodeError::Loan`], [`TwinNodeError::Send`].
+    pub fn publish_state(
+        &mut self,
+        report: Option<&CycleReport>,
+        shared: &LoopShared,
+        fk: &mut TwinModel,
+        now_ns: u64,
+    ) -> Result<(), TwinNodeError> {
+        if self.last_connections_update.elapsed() >= Duration::from_millis(100) {
+            self.last_connections_update = Instant::now();
+            if let Err(e) = self.retrain_pub.update_connections() {
+                tracing::debug!("retrain request connections: {e:?}");
+            }
+        }
+        let Some(r) = report else { return Ok(()) };
+        if now_ns.saturating_sub(self.last_state_ns) < STATE_PERIOD_NS
+            || r.cycles == self.last_cycles
+        {
+            return Ok(());
+        }
+        self.last_cycles = r.cycles;
+        self.last_state_ns = now_ns;
+        let mut s = loan_zeroed(&self.state_pub).map_err(|cause| TwinNodeError::Loan {
+            service: "robot state",
+            cause,
+        })?;
+        fill_robot_state(s.payload_mut(), r, shared, fk);
+        s.send().map_err(|cause| TwinNodeError::Send {
+            service: "robot state",
+            cause,
+        })?;
+        Ok(())
+    }
+
+    /// Capture → visible in the twin thread, over every frame received so far.
+    pub fn detection_age(&self) -> Summary {
+        self.detection_age.summary()
+    }
+}
+
+fn fill_robot_state(st: &mut RobotState, r: &CycleReport, shared: &LoopShared, fk: &mut TwinModel) {
+    st.time_ns = r.t_ns;
+    st.cycle_count = r.cycles;
+    st.missed_deadlines = shared.missed_deadlines.load(Ordering::Relaxed);
+    st.active_policy_id = r.policy_id;
+    st.joints_rad = r.measured_q_rad;
+    st.joint_velocities_rad_s = r.cmd.dq_rad_s;
+    st.command_joints_rad = r.cmd.q_rad;
+    st.tcp_m = fk.tcp_position_m(&r.measured_q_rad);
+    st.last_compute_us = shared.last_compute_ns.load(Ordering::Relaxed) as f32 / 1000.0;
+    st.controlled_stop = u8::from(matches!(r.mode, Mode::Stopping | Mode::Stopped));
+    st.stop_reason = stop_code(r.stop_reason) as u8;
+    st.link_ok = u8::from(r.stop_reason != StopReason::LinkLost || r.mode == Mode::Following);
+}
+
+/// Logs the events that are not published.
+fn log_event(e: &TwinEvent<Scene>, rate_hz: f64) {
+    match e {
+        TwinEvent::PlanApproved {
+            plan_id,
+            policy_id,
+            joins,
+        } => tracing::info!(plan_id, policy_id, joins, "plan approved"),
+        TwinEvent::PlanRejected {
+            policy_id,
+            smooth,
+            shield,
+        } => tracing::warn!(
+            policy_id,
+            ?smooth,
+            ?shield,
+            "plan rejected after the lookahead"
+        ),
+        TwinEvent::Revoked { plan_id, at_index } => tracing::warn!(
+            plan_id,
+            at_index,
+            "scene change: running plan unsafe, controlled stop"
+        ),
+        TwinEvent::PolicySwapped { policy_id } => tracing::info!(policy_id, "policy swapped in"),
+        TwinEvent::ReturningHome { plan_id, samples } => tracing::info!(
+            plan_id,
+            duration_s = *samples as f64 / rate_hz,
+            "goal reached: returning home along the executed path"
+        ),
+        TwinEvent::ReturnHomeRefused { shield, smooth } => tracing::warn!(
+            ?shield,
+            ?smooth,
+            "the way home is unsafe in the current scene: holding; the lookahead takes over"
+        ),
+        TwinEvent::Verdict { .. } | TwinEvent::Retrain { .. } => {}
+    }
+}
+
+/// The stop reason as the contract spells it.
+pub fn stop_code(reason: StopReason) -> shm_schemas::StopReason {
+    use shm_schemas::StopReason as S;
+    match reason {
+        StopReason::None => S::None,
+        StopReason::Shield(_) | StopReason::Revoked => S::ShieldViolation,
+        StopReason::StaleDetection => S::StaleDetections,
+        StopReason::StaleRobotState => S::StaleRobotState,
+        StopReason::LinkLost => S::LinkLost,
+    }
+}
+
+/// The published verdict; with the lookahead gate off (`--no-lookahead`) every plan goes
+/// to the arm, so every verdict reads approved.
+pub fn twin_verdict(
+    v: &Verdict,
+    id: u64,
+    seq: u64,
+    now_ns: u64,
+    elapsed_s: f64,
+    gate: bool,
+) -> TwinVerdict {
+    let mut t = TwinVerdict {
+        verdict_id: id,
+        scene_sequence: seq,
+        policy_id: v.policy_id,
+        computed_time_ns: now_ns,
+        min_distance_m: v.min_distance_m.clamp(-10.0, 10.0),
+        episode_return: 0.0,
+        steps: v.steps,
+        lookahead_compute_us: (elapsed_s * 1e6).min(f64::from(u32::MAX)) as u32,
+        episode_end: if v.task_ok {
+            EpisodeEnd::Success as u8
+        } else if !v.safe {
+            EpisodeEnd::Collision as u8
+        } else {
+            EpisodeEnd::Timeout as u8
+        },
+        ..TwinVerdict::default()
+    };
+    t.set_flags(v.task_ok, v.safe, (v.task_ok && v.safe) || !gate);
+    t
+}

@@ -1,0 +1,274 @@
+//! Trajectory smoothing: Ruckig for approved plans, an allocation-free jerk-limited brake for
+//! controlled stops.
+//!
+//! # Decision: where Ruckig runs
+//!
+//! The official `ruckig` crate (0.19.4) bridges to the bundled C++ core through `cxx` and
+//! copies every vector of its `InputParameter`/`OutputParameter` into fresh `Vec`s on every
+//! `update()`/`calculate()` — it allocates on each call (measured by the counting allocator
+//! in `tests/runtime_alloc.rs`). The cycle must not allocate, so:
+//!
+//! - **Plans** are smoothed by Ruckig on the twin thread ([`PlanSmoother`]): Ruckig's online
+//!   interface is stepped at the cycle period through the lookahead's waypoints (each
+//!   waypoint a target with a finite-difference target velocity), within the configured
+//!   velocity, acceleration and jerk limits, and the velocity limits are scaled down until
+//!   the TCP speed stays under its limit. The samples (position, velocity, acceleration per
+//!   cycle) go into a [`Plan`] that the cycle streams sample by sample. The shield then
+//!   re-checks each sample in the cycle against the live scene.
+//! - **Controlled stops** start from an arbitrary state inside the cycle, so they use
+//!   [`Brake`]: per joint, a jerk-limited deceleration to zero velocity (acceleration ramps at
+//!   most `max_jerk`, is bounded by `max_acceleration`, and is shaped by
+//!   `a = −sign(v)·min(A, √(2J|v|))` so that velocity and acceleration reach zero together),
+//!   computed with plain `f64` arithmetic on fixed arrays. No allocation, no FFI, bounded
+//!   time (a few hundred nanoseconds).
+
+use ruckig::{InputParameter, OutputParameter, Result as RuckigResult, Ruckig};
+
+use crate::config::MotionLimits;
+use crate::cycle::brake::MotionState;
+use crate::cycle::plan::Plan;
+use crate::cycle::shield::ShieldModel;
+use twin::{DOF, Joints};
+
+/// Share of a joint's velocity limit a plan segment is timed for (the rest is headroom for
+/// Ruckig's pass-through profiles).
+const SEGMENT_SPEED_SHARE: f64 = 0.7;
+
+/// Why a plan could not be smoothed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum SmoothError {
+    /// There were no waypoints.
+    #[error("no waypoints")]
+    Empty,
+    /// Ruckig refused the input (its result code).
+    #[error("ruckig error {0}")]
+    Ruckig(i32),
+    /// The smoothed plan needs more samples than allowed.
+    #[error("plan longer than {0} samples")]
+    TooLong(usize),
+    /// The TCP speed limit could not be met.
+    #[error("TCP speed limit not met")]
+    TcpSpeed,
+}
+
+fn ruckig_code(r: &RuckigResult) -> i32 {
+    match r {
+        RuckigResult::Working => 0,
+        RuckigResult::Finished => 1,
+        RuckigResult::Error => -1,
+        RuckigResult::ErrorInvalidInput => -100,
+        RuckigResult::ErrorTrajectoryDuration => -101,
+        RuckigResult::ErrorPositionalLimits => -102,
+        RuckigResult::ErrorZeroLimits => -104,
+        RuckigResult::ErrorExecutionTimeCalculation => -110,
+        RuckigResult::ErrorSynchronizationCalculation => -111,
+    }
+}
+
+/// Ruckig-based plan smoothing (off the cycle; allocates).
+pub struct PlanSmoother {
+    period_s: f64,
+    limits: MotionLimits,
+    max_samples: usize,
+}
+
+impl PlanSmoother {
+    /// A smoother for plans sampled every `period_s`, at most `max_samples` long.
+    pub fn new(period_s: f64, limits: MotionLimits, max_samples: usize) -> Self {
+        Self {
+            period_s,
+            limits,
+            max_samples,
+        }
+    }
+
+    /// Smooths `waypoints` (one every `step_s`, starting after `start`) into `plan`, scaling
+    /// the velocity limits down until the TCP speed stays under the limit.
+    ///
+    /// # Errors
+    /// [`SmoothError`].
+    pub fn smooth<M: ShieldModel>(
+        &mut self,
+        start: &MotionState,
+        waypoints: &[Joints],
+        step_s: f64,
+        model: &mut M,
+        plan: &mut Plan,
+    ) -> Result<(), SmoothError> {
+        let mut scale = 1.0;
+        for _ in 0..5 {
+            self.smooth_scaled(start, waypoints, step_s, scale, plan)?;
+            let speed = max_tcp_speed_m_s(model, &start.q_rad, &plan.q_rad, self.period_s);
+            if speed <= self.limits.max_tcp_speed_m_s {
+                return Ok(());
+            }
+            scale *= 0.95 * self.limits.max_tcp_speed_m_s / speed;
+        }
+        Err(SmoothError::TcpSpeed)
+    }
+
+    fn smooth_scaled(
+        &mut self,
+        start: &MotionState,
+        waypoints: &[Joints],
+        step_s: f64,
+        vel_scale: f64,
+        plan: &mut Plan,
+    ) -> Result<(), SmoothError> {
+        if waypoints.is_empty() {
+            return Err(SmoothError::Empty);
+        }
+        plan.q_rad.clear();
+        plan.dq_rad_s.clear();
+        plan.ddq_rad_s2.clear();
+        plan.period_s = self.period_s;
+        let vmax: Vec<f64> = self
+            .limits
+            .max_velocity_rad_s
+            .iter()
+            .map(|v| v * vel_scale)
+            .collect();
+        let mut ruckig = Ruckig::new_direct(DOF, self.period_s);
+        let mut input = InputParameter::new(DOF);
+        let mut output = OutputParameter::new_direct(DOF);
+        input.current_position = start.q_rad.to_vec();
+        input.current_velocity = start.dq_rad_s.to_vec();
+        input.current_acceleration = start.ddq_rad_s2.to_vec();
+        input.max_velocity = vmax.clone();
+        input.max_acceleration = self.limits.max_acceleration_rad_s2.to_vec();
+        input.max_jerk = self.limits.max_jerk_rad_s3.to_vec();
+        let n = waypoints.len();
+        // Each segment gets at least `step_s`, and longer where a joint would otherwise
+        // exceed `SEGMENT_SPEED_SHARE` of its velocity limit: the arm follows the waypoints'
+        // path more slowly instead of cutting its corners (the path is what the lookahead
+        // and the shield checked).
+        let segment_s = |from: &Joints, to: &Joints| {
+            (0..DOF).fold(step_s, |d, j| {
+                d.max((to[j] - from[j]).abs() / (SEGMENT_SPEED_SHARE * vmax[j]))
+            })
+        };
+        let mut t_s = 0.0;
+        let mut t_end = 0.0;
+        for i in 0..n {
+            let prev = if i == 0 {
+                start.q_rad
+            } else {
+                waypoints[i - 1]
+            };
+            let target = waypoints[i];
+            let here_s = segment_s(&prev, &target);
+            let mut tv = [0.0; DOF];
+            if i + 1 < n {
+                let next = waypoints[i + 1];
+                let span_s = here_s + segment_s(&target, &next);
+                for j in 0..DOF {
+                    tv[j] = ((next[j] - prev[j]) / span_s).clamp(-0.9 * vmax[j], 0.9 * vmax[j]);
+                }
+            }
+            input.target_position = target.to_vec();
+            input.target_velocity = tv.to_vec();
+            input.target_acceleration = vec![0.0; DOF];
+            t_end += here_s;
+            let last = i + 1 == n;
+            loop {
+                if !last && t_s >= t_end - 1e-9 {
+                    break;
+                }
+                let mut r = ruckig.update(&mut input, &mut output);
+                if !matches!(r, RuckigResult::Working | RuckigResult::Finished) {
+                    // Some pass-through velocities have no time-optimal profile from the
+                    // current state (Ruckig -110): pass this waypoint at rest instead.
+                    input.target_velocity = vec![0.0; DOF];
+                    r = ruckig.update(&mut input, &mut output);
+                }
+                let done = match r {
+                    RuckigResult::Working => false,
+                    RuckigResult::Finished => true,
+                    ref e => return Err(SmoothError::Ruckig(ruckig_code(e))),
+                };
+                if plan.len() >= self.max_samples {
+                    return Err(SmoothError::TooLong(self.max_samples));
+                }
+                let mut q = [0.0; DOF];
+                let mut dq = [0.0; DOF];
+                let mut ddq = [0.0; DOF];
+                q.copy_from_slice(&output.new_position);
+                dq.copy_from_slice(&output.new_velocity);
+                ddq.copy_from_slice(&output.new_acceleration);
+                plan.push(q, dq, ddq);
+                output.pass_to_input(&mut input);
+                t_s += self.period_s;
+                // Reached early, a waypoint is held until its time comes.
+                if done && (last || t_s >= t_end - 1e-9) {
+                    break;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The largest TCP speed along `qs` (sampled every `dt_s`, after `start`), m/s.
+pub fn max_tcp_speed_m_s<M: ShieldModel>(
+    model: &mut M,
+    start: &Joints,
+    qs: &[Joints],
+    dt_s: f64,
+) -> f64 {
+    let mut prev = model.tcp_position_m(start);
+    let mut max = 0.0f64;
+    for q in qs {
+        let p = model.tcp_position_m(q);
+        let d =
+            ((p[0] - prev[0]).powi(2) + (p[1] - prev[1]).powi(2) + (p[2] - prev[2]).powi(2)).sqrt();
+        max = max.max(d / dt_s);
+        prev = p;
+    }
+    max
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use crate::config::RuntimeConfig;
+    use crate::testing::toy::ToyArm;
+
+    #[test]
+    fn ruckig_plans_follow_the_waypoints_within_the_limits() {
+        let cfg = RuntimeConfig::xarm5_default();
+        let period = 0.004;
+        let mut sm = PlanSmoother::new(period, cfg.limits, 100_000);
+        let wps: Vec<Joints> = (1..=40)
+            .map(|i| {
+                let t = i as f64 / 40.0;
+                [0.5 * t, -0.3 * t, -0.6 * t, 0.2 * t, 0.0]
+            })
+            .collect();
+        let mut plan = Plan::with_capacity(1, 1, period, 0);
+        sm.smooth(
+            &MotionState::at_rest([0.0; DOF]),
+            &wps,
+            0.05,
+            &mut ToyArm,
+            &mut plan,
+        )
+        .unwrap();
+        assert!(plan.len() as f64 * period >= 2.0 - 1e-9);
+        let last = plan.q_rad[plan.len() - 1];
+        for j in 0..DOF {
+            assert!((last[j] - wps[39][j]).abs() < 1e-6, "{last:?}");
+            assert!(plan.dq_rad_s[plan.len() - 1][j].abs() < 1e-6);
+        }
+        for k in 0..plan.len() {
+            for j in 0..DOF {
+                assert!(plan.dq_rad_s[k][j].abs() <= cfg.limits.max_velocity_rad_s[j] + 1e-6);
+                assert!(
+                    plan.ddq_rad_s2[k][j].abs() <= cfg.limits.max_acceleration_rad_s2[j] + 1e-6
+                );
+            }
+        }
+        let speed = max_tcp_speed_m_s(&mut ToyArm, &[0.0; DOF], &plan.q_rad, period);
+        assert!(speed <= cfg.limits.max_tcp_speed_m_s, "{speed}");
+    }
+}

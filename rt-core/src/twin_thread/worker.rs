@@ -1,0 +1,577 @@
+//! The twin thread's logic (not real-time; it may allocate): keeps the scene in sync with
+//! detections (and forwards each one to the cycle at once), re-verifies the running plan
+//! when the scene changes (revoking it when it has become unsafe), runs the lookahead — the
+//! whole next episode in the twin with the current policy — whenever the scene or the policy
+//! changes or the cycle waits for a plan, and then either approves a Ruckig-smoothed plan
+//! (`task_ok && safe`, and every sample passes the shield) or asks for retraining.
+//!
+//! A new policy is swapped in with one step (it arrives validated and prepared); the cycle
+//! never sees a policy's plan before its lookahead has passed. A replacement plan joins the
+//! running one at a sample `join_ahead_s` ahead of the arm, starting from that sample's
+//! position, velocity and acceleration, so the hand-over is continuous.
+//!
+//! Return home: with `return_home`, once an episode's plan has ended at its goal and the
+//! arm has rested `dwell_at_goal_s`, the worker plans the way back to where the episode
+//! began — its own executed path reversed (joined plans included), smoothed, and checked
+//! by the shield in the scene then in force. If that check fails (the world changed around
+//! the arm) the arm holds and the ordinary lookahead from its pose takes over. A controlled
+//! stop on the way (stale inputs, a revoked plan) is handled the same way at once: back along
+//! the path from where the brake left the arm, then the episode again from its start — the
+//! posture every episode starts from in training — instead of an unverified approach.
+//!
+//! [`TwinWorker::step`] is one iteration; the `run` binary calls it in a loop between polls
+//! of its iceoryx2 subscribers, the tests call it directly.
+
+use crate::config::RuntimeConfig;
+use crate::cycle::brake::MotionState;
+use crate::cycle::plan::{JoinPoint, Plan};
+use crate::cycle::shield::{Shield, ShieldModel, ShieldViolation};
+use crate::cycle::{CycleReport, Mode, SceneUpdate, TwinIo};
+use crate::twin_thread::smoother::{PlanSmoother, SmoothError};
+use twin::{Joints, max_joint_gap_rad};
+
+/// Result of one lookahead.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Verdict {
+    /// The episode reached the goal.
+    pub task_ok: bool,
+    /// No contact / clearance violation during the episode.
+    pub safe: bool,
+    /// Smallest clearance during the episode, m.
+    pub min_distance_m: f64,
+    /// Steps run.
+    pub steps: u32,
+    /// The policy evaluated.
+    pub policy_id: u64,
+}
+
+/// The whole next episode in the twin with a policy.
+pub trait Lookahead: Send + 'static {
+    /// The scene type (shared with the shield model).
+    type Scene: Copy + Send + PartialEq + 'static;
+    /// A validated, prepared policy.
+    type Policy: Send + 'static;
+
+    /// Duration of one policy step, s.
+    fn step_s(&self) -> f64;
+
+    /// The id of a policy.
+    fn policy_id(policy: &Self::Policy) -> u64;
+
+    /// Rolls `policy` out from `start_q_rad` in `scene`; writes one waypoint per step.
+    fn lookahead(
+        &mut self,
+        policy: &Self::Policy,
+        scene: &Self::Scene,
+        start_q_rad: &Joints,
+        waypoints: &mut Vec<Joints>,
+    ) -> Verdict;
+}
+
+/// Something the twin did that the outside should know (publish, log, assert on).
+#[derive(Debug, Clone, PartialEq)]
+pub enum TwinEvent<S> {
+    /// A lookahead ran.
+    Verdict {
+        /// Its result.
+        verdict: Verdict,
+        /// The scene it ran in.
+        scene: S,
+        /// How long it took, s.
+        elapsed_s: f64,
+    },
+    /// A plan was approved and handed to the cycle.
+    PlanApproved {
+        /// Plan id.
+        plan_id: u64,
+        /// Policy id.
+        policy_id: u64,
+        /// Whether it joins a running plan.
+        joins: bool,
+    },
+    /// The lookahead passed but the smoothed plan did not (smoothing or shield).
+    PlanRejected {
+        /// Policy id.
+        policy_id: u64,
+        /// Smoothing error, if that was the cause.
+        smooth: Option<SmoothError>,
+        /// Shield violation and sample index, if that was the cause.
+        shield: Option<(usize, ShieldViolation)>,
+    },
+    /// The running plan became unsafe in the new scene and was revoked.
+    Revoked {
+        /// Plan id.
+        plan_id: u64,
+        /// The first unsafe sample.
+        at_index: usize,
+    },
+    /// The policy failed the lookahead: retraining is requested for this scene.
+    Retrain {
+        /// Request id (increasing).
+        request_id: u64,
+        /// The failed verdict.
+        verdict: Verdict,
+        /// The scene.
+        scene: S,
+    },
+    /// The arm returns to where its episode began along its executed path.
+    ReturningHome {
+        /// Plan id.
+        plan_id: u64,
+        /// Samples in the plan.
+        samples: usize,
+    },
+    /// The way home is unsafe in the scene now in force; the arm holds.
+    ReturnHomeRefused {
+        /// Shield violation and sample index, if that was the cause.
+        shield: Option<(usize, ShieldViolation)>,
+        /// Smoothing error, if that was the cause.
+        smooth: Option<SmoothError>,
+    },
+    /// A new policy was swapped in.
+    PolicySwapped {
+        /// Its id.
+        policy_id: u64,
+    },
+}
+
+/// The twin thread's state.
+pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
+    la: L,
+    shield: Shield<M>,
+    smoother: PlanSmoother,
+    io: TwinIo<L::Scene>,
+    period_s: f64,
+    join_ahead: usize,
+    policy: Option<Box<L::Policy>>,
+    scene: Option<L::Scene>,
+    report: Option<CycleReport>,
+    sent: Option<Plan>,
+    next_plan_id: u64,
+    next_request_id: u64,
+    want_plan: bool,
+    waypoints: Vec<Joints>,
+    last_mode: Mode,
+    refused_seen: u64,
+    return_home: bool,
+    dwell_ns: u64,
+    /// Cycle-rate samples from where the excursion began (at rest) to the end of the last
+    /// approved episode plan.
+    path_from_home: Vec<Joints>,
+    /// Where the sent plan's samples start in `path_from_home`.
+    sent_offset: usize,
+    /// The sent plan is a return home.
+    sent_is_return: bool,
+    /// Plan whose end the arm has rested at since (cycle clock, ns).
+    rest_since_ns: Option<(u64, u64)>,
+    /// The plan whose return home was refused (not retried).
+    return_refused_for: u64,
+    /// The return under way follows a stop on the way: run the episode again once home.
+    replan_at_home: bool,
+    /// The policy and scene of the last retrain request: a failing lookahead asks once per
+    /// pair (the learner restarts its training on every new request).
+    last_retrain: Option<(u64, L::Scene)>,
+    /// Motion waits for a passing lookahead (off only for `--no-lookahead`).
+    gate: bool,
+    /// After a refusal, no planning before this (cycle clock, ns).
+    no_plan_before_ns: u64,
+}
+
+/// Why a smoothed plan was not approved: the smoothing error or the shield's first
+/// violation (sample index and kind).
+type NotApproved = (Option<SmoothError>, Option<(usize, ShieldViolation)>);
+
+/// A rest pose this close (every joint) to a sample of the recorded path lies on it, rad.
+const ON_PATH_TOLERANCE_RAD: f64 = 0.05;
+
+/// Pause after the cycle refused a plan before planning again, ns.
+const REFUSAL_BACKOFF_NS: u64 = 500_000_000;
+
+impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
+    /// A worker over a lookahead and a shield model, talking to a cycle through `io`.
+    pub fn new(cfg: &RuntimeConfig, la: L, shield: Shield<M>, io: TwinIo<L::Scene>) -> Self {
+        let period_s = 1.0 / cfg.rate_hz;
+        Self {
+            la,
+            shield,
+            smoother: PlanSmoother::new(period_s, cfg.limits, (60.0 * cfg.rate_hz) as usize),
+            io,
+            period_s,
+            join_ahead: (cfg.join_ahead_s / period_s).ceil() as usize,
+            policy: None,
+            scene: None,
+            report: None,
+            sent: None,
+            next_plan_id: 1,
+            next_request_id: 1,
+            want_plan: true,
+            waypoints: Vec::new(),
+            last_mode: Mode::Idle,
+            refused_seen: 0,
+            return_home: cfg.return_home,
+            dwell_ns: (cfg.dwell_at_goal_s * 1e9) as u64,
+            path_from_home: Vec::new(),
+            sent_offset: 0,
+            sent_is_return: false,
+            rest_since_ns: None,
+            return_refused_for: 0,
+            replan_at_home: false,
+            last_retrain: None,
+            gate: true,
+            no_plan_before_ns: 0,
+        }
+    }
+
+    /// Turns the lookahead gate off (`rt-core run --no-lookahead`, the demonstration of
+    /// what Foresight prevents): every lookahead's plan is executed whatever its verdict,
+    /// and no retraining is requested. Verdicts are still computed and reported.
+    pub fn disable_lookahead_gate(&mut self) {
+        self.gate = false;
+    }
+
+    /// A detection arrived: forwards it to the cycle at once and marks a scene change.
+    pub fn on_detection(
+        &mut self,
+        scene: L::Scene,
+        stamp_ns: u64,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) {
+        self.io.scenes.send(SceneUpdate { scene, stamp_ns });
+        if self.scene != Some(scene) {
+            self.scene = Some(scene);
+            self.want_plan = true;
+            self.reverify_running(events);
+        }
+    }
+
+    /// A validated, prepared policy arrived: swapped in with one step; the old one is
+    /// dropped here, off the cycle.
+    pub fn on_policy(&mut self, policy: Box<L::Policy>, events: &mut Vec<TwinEvent<L::Scene>>) {
+        let policy_id = L::policy_id(&policy);
+        // The old policy is dropped here, on the twin thread.
+        drop(self.policy.replace(policy));
+        self.want_plan = true;
+        events.push(TwinEvent::PolicySwapped { policy_id });
+    }
+
+    /// The latest cycle report seen.
+    pub fn last_report(&self) -> Option<&CycleReport> {
+        self.report.as_ref()
+    }
+
+    /// The current policy.
+    pub fn policy(&self) -> Option<&L::Policy> {
+        self.policy.as_deref()
+    }
+
+    /// The lookahead.
+    pub fn lookahead_mut(&mut self) -> &mut L {
+        &mut self.la
+    }
+
+    fn reverify_running(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
+        let (Some(r), Some(sent), Some(scene)) = (self.report, self.sent.as_ref(), self.scene)
+        else {
+            return;
+        };
+        if r.mode != Mode::Following || r.plan_id != sent.id || r.next_index >= sent.len() {
+            return;
+        }
+        let from = r.next_index.saturating_sub(1);
+        let prev = sent.q_rad[from];
+        let rest = &sent.q_rad[r.next_index..];
+        if let Err((i, _)) = self.shield.check_path(&prev, rest, self.period_s, &scene) {
+            self.io
+                .revoked_plan_id
+                .store(sent.id, std::sync::atomic::Ordering::Release);
+            events.push(TwinEvent::Revoked {
+                plan_id: sent.id,
+                at_index: r.next_index + i,
+            });
+        }
+    }
+
+    /// One iteration at `now_ns` (the cycle's clock): takes reports, frees returned plans,
+    /// and plans when due. Events are appended to `events`.
+    pub fn step(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
+        self.io.plans.collect_returned();
+        if let Some(r) = self.io.reports.latest() {
+            if r.mode == Mode::Stopped && self.last_mode != Mode::Stopped {
+                self.want_plan = true;
+            }
+            if r.last_refused_plan_id != 0 && r.last_refused_plan_id != self.refused_seen {
+                self.refused_seen = r.last_refused_plan_id;
+                self.want_plan = true;
+                // The cycle refuses while it cannot move (a link error, a stop under way):
+                // plan again after a pause, not at the twin thread's polling rate.
+                self.no_plan_before_ns = r.t_ns.saturating_add(REFUSAL_BACKOFF_NS);
+            }
+            self.last_mode = r.mode;
+            self.report = Some(r);
+        }
+        if self.return_home_due(events) {
+            return;
+        }
+        if !self.want_plan {
+            return;
+        }
+        let (Some(r), Some(scene)) = (self.report, self.scene) else {
+            return;
+        };
+        if r.t_ns < self.no_plan_before_ns {
+            return;
+        }
+        if self.policy.is_none() {
+            return;
+        }
+        // Where the plan starts.
+        let (start, join) = match r.mode {
+            Mode::Stopping => return,
+            Mode::Idle | Mode::Stopped => (MotionState::at_rest(r.cmd.q_rad), None),
+            Mode::Following => match self.sent.as_ref() {
+                Some(s) if s.id == r.plan_id && r.next_index + self.join_ahead < s.len() => {
+                    let k = r.next_index + self.join_ahead;
+                    (
+                        MotionState {
+                            q_rad: s.q_rad[k],
+                            dq_rad_s: s.dq_rad_s[k],
+                            ddq_rad_s2: s.ddq_rad_s2[k],
+                        },
+                        Some(JoinPoint {
+                            plan_id: s.id,
+                            index: k,
+                        }),
+                    )
+                }
+                // The running plan is about to end (or unknown): plan again once at rest.
+                _ => return,
+            },
+        };
+        self.want_plan = false;
+        self.plan_from(start, join, scene, events);
+    }
+
+    /// Extends the executed path with an approved episode plan.
+    fn record_episode_plan(&mut self, start: &MotionState, join: Option<JoinPoint>, plan: &Plan) {
+        match join {
+            Some(j) if !self.sent_is_return => {
+                self.path_from_home.truncate(self.sent_offset + j.index);
+            }
+            _ => {
+                // From rest: on the recorded path the path is cut there; anywhere else a
+                // new excursion begins here.
+                if !self.cut_path_at(&start.q_rad) {
+                    self.path_from_home.clear();
+                    self.path_from_home.push(start.q_rad);
+                }
+            }
+        }
+        self.sent_offset = self.path_from_home.len();
+        self.path_from_home.extend_from_slice(&plan.q_rad);
+        self.sent_is_return = false;
+        self.rest_since_ns = None;
+    }
+
+    /// Where the arm rests at `q` on the recorded path (the end of the last plan, a brake's
+    /// end near one of its samples, a return cut short), cuts the path there, ending exactly
+    /// at `q`, and returns true; false (path untouched) when `q` is off the path.
+    fn cut_path_at(&mut self, q: &Joints) -> bool {
+        let Some((i, gap)) = self
+            .path_from_home
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (i, max_joint_gap_rad(p, q)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .filter(|(_, g)| *g <= ON_PATH_TOLERANCE_RAD)
+        else {
+            return false;
+        };
+        self.path_from_home.truncate(i + 1);
+        if gap > 1e-9 {
+            self.path_from_home.push(*q);
+        }
+        true
+    }
+
+    /// Whether the return home is in hand this iteration (planned now, or waiting out the
+    /// dwell at the goal); the ordinary planning waits meanwhile.
+    fn return_home_due(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) -> bool {
+        let (Some(r), Some(sent)) = (self.report, self.sent.as_ref()) else {
+            return false;
+        };
+        let (sent_id, policy_id) = (sent.id, sent.policy_id);
+        let at_end = r.mode == Mode::Idle && r.plan_id == sent_id && r.next_index >= sent.len();
+        let stopped = r.mode == Mode::Stopped && self.want_plan;
+        if !at_end && !stopped {
+            return false;
+        }
+        if at_end && self.sent_is_return {
+            // Home: the next excursion starts here.
+            self.path_from_home.clear();
+            if std::mem::take(&mut self.replan_at_home) {
+                self.want_plan = true;
+            }
+            return false;
+        }
+        if !self.return_home || self.path_from_home.len() < 2 || self.return_refused_for == sent_id
+        {
+            return false;
+        }
+        let Some(scene) = self.scene else {
+            return false;
+        };
+        if stopped {
+            if r.t_ns < self.no_plan_before_ns {
+                return true;
+            }
+            // Cut the path where the brake left the arm; off the path, plan as usual.
+            if !self.cut_path_at(&r.cmd.q_rad) || self.path_from_home.len() < 2 {
+                return false;
+            }
+        } else {
+            let since = match self.rest_since_ns {
+                Some((id, t)) if id == sent_id => t,
+                _ => {
+                    self.rest_since_ns = Some((sent_id, r.t_ns));
+                    r.t_ns
+                }
+            };
+            if r.t_ns.saturating_sub(since) < self.dwell_ns {
+                return true;
+            }
+        }
+        // The executed path reversed, one waypoint per twin step; ends exactly at its start.
+        let stride = ((self.la.step_s() / self.period_s).round() as usize).max(1);
+        let n = self.path_from_home.len();
+        self.waypoints.clear();
+        let mut i = n - 1;
+        while i > stride {
+            i -= stride;
+            self.waypoints.push(self.path_from_home[i]);
+        }
+        self.waypoints.push(self.path_from_home[0]);
+        let start = MotionState::at_rest(r.cmd.q_rad);
+        let plan = match self.smoothed_checked_plan(&start, None, policy_id, &scene) {
+            Ok(plan) => plan,
+            Err((smooth, shield)) => {
+                self.return_refused_for = sent_id;
+                self.want_plan = true;
+                events.push(TwinEvent::ReturnHomeRefused { shield, smooth });
+                return false;
+            }
+        };
+        let (plan_id, samples) = (plan.id, plan.len());
+        if self.send_plan(plan) {
+            self.sent_is_return = true;
+            if stopped {
+                self.want_plan = false;
+                self.replan_at_home = true;
+            }
+            events.push(TwinEvent::ReturningHome { plan_id, samples });
+        } else {
+            self.return_refused_for = 0;
+        }
+        true
+    }
+
+    /// Smooths `self.waypoints` from `start` into a new plan and checks every sample with
+    /// the shield in `scene` (what every plan passes before it reaches the cycle).
+    fn smoothed_checked_plan(
+        &mut self,
+        start: &MotionState,
+        join: Option<JoinPoint>,
+        policy_id: u64,
+        scene: &L::Scene,
+    ) -> Result<Plan, NotApproved> {
+        let id = self.next_plan_id;
+        self.next_plan_id += 1;
+        let mut plan = Plan::with_capacity(id, policy_id, self.period_s, 0);
+        plan.join = join;
+        self.smoother
+            .smooth(
+                start,
+                &self.waypoints,
+                self.la.step_s(),
+                self.shield.model_mut(),
+                &mut plan,
+            )
+            .map_err(|e| (Some(e), None))?;
+        self.shield
+            .check_path(&start.q_rad, &plan.q_rad, self.period_s, scene)
+            .map_err(|v| (None, Some(v)))?;
+        Ok(plan)
+    }
+
+    /// Hands a checked plan to the cycle and keeps a copy as the sent plan; false when the
+    /// hand-over slot is full.
+    fn send_plan(&mut self, plan: Plan) -> bool {
+        let copy = plan.clone();
+        if self.io.plans.send(Box::new(plan)).is_err() {
+            return false;
+        }
+        self.sent = Some(copy);
+        true
+    }
+
+    fn plan_from(
+        &mut self,
+        start: MotionState,
+        join: Option<JoinPoint>,
+        scene: L::Scene,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) {
+        let Some(policy) = self.policy.as_deref() else {
+            return;
+        };
+        let t0 = std::time::Instant::now();
+        let verdict = self
+            .la
+            .lookahead(policy, &scene, &start.q_rad, &mut self.waypoints);
+        events.push(TwinEvent::Verdict {
+            verdict,
+            scene,
+            elapsed_s: t0.elapsed().as_secs_f64(),
+        });
+        if self.gate && !(verdict.task_ok && verdict.safe) {
+            if self.last_retrain != Some((verdict.policy_id, scene)) {
+                self.last_retrain = Some((verdict.policy_id, scene));
+                events.push(TwinEvent::Retrain {
+                    request_id: self.next_request_id,
+                    verdict,
+                    scene,
+                });
+                self.next_request_id += 1;
+            }
+            return;
+        }
+        if self.waypoints.is_empty() {
+            // Already at the goal: nothing to do.
+            return;
+        }
+        let plan = match self.smoothed_checked_plan(&start, join, verdict.policy_id, &scene) {
+            Ok(plan) => plan,
+            Err((smooth, shield)) => {
+                events.push(TwinEvent::PlanRejected {
+                    policy_id: verdict.policy_id,
+                    smooth,
+                    shield,
+                });
+                return;
+            }
+        };
+        let plan_id = plan.id;
+        if !self.send_plan(plan) {
+            self.want_plan = true;
+            return;
+        }
+        if let Some(sent) = self.sent.take() {
+            self.record_episode_plan(&start, join, &sent);
+            self.sent = Some(sent);
+        }
+        events.push(TwinEvent::PlanApproved {
+            plan_id,
+            policy_id: verdict.policy_id,
+            joins: join.is_some(),
+        });
+    }
+}

@@ -1,0 +1,67 @@
+//! Zero-allocation tests with the one counting allocator (`rt_core::rt::alloc_count`): the
+//! cycle over 100 000 cycles with policy swaps, the twin's per-step work, policy inference
+//! and hot swaps, and the xArm driver on the cycle path. One test binary, so the allocator
+//! is global only here; measurements are serialised, since the counter is process-wide.
+
+#![allow(missing_docs, clippy::unwrap_used)]
+
+#[path = "../common/rig.rs"]
+mod common;
+
+mod cycle;
+mod policy;
+mod twin_step;
+mod xarm_driver;
+
+use std::sync::{Mutex, MutexGuard};
+
+use rt_core::rt::alloc_count::{self, CountingAlloc};
+
+#[global_allocator]
+static ALLOC: CountingAlloc = CountingAlloc;
+
+/// Holds off every other measurement of this binary while held.
+pub fn serial() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Runs `f` on this thread with counting on; returns its result and the allocations,
+/// reallocations and frees it made.
+pub fn count_allocations<T>(f: impl FnOnce() -> T) -> (T, u64) {
+    let _serial = serial();
+    alloc_count::count_this_thread(true);
+    let before = alloc_count::counted();
+    let out = f();
+    let after = alloc_count::counted();
+    alloc_count::count_this_thread(false);
+    (out, after - before)
+}
+
+/// The bundled model, task and scenes.
+mod twin_fixtures {
+    use std::path::PathBuf;
+
+    use shm_schemas::scene_file::SceneFile;
+    use twin::{RobotModel, Scene, TaskConfig, TwinEnv};
+
+    fn assets() -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets")
+    }
+
+    pub fn model() -> RobotModel {
+        RobotModel::load(&assets().join("xarm5.urdf")).unwrap()
+    }
+
+    pub fn env() -> TwinEnv {
+        TwinEnv::new(
+            model(),
+            TaskConfig::load(&assets().join("task.toml")).unwrap(),
+        )
+    }
+
+    pub fn scene(name: &str) -> Scene {
+        let file = SceneFile::load(&assets().join("scenes").join(name)).unwrap();
+        Scene::from_file(&file).unwrap()
+    }
+}

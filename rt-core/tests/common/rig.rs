@@ -1,0 +1,151 @@
+//! Shared rig of the runtime's integration tests (included with `#[path]`): a cycle over the
+//! toy arm and an in-process arm, a twin worker with the toy lookahead, and a manual clock,
+//! stepped in one thread so every run is deterministic.
+
+#![allow(dead_code, missing_docs, clippy::new_without_default)]
+
+use rt_core::config::RuntimeConfig;
+use rt_core::cycle::brake::Brake;
+use rt_core::cycle::link::InProcessArm;
+use rt_core::cycle::shield::{Shield, ShieldLimits};
+use rt_core::cycle::{self, Cycle, CycleConfig, CycleEvent, CycleReport, Mode};
+use rt_core::rt::clock::{Clock, ManualClock};
+use rt_core::rt::rt_log::RtLogDrain;
+use rt_core::testing::toy::{ToyArm, ToyLookahead, ToyPolicy, ToyScene};
+use rt_core::twin_thread::{TwinEvent, TwinWorker};
+use twin::{DOF, Joints};
+
+pub const START: Joints = [0.0, -0.3, -0.6, 0.4, 0.0];
+pub const TARGET_A: Joints = [0.6, 0.2, -0.9, 0.3, 0.1];
+pub const TARGET_B: Joints = [-0.5, 0.1, -0.7, 0.5, -0.1];
+
+pub struct Rig {
+    pub cfg: RuntimeConfig,
+    pub clock: ManualClock,
+    pub cycle: Cycle<ToyArm, InProcessArm>,
+    pub twin: TwinWorker<ToyLookahead, ToyArm>,
+    pub log: RtLogDrain<CycleEvent>,
+    pub scene: ToyScene,
+    pub events: Vec<TwinEvent<ToyScene>>,
+    pub reports: Vec<CycleReport>,
+    pub detections_every: u64,
+    pub detections_on: bool,
+    pub cycles: u64,
+}
+
+impl Rig {
+    /// A rig whose arm stays at the goal (`return_home = false`).
+    pub fn new() -> Self {
+        let mut cfg = RuntimeConfig::xarm5_default();
+        cfg.return_home = false;
+        Self::with_config(cfg)
+    }
+
+    /// A rig over `cfg`.
+    pub fn with_config(cfg: RuntimeConfig) -> Self {
+        let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
+        let (twin_io, cycle_io, log) = cycle::wire::<ToyScene>();
+        let arm = InProcessArm::new(
+            START,
+            cfg.limits.joint_min_rad,
+            cfg.limits.joint_max_rad,
+            [3.0; DOF],
+        );
+        let mut cycle = Cycle::new(
+            CycleConfig::from_runtime(&cfg),
+            Shield::new(ToyArm, limits),
+            Brake::new(&cfg.limits),
+            arm,
+            cycle_io,
+        );
+        let clock = ManualClock::new(1_000_000_000);
+        cycle.start(clock.now_ns()).expect("start");
+        let twin = TwinWorker::new(
+            &cfg,
+            ToyLookahead::default(),
+            Shield::new(ToyArm, limits),
+            twin_io,
+        );
+        Self {
+            cfg,
+            clock,
+            cycle,
+            twin,
+            log,
+            scene: ToyScene::empty(),
+            events: Vec::new(),
+            reports: Vec::new(),
+            detections_every: 8,
+            detections_on: true,
+            cycles: 0,
+        }
+    }
+
+    pub fn policy(&mut self, id: u64, target: Joints) {
+        let p = Box::new(ToyPolicy::random(id, target, id));
+        self.twin.on_policy(p, &mut self.events);
+    }
+
+    /// Runs `n` cycles: detections every `detections_every` cycles, a twin step, a cycle.
+    pub fn run(&mut self, n: u64) {
+        let period = self.cfg.period_ns();
+        for _ in 0..n {
+            let now = self.clock.now_ns();
+            if self.detections_on && self.cycles.is_multiple_of(self.detections_every) {
+                self.twin.on_detection(self.scene, now, &mut self.events);
+            }
+            self.twin.step(&mut self.events);
+            self.cycle.process(now);
+            self.reports.push(*self.cycle.report());
+            self.clock.advance_ns(period);
+            self.cycles += 1;
+        }
+    }
+
+    pub fn mode(&self) -> Mode {
+        self.cycle.mode()
+    }
+
+    pub fn arm_q(&self) -> Joints {
+        self.cycle.link().q_rad()
+    }
+
+    /// Every command so far moved each joint within its velocity limit.
+    pub fn assert_commands_within_velocity_limits(&self) {
+        let period_s = 1.0 / self.cfg.rate_hz;
+        for w in self.reports.windows(2) {
+            for j in 0..DOF {
+                let v = (w[1].cmd.q_rad[j] - w[0].cmd.q_rad[j]) / period_s;
+                assert!(
+                    v.abs() <= self.cfg.limits.max_velocity_rad_s[j] + 1e-6,
+                    "joint {j}: {v} rad/s"
+                );
+            }
+        }
+    }
+
+    pub fn near(a: &Joints, b: &Joints, tol: f64) -> bool {
+        (0..DOF).all(|j| (a[j] - b[j]).abs() <= tol)
+    }
+
+    pub fn retrains(&self) -> usize {
+        self.events
+            .iter()
+            .filter(|e| matches!(e, TwinEvent::Retrain { .. }))
+            .count()
+    }
+
+    pub fn approvals(&self) -> Vec<(u64, u64, bool)> {
+        self.events
+            .iter()
+            .filter_map(|e| match e {
+                TwinEvent::PlanApproved {
+                    plan_id,
+                    policy_id,
+                    joins,
+                } => Some((*plan_id, *policy_id, *joins)),
+                _ => None,
+            })
+            .collect()
+    }
+}

@@ -1,0 +1,13 @@
+//! Integration tests of the runtime: the cycle and the twin worker together on the toy rig
+//! (`cycle`), the shield on the real twin model (`shield_twin`) and the `rt-core twin` CLI
+//! (`twin_cli`).
+
+#![allow(missing_docs, clippy::unwrap_used)]
+
+#[path = "../common/rig.rs"]
+mod common;
+
+mod cycle;
+mod limits;
+mod shield_twin;
+mod twin_cli;

@@ -1,0 +1,495 @@
+//! The reaching task as an environment: reset, step, scene sampling and whole-episode
+//! rollouts. One implementation, used for training (learner), for the lookahead and by the
+//! CLI. See the module docs of `twin` for the observation, action and reward layout.
+//!
+//! All buffers are inside [`TwinEnv`]; `reset`, `step` and `rollout` do not allocate, and
+//! the same scene and actions give bit-identical episodes.
+
+use nalgebra::Vector3;
+use rand::Rng;
+
+use super::geometry::{DistanceReport, RobotGeometry};
+use super::ik::IkSolver;
+use super::kinematics::LinkPoses;
+use super::model::RobotModel;
+use super::scene::{BoxObstacle, Goal, Scene};
+use super::task::{MAX_EPISODE_STEPS, ObstacleClass, TaskConfig};
+use super::{ACT_DIM, DOF, Joints, OBS_DIM};
+
+/// Goals tried before scene sampling gives up on placing a box.
+const GOAL_TRIES: usize = 64;
+
+/// Box placements tried per goal.
+const BOX_TRIES: usize = 8;
+
+/// IK iterations for the arm's posture at the goal when sampling scenes.
+const GOAL_IK_ITERATIONS: u32 = 200;
+
+/// The raw reward terms of one step (before the weights).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RewardTerms {
+    /// `r_g = d_{t-1} − d_t`: progress toward the goal target point (m).
+    pub progress: f32,
+    /// `r_a = −‖a‖` of the clipped action.
+    pub action: f32,
+    /// `r_o = −1` when the robot–box distance is below `d_thre_m`, else 0.
+    pub proximity: f32,
+    /// `+success_bonus` on success, `−collision_penalty` on contact, else 0 (already
+    /// weighted).
+    pub terminal: f32,
+}
+
+/// Result of one step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepOutcome {
+    /// Observation after the step.
+    pub obs: [f32; OBS_DIM],
+    /// `c1·progress + c2·action + c3·proximity + terminal`.
+    pub reward: f32,
+    /// The raw terms.
+    pub terms: RewardTerms,
+    /// The TCP is within tolerance of the goal target point.
+    pub task_done: bool,
+    /// No contact with a box or the table.
+    pub safe: bool,
+    /// `task_done || !safe`.
+    pub terminated: bool,
+    /// The step budget is used up (and the episode did not terminate).
+    pub truncated: bool,
+    /// Robot–box report (nearest box); robot–table report in a scene without boxes.
+    pub distance: DistanceReport,
+    /// Joints after the step (rad).
+    pub joints: Joints,
+}
+
+/// Summary of a whole episode.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EpisodeSummary {
+    /// The goal was reached.
+    pub success: bool,
+    /// No contact happened.
+    pub safe: bool,
+    /// Sum of rewards.
+    pub return_: f64,
+    /// Steps taken.
+    pub steps: u32,
+    /// Smallest `StepOutcome::distance` seen (reset included) (m).
+    pub min_distance_m: f64,
+}
+
+/// The scripted straight-line policy: head for the goal target point at full speed along
+/// the straight line (the baseline that a tall box between start and goal defeats).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StraightLinePolicy {
+    /// Height of the goal target point (m); the observation carries only the goal's x, y.
+    pub target_z_m: f64,
+    /// The task's action scale (m).
+    pub scale_m: f64,
+}
+
+impl StraightLinePolicy {
+    /// The action for an observation.
+    pub fn act(&self, obs: &[f32; OBS_DIM]) -> [f32; ACT_DIM] {
+        let delta = [
+            f64::from(obs[1]) - f64::from(obs[3]),
+            f64::from(obs[2]) - f64::from(obs[4]),
+            self.target_z_m - f64::from(obs[5]),
+        ];
+        let mut a = delta.map(|d| d / self.scale_m);
+        let biggest = a.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+        if biggest > 1.0 {
+            a = a.map(|v| v / biggest);
+        }
+        a.map(|v| v as f32)
+    }
+}
+
+/// The reaching environment. `Clone + Send`; all buffers pre-allocated.
+#[derive(Debug, Clone)]
+pub struct TwinEnv {
+    model: RobotModel,
+    geometry: RobotGeometry,
+    ik: IkSolver,
+    cfg: TaskConfig,
+    scene: Scene,
+    target_m: Vector3<f64>,
+    q: Joints,
+    poses: LinkPoses,
+    tcp_vel_m_s: Vector3<f64>,
+    goal_dist_m: f64,
+    step_index: u32,
+    obs: [f32; OBS_DIM],
+    last_distance: DistanceReport,
+    start_tcp_m: Vector3<f64>,
+}
+
+fn uniform<R: Rng + ?Sized>(rng: &mut R, r: [f64; 2]) -> f64 {
+    r[0] + (r[1] - r[0]) * rng.random::<f64>()
+}
+
+impl TwinEnv {
+    /// A new environment over `model` with the task `cfg`; starts on an empty scene with
+    /// the goal in the middle of the sampling ranges.
+    pub fn new(model: RobotModel, cfg: TaskConfig) -> Self {
+        let mut model = model;
+        model.set_home(cfg.start.joints_rad);
+        let geometry = RobotGeometry::new(&model);
+        let ik = IkSolver::new(&model, cfg.ik);
+        let s = &cfg.sampling;
+        let goal = Goal {
+            center_m: [
+                (s.goal_x_m[0] + s.goal_x_m[1]) / 2.0,
+                (s.goal_y_m[0] + s.goal_y_m[1]) / 2.0,
+                s.table_height_m + s.goal_size_m / 2.0,
+            ],
+            size_m: s.goal_size_m,
+        };
+        let scene = Scene::empty(s.table_height_m, goal);
+        let start_tcp_m = model.tcp_m(&model.home());
+        let mut env = Self {
+            model,
+            geometry,
+            ik,
+            cfg,
+            scene,
+            target_m: Vector3::zeros(),
+            q: [0.0; DOF],
+            poses: LinkPoses::default(),
+            tcp_vel_m_s: Vector3::zeros(),
+            goal_dist_m: 0.0,
+            step_index: 0,
+            obs: [0.0; OBS_DIM],
+            last_distance: DistanceReport::FAR,
+            start_tcp_m,
+        };
+        let scene = env.scene;
+        env.reset(&scene);
+        env
+    }
+
+    /// The task configuration.
+    pub fn config(&self) -> &TaskConfig {
+        &self.cfg
+    }
+
+    /// The robot model (its home is the task's start posture).
+    pub fn model(&self) -> &RobotModel {
+        &self.model
+    }
+
+    /// The collision geometry.
+    pub fn geometry(&self) -> &RobotGeometry {
+        &self.geometry
+    }
+
+    /// Current joints (rad).
+    pub fn joints(&self) -> Joints {
+        self.q
+    }
+
+    /// Current TCP position (m).
+    pub fn tcp_m(&self) -> Vector3<f64> {
+        self.poses.tcp_m()
+    }
+
+    /// Current link poses.
+    pub fn poses(&self) -> &LinkPoses {
+        &self.poses
+    }
+
+    /// The scene of the current episode.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// The goal target point of the current episode (m).
+    pub fn target_m(&self) -> Vector3<f64> {
+        self.target_m
+    }
+
+    /// Steps taken in the current episode.
+    pub fn step_index(&self) -> u32 {
+        self.step_index
+    }
+
+    /// The latest observation.
+    pub fn observation(&self) -> [f32; OBS_DIM] {
+        self.obs
+    }
+
+    /// TCP position at the start posture (m).
+    pub fn start_tcp_m(&self) -> Vector3<f64> {
+        self.start_tcp_m
+    }
+
+    /// The scripted straight-line policy for this task.
+    pub fn straight_line_policy(&self) -> StraightLinePolicy {
+        StraightLinePolicy {
+            target_z_m: self.target_m.z,
+            scale_m: self.cfg.action.scale_m,
+        }
+    }
+
+    /// Starts an episode in `scene` from the configured start posture.
+    pub fn reset(&mut self, scene: &Scene) -> [f32; OBS_DIM] {
+        self.scene.clone_from(scene);
+        self.target_m = self.scene.goal_target_m(self.cfg.success.goal_hover_m);
+        self.q = self.cfg.start.joints_rad;
+        self.model.limits().clamp(&mut self.q);
+        self.model.fk_into(&self.q, &mut self.poses);
+        self.tcp_vel_m_s = Vector3::zeros();
+        self.goal_dist_m = (self.target_m - self.poses.tcp_m()).norm();
+        self.step_index = 0;
+        let (boxes, table) = self.geometry.distances(&self.poses, &self.scene);
+        self.last_distance = boxes.unwrap_or(table);
+        self.write_obs();
+        self.obs
+    }
+
+    fn write_obs(&mut self) {
+        let tcp = self.poses.tcp_m();
+        let d = &self.last_distance;
+        let (h, w) = match d.obstacle.and_then(|i| self.scene.obstacles.get(i)) {
+            Some(b) => (b.height_m(), b.width_m()),
+            None => (0.0, 0.0),
+        };
+        let o = &mut self.obs;
+        o[0] = (f64::from(self.step_index) / f64::from(self.cfg.episode.max_steps)) as f32;
+        o[1] = self.scene.goal.center_m[0] as f32;
+        o[2] = self.scene.goal.center_m[1] as f32;
+        for k in 0..3 {
+            o[3 + k] = tcp[k] as f32;
+            o[6 + k] = self.tcp_vel_m_s[k] as f32;
+            o[11 + k] = d.robot_point_m[k] as f32;
+            o[14 + k] = d.obstacle_point_m[k] as f32;
+        }
+        o[9] = h as f32;
+        o[10] = w as f32;
+    }
+
+    /// Advances one step with `action` (clipped to `[-1, 1]`; NaN counts as 0).
+    ///
+    /// # Performance
+    /// One IK solve, one FK, one distance query; no allocation.
+    pub fn step(&mut self, action: &[f32; ACT_DIM]) -> StepOutcome {
+        let a = action.map(|v| {
+            if v.is_nan() {
+                0.0
+            } else {
+                f64::from(v).clamp(-1.0, 1.0)
+            }
+        });
+        let a_norm = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+        let scale = self.cfg.action.scale_m;
+        let dt = self.cfg.episode.step_period_s;
+        let tcp_prev = self.poses.tcp_m();
+        let target = tcp_prev + Vector3::new(a[0], a[1], a[2]) * scale;
+        let sol = self.ik.solve(&self.model, &target, &self.q);
+        let limits = self.model.limits();
+        for i in 0..DOF {
+            let max_dq = limits.velocity_rad_s[i] * dt;
+            let dq = (sol.joints[i] - self.q[i]).clamp(-max_dq, max_dq);
+            self.q[i] += dq;
+        }
+        limits.clamp(&mut self.q);
+        self.model.fk_into(&self.q, &mut self.poses);
+        let tcp = self.poses.tcp_m();
+        self.tcp_vel_m_s = (tcp - tcp_prev) / dt;
+        self.step_index += 1;
+
+        let (boxes, table) = self.geometry.distances(&self.poses, &self.scene);
+        let clearance_m = self.cfg.success.min_box_clearance_m;
+        // Closer than the clearance to a box or (links 2–5) to the table is contact: the
+        // runtime's shield keeps `shield.min_distance_m` from both.
+        let contact = table.colliding
+            || table.distance_m < clearance_m
+            || boxes.is_some_and(|b| b.colliding || b.distance_m < clearance_m);
+        self.last_distance = boxes.unwrap_or(table);
+
+        let goal_dist_m = (self.target_m - tcp).norm();
+        let r = &self.cfg.reward;
+        let progress = self.goal_dist_m - goal_dist_m;
+        self.goal_dist_m = goal_dist_m;
+        let proximity = match boxes {
+            Some(b) if b.distance_m < r.d_thre_m => -1.0,
+            _ => 0.0,
+        };
+        let task_done = goal_dist_m <= self.cfg.success.tolerance_m;
+        let safe = !contact;
+        let terminated = task_done || !safe;
+        let truncated = !terminated && self.step_index >= self.cfg.episode.max_steps;
+        let terminal = if !safe {
+            -r.collision_penalty
+        } else if task_done {
+            r.success_bonus
+        } else {
+            0.0
+        };
+        let reward = r.c1 * progress + r.c2 * (-a_norm) + r.c3 * proximity + terminal;
+        self.write_obs();
+        StepOutcome {
+            obs: self.obs,
+            reward: reward as f32,
+            terms: RewardTerms {
+                progress: progress as f32,
+                action: (-a_norm) as f32,
+                proximity: proximity as f32,
+                terminal: terminal as f32,
+            },
+            task_done,
+            safe,
+            terminated,
+            truncated,
+            distance: self.last_distance,
+            joints: self.q,
+        }
+    }
+
+    /// A random scene for training: a goal in the sampling ranges (at least
+    /// `min_goal_distance_m` from the start TCP) and one box of `class` placed between the
+    /// start TCP and the goal, clear of the goal cube, at least `d_thre_m` from the robot at
+    /// its start posture and `d_thre_m / 2` from the robot at the goal (so every sampled
+    /// scene can be solved). If no placement fits after 64 goals × 8 placements the scene
+    /// has no box. Deterministic for a given RNG state.
+    pub fn sample_scene<R: Rng + ?Sized>(&self, rng: &mut R, class: ObstacleClass) -> Scene {
+        let s = &self.cfg.sampling;
+        let start = self.start_tcp_m;
+        let sizes = match class {
+            ObstacleClass::Small => self.cfg.obstacles.small,
+            ObstacleClass::Large => self.cfg.obstacles.large,
+        };
+        let start_poses = self.model.fk(&self.model.home());
+        let margin = self.cfg.reward.d_thre_m;
+        let mut scene = Scene::empty(s.table_height_m, self.scene.goal);
+        for _ in 0..GOAL_TRIES {
+            let goal_xy = [uniform(rng, s.goal_x_m), uniform(rng, s.goal_y_m)];
+            let dir = [goal_xy[0] - start.x, goal_xy[1] - start.y];
+            let len = (dir[0] * dir[0] + dir[1] * dir[1]).sqrt();
+            if len < s.min_goal_distance_m.max(1e-6) {
+                continue;
+            }
+            let goal = Goal {
+                center_m: [
+                    goal_xy[0],
+                    goal_xy[1],
+                    s.table_height_m + s.goal_size_m / 2.0,
+                ],
+                size_m: s.goal_size_m,
+            };
+            scene = Scene::empty(s.table_height_m, goal);
+            // The arm at the goal: a box must leave room for it (the xArm5 is a planar
+            // linkage in the plane of joint 1, so a tall box in that plane, nearer than the
+            // goal, makes the goal unreachable).
+            let goal_target = scene.goal_target_m(self.cfg.success.goal_hover_m);
+            let at_goal = self.ik.solve_with(
+                &self.model,
+                &goal_target,
+                &self.model.home(),
+                GOAL_IK_ITERATIONS,
+            );
+            if !at_goal.reached {
+                continue;
+            }
+            let goal_poses = self.model.fk(&at_goal.joints);
+            let (ux, uy) = (dir[0] / len, dir[1] / len);
+            for _ in 0..BOX_TRIES {
+                let f = uniform(rng, s.obstacle_fraction);
+                let lat = uniform(rng, s.obstacle_lateral_m);
+                let sx = uniform(rng, sizes.footprint_m);
+                let sy = uniform(rng, sizes.footprint_m);
+                let h = uniform(rng, sizes.height_m);
+                let b = BoxObstacle {
+                    center_m: [
+                        start.x + f * dir[0] - uy * lat,
+                        start.y + f * dir[1] + ux * lat,
+                        s.table_height_m + h / 2.0,
+                    ],
+                    size_m: [sx, sy, h],
+                };
+                let gap_x = (b.center_m[0] - goal.center_m[0]).abs() - (sx + goal.size_m) / 2.0;
+                let gap_y = (b.center_m[1] - goal.center_m[1]).abs() - (sy + goal.size_m) / 2.0;
+                if gap_x.max(gap_y) < s.goal_clearance_m {
+                    continue;
+                }
+                scene.obstacles.clear();
+                let _ = scene.obstacles.push(b);
+                if !self.geometry.in_contact(&start_poses, &scene, margin)
+                    && !self.geometry.in_contact(&goal_poses, &scene, margin / 2.0)
+                {
+                    return scene;
+                }
+            }
+            scene.obstacles.clear();
+        }
+        scene
+    }
+}
+
+/// Runs one whole episode in `scene` with `policy`, from the start posture until
+/// termination or truncation. Joints after every step go to `waypoints_out` (cleared
+/// first) when given.
+///
+/// # Performance
+/// No allocation (the policy closure permitting).
+pub fn rollout<P>(
+    env: &mut TwinEnv,
+    scene: &Scene,
+    policy: P,
+    waypoints_out: Option<&mut heapless::Vec<Joints, MAX_EPISODE_STEPS>>,
+) -> EpisodeSummary
+where
+    P: FnMut(&[f32; OBS_DIM]) -> [f32; ACT_DIM],
+{
+    rollout_until(env, scene, policy, waypoints_out, true)
+}
+
+/// [`rollout`], or with `stop_at_contact = false` a blind one that keeps stepping through
+/// contact until the goal or the step budget (what executing the policy without the
+/// lookahead does; `safe` is then false if any step was in contact).
+///
+/// # Performance
+/// No allocation (the policy closure permitting).
+pub fn rollout_until<P>(
+    env: &mut TwinEnv,
+    scene: &Scene,
+    mut policy: P,
+    mut waypoints_out: Option<&mut heapless::Vec<Joints, MAX_EPISODE_STEPS>>,
+    stop_at_contact: bool,
+) -> EpisodeSummary
+where
+    P: FnMut(&[f32; OBS_DIM]) -> [f32; ACT_DIM],
+{
+    let mut obs = env.reset(scene);
+    if let Some(w) = waypoints_out.as_deref_mut() {
+        w.clear();
+    }
+    let mut summary = EpisodeSummary {
+        success: false,
+        safe: true,
+        return_: 0.0,
+        steps: 0,
+        min_distance_m: env.last_distance.distance_m,
+    };
+    loop {
+        let action = policy(&obs);
+        let out = env.step(&action);
+        obs = out.obs;
+        summary.steps += 1;
+        summary.return_ += f64::from(out.reward);
+        summary.min_distance_m = summary.min_distance_m.min(out.distance.distance_m);
+        summary.success = out.task_done;
+        summary.safe &= out.safe;
+        if let Some(w) = waypoints_out.as_deref_mut() {
+            let _ = w.push(out.joints);
+        }
+        let ended = if stop_at_contact {
+            out.terminated
+        } else {
+            out.task_done
+        };
+        if ended || out.truncated || summary.steps >= env.config().episode.max_steps {
+            break;
+        }
+    }
+    summary
+}

@@ -1,0 +1,117 @@
+//! The xArm5 digital twin: robot model, kinematics, scene geometry and the reaching task.
+//!
+//! One definition of the robot and of the task, used by the learner (training
+//! environments), by rt-core's lookahead and safety shield, and by the simulated arm's
+//! ground-truth collision check. Everything is loaded and validated once; every per-step
+//! query (`fk`, `IkSolver::solve`, `RobotGeometry::distance`, `TwinEnv::step`) works on
+//! fixed-size arrays and does not allocate.
+//!
+//! # Frames and units
+//! All positions are metres in the robot base frame (z up, the table top at
+//! `Scene::table_height_m`), joint angles radians, times seconds.
+//!
+//! # API in brief
+//! - [`RobotModel`]: `RobotModel::load(path)` / `from_urdf_str`, [`JointLimits`], `home()`,
+//!   `fk(&q) -> LinkPoses` (frames `link_base, link1..link5`, plus the TCP), `link_name(i)`.
+//! - [`IkSolver`]: damped least squares on the TCP position, joint limits, null-space pull
+//!   toward home: `IkSolver::new(&model, IkConfig).solve(&model, &target_m, &q_start)`.
+//! - [`Scene`]: table height, goal cube, up to [`MAX_OBSTACLES`] axis-aligned boxes;
+//!   `Scene::from_file(&SceneFile)` / `to_file()`.
+//! - [`RobotGeometry`]: one or two capsules per link (from the URDF collision cylinders);
+//!   `distance(&poses, &scene) -> DistanceReport`, `distance_to_boxes`, `in_contact`.
+//!   **The table** counts for links 2–5 only: the base and link 1 stand on it. The goal
+//!   cube is not an obstacle; there is no self-collision check.
+//! - [`TaskConfig`] (`assets/task.toml`) and [`TwinEnv`]: the reaching MDP, `reset`, `step`,
+//!   `sample_scene`, and [`rollout`] (a whole episode with a policy closure).
+//!
+//! # Observation (`[f32; OBS_DIM]`, raw SI units; the policy blob carries normalisation)
+//! | index | meaning | unit |
+//! |---|---|---|
+//! | 0 | `t` = step index / `max_steps` (0 at reset) | 1 |
+//! | 1–2 | goal cube centre x, y | m |
+//! | 3–5 | TCP position | m |
+//! | 6–8 | TCP velocity (last step's displacement / `step_period_s`) | m/s |
+//! | 9 | height of the nearest obstacle box (`size_m[2]`) | m |
+//! | 10 | width of the nearest obstacle box (larger horizontal extent) | m |
+//! | 11–13 | closest point on the robot to that box | m |
+//! | 14–16 | closest point on that box to the robot | m |
+//!
+//! "Nearest box" is the box with the smallest robot distance. In a scene without boxes
+//! indices 9–10 are 0 and the closest points are those between the robot and the table.
+//!
+//! # Action (`[f32; ACT_DIM]`)
+//! `[dx, dy, dz]` in `[-1, 1]` (clipped), times `action.scale_m`: the TCP displacement
+//! asked for this step. The IK turns it into joints; the joint change per step is limited to
+//! `velocity_rad_s × step_period_s`.
+//!
+//! # Reward
+//! `r = c1·r_g + c2·r_a + c3·r_o (+ terminal)` with `r_g = d_{t-1} − d_t` (TCP to the goal
+//! target point, m), `r_a = −‖a‖` (clipped action), `r_o = −1` when the robot–box distance
+//! is below `d_thre_m`. The goal target point is `goal_hover_m` above the goal cube's top.
+//! `terminal` (an addition to the paper's three terms, set both weights to 0 to drop it) is
+//! `+success_bonus` on success and `−collision_penalty` on contact.
+//!
+//! # Termination
+//! `task_done` (TCP within `tolerance_m` of the target point) terminates; contact (any link
+//! closer to a box than `min_box_clearance_m`, or links 2–5 touching the table) terminates
+//! with `safe = false`;
+//! `truncated` after `max_steps` steps. `StepOutcome::distance` (and
+//! `EpisodeSummary::min_distance_m`) is the robot–box report of the nearest box, or the
+//! robot–table report in a scene without boxes.
+//!
+//! # Example
+//! ```no_run
+//! use std::path::Path;
+//! use twin::{RobotModel, Scene, TaskConfig, TwinEnv, rollout};
+//! use shm_schemas::scene_file::SceneFile;
+//!
+//! let model = RobotModel::load(Path::new("assets/xarm5.urdf"))?;
+//! let task = TaskConfig::load(Path::new("assets/task.toml"))?;
+//! let scene = Scene::from_file(&SceneFile::load(Path::new("assets/scenes/tall_box.toml"))?)?;
+//! let mut env = TwinEnv::new(model, task);
+//! env.reset(&scene);
+//! let policy = env.straight_line_policy();
+//! let summary = rollout(&mut env, &scene, |obs| policy.act(obs), None);
+//! assert!(!summary.safe); // the straight line runs into the tall box
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+mod env;
+mod geometry;
+mod ik;
+mod kinematics;
+mod model;
+mod scene;
+mod task;
+
+pub use env::{
+    EpisodeSummary, RewardTerms, StepOutcome, StraightLinePolicy, TwinEnv, rollout, rollout_until,
+};
+pub use geometry::{DistanceReport, RobotGeometry};
+pub use ik::{IkConfig, IkResult, IkSolver};
+pub use kinematics::LinkPoses;
+pub use model::{
+    ACCELERATION_LIMIT_RAD_S2, COLLISION_MARGIN_M, JERK_LIMIT_RAD_S3, JointLimits, LinkCapsule,
+    MAX_CAPSULES, N_FRAMES, RobotModel, UrdfLoadError,
+};
+pub use scene::{BoxObstacle, Goal, Obstacles, Scene, SceneError};
+pub use shm_schemas::scene_file::MAX_OBSTACLES;
+pub use task::{MAX_EPISODE_STEPS, ObstacleClass, TaskConfig, TaskConfigError};
+
+/// Number of actuated joints of the xArm5.
+pub const DOF: usize = 5;
+
+/// A joint configuration (rad), joint 1 first.
+pub type Joints = [f64; DOF];
+
+/// Lengths of the observation and action vectors: the policy contract's (`shm-schemas`).
+pub use shm_schemas::{ACT_DIM, OBS_DIM};
+
+/// The largest per-joint difference between two joint vectors, rad (no allocation: the
+/// controller's cycle uses it too).
+pub fn max_joint_gap_rad(a: &Joints, b: &Joints) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}

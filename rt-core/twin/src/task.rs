@@ -1,0 +1,286 @@
+//! The task's configuration (`assets/task.toml`): episode length, step period, action
+//! scale, reward weights, success tolerance, sampling ranges, obstacle size classes, the
+//! start posture and the per-step IK settings. Loaded and validated once; its
+//! [`TaskConfig::hash`] travels with every policy trained on it.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::Joints;
+use super::ik::IkConfig;
+
+/// Capacity of a waypoint buffer: the longest episode a task file may configure.
+pub const MAX_EPISODE_STEPS: usize = 256;
+
+/// Why a task file was rejected.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum TaskConfigError {
+    /// The file could not be read.
+    #[error("cannot read the task file: {0}")]
+    Io(std::io::ErrorKind),
+    /// Malformed TOML, a missing or an unknown field (the parser's message is logged).
+    #[error("malformed task file (bad TOML, or a missing or unknown field)")]
+    Parse,
+    /// A value out of range; the text names the field.
+    #[error("invalid task file: {0}")]
+    Invalid(&'static str),
+}
+
+/// `[episode]`
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EpisodeConfig {
+    /// Steps before truncation (≤ `MAX_EPISODE_STEPS`).
+    pub max_steps: u32,
+    /// Time per step (s).
+    pub step_period_s: f64,
+}
+
+/// `[action]`
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActionConfig {
+    /// TCP displacement per step for an action component of 1 (m).
+    pub scale_m: f64,
+}
+
+/// `[reward]`: `r = c1·r_g + c2·r_a + c3·r_o + terminal`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RewardConfig {
+    /// Weight of the progress term (1/m).
+    pub c1: f64,
+    /// Weight of the action term.
+    pub c2: f64,
+    /// Weight of the proximity term.
+    pub c3: f64,
+    /// Robot–box distance below which the proximity term is −1 (m).
+    pub d_thre_m: f64,
+    /// Added on success (0 for the paper's reward).
+    pub success_bonus: f64,
+    /// Subtracted on contact (0 for the paper's reward).
+    pub collision_penalty: f64,
+}
+
+/// `[success]`
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SuccessConfig {
+    /// TCP distance to the goal target point that counts as reached (m).
+    pub tolerance_m: f64,
+    /// Height of the goal target point above the goal cube's top face (m).
+    pub goal_hover_m: f64,
+    /// Robot–box and robot–table distance (from the inflated capsules; the table for links
+    /// 2–5) below which a step counts as contact: the episode ends unsafe. At least the runtime shield's
+    /// `min_distance_m` plus a few mm for smoothing, so that an episode the lookahead
+    /// passes is a plan the shield accepts (rt-core checks this at start). Default 0.
+    #[serde(default)]
+    pub min_box_clearance_m: f64,
+}
+
+/// `[start]`
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StartConfig {
+    /// Joints at reset (rad); also the IK's null-space home.
+    pub joints_rad: Joints,
+}
+
+/// `[sampling]`: random scenes for training.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SamplingConfig {
+    /// Table height (m).
+    pub table_height_m: f64,
+    /// Goal centre x range (m).
+    pub goal_x_m: [f64; 2],
+    /// Goal centre y range (m).
+    pub goal_y_m: [f64; 2],
+    /// Goal cube edge (m).
+    pub goal_size_m: f64,
+    /// Least horizontal distance between the start TCP and the goal (m).
+    pub min_goal_distance_m: f64,
+    /// Obstacle position as a fraction of the way from the start TCP to the goal.
+    pub obstacle_fraction: [f64; 2],
+    /// Sideways offset of the obstacle from the start→goal line (m).
+    pub obstacle_lateral_m: [f64; 2],
+    /// Least horizontal gap between the obstacle and the goal cube (m).
+    pub goal_clearance_m: f64,
+}
+
+/// Size ranges of one obstacle class.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxSizeRange {
+    /// Horizontal extent range, each of x and y (m).
+    pub footprint_m: [f64; 2],
+    /// Height range (m).
+    pub height_m: [f64; 2],
+}
+
+/// `[obstacles]`
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObstacleClasses {
+    /// Small boxes (the pre-training curriculum).
+    pub small: BoxSizeRange,
+    /// Large (tall) boxes.
+    pub large: BoxSizeRange,
+}
+
+/// Obstacle size class for [`super::TwinEnv::sample_scene`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ObstacleClass {
+    /// Small box.
+    Small,
+    /// Large (tall) box.
+    Large,
+}
+
+/// The whole task configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TaskConfig {
+    /// Episode length and step period.
+    pub episode: EpisodeConfig,
+    /// Action scaling.
+    pub action: ActionConfig,
+    /// Reward weights.
+    pub reward: RewardConfig,
+    /// Success criterion.
+    pub success: SuccessConfig,
+    /// Start posture.
+    pub start: StartConfig,
+    /// Scene sampling.
+    pub sampling: SamplingConfig,
+    /// Obstacle classes.
+    pub obstacles: ObstacleClasses,
+    /// Per-step IK settings.
+    pub ik: IkConfig,
+}
+
+fn range_ok(r: &[f64; 2]) -> bool {
+    r[0].is_finite() && r[1].is_finite() && r[0] <= r[1]
+}
+
+fn pos(v: f64) -> bool {
+    v.is_finite() && v > 0.0
+}
+
+impl TaskConfig {
+    /// Reads and validates a task file.
+    ///
+    /// # Errors
+    /// [`TaskConfigError`].
+    pub fn load(path: &Path) -> Result<Self, TaskConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| TaskConfigError::Io(e.kind()))?;
+        Self::from_toml_str(&text)
+    }
+
+    /// Parses and validates task TOML.
+    ///
+    /// # Errors
+    /// [`TaskConfigError::Parse`] or [`TaskConfigError::Invalid`].
+    pub fn from_toml_str(text: &str) -> Result<Self, TaskConfigError> {
+        let cfg: Self = toml::from_str(text).map_err(|e| {
+            tracing::warn!("task file: {e}");
+            TaskConfigError::Parse
+        })?;
+        cfg.validate().map_err(TaskConfigError::Invalid)?;
+        Ok(cfg)
+    }
+
+    /// Checks every range.
+    ///
+    /// # Errors
+    /// The name of the first bad field.
+    pub fn validate(&self) -> Result<(), &'static str> {
+        let e = &self.episode;
+        if e.max_steps == 0 || e.max_steps as usize > MAX_EPISODE_STEPS {
+            return Err("episode.max_steps must be in 1..=MAX_EPISODE_STEPS (256)");
+        }
+        if !(pos(e.step_period_s) && e.step_period_s <= 1.0) {
+            return Err("episode.step_period_s must be in (0, 1] s");
+        }
+        if !(pos(self.action.scale_m) && self.action.scale_m <= 0.1) {
+            return Err("action.scale_m must be in (0, 0.1] m");
+        }
+        let r = &self.reward;
+        if ![r.c1, r.c2, r.c3, r.success_bonus, r.collision_penalty]
+            .iter()
+            .all(|v| v.is_finite() && *v >= 0.0)
+        {
+            return Err(
+                "reward weights (c1, c2, c3, success_bonus, collision_penalty) must be finite and ≥ 0",
+            );
+        }
+        if !(r.d_thre_m.is_finite() && r.d_thre_m >= 0.0 && r.d_thre_m < 1.0) {
+            return Err("reward.d_thre_m must be in [0, 1) m");
+        }
+        let s = &self.success;
+        if !(pos(s.tolerance_m) && s.tolerance_m < 0.5) {
+            return Err("success.tolerance_m must be in (0, 0.5) m");
+        }
+        if !(s.goal_hover_m.is_finite() && (0.0..0.5).contains(&s.goal_hover_m)) {
+            return Err("success.goal_hover_m must be in [0, 0.5) m");
+        }
+        if !(s.min_box_clearance_m.is_finite() && (0.0..0.2).contains(&s.min_box_clearance_m)) {
+            return Err("success.min_box_clearance_m must be in [0, 0.2) m");
+        }
+        if !self.start.joints_rad.iter().all(|v| v.is_finite()) {
+            return Err("start.joints_rad must be finite");
+        }
+        let g = &self.sampling;
+        if !g.table_height_m.is_finite() || g.table_height_m.abs() > 1.0 {
+            return Err("sampling.table_height_m must be within ±1 m");
+        }
+        if !range_ok(&g.goal_x_m) || !range_ok(&g.goal_y_m) {
+            return Err("sampling.goal_x_m / goal_y_m must be [low, high] ranges");
+        }
+        if g.goal_x_m.iter().chain(&g.goal_y_m).any(|v| v.abs() > 1.0) {
+            return Err("sampling goal ranges must lie within ±1 m of the base");
+        }
+        if !(pos(g.goal_size_m) && g.goal_size_m < 0.5) {
+            return Err("sampling.goal_size_m must be in (0, 0.5) m");
+        }
+        if !(g.min_goal_distance_m.is_finite() && g.min_goal_distance_m >= 0.0) {
+            return Err("sampling.min_goal_distance_m must be ≥ 0");
+        }
+        if !range_ok(&g.obstacle_fraction)
+            || g.obstacle_fraction[0] < 0.0
+            || g.obstacle_fraction[1] > 1.0
+        {
+            return Err("sampling.obstacle_fraction must be a range within [0, 1]");
+        }
+        if !range_ok(&g.obstacle_lateral_m) {
+            return Err("sampling.obstacle_lateral_m must be a [low, high] range");
+        }
+        if !(g.goal_clearance_m.is_finite() && g.goal_clearance_m >= 0.0) {
+            return Err("sampling.goal_clearance_m must be ≥ 0");
+        }
+        for c in [&self.obstacles.small, &self.obstacles.large] {
+            if !range_ok(&c.footprint_m)
+                || !range_ok(&c.height_m)
+                || !pos(c.footprint_m[0])
+                || !pos(c.height_m[0])
+                || c.footprint_m[1] >= 1.0
+                || c.height_m[1] >= 1.0
+            {
+                return Err("obstacles.small/large ranges must be positive [low, high] below 1 m");
+            }
+        }
+        self.ik.validate()
+    }
+
+    /// The canonical TOML of this configuration (what [`TaskConfig::hash`] hashes).
+    pub fn to_toml_string(&self) -> String {
+        toml::to_string(self).unwrap_or_default()
+    }
+
+    /// Stable 64-bit FNV-1a hash of the canonical TOML serialisation. Equal configurations
+    /// hash equal on every machine; any changed value changes the hash.
+    pub fn hash(&self) -> u64 {
+        shm_schemas::checksum::fnv1a_64(self.to_toml_string().as_bytes())
+    }
+}

@@ -1,0 +1,13 @@
+//! Integration tests of the digital twin (`twin`): kinematics, IK, geometry, the task,
+//! scenes, URDF loading and determinism. The zero-allocation test of the per-step work
+//! lives with the one counting allocator in rt-core's `alloc` tests; the `rt-core twin`
+//! CLI's tests with the binary.
+
+mod common;
+mod determinism;
+mod geometry;
+mod ik;
+mod kinematics;
+mod scenes;
+mod task;
+mod urdf;

@@ -1,0 +1,584 @@
+//! The simulator's sockets and threads: the command port (request/response), the four report
+//! ports (streamed at their real rates), a physics thread (250 Hz integration, ground-truth
+//! contact check, scheduled scene swaps) and a line-based control port.
+//!
+//! Control port protocol (one command per line, one reply line each):
+//! `scene <path>` swaps the scene now (`ok` / `error: …`), `status` prints the summary JSON,
+//! `shutdown` asks the simulator to exit.
+
+use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
+use std::net::{IpAddr, Ipv4Addr, SocketAddr, TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use shm_schemas::scene_file::SceneFile;
+
+use super::controller::{Controller, ControllerCounters};
+use super::world::{World, WorldError};
+use xarm::codec::{self, MAX_FRAME_LEN};
+use xarm::codes::ControllerError;
+use xarm::report::{self, ReportKind, RichExtras};
+
+/// Physics (integration and contact check) rate (Hz).
+pub const PHYSICS_HZ: f64 = 250.0;
+/// Default control port (line-based scene control), before any offset.
+pub const DEFAULT_CONTROL_PORT: u16 = 30010;
+
+/// The ports the simulator listens on (0 = pick a free one).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct SimPorts {
+    /// Command port (502 on the arm).
+    pub command: u16,
+    /// 250 Hz real-time report (30000).
+    pub report_rt: u16,
+    /// Normal report (30001).
+    pub report_normal: u16,
+    /// Rich report (30002).
+    pub report_rich: u16,
+    /// Real report (30003).
+    pub report_real: u16,
+    /// Control port.
+    pub control: u16,
+}
+
+impl SimPorts {
+    /// The controller's real ports (plus [`DEFAULT_CONTROL_PORT`]) shifted by `offset`.
+    pub fn with_offset(offset: u16) -> Self {
+        Self {
+            command: 502u16.wrapping_add(offset),
+            report_rt: report::PORT_REPORT_RT.wrapping_add(offset),
+            report_normal: report::PORT_REPORT_NORMAL.wrapping_add(offset),
+            report_rich: report::PORT_REPORT_RICH.wrapping_add(offset),
+            report_real: report::PORT_REPORT_REAL.wrapping_add(offset),
+            control: DEFAULT_CONTROL_PORT.wrapping_add(offset),
+        }
+    }
+
+    /// All ports 0: the OS picks free ones (for tests); read them back from the server.
+    pub fn ephemeral() -> Self {
+        Self {
+            command: 0,
+            report_rt: 0,
+            report_normal: 0,
+            report_rich: 0,
+            report_real: 0,
+            control: 0,
+        }
+    }
+
+    /// The port of a report stream.
+    pub fn report(&self, kind: ReportKind) -> u16 {
+        match kind {
+            ReportKind::RealTime => self.report_rt,
+            ReportKind::Normal => self.report_normal,
+            ReportKind::Rich => self.report_rich,
+            ReportKind::Real => self.report_real,
+        }
+    }
+}
+
+/// How to start the simulator.
+#[derive(Debug, Clone)]
+pub struct SimOptions {
+    /// Address to bind.
+    pub bind: IpAddr,
+    /// Ports.
+    pub ports: SimPorts,
+    /// Robot model for FK and contact.
+    pub urdf: PathBuf,
+    /// Scene timeline: `(at_s, scene)` from the start, ascending. Empty: no obstacles.
+    pub scenes: Vec<(f64, SceneFile)>,
+    /// Contact margin (m); 0 is touching.
+    pub contact_margin_m: f64,
+    /// Initial joints (rad).
+    pub q0_rad: [f64; 5],
+}
+
+impl Default for SimOptions {
+    fn default() -> Self {
+        Self {
+            bind: IpAddr::V4(Ipv4Addr::LOCALHOST),
+            ports: SimPorts::with_offset(0),
+            urdf: default_urdf(),
+            scenes: Vec::new(),
+            contact_margin_m: 0.0,
+            q0_rad: [0.0; 5],
+        }
+    }
+}
+
+/// `assets/xarm5.urdf` relative to the working directory if it exists there, else the
+/// repository's copy.
+pub fn default_urdf() -> PathBuf {
+    let local = PathBuf::from("assets/xarm5.urdf");
+    if local.exists() {
+        return local;
+    }
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/xarm5.urdf")
+}
+
+/// Why the simulator could not start or change its scene.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// A port could not be bound.
+    #[error("cannot bind {addr}: {source}")]
+    Bind {
+        /// Address.
+        addr: SocketAddr,
+        /// OS error.
+        source: std::io::Error,
+    },
+    /// The world (model or scene) was rejected.
+    #[error(transparent)]
+    World(#[from] WorldError),
+    /// A scene file could not be read.
+    #[error("{0}")]
+    SceneFile(String),
+    /// A thread could not be spawned.
+    #[error("cannot spawn thread: {0}")]
+    Spawn(std::io::Error),
+}
+
+/// What the simulator did, printed as one JSON line at exit.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SimSummary {
+    /// Seconds since start.
+    pub uptime_s: f64,
+    /// Collisions raised.
+    pub collisions: u64,
+    /// Controller counters.
+    pub counters: ControllerCounters,
+    /// Reports sent per stream: rt, normal, rich, real.
+    pub reports_sent: [u64; 4],
+    /// Scene swaps applied.
+    pub scene_swaps: u64,
+    /// Scene in force.
+    pub scene: String,
+    /// Command connections accepted.
+    pub connections: u64,
+    /// Final joints (rad).
+    pub q_rad: [f64; 5],
+    /// Final error code.
+    pub error_code: u8,
+}
+
+struct Shared {
+    controller: Mutex<Controller>,
+    world: Mutex<World>,
+    pending_scene: Mutex<Option<SceneFile>>,
+    shutdown: AtomicBool,
+    shutdown_requested: AtomicBool,
+    reports_sent: [AtomicU64; 4],
+    scene_swaps: AtomicU64,
+    connections: AtomicU64,
+    start: Instant,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+impl Shared {
+    fn now_s(&self) -> f64 {
+        self.start.elapsed().as_secs_f64()
+    }
+}
+
+/// A running simulator. Dropping it without [`SimServer::shutdown`] leaves threads running
+/// until the process exits.
+pub struct SimServer {
+    shared: Arc<Shared>,
+    ports: SimPorts,
+    threads: Vec<JoinHandle<()>>,
+}
+
+fn bind(ip: IpAddr, port: u16) -> Result<(TcpListener, u16), SimError> {
+    let addr = SocketAddr::new(ip, port);
+    let l = TcpListener::bind(addr).map_err(|source| SimError::Bind { addr, source })?;
+    l.set_nonblocking(true)
+        .map_err(|source| SimError::Bind { addr, source })?;
+    let port = l.local_addr().map(|a| a.port()).unwrap_or(port);
+    Ok((l, port))
+}
+
+fn spawn(
+    threads: &mut Vec<JoinHandle<()>>,
+    name: &str,
+    f: impl FnOnce() + Send + 'static,
+) -> Result<(), SimError> {
+    let h = std::thread::Builder::new()
+        .name(name.into())
+        .spawn(f)
+        .map_err(SimError::Spawn)?;
+    threads.push(h);
+    Ok(())
+}
+
+const POLL: Duration = Duration::from_millis(5);
+
+impl SimServer {
+    /// Binds every port and starts the threads.
+    ///
+    /// # Errors
+    /// [`SimError`] when a port is taken, the model or first scene is invalid.
+    pub fn start(opts: SimOptions) -> Result<Self, SimError> {
+        let mut world = World::load(&opts.urdf, opts.contact_margin_m)?;
+        let mut schedule = opts.scenes.clone();
+        schedule.sort_by(|a, b| a.0.total_cmp(&b.0));
+        if let Some((at, first)) = schedule.first()
+            && *at <= 0.0
+        {
+            world.set_scene(first)?;
+            schedule.remove(0);
+        }
+        let mut controller = Controller::new(opts.q0_rad);
+        controller.set_tcp_pose(world.check(&opts.q0_rad).tcp_pose);
+        let shared = Arc::new(Shared {
+            controller: Mutex::new(controller),
+            world: Mutex::new(world),
+            pending_scene: Mutex::new(None),
+            shutdown: AtomicBool::new(false),
+            shutdown_requested: AtomicBool::new(false),
+            reports_sent: Default::default(),
+            scene_swaps: AtomicU64::new(0),
+            connections: AtomicU64::new(0),
+            start: Instant::now(),
+        });
+        let ip = opts.bind;
+        let (cmd_l, command) = bind(ip, opts.ports.command)?;
+        let mut ports = SimPorts {
+            command,
+            ..opts.ports
+        };
+        let mut report_listeners = Vec::new();
+        for kind in [
+            ReportKind::RealTime,
+            ReportKind::Normal,
+            ReportKind::Rich,
+            ReportKind::Real,
+        ] {
+            let (l, p) = bind(ip, opts.ports.report(kind))?;
+            match kind {
+                ReportKind::RealTime => ports.report_rt = p,
+                ReportKind::Normal => ports.report_normal = p,
+                ReportKind::Rich => ports.report_rich = p,
+                ReportKind::Real => ports.report_real = p,
+            }
+            report_listeners.push((kind, l));
+        }
+        let (ctl_l, control) = bind(ip, opts.ports.control)?;
+        ports.control = control;
+
+        let mut threads = Vec::new();
+        let s = shared.clone();
+        spawn(&mut threads, "sim-command", move || {
+            command_acceptor(&s, &cmd_l)
+        })?;
+        for (kind, l) in report_listeners {
+            let s = shared.clone();
+            spawn(&mut threads, "sim-report", move || {
+                report_loop(&s, kind, &l)
+            })?;
+        }
+        let s = shared.clone();
+        spawn(&mut threads, "sim-physics", move || {
+            physics_loop(&s, schedule)
+        })?;
+        let s = shared.clone();
+        spawn(&mut threads, "sim-control", move || {
+            control_acceptor(&s, &ctl_l)
+        })?;
+        tracing::info!(?ports, "xarm-sim listening");
+        Ok(Self {
+            shared,
+            ports,
+            threads,
+        })
+    }
+
+    /// The ports actually bound.
+    pub fn ports(&self) -> SimPorts {
+        self.ports
+    }
+
+    /// Whether a client asked for shutdown over the control port.
+    pub fn shutdown_requested(&self) -> bool {
+        self.shared.shutdown_requested.load(Ordering::Relaxed)
+    }
+
+    /// Queues a scene swap (applied by the physics thread within one tick).
+    pub fn set_scene(&self, scene: SceneFile) {
+        *lock(&self.shared.pending_scene) = Some(scene);
+    }
+
+    /// The summary so far.
+    pub fn summary(&self) -> SimSummary {
+        summary(&self.shared)
+    }
+
+    /// Stops every thread and returns the final summary.
+    pub fn shutdown(self) -> SimSummary {
+        self.shared.shutdown.store(true, Ordering::Relaxed);
+        for t in self.threads {
+            let _ = t.join();
+        }
+        summary(&self.shared)
+    }
+}
+
+fn summary(s: &Shared) -> SimSummary {
+    let c = lock(&s.controller);
+    let counters = c.counters();
+    SimSummary {
+        uptime_s: s.now_s(),
+        collisions: counters.collisions,
+        counters,
+        reports_sent: [0, 1, 2, 3].map(|i| s.reports_sent[i].load(Ordering::Relaxed)),
+        scene_swaps: s.scene_swaps.load(Ordering::Relaxed),
+        scene: lock(&s.world).scene_name().to_string(),
+        connections: s.connections.load(Ordering::Relaxed),
+        q_rad: c.q_rad(),
+        error_code: u8::from(c.error()),
+    }
+}
+
+fn apply_scene(s: &Shared, scene: &SceneFile) {
+    match lock(&s.world).set_scene(scene) {
+        Ok(()) => {
+            s.scene_swaps.fetch_add(1, Ordering::Relaxed);
+            tracing::info!(scene = %scene.name, "scene swapped");
+        }
+        Err(e) => tracing::warn!("scene swap refused: {e}"),
+    }
+}
+
+fn physics_loop(s: &Shared, mut schedule: Vec<(f64, SceneFile)>) {
+    let period = Duration::from_secs_f64(1.0 / PHYSICS_HZ);
+    let mut next = Instant::now();
+    let mut was_in_contact = false;
+    while !s.shutdown.load(Ordering::Relaxed) {
+        let now_s = s.now_s();
+        while schedule.first().is_some_and(|(at, _)| *at <= now_s) {
+            let (_, scene) = schedule.remove(0);
+            apply_scene(s, &scene);
+        }
+        if let Some(scene) = lock(&s.pending_scene).take() {
+            apply_scene(s, &scene);
+        }
+        let q = {
+            let mut c = lock(&s.controller);
+            c.step(now_s);
+            c.q_rad()
+        };
+        let check = lock(&s.world).check(&q);
+        {
+            let mut c = lock(&s.controller);
+            c.set_tcp_pose(check.tcp_pose);
+            if check.contact && !was_in_contact {
+                tracing::warn!(?q, "collision");
+                c.raise_error(ControllerError::Collision);
+            }
+        }
+        was_in_contact = check.contact;
+        next += period;
+        let now = Instant::now();
+        if next > now {
+            std::thread::sleep(next - now);
+        } else {
+            next = now;
+        }
+    }
+}
+
+fn command_acceptor(s: &Arc<Shared>, l: &TcpListener) {
+    let mut handlers: Vec<JoinHandle<()>> = Vec::new();
+    while !s.shutdown.load(Ordering::Relaxed) {
+        match l.accept() {
+            Ok((stream, peer)) => {
+                tracing::info!(%peer, "command connection");
+                s.connections.fetch_add(1, Ordering::Relaxed);
+                let s2 = s.clone();
+                if let Ok(h) = std::thread::Builder::new()
+                    .name("sim-conn".into())
+                    .spawn(move || serve_commands(&s2, stream))
+                {
+                    handlers.push(h);
+                }
+            }
+            Err(e) if e.kind() == ErrorKind::WouldBlock => std::thread::sleep(POLL),
+            Err(e) => {
+                tracing::warn!("accept: {e}");
+                std::thread::sleep(POLL);
+            }
+        }
+        handlers.retain(|h| !h.is_finished());
+    }
+    for h in handlers {
+        let _ = h.join();
+    }
+}
+
+fn serve_commands(s: &Shared, mut stream: TcpStream) {
+    let _ = stream.set_nonblocking(false);
+    let _ = stream.set_nodelay(true);
+    let _ = stream.set_read_timeout(Some(Duration::from_millis(50)));
+    let mut buf = [0u8; 4 * MAX_FRAME_LEN];
+    let mut len = 0usize;
+    let mut out = [0u8; MAX_FRAME_LEN];
+    while !s.shutdown.load(Ordering::Relaxed) {
+        match stream.read(&mut buf[len..]) {
+            Ok(0) => return,
+            Ok(n) => len += n,
+            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => continue,
+            Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+            Err(_) => return,
+        }
+        let mut start = 0;
+        loop {
+            match codec::frame_len(&buf[start..len], 1) {
+                Ok(Some(n)) => {
+                    let frame = &buf[start..start + n];
+                    start += n;
+                    let reply = lock(&s.controller).handle(frame, &mut out);
+                    match reply {
+                        Ok(0) => {}
+                        Ok(m) => {
+                            if stream.write_all(&out[..m]).is_err() {
+                                return;
+                            }
+                        }
+                        Err(e) => tracing::warn!("bad command frame: {e}"),
+                    }
+                }
+                Ok(None) => break,
+                Err(e) => {
+                    // The stream is out of step: a controller drops such a connection.
+                    tracing::warn!("closing command connection: {e}");
+                    return;
+                }
+            }
+        }
+        buf.copy_within(start..len, 0);
+        len -= start;
+    }
+}
+
+fn report_loop(s: &Shared, kind: ReportKind, l: &TcpListener) {
+    let idx = match kind {
+        ReportKind::RealTime => 0,
+        ReportKind::Normal => 1,
+        ReportKind::Rich => 2,
+        ReportKind::Real => 3,
+    };
+    let period = Duration::from_secs_f64(1.0 / kind.rate_hz());
+    let mut clients: Vec<TcpStream> = Vec::new();
+    let mut next = Instant::now();
+    let mut extras = RichExtras::default();
+    let mut rt = [0u8; report::RT_LEN];
+    let mut normal = [0u8; report::NORMAL_LEN];
+    let mut rich = [0u8; report::RICH_LEN];
+    let mut real = [0u8; report::REAL_LEN];
+    while !s.shutdown.load(Ordering::Relaxed) {
+        while let Ok((c, _)) = l.accept() {
+            let _ = c.set_nonblocking(false);
+            let _ = c.set_nodelay(true);
+            let _ = c.set_write_timeout(Some(Duration::from_millis(200)));
+            clients.push(c);
+        }
+        let now = Instant::now();
+        if now < next {
+            std::thread::sleep((next - now).min(Duration::from_millis(20)));
+            continue;
+        }
+        next += period;
+        if next + 10 * period < now {
+            // Far behind (suspended, overloaded): resynchronise instead of bursting.
+            next = now + period;
+        }
+        if clients.is_empty() {
+            continue;
+        }
+        let ts_us = s.start.elapsed().as_micros() as u64;
+        let r = lock(&s.controller).report(kind, ts_us);
+        let bytes: &[u8] = match kind {
+            ReportKind::RealTime => {
+                report::encode_rt(&r, &mut rt);
+                &rt
+            }
+            ReportKind::Normal => {
+                report::encode_normal(&r, &extras, &mut normal);
+                &normal
+            }
+            ReportKind::Rich => {
+                extras.counter = extras.counter.wrapping_add(1);
+                report::encode_rich(&r, &extras, &mut rich);
+                &rich
+            }
+            ReportKind::Real => {
+                report::encode_real(&r, &mut real);
+                &real
+            }
+        };
+        clients.retain_mut(|c| c.write_all(bytes).is_ok());
+        s.reports_sent[idx].fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+fn control_acceptor(s: &Arc<Shared>, l: &TcpListener) {
+    while !s.shutdown.load(Ordering::Relaxed) {
+        match l.accept() {
+            Ok((stream, _)) => {
+                let s2 = s.clone();
+                let _ = std::thread::Builder::new()
+                    .name("sim-control-conn".into())
+                    .spawn(move || serve_control(&s2, stream));
+            }
+            Err(_) => std::thread::sleep(Duration::from_millis(20)),
+        }
+    }
+}
+
+fn serve_control(s: &Shared, stream: TcpStream) {
+    let _ = stream.set_nonblocking(false);
+    let _ = stream.set_read_timeout(Some(Duration::from_millis(200)));
+    let Ok(mut w) = stream.try_clone() else {
+        return;
+    };
+    let mut r = BufReader::new(stream);
+    let mut line = String::new();
+    while !s.shutdown.load(Ordering::Relaxed) {
+        match r.read_line(&mut line) {
+            Ok(0) => return,
+            Ok(_) => {}
+            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => continue,
+            Err(_) => return,
+        }
+        let reply = control_command(s, line.trim());
+        line.clear();
+        if writeln!(w, "{reply}").is_err() {
+            return;
+        }
+    }
+}
+
+fn control_command(s: &Shared, cmd: &str) -> String {
+    let (verb, arg) = cmd.split_once(' ').unwrap_or((cmd, ""));
+    match verb {
+        "scene" => match SceneFile::load(Path::new(arg.trim())) {
+            Ok(scene) => {
+                *lock(&s.pending_scene) = Some(scene);
+                "ok".into()
+            }
+            Err(e) => format!("error: {e}"),
+        },
+        "status" => serde_json::to_string(&summary(s)).unwrap_or_else(|e| format!("error: {e}")),
+        "shutdown" => {
+            s.shutdown_requested.store(true, Ordering::Relaxed);
+            "ok".into()
+        }
+        other => format!("error: unknown command {other:?} (scene <path> | status | shutdown)"),
+    }
+}
