@@ -59,7 +59,7 @@ fmt:
 	$(CARGO) fmt --all
 
 bench: setup
-	$(CARGO) bench -p rt-core
+	$(CARGO) bench -p twin -p policy -p xarm
 
 clean:
 	$(CARGO) clean

@@ -1,7 +1,7 @@
 //! The `foresight` launcher: runs the whole system on one machine and reports on it.
 //! Nothing here is on the real-time path.
 //!
-//! - [`launch`]: the scenario end to end (start reading here); [`processes`]: which
+//! - [`launch`]: the scenario end to end (start reading here), [`args`] its command line; [`processes`]: which
 //!   processes a run starts and how; [`supervisor`]: starting, restarting and stopping them.
 //! - [`scenario`]: the world director (scene changes, phases, goal and collision checks);
 //!   [`observer`]: what the run publishes, as the director sees it; [`sim_link`]: the
@@ -9,6 +9,7 @@
 //! - [`report`]: summary, plots and Markdown; [`run_dir`]: the run folder, atomic writes;
 //!   [`runtime_view`]: what the launcher reads of rt-core's configuration.
 
+pub mod args;
 pub mod launch;
 pub mod observer;
 pub mod processes;

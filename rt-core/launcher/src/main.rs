@@ -9,7 +9,8 @@
 use std::process::ExitCode;
 
 use clap::Parser;
-use launcher::launch::{LaunchArgs, run_all};
+use launcher::args::LaunchArgs;
+use launcher::launch::run_all;
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt()

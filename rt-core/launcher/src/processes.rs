@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use crate::launch::LaunchArgs;
+use crate::args::LaunchArgs;
 use crate::run_dir::RunDir;
 use crate::sim_link::{SimPortsSeen, read_sim_ports, sim_status};
 use crate::supervisor::{ProcessSpec, Supervisor};
