@@ -1,16 +1,7 @@
-//! `rt-core run --config FILE`: the runtime. A twin thread (iceoryx2 I/O, scene sync,
-//! lookahead, verdicts, plan approval, retrain requests) and a cycle thread (real-time
-//! set-up, the control cycle at the configured rate) around a robot link: `--link sim`
-//! (the in-process simulated arm) or `--link xarm --robot HOST` (the xArm driver: a real
-//! xArm5 or `xarm-sim`).
-//!
-//! iceoryx2 services (all under the config's `service_prefix`): subscribes to
-//! `DetectionFrame` and `PolicyBlob`; publishes `RobotState` (every 4 ms), `TwinVerdict`
-//! (every lookahead) and `RetrainRequest` (every failed lookahead). Stops on SIGINT/SIGTERM
-//! or after `--seconds`.
-//!
-//! `--dry-run` computes and logs every command and sends none; `--no-lookahead` runs the
-//! policy blind (no lookahead gate, no clearance shield) to show what Foresight prevents.
+//! `rt-core run --config FILE`: argument parsing and wiring of the runtime
+//! ([`rt_core::twin_thread::serve`]) around a robot link: `--link sim` (the in-process
+//! simulated arm) or `--link xarm --robot HOST` (a real xArm5 or `xarm-sim`). `--dry-run`
+//! computes and logs every command and sends none; `--no-lookahead` runs the policy blind.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -18,10 +9,10 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use rt_core::config::RuntimeConfig;
-use rt_core::cycle::link::{DryRunLink, InProcessArm, RobotLink};
-use rt_core::twin_thread::serve::{ServeOptions, serve};
+use rt_core::cycle::link::{InProcessArm, RobotLink};
+use rt_core::cycle::xarm_link::open_xarm;
+use rt_core::twin_thread::serve::{ServeOptions, serve_on};
 use twin::{RobotModel, TaskConfig};
-use xarm::driver::{XArmConfig, XArmDriver};
 
 use super::bench_loop::load_assets;
 
@@ -129,30 +120,14 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
                 .robot
                 .as_deref()
                 .context("--link xarm needs --robot HOST")?;
-            let mut xarm_cfg = XArmConfig::from_addr(host);
-            if let Some(port) = args.report_port {
-                xarm_cfg.report_port = port;
-            }
-            let mut driver = XArmDriver::connect(xarm_cfg)
-                .map_err(|e| anyhow::anyhow!("connecting to the xArm at {host}: {e:?}"))?;
-            if args.dry_run {
-                tracing::warn!(
-                    host,
-                    "dry run: the arm's mode is left as it is; no command is sent"
-                );
-            } else {
-                let q = driver
-                    .start_servo_mode()
-                    .map_err(|e| anyhow::anyhow!("entering servo mode: {e:?}"))?;
-                tracing::info!(host, joints_rad = ?q, "xArm in servo mode");
-            }
+            let driver = open_xarm(host, args.report_port, args.dry_run)
+                .map_err(|e| anyhow::anyhow!("xArm at {host}: {e}"))?;
             run_on(&opts, &cfg, model, task, driver)
         }
     }
 }
 
-/// Serves on `link` (wrapped so that it withholds every command in a dry run) and prints
-/// the run's figures.
+/// Serves on `link` and prints the run's figures.
 fn run_on<L: RobotLink + 'static>(
     opts: &ServeOptions,
     cfg: &RuntimeConfig,
@@ -160,11 +135,7 @@ fn run_on<L: RobotLink + 'static>(
     task: TaskConfig,
     link: L,
 ) -> anyhow::Result<()> {
-    let summary = if opts.dry_run {
-        serve(opts, cfg, model, task, DryRunLink::new(link))?
-    } else {
-        serve(opts, cfg, model, task, link)?
-    };
+    let summary = serve_on(opts, cfg, model, task, link)?;
     summary.log();
     // One JSON line on stdout with the run's figures, for the launcher's report.
     println!("{}", summary.to_json(opts));

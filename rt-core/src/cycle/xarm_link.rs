@@ -9,7 +9,35 @@
 
 use crate::cycle::link::{LinkError, LinkState, RobotLink};
 use twin::Joints;
-use xarm::driver::{XArmDriver, XArmError};
+use xarm::driver::{XArmConfig, XArmDriver, XArmError};
+
+/// Connects to the controller at `addr` (`HOST[:PORT]`; `report_port` overrides the
+/// report stream's port) and, unless `dry_run` (the arm's mode is then left as it is),
+/// enters servo mode from the joints where the arm stands.
+///
+/// # Errors
+/// [`XArmError`] from the connection or the servo-mode entry.
+pub fn open_xarm(
+    addr: &str,
+    report_port: Option<u16>,
+    dry_run: bool,
+) -> Result<XArmDriver, XArmError> {
+    let mut cfg = XArmConfig::from_addr(addr);
+    if let Some(port) = report_port {
+        cfg.report_port = port;
+    }
+    let mut driver = XArmDriver::connect(cfg)?;
+    if dry_run {
+        tracing::warn!(
+            addr,
+            "dry run: the arm's mode is left as it is; no command is sent"
+        );
+    } else {
+        let q = driver.start_servo_mode()?;
+        tracing::info!(addr, joints_rad = ?q, "xArm in servo mode");
+    }
+    Ok(driver)
+}
 
 /// Maps a driver error to the cycle's link error.
 pub fn link_error(e: XArmError) -> LinkError {

@@ -12,7 +12,7 @@ use twin::{RobotModel, Scene, TaskConfig};
 
 use crate::config::RuntimeConfig;
 use crate::cycle::brake::Brake;
-use crate::cycle::link::{LinkError, RobotLink};
+use crate::cycle::link::{DryRunLink, LinkError, RobotLink};
 use crate::cycle::shield::{Shield, ShieldLimits};
 use crate::cycle::thread::spawn_cycle_thread;
 use crate::cycle::twin_model::TwinModel;
@@ -229,6 +229,25 @@ pub fn serve<L: RobotLink + 'static>(
         detection_to_twin: node.detection_age(),
         commands_logged,
     })
+}
+
+/// [`serve`] on `link`, wrapped in a [`DryRunLink`] that withholds every command when
+/// `opts.dry_run`.
+///
+/// # Errors
+/// [`ServeError`].
+pub fn serve_on<L: RobotLink + 'static>(
+    opts: &ServeOptions,
+    cfg: &RuntimeConfig,
+    model: RobotModel,
+    task: TaskConfig,
+    link: L,
+) -> Result<ServeSummary, ServeError> {
+    if opts.dry_run {
+        serve(opts, cfg, model, task, DryRunLink::new(link))
+    } else {
+        serve(opts, cfg, model, task, link)
+    }
 }
 
 /// Builds the cycle and reads the arm once (a real link's first report may take a few
