@@ -196,9 +196,18 @@ impl XArmDriver {
     /// # Errors
     /// [`XArmError`].
     pub fn call(&mut self, req: &Request) -> Result<CallReply, XArmError> {
+        self.blocking(|s, timeout| s.call(req, timeout))
+    }
+
+    /// Runs one blocking step of the session on an empty pipeline (replies in flight are
+    /// drained and checked first). A link failure loses the connection (the reconnect
+    /// helper takes over); an error bit seen in a reply is remembered, so the code is read.
+    fn blocking<T>(
+        &mut self,
+        step: impl FnOnce(&mut Session, Duration) -> Result<T, XArmError>,
+    ) -> Result<T, XArmError> {
         let timeout = self.cfg.reply_timeout;
         let deadline = Instant::now() + timeout;
-        // Drain the pipeline.
         while self.conn.as_ref().is_some_and(|c| c.in_flight.len > 0) {
             let now = self.mono_ns();
             self.drain_replies(now, usize::MAX)?;
@@ -208,20 +217,27 @@ impl XArmDriver {
             std::thread::sleep(Duration::from_micros(200));
         }
         let session = self.conn.as_mut().ok_or(XArmError::Disconnected)?;
-        match session.call(req, timeout) {
-            Ok(out) => {
-                if out.status & STATUS_ERROR != 0 {
-                    self.error_bit_seen = true;
-                }
-                Ok(out)
-            }
+        let result = step(session, timeout);
+        if session.take_error_flag() {
+            self.error_bit_seen = true;
+        }
+        match result {
             Err(
                 e @ (XArmError::Disconnected
                 | XArmError::Io(_)
                 | XArmError::Timeout
                 | XArmError::Frame(_)),
             ) => Err(self.lose(e)),
-            Err(e) => Err(e),
+            other => other,
+        }
+    }
+
+    /// Records the error and warning the session has just read with `GET_ERROR`.
+    fn take_session_error(&mut self) {
+        if let Some(s) = self.conn.as_ref() {
+            self.error = s.error;
+            self.warning = s.warning;
+            self.error_bit_seen = self.error != ControllerError::None;
         }
     }
 
@@ -230,17 +246,9 @@ impl XArmDriver {
     /// # Errors
     /// [`XArmError`].
     pub fn refresh_error(&mut self) -> Result<(ControllerError, ControllerWarning), XArmError> {
-        let r = self.call(&Request::GetError)?;
-        if r.len < 2 {
-            return Err(XArmError::Frame(FrameError::BadPayload {
-                register: 0x0F,
-                len: r.len,
-            }));
-        }
-        self.error = ControllerError::from(r.data[0]);
-        self.warning = ControllerWarning::from(r.data[1]);
-        self.error_bit_seen = r.data[0] != 0;
-        Ok((self.error, self.warning))
+        let read = self.blocking(Session::refresh_error)?;
+        self.take_session_error();
+        Ok(read)
     }
 
     /// `GET_STATE` (blocking).
@@ -248,14 +256,7 @@ impl XArmDriver {
     /// # Errors
     /// [`XArmError`].
     pub fn get_state(&mut self) -> Result<u8, XArmError> {
-        let r = self.call(&Request::GetState)?;
-        if r.len < 1 {
-            return Err(XArmError::Frame(FrameError::BadPayload {
-                register: 0x0D,
-                len: 0,
-            }));
-        }
-        Ok(r.data[0])
+        self.blocking(Session::get_state)
     }
 
     /// `GET_JOINT_POS` (blocking): the five joints (rad).
@@ -263,13 +264,7 @@ impl XArmDriver {
     /// # Errors
     /// [`XArmError`], [`FrameError::NonFinite`] inside.
     pub fn get_joints(&mut self) -> Result<[f64; 5], XArmError> {
-        let r = self.call(&Request::GetJointPos(None))?;
-        let q7 = r.response_view(Register::GetJointPos).joints()?;
-        let mut q = [0.0; 5];
-        for (o, v) in q.iter_mut().zip(q7) {
-            *o = f64::from(v);
-        }
-        Ok(q)
+        self.blocking(Session::get_joints)
     }
 
     /// `GET_TCP_POSE` (blocking): x, y, z (mm), roll, pitch, yaw (rad).
@@ -277,8 +272,7 @@ impl XArmDriver {
     /// # Errors
     /// [`XArmError`].
     pub fn get_tcp_pose(&mut self) -> Result<[f32; 6], XArmError> {
-        let r = self.call(&Request::GetTcpPose)?;
-        Ok(r.response_view(Register::GetTcpPose).tcp_pose()?)
+        self.blocking(Session::get_tcp_pose)
     }
 
     /// The SDK's servo preparation: clean error, clean warning, enable all servos, mode 1,
@@ -301,18 +295,15 @@ impl XArmDriver {
     /// [`XArmError::Controller`] if the controller has an error, [`XArmError::NotReady`] if
     /// it does not leave the stopped state.
     pub fn enter_servo_mode(&mut self) -> Result<[f64; 5], XArmError> {
-        self.flush()?;
-        let timeout = self.cfg.reply_timeout;
-        let session = self.conn.as_mut().ok_or(XArmError::Disconnected)?;
-        let result = session.enter_servo_mode(timeout);
-        self.error = session.error;
-        self.warning = session.warning;
-        self.error_bit_seen = self.error != ControllerError::None;
-        let q = match result {
-            Ok(q) => q,
-            Err(e @ (XArmError::Controller(_) | XArmError::NotReady { .. })) => return Err(e),
-            Err(e) => return Err(self.lose(e)),
-        };
+        let result = self.blocking(Session::enter_servo_mode);
+        if matches!(
+            result,
+            Ok(_) | Err(XArmError::Controller(_) | XArmError::NotReady { .. })
+        ) {
+            // The step read GET_ERROR before deciding.
+            self.take_session_error();
+        }
+        let q = result?;
         self.servo_mode_wanted = true;
         self.not_ready_seen = false;
         self.resume_from = None;

@@ -92,6 +92,8 @@ pub struct Session {
     pub(crate) error: ControllerError,
     /// The controller's warning as last read with `GET_ERROR`.
     pub(crate) warning: ControllerWarning,
+    /// A blocking reply carried the error bit since the owner last looked.
+    error_flagged: bool,
 }
 
 fn resolve(host: &str, port: u16) -> Result<SocketAddr, XArmError> {
@@ -128,6 +130,7 @@ impl Session {
             version: None,
             error: ControllerError::None,
             warning: ControllerWarning::None,
+            error_flagged: false,
         })
     }
 
@@ -249,7 +252,18 @@ impl Session {
     pub fn call(&mut self, req: &Request, timeout: Duration) -> Result<CallReply, XArmError> {
         let res = self.call_inner(req, Instant::now() + timeout);
         let _ = self.cmd.set_nonblocking(true);
+        if res
+            .as_ref()
+            .is_ok_and(|r| r.status & codec::STATUS_ERROR != 0)
+        {
+            self.error_flagged = true;
+        }
         res
+    }
+
+    /// Whether a blocking reply carried the error bit since the last look (clears it).
+    pub fn take_error_flag(&mut self) -> bool {
+        std::mem::take(&mut self.error_flagged)
     }
 
     fn call_inner(&mut self, req: &Request, deadline: Instant) -> Result<CallReply, XArmError> {
@@ -343,6 +357,15 @@ impl Session {
             *o = f64::from(v);
         }
         Ok(q)
+    }
+
+    /// `GET_TCP_POSE` (blocking): x, y, z (mm), roll, pitch, yaw (rad).
+    ///
+    /// # Errors
+    /// [`XArmError`].
+    pub fn get_tcp_pose(&mut self, timeout: Duration) -> Result<[f32; 6], XArmError> {
+        let r = self.call(&Request::GetTcpPose, timeout)?;
+        Ok(r.response_view(Register::GetTcpPose).tcp_pose()?)
     }
 
     /// Enable all servos, mode 1, state 0 (each state change followed by `GET_STATE`, as
