@@ -7,6 +7,8 @@
 
 #[path = "../common/rig.rs"]
 mod common;
+#[path = "../common/twin.rs"]
+mod twin_fixtures;
 
 mod cycle;
 mod policy;
@@ -36,32 +38,4 @@ pub fn count_allocations<T>(f: impl FnOnce() -> T) -> (T, u64) {
     let after = alloc_count::counted();
     alloc_count::count_this_thread(false);
     (out, after - before)
-}
-
-/// The bundled model, task and scenes.
-mod twin_fixtures {
-    use std::path::PathBuf;
-
-    use shm_schemas::scene_file::SceneFile;
-    use twin::{RobotModel, Scene, TaskConfig, TwinEnv};
-
-    fn assets() -> PathBuf {
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets")
-    }
-
-    pub fn model() -> RobotModel {
-        RobotModel::load(&assets().join("xarm5.urdf")).unwrap()
-    }
-
-    pub fn env() -> TwinEnv {
-        TwinEnv::new(
-            model(),
-            TaskConfig::load(&assets().join("task.toml")).unwrap(),
-        )
-    }
-
-    pub fn scene(name: &str) -> Scene {
-        let file = SceneFile::load(&assets().join("scenes").join(name)).unwrap();
-        Scene::from_file(&file).unwrap()
-    }
 }

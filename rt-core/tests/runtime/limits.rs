@@ -9,7 +9,7 @@ use xarm::limits::{LIMIT_SLACK_RAD, XARM5_JOINT_LIMITS_RAD};
 #[test]
 fn runtime_limits_lie_within_the_urdf_which_lies_within_the_sdk() {
     let runtime = RuntimeConfig::xarm5_default().limits;
-    let urdf = *crate::shield_twin::twin_common::model().limits();
+    let urdf = *crate::twin_common::model().limits();
     // Rounding of the published values (the TOML keeps three decimals).
     const ROUNDING_RAD: f64 = 1e-3;
     for (j, [sdk_lo, sdk_hi]) in XARM5_JOINT_LIMITS_RAD.into_iter().enumerate().take(DOF) {

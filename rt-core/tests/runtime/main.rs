@@ -6,6 +6,8 @@
 
 #[path = "../common/rig.rs"]
 mod common;
+#[path = "../common/twin.rs"]
+mod twin_common;
 
 mod cycle;
 mod limits;

@@ -1,22 +1,6 @@
 //! The shield on the real twin model ([`TwinModel`]).
 
-pub mod twin_common {
-    use std::path::PathBuf;
-
-    use twin::{RobotModel, TaskConfig};
-
-    pub fn assets() -> PathBuf {
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets")
-    }
-
-    pub fn model() -> RobotModel {
-        RobotModel::load(&assets().join("xarm5.urdf")).unwrap()
-    }
-
-    pub fn task() -> TaskConfig {
-        TaskConfig::load(&assets().join("task.toml")).unwrap()
-    }
-}
+use crate::twin_common;
 
 /// The runtime shield's distance (`TwinModel`) covers the table as well as the boxes, so
 /// a plan dipping the wrist to the table is refused even without any box in the scene.

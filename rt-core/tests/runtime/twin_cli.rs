@@ -8,10 +8,7 @@ fn run(args: &[&str]) -> (i32, Value, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_rt-core"))
         .arg("twin")
         .args(args)
-        .env(
-            "FORESIGHT_ASSETS",
-            crate::shield_twin::twin_common::assets(),
-        )
+        .env("FORESIGHT_ASSETS", crate::twin_common::assets())
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout).to_string();
@@ -78,7 +75,7 @@ fn distance_prints_the_report() {
 
 #[test]
 fn rollout_prints_episodes_and_timing() {
-    let scene = crate::shield_twin::twin_common::assets().join("scenes/small_box.toml");
+    let scene = crate::twin_common::assets().join("scenes/small_box.toml");
     let (code, j, _) = run(&[
         "rollout",
         "--scene",
