@@ -228,6 +228,8 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
         "cycles": s.cycles,
         "missed_deadlines": s.missed_deadlines,
         "missed_ratio": if s.cycles > 0 { s.missed_deadlines as f64 / s.cycles as f64 } else { 0.0 },
+        "compute_overruns": s.compute_overruns,
+        "compute_overrun_ratio": if s.cycles > 0 { s.compute_overruns as f64 / s.cycles as f64 } else { 0.0 },
         "wakeup_latency_us": s.wakeup_latency_us,
         "cycle_compute_us": s.cycle_compute_us,
         "allocations_in_cycle": allocs,

@@ -582,8 +582,12 @@ pub struct LoopStats {
     pub wake: Histogram,
     /// Compute time of `process`.
     pub compute: Histogram,
-    /// Deadlines missed (a cycle that ended after the next deadline).
+    /// Deadlines missed (a cycle that ended after the next deadline), whatever the cause:
+    /// a late wake-up (the OS) or a long compute (the cycle).
     pub missed_deadlines: u64,
+    /// Cycles whose own compute took longer than the period: the part of the missed
+    /// deadlines that the cycle's code answers for, whatever the OS did to the wake-up.
+    pub compute_overruns: u64,
     /// Cycles run.
     pub cycles: u64,
 }
@@ -595,6 +599,8 @@ pub struct LoopSummary {
     pub cycles: u64,
     /// Deadlines missed.
     pub missed_deadlines: u64,
+    /// Cycles whose compute alone exceeded the period.
+    pub compute_overruns: u64,
     /// Wake-up latency, µs.
     pub wakeup_latency_us: Summary,
     /// Compute time, µs.
@@ -607,6 +613,7 @@ impl LoopStats {
         LoopSummary {
             cycles: self.cycles,
             missed_deadlines: self.missed_deadlines,
+            compute_overruns: self.compute_overruns,
             wakeup_latency_us: self.wake.summary(),
             cycle_compute_us: self.compute.summary(),
         }
@@ -644,6 +651,9 @@ pub fn run_loop<M: ShieldModel, L: RobotLink, C: Clock>(
         let compute = done.saturating_sub(wake);
         stats.compute.record_ns(compute);
         stats.cycles += 1;
+        if compute > period {
+            stats.compute_overruns += 1;
+        }
         shared.last_compute_ns.store(compute, Ordering::Relaxed);
         shared.heartbeat.fetch_add(1, Ordering::Release);
         deadline += period;

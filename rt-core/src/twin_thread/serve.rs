@@ -91,6 +91,7 @@ impl ServeSummary {
         serde_json::json!({
             "cycles": c.cycles,
             "missed_deadlines": c.missed_deadlines,
+            "compute_overruns": c.compute_overruns,
             "allocations_in_cycle": self.allocations_in_cycle,
             "wakeup_latency_us": h(&c.wakeup_latency_us),
             "cycle_compute_us": h(&c.cycle_compute_us),
