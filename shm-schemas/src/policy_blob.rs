@@ -201,6 +201,24 @@ impl PolicyBlob {
         }
     }
 
+    /// The blob's bytes, writable: for reading a blob file straight into a private blob
+    /// (e.g. `policy::read_policy_file`) without an intermediate buffer. Any bytes written
+    /// leave a well-formed `PolicyBlob` (every bit pattern is a valid value of its
+    /// integer and float fields); whether it is a *valid* policy is for
+    /// [`PolicyBlob::validate`] to say.
+    pub fn as_bytes_mut(&mut self) -> &mut [u8] {
+        // SAFETY: as in `as_bytes`, the blob is `repr(C)` integers and floats with no
+        // padding, so its `size_of` bytes are initialised; every bit pattern written through
+        // the slice is a valid value of those fields; the slice borrows `self` exclusively
+        // for its lifetime.
+        unsafe {
+            core::slice::from_raw_parts_mut(
+                (self as *mut PolicyBlob).cast::<u8>(),
+                size_of::<PolicyBlob>(),
+            )
+        }
+    }
+
     /// Parses blob-file bytes and validates the result (layout, finite numbers, checksum).
     ///
     /// # Errors
@@ -347,6 +365,12 @@ impl PolicyBlob {
     /// sizes within capacity and consistent with `n_weights`; the checksum; every used
     /// number finite; `obs_std > 0`, `obs_clip > 0`, `action_clip > 0`.
     ///
+    /// The clips are the bounds `[-clip, clip]` of `clamp` at evaluation: a negative clip
+    /// (min > max) is [`SchemaError::OutOfRange`], a NaN or infinite one
+    /// [`SchemaError::NonFinite`], each naming the field (`obs_clip` or `action_clip`).
+    /// A consumer must run this on its own copy of the blob, not on a shared-memory sample
+    /// that another process can still write (see `policy::PolicyLoader`).
+    ///
     /// # Errors
     /// The first [`SchemaError`] found.
     pub fn validate(&self) -> Result<(), SchemaError> {
@@ -457,6 +481,44 @@ mod tests {
         assert_eq!(required_weights(17, &[256, 256], 3), 71_171);
         assert_eq!(required_weights(32, &[256, 256], 8), 76_296);
         assert_eq!(required_weights(2, &[], 1), 3);
+    }
+
+    #[test]
+    fn clip_bounds_with_min_above_max_or_non_finite_are_rejected_naming_the_field() {
+        type Field = fn(&mut PolicyBlob) -> &mut f32;
+        let fields: [(&str, Field); 2] = [
+            ("obs_clip", |b| &mut b.obs_clip),
+            ("action_clip", |b| &mut b.action_clip),
+        ];
+        for (field, slot) in fields {
+            for (value, want) in [
+                (-1.0, SchemaError::OutOfRange { field }),
+                (-0.0, SchemaError::OutOfRange { field }),
+                (0.0, SchemaError::OutOfRange { field }),
+                (f32::NAN, SchemaError::NonFinite { field }),
+                (f32::INFINITY, SchemaError::NonFinite { field }),
+                (f32::NEG_INFINITY, SchemaError::NonFinite { field }),
+            ] {
+                let mut blob = crate::PolicyBlobBuilder::random(7, 42, 17, &[16], 3, 1)
+                    .build()
+                    .unwrap();
+                *slot(&mut blob) = value;
+                blob.seal();
+                assert_eq!(blob.validate(), Err(want), "{field} = {value}");
+                assert!(want.to_string().contains(field));
+            }
+        }
+    }
+
+    #[test]
+    fn bytes_written_through_as_bytes_mut_round_trip() {
+        let blob = crate::PolicyBlobBuilder::random(7, 42, 17, &[16, 16], 3, 1)
+            .build()
+            .unwrap();
+        let mut copy = PolicyBlob::new_boxed();
+        copy.as_bytes_mut().copy_from_slice(blob.as_bytes());
+        assert_eq!(copy.validate(), Ok(()));
+        assert_eq!(*copy, *blob);
     }
 
     #[test]

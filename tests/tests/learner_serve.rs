@@ -119,7 +119,7 @@ fn serve_answers_a_retrain_request_with_a_valid_policy_blob() {
                 b.validate(),
                 b.task_config_hash,
                 b.policy_id,
-                PolicyLoader::new(PolicyExpectation::for_task(hash)).check(b),
+                PolicyLoader::new(PolicyExpectation::for_task(hash)).check(&b.to_boxed()),
             )
         });
         if got.is_none() {

@@ -37,7 +37,9 @@ fn policies_published_in_place_are_accepted_or_rejected_by_the_loader() {
     builder.write_into(sample.payload_mut()).unwrap();
     sample.send().unwrap();
     let received = subscriber.receive().unwrap().expect("policy 1");
-    loader.prepare_into(received.payload(), &mut spare).unwrap();
+    loader
+        .prepare_into(&received.payload().to_boxed(), &mut spare)
+        .unwrap();
     drop(received);
     std::mem::swap(&mut running, &mut spare);
     assert_eq!(running.policy_id(), 1);
@@ -57,7 +59,7 @@ fn policies_published_in_place_are_accepted_or_rejected_by_the_loader() {
     sample.send().unwrap();
     let received = subscriber.receive().unwrap().expect("policy 2");
     assert_eq!(
-        loader.prepare_into(received.payload(), &mut spare),
+        loader.prepare_into(&received.payload().to_boxed(), &mut spare),
         Err(PolicyRejectReason::BadChecksum)
     );
     assert_eq!(running.policy_id(), 1);
@@ -71,7 +73,7 @@ fn policies_published_in_place_are_accepted_or_rejected_by_the_loader() {
     sample.send().unwrap();
     let received = subscriber.receive().unwrap().expect("policy 3");
     assert_eq!(
-        loader.prepare_into(received.payload(), &mut spare),
+        loader.prepare_into(&received.payload().to_boxed(), &mut spare),
         Err(PolicyRejectReason::TaskHashMismatch)
     );
     assert_eq!(loader.counters().total_rejected(), 2);

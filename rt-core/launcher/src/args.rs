@@ -2,6 +2,8 @@
 
 use std::path::PathBuf;
 
+use xarm::config::{LoopbackCheckError, XArmConfig};
+
 /// Command line of `foresight`.
 #[derive(Debug, Clone, clap::Parser)]
 #[command(
@@ -38,7 +40,11 @@ pub struct LaunchArgs {
     /// Calibration file for a real camera.
     #[arg(long)]
     pub calibration: Option<PathBuf>,
-    /// Execute the policy without the lookahead gate (shows why Foresight exists).
+    /// Blind run, a simulation-only demonstration of why Foresight exists: execute the
+    /// policy without the lookahead gate and without the shield's clearance to the boxes
+    /// (the table clearance and every limit still hold). Refused, before any process
+    /// starts, with a `--robot` that is not (or does not resolve only to) a loopback
+    /// address (127.0.0.0/8, ::1, localhost).
     #[arg(long)]
     pub no_lookahead: bool,
     /// Compute and log every command but send none to the arm.
@@ -67,4 +73,72 @@ pub struct LaunchArgs {
     /// Where run folders go.
     #[arg(long, default_value = "runs")]
     pub out: PathBuf,
+}
+
+/// `--no-lookahead` with a `--robot` that is not known to be this machine's loopback.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "--no-lookahead is refused for the non-loopback robot address {addr}: blind mode is a \
+     simulation-only demonstration ({reason}; no process was started, no connection was attempted)"
+)]
+pub struct BlindModeRefused {
+    /// The `--robot` address as given.
+    pub addr: String,
+    /// Why it is not loopback.
+    pub reason: LoopbackCheckError,
+}
+
+impl LaunchArgs {
+    /// Blind mode never reaches a real arm: with `--no-lookahead`, a `--robot` address must
+    /// be, or resolve only to, loopback addresses (decided from the address alone, nothing
+    /// is sent to it). Without `--robot` the launcher's own `xarm-sim` on 127.0.0.1 is used.
+    ///
+    /// # Errors
+    /// [`BlindModeRefused`] naming the address and why.
+    pub fn check_blind_mode(&self) -> Result<(), BlindModeRefused> {
+        match (&self.robot, self.no_lookahead) {
+            (Some(addr), true) => {
+                XArmConfig::from_addr(addr)
+                    .check_loopback_only()
+                    .map_err(|reason| BlindModeRefused {
+                        addr: addr.clone(),
+                        reason,
+                    })
+            }
+            _ => Ok(()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    fn args(extra: &[&str]) -> LaunchArgs {
+        LaunchArgs::parse_from(std::iter::once("foresight").chain(extra.iter().copied()))
+    }
+
+    #[test]
+    fn blind_mode_is_refused_for_a_robot_off_this_machine() {
+        for robot in ["10.0.0.2", "192.168.1.195", "192.0.2.10:502"] {
+            let e = args(&["--robot", robot, "--no-lookahead"])
+                .check_blind_mode()
+                .expect_err(robot);
+            assert!(
+                e.to_string()
+                    .contains(&format!("non-loopback robot address {robot}")),
+                "{e}"
+            );
+        }
+        for ok in [
+            args(&["--no-lookahead"]),
+            args(&["--robot", "127.0.0.1:5020", "--no-lookahead"]),
+            args(&["--robot", "[::1]:5020", "--no-lookahead"]),
+            args(&["--robot", "localhost", "--no-lookahead"]),
+            args(&["--robot", "192.168.1.195"]),
+        ] {
+            assert_eq!(ok.check_blind_mode(), Ok(()), "{ok:?}");
+        }
+    }
 }

@@ -27,6 +27,7 @@ use crate::supervisor::{ProcessEvent, Supervisor, send_signal};
 
 /// Runs one scenario, or `--runs N` randomised ones; true when every run met its goal.
 pub fn run_all(args: &LaunchArgs) -> Result<bool> {
+    args.check_blind_mode()?;
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(sig, stop.clone()).context("installing the signal handler")?;

@@ -37,7 +37,8 @@ fn s(p: &Path) -> String {
 /// current.
 ///
 /// # Errors
-/// A process cannot be started, or `xarm-sim` does not come up within 15 s.
+/// Blind mode with a robot off this machine ([`LaunchArgs::check_blind_mode`]; nothing is
+/// started), a process cannot be started, or `xarm-sim` does not come up within 15 s.
 pub fn start_all(
     sup: &mut Supervisor,
     args: &LaunchArgs,
@@ -45,6 +46,7 @@ pub fn start_all(
     prefix: &str,
     live: &Path,
 ) -> Result<Started> {
+    args.check_blind_mode()?;
     let bins = bin_dir()?;
     let (robot_addr, sim) = match &args.robot {
         Some(host) => (host.clone(), None),

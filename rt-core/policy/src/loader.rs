@@ -1,6 +1,7 @@
 //! [`PolicyLoader`]: the acceptance gate for [`PolicyBlob`]s. A blob becomes an
 //! [`MlpPolicy`] only if it validates, has the expected dimensions and was trained for the
-//! running task; every rejection is counted per [`PolicyRejectReason`].
+//! running task; every rejection is counted per [`PolicyRejectReason`]. It only takes blobs
+//! in this process's private memory (`&Box<PolicyBlob>`), never a shared-memory sample.
 
 use core::sync::atomic::{AtomicU64, Ordering};
 
@@ -138,6 +139,27 @@ impl PolicyExpectation {
 
 /// Validates blobs and turns accepted ones into [`MlpPolicy`]s, counting rejections.
 ///
+/// # Private copies only
+/// Every method takes the blob as `&Box<PolicyBlob>`, not `&PolicyBlob`, on purpose. A
+/// sample in iceoryx2 shared memory can be written by another process at any moment, so a
+/// blob validated in place could change between its check and its load (a clip bound
+/// made negative or NaN after the check would reach `clamp` at evaluation). A `Box` is
+/// this process's own heap memory — safe code cannot make one over shared memory — and
+/// the shared borrow excludes writers while the loader runs, so what is checked is exactly
+/// what is loaded. Copy a sample out first with [`PolicyBlob::to_boxed`] (or
+/// [`PolicyBlob::copy_from`] into a box kept for reuse); passing the sample's payload
+/// does not compile:
+///
+/// ```compile_fail,E0308
+/// use policy::{PolicyExpectation, PolicyLoader};
+/// use shm_schemas::{PolicyBlob, PolicyBlobBuilder};
+///
+/// let loader = PolicyLoader::new(PolicyExpectation::for_task(0xabc));
+/// let blob = PolicyBlobBuilder::random(1, 0xabc, 17, &[8], 3, 7).build().unwrap();
+/// let shared: &PolicyBlob = &blob; // what `Sample::payload()` hands out
+/// let _ = loader.check(shared); // expected `&Box<PolicyBlob>`: copy it first
+/// ```
+///
 /// ```
 /// use policy::{MlpPolicy, PolicyExpectation, PolicyLoader, PolicyRejectReason};
 /// use shm_schemas::PolicyBlobBuilder;
@@ -158,6 +180,10 @@ pub struct PolicyLoader {
     counters: RejectCounters,
 }
 
+#[allow(
+    clippy::borrowed_box,
+    reason = "`&Box<PolicyBlob>` admits only private memory, never a shared-memory sample"
+)]
 impl PolicyLoader {
     /// A loader for the given expectation, with zeroed counters.
     pub fn new(expected: PolicyExpectation) -> Self {
@@ -179,11 +205,11 @@ impl PolicyLoader {
 
     /// Checks a blob without building anything: [`PolicyBlob::validate`] (format, layout,
     /// checksum, finite values, ranges), then dimensions, then task hash. Counts the
-    /// outcome. No allocation.
+    /// outcome. No allocation. `blob` is a private copy (see [the type docs](Self)).
     ///
     /// # Errors
     /// The [`PolicyRejectReason`].
-    pub fn check(&self, blob: &PolicyBlob) -> Result<(), PolicyRejectReason> {
+    pub fn check(&self, blob: &Box<PolicyBlob>) -> Result<(), PolicyRejectReason> {
         let result = Self::check_against(blob, self.expected);
         match result {
             Ok(()) => {
@@ -209,10 +235,11 @@ impl PolicyLoader {
     }
 
     /// Checks a blob and builds a new policy from it (allocates the policy's buffers once).
+    /// `blob` is a private copy (see [the type docs](Self)).
     ///
     /// # Errors
     /// The [`PolicyRejectReason`] (counted).
-    pub fn prepare(&self, blob: &PolicyBlob) -> Result<MlpPolicy, PolicyRejectReason> {
+    pub fn prepare(&self, blob: &Box<PolicyBlob>) -> Result<MlpPolicy, PolicyRejectReason> {
         self.check(blob)?;
         let mut policy = MlpPolicy::with_capacity();
         policy.load_from(blob);
@@ -220,13 +247,14 @@ impl PolicyLoader {
     }
 
     /// Checks a blob and loads it into an existing policy's buffers — no allocation, for
-    /// double-buffered hot swaps. On rejection `target` is left unchanged.
+    /// double-buffered hot swaps. On rejection `target` is left unchanged. `blob` is a
+    /// private copy (see [the type docs](Self)).
     ///
     /// # Errors
     /// The [`PolicyRejectReason`] (counted).
     pub fn prepare_into(
         &self,
-        blob: &PolicyBlob,
+        blob: &Box<PolicyBlob>,
         target: &mut MlpPolicy,
     ) -> Result<(), PolicyRejectReason> {
         self.check(blob)?;

@@ -122,8 +122,11 @@ impl MlpPolicy {
 
     /// Copies a blob's network into this policy's buffers. No allocation.
     ///
-    /// The blob must already have passed [`PolicyBlob::validate`] (the loader does that);
-    /// a blob whose activation bytes are invalid leaves the policy unloaded.
+    /// `blob` must be the loader's private copy that has just passed
+    /// [`PolicyBlob::validate`] ([`super::PolicyLoader`] guarantees both: it takes only
+    /// `&Box<PolicyBlob>`), never a shared-memory sample another process can still write.
+    /// A blob whose activation bytes are invalid leaves the policy unloaded; out-of-range
+    /// clip values cannot make evaluation panic (see [`clip`]).
     pub(crate) fn load_from(&mut self, blob: &PolicyBlob) {
         self.n_layers = 0;
         let (Ok(activation), Ok(output_activation)) = (
@@ -241,9 +244,9 @@ impl MlpPolicy {
         }
         let mut a = [0.0f32; MAX_WIDTH];
         let mut b = [0.0f32; MAX_WIDTH];
-        let clip = self.obs_clip;
+        let clip_obs = self.obs_clip;
         for (i, x) in a[..self.obs_dim].iter_mut().enumerate() {
-            *x = ((obs[i] - self.obs_mean[i]) / self.obs_std[i]).clamp(-clip, clip);
+            *x = clip((obs[i] - self.obs_mean[i]) / self.obs_std[i], clip_obs);
         }
         let (mut src, mut dst) = (&mut a, &mut b);
         for (k, layer) in self.layers[..self.n_layers].iter().enumerate() {
@@ -271,9 +274,25 @@ impl MlpPolicy {
         }
         let c = self.action_clip;
         for (j, o) in out.iter_mut().enumerate() {
-            *o = src[j].clamp(-c, c) * self.action_scale[j];
+            *o = clip(src[j], c) * self.action_scale[j];
         }
         Ok(())
+    }
+}
+
+/// `x` limited to `[-c, c]`: the same as `x.clamp(-c, c)` for every `c` that validation
+/// admits (finite and positive; a NaN `x` stays NaN), but never panics. `f32::clamp`
+/// panics when its bounds are inverted or NaN, which a validated blob excludes; this keeps
+/// evaluation panic-free even if a policy ever held other values (with a negative `c`
+/// every result is `±c`, with a NaN `c` nothing is clipped).
+#[inline(always)]
+fn clip(x: f32, c: f32) -> f32 {
+    if x > c {
+        c
+    } else if x < -c {
+        -c
+    } else {
+        x
     }
 }
 
@@ -281,6 +300,45 @@ impl MlpPolicy {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+    use shm_schemas::PolicyBlobBuilder;
+
+    #[test]
+    fn clip_matches_clamp_for_valid_bounds() {
+        for c in [1e-6f32, 0.5, 1.0, 10.0, f32::MAX] {
+            for x in [
+                -f32::INFINITY,
+                -20.0,
+                -1.0,
+                -0.0,
+                0.0,
+                0.25,
+                1.0,
+                3.0,
+                f32::INFINITY,
+            ] {
+                assert_eq!(clip(x, c).to_bits(), x.clamp(-c, c).to_bits(), "{x} {c}");
+            }
+            assert!(clip(f32::NAN, c).is_nan());
+        }
+    }
+
+    #[test]
+    fn evaluation_never_panics_on_inverted_or_nan_clip_bounds() {
+        // Loaded past the loader (no validation), as a blob changed after its check would
+        // have been: `f32::clamp(-c, c)` panics for each of these.
+        let obs = [0.5f32; OBS_DIM];
+        for bad in [-1.0f32, f32::NAN, -f32::INFINITY] {
+            let mut blob = PolicyBlobBuilder::random(4, 1, OBS_DIM, &[16], ACT_DIM, 5)
+                .build()
+                .unwrap();
+            blob.obs_clip = bad;
+            blob.action_clip = bad;
+            let mut p = MlpPolicy::with_capacity();
+            p.load_from(&blob);
+            assert!(p.is_loaded());
+            let _ = p.act(&obs);
+        }
+    }
 
     #[test]
     fn empty_policy_yields_zero_action_and_an_error() {

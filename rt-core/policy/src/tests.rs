@@ -1,6 +1,6 @@
 //! Unit tests of the policy module: hand-computed outputs and every rejection reason.
 
-use shm_schemas::{Activation, PolicyBlob, PolicyBlobBuilder};
+use shm_schemas::{Activation, PolicyBlob, PolicyBlobBuilder, SchemaError};
 
 use super::*;
 use shm_schemas::{ACT_DIM, OBS_DIM};
@@ -269,6 +269,87 @@ fn optimised_kernels_match_a_plain_f64_evaluation() {
                     want[j]
                 );
             }
+        }
+    }
+}
+
+#[test]
+fn loader_works_on_a_private_copy_so_later_writes_to_the_source_do_not_reach_the_policy() {
+    // The loader's entry points take only a private copy (a `&PolicyBlob` from shared
+    // memory does not fit; see also the `compile_fail` example on `PolicyLoader`).
+    type Private<'a> = &'a Box<PolicyBlob>;
+    let _: fn(&PolicyLoader, Private<'_>) -> Result<(), PolicyRejectReason> = PolicyLoader::check;
+    let _: fn(&PolicyLoader, Private<'_>) -> Result<MlpPolicy, PolicyRejectReason> =
+        PolicyLoader::prepare;
+    let _: fn(&PolicyLoader, Private<'_>, &mut MlpPolicy) -> Result<(), PolicyRejectReason> =
+        PolicyLoader::prepare_into;
+
+    let loader = PolicyLoader::new(PolicyExpectation::for_task(TASK));
+    let obs = [0.7f32; OBS_DIM];
+    let want = loader.prepare(&valid()).unwrap().act(&obs);
+    // `shared` stands for the iceoryx2 sample; the loader only accepts the private copy
+    // (`&Box<PolicyBlob>`), taken before anything is checked, as `TwinNode::receive` does.
+    let mut shared = valid();
+    let private = shared.to_boxed();
+    assert_eq!(loader.check(&private), Ok(()));
+    // A writer racing on the sample after the copy: inverted and NaN clip bounds, other
+    // weights, resealed so that only the values are wrong.
+    shared.obs_clip = -1.0;
+    shared.action_clip = f32::NAN;
+    shared.weights[0] = 1e6;
+    shared.seal();
+    let mut spare = MlpPolicy::with_capacity();
+    loader.prepare_into(&private, &mut spare).unwrap();
+    assert_eq!(
+        spare.act(&obs),
+        want,
+        "the loaded policy has the validated values"
+    );
+    assert_eq!(loader.prepare(&private).unwrap().act(&obs), want);
+    assert_eq!(loader.check(&private), Ok(()), "the copy still validates");
+    assert_eq!(
+        loader.check(&shared.to_boxed()),
+        Err(PolicyRejectReason::NonFinite),
+        "the source is now invalid"
+    );
+}
+
+#[test]
+fn clip_bounds_with_min_above_max_or_nan_are_rejected_naming_the_field() {
+    let loader = PolicyLoader::new(PolicyExpectation::for_task(TASK));
+    type Field = fn(&mut PolicyBlob) -> &mut f32;
+    let fields: [(&str, Field); 2] = [
+        ("obs_clip", |b| &mut b.obs_clip),
+        ("action_clip", |b| &mut b.action_clip),
+    ];
+    for (field, slot) in fields {
+        for (bound, schema, reason) in [
+            // clamp(-c, c) with c < 0: min > max.
+            (
+                -0.5,
+                SchemaError::OutOfRange { field },
+                PolicyRejectReason::OutOfRange,
+            ),
+            (
+                f32::NAN,
+                SchemaError::NonFinite { field },
+                PolicyRejectReason::NonFinite,
+            ),
+            (
+                f32::INFINITY,
+                SchemaError::NonFinite { field },
+                PolicyRejectReason::NonFinite,
+            ),
+        ] {
+            let mut blob = valid();
+            *slot(&mut blob) = bound;
+            blob.seal();
+            assert_eq!(blob.validate(), Err(schema), "{field} = {bound}");
+            assert!(schema.to_string().contains(field), "{schema}");
+            assert_eq!(loader.check(&blob), Err(reason), "{field} = {bound}");
+            let mut running = MlpPolicy::with_capacity();
+            assert_eq!(loader.prepare_into(&blob, &mut running), Err(reason));
+            assert!(!running.is_loaded());
         }
     }
 }

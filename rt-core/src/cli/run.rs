@@ -1,7 +1,9 @@
 //! `rt-core run --config FILE`: argument parsing and wiring of the runtime
 //! ([`rt_core::twin_thread::serve`]) around a robot link: `--link sim` (the in-process
 //! simulated arm) or `--link xarm --robot HOST` (a real xArm5 or `xarm-sim`). `--dry-run`
-//! computes and logs every command and sends none; `--no-lookahead` runs the policy blind.
+//! computes and logs every command and sends none; `--no-lookahead` runs the policy blind,
+//! and only on a loopback robot address (`xarm-sim` on this machine): it is refused, before
+//! any connection, for any other (`check_blind_mode_target`).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -10,8 +12,9 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use rt_core::config::RuntimeConfig;
 use rt_core::cycle::link::{InProcessArm, RobotLink};
-use rt_core::cycle::xarm_link::open_xarm;
-use rt_core::twin_thread::serve::{ServeOptions, serve_on};
+use rt_core::cycle::shield::STEP_TOLERANCE;
+use rt_core::cycle::xarm_link::{XArmOpenOptions, check_blind_mode_target, open_xarm};
+use rt_core::twin_thread::serve::{InjectedFault, ServeOptions, serve_on};
 use twin::{RobotModel, TaskConfig};
 
 use super::bench_loop::load_assets;
@@ -53,13 +56,29 @@ pub struct RunArgs {
     /// Report port of the arm for `--link xarm` (default: the real controller's 30003).
     #[arg(long)]
     report_port: Option<u16>,
+    /// Operator action: clear the controller's error and warning at start before entering
+    /// servo mode. Without it rt-core never sends CLEAN_ERROR: an error at start is
+    /// reported and the run refused.
+    #[arg(long)]
+    clear_errors: bool,
+    /// After a lost link returns, take fresh plans (and re-enter servo mode) without an
+    /// operator's acknowledgement. For simulated arms (`xarm-sim`, `--link sim`) only: a
+    /// real arm waits for `kill -USR1 <pid>` (the acknowledgement; see docs/real-arm.md).
+    #[arg(long)]
+    auto_resume: bool,
+    /// Test hook: inject a fault to exercise an exit path (`twin-panic:MS`, a twin-thread
+    /// panic MS ms after a plan starts). Hidden; never for operation.
+    #[arg(long, hide = true, value_parser = parse_fault)]
+    inject_fault: Option<InjectedFault>,
     /// A policy blob file to start with (e.g. assets/policy/policy.blob); it is validated
     /// and must pass the lookahead like any policy the learner sends.
     #[arg(long)]
     policy: Option<PathBuf>,
-    /// Blind run: execute the policy's plans whatever the lookahead says and without the
-    /// shield's clearance check (joint, workspace and speed limits still hold). This is the
-    /// demonstration of what Foresight prevents; never use it on a real arm near people.
+    /// Blind run, a simulation-only demonstration of what Foresight prevents: execute the
+    /// policy's plans whatever the lookahead says, and leave the obstacle boxes out of the
+    /// shield's clearance check (the table clearance, joint, workspace and speed limits
+    /// still hold). With `--link xarm` it is refused, before any connection, unless
+    /// `--robot` is (or resolves only to) a loopback address (127.0.0.0/8, ::1, localhost).
     #[arg(long)]
     no_lookahead: bool,
     /// Dry run: read the arm, run everything, compute every command, and send none (the
@@ -92,6 +111,13 @@ pub fn run(args: RunArgs) -> ExitCode {
 }
 
 fn runtime(args: &RunArgs) -> anyhow::Result<()> {
+    // Blind mode never reaches a real arm: decided from the address alone, first.
+    if args.no_lookahead
+        && args.link == LinkKind::Xarm
+        && let Some(host) = args.robot.as_deref()
+    {
+        check_blind_mode_target(host)?;
+    }
     let (cfg, model, task) = load_assets(&args.assets, None, Some(&args.config))?;
     let opts = ServeOptions {
         prefix: args
@@ -104,6 +130,8 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
         command_log: args.command_log.clone(),
         policy: args.policy.clone(),
         rt: args.rt.request(),
+        auto_resume: args.auto_resume,
+        inject: args.inject_fault,
     };
     match args.link {
         LinkKind::Sim => {
@@ -120,8 +148,24 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
                 .robot
                 .as_deref()
                 .context("--link xarm needs --robot HOST")?;
-            let driver = open_xarm(host, args.report_port, args.dry_run)
-                .map_err(|e| anyhow::anyhow!("xArm at {host}: {e}"))?;
+            let open = XArmOpenOptions {
+                report_port: args.report_port,
+                dry_run: args.dry_run,
+                clear_errors: args.clear_errors,
+                max_resume_step_rad: max_step_per_period_rad(&cfg),
+                resume_after_reconnect: args.auto_resume,
+            };
+            let driver = open_xarm(host, &open).map_err(|e| {
+                anyhow::anyhow!(
+                    "xArm at {host}: {e}{}",
+                    if matches!(e, xarm::driver::XArmError::Controller(_)) && !args.clear_errors {
+                        " (rt-core never clears a controller error on its own: check the arm, \
+                         then clear it on the pendant or start with --clear-errors)"
+                    } else {
+                        ""
+                    }
+                )
+            })?;
             run_on(&opts, &cfg, model, task, driver)
         }
     }
@@ -140,4 +184,29 @@ fn run_on<L: RobotLink + 'static>(
     // One JSON line on stdout with the run's figures, for the launcher's report.
     println!("{}", summary.to_json(opts));
     Ok(())
+}
+
+/// One period at the fastest joint's velocity limit (plus the shield's step tolerance):
+/// the most the first target after a reconnect may differ from the reported joints.
+fn max_step_per_period_rad(cfg: &RuntimeConfig) -> f64 {
+    let v = cfg
+        .limits
+        .max_velocity_rad_s
+        .iter()
+        .copied()
+        .fold(0.0, f64::max);
+    v * cfg.period_ns() as f64 * 1e-9 * (1.0 + STEP_TOLERANCE)
+}
+
+/// Parses `--inject-fault` (`twin-panic:MS`).
+fn parse_fault(s: &str) -> Result<InjectedFault, String> {
+    match s.split_once(':') {
+        Some(("twin-panic", ms)) => ms
+            .parse()
+            .map(|after_ms| InjectedFault::TwinPanic { after_ms })
+            .map_err(|e| format!("--inject-fault twin-panic:MS: bad MS {ms:?}: {e}")),
+        _ => Err(format!(
+            "--inject-fault: unknown fault {s:?} (known: twin-panic:MS)"
+        )),
+    }
 }

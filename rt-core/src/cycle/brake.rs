@@ -1,13 +1,22 @@
-//! The controlled stop of the cycle: [`Brake`], an allocation-free jerk-limited deceleration
-//! of every joint to zero velocity (acceleration ramps at most `max_jerk`, is bounded by
-//! `max_acceleration`, and is shaped by `a = −sign(v)·min(A, √(2J|v|))` so that velocity and
-//! acceleration reach zero together), computed with plain `f64` arithmetic on fixed arrays:
-//! no allocation, no FFI, bounded time (a few hundred nanoseconds). [`MotionState`] is the
-//! position, velocity and acceleration the cycle and the smoother share.
+//! The controlled stops of the cycle, both allocation-free with plain `f64` arithmetic on
+//! fixed arrays (no FFI, bounded time):
+//!
+//! - [`PathStop`], the first choice: time scaling along the running plan. The plan's own
+//!   path is followed at a speed scale `s` that falls from 1 to 0 as a smoothstep
+//!   (`s = 1 − 3τ² + 2τ³`, so velocity and acceleration reach zero together), so every pose
+//!   until rest lies on the path the twin verified — the stop envelope is a stretch of the
+//!   plan, which the cycle checks ahead of the arm.
+//! - [`Brake`], the fallback when the plan itself is not valid at the next sample: every
+//!   joint decelerates to zero on its own (acceleration ramps at most `max_jerk`, is bounded
+//!   by `max_acceleration`, and is shaped by `a = −sign(v)·min(A, √(2J|v|))`); this leaves
+//!   the coordinated path, so its poses pass the command check one by one.
+//!
+//! [`MotionState`] is the position, velocity and acceleration the cycle and the smoother share.
 
 use twin::{DOF, Joints};
 
 use crate::config::MotionLimits;
+use crate::cycle::plan::Plan;
 
 /// Position, velocity and acceleration of the arm.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -94,11 +103,172 @@ impl Brake {
     }
 }
 
+/// Share of the acceleration limit the time scaling itself may use: the plan's own
+/// acceleration (scaled by `s² ≤ 1`) takes the rest.
+const PATH_STOP_ACCEL_SHARE: f64 = 0.8;
+
+/// A stop along the running plan by time scaling (see the module docs).
+#[derive(Debug, Clone, Copy)]
+pub struct PathStop {
+    /// Position along the plan, in samples (fractional).
+    at_sample: f64,
+    elapsed_s: f64,
+    duration_s: f64,
+    period_s: f64,
+    stopped: bool,
+    state: MotionState,
+    max_acceleration_rad_s2: Joints,
+}
+
+impl PathStop {
+    /// Idle, with the acceleration limits of `brake`.
+    pub fn from_brake(brake: &Brake) -> Self {
+        Self {
+            max_acceleration_rad_s2: brake.max_acceleration_rad_s2,
+            ..Self::new_with(brake.max_acceleration_rad_s2)
+        }
+    }
+
+    /// Idle, with the arm's limits.
+    pub fn new(limits: &MotionLimits) -> Self {
+        Self::new_with(limits.max_acceleration_rad_s2)
+    }
+
+    fn new_with(max_acceleration_rad_s2: Joints) -> Self {
+        Self {
+            at_sample: 0.0,
+            elapsed_s: 0.0,
+            duration_s: 0.0,
+            period_s: 1.0,
+            stopped: true,
+            state: MotionState::default(),
+            max_acceleration_rad_s2,
+        }
+    }
+
+    /// The stop's duration from velocity `dq_rad_s`: the smoothstep's steepest slope
+    /// (1.5/T) times the speed stays within a share of the acceleration limit.
+    pub fn duration_s(dq_rad_s: &Joints, max_acceleration_rad_s2: &Joints, period_s: f64) -> f64 {
+        let mut t = 2.0 * period_s;
+        for j in 0..DOF {
+            t = t.max(
+                1.5 * dq_rad_s[j].abs() / (PATH_STOP_ACCEL_SHARE * max_acceleration_rad_s2[j]),
+            );
+        }
+        t
+    }
+
+    /// Begins stopping from `state`, the command sent for sample `sample` of the plan.
+    pub fn start(&mut self, state: MotionState, sample: usize, period_s: f64) {
+        self.state = state;
+        self.at_sample = sample as f64;
+        self.elapsed_s = 0.0;
+        self.duration_s =
+            Self::duration_s(&state.dq_rad_s, &self.max_acceleration_rad_s2, period_s);
+        self.period_s = period_s;
+        self.stopped = false;
+    }
+
+    /// Whether the stop has reached rest.
+    pub fn is_stopped(&self) -> bool {
+        self.stopped
+    }
+
+    /// Samples of the plan the stop will still cover (an upper bound): the stop envelope.
+    pub fn remaining_samples(&self) -> f64 {
+        let tau = (self.elapsed_s / self.duration_s).min(1.0);
+        // ∫ s dτ from τ to 1 of the smoothstep, times T, in periods of one sample each.
+        let rest = 0.5 - (tau - tau.powi(3) + 0.5 * tau.powi(4));
+        rest * self.duration_s / self.period_s
+    }
+
+    /// Advances by `dt_s` along `plan` (one sample per `dt_s` at full speed); returns the
+    /// new state.
+    pub fn step(&mut self, plan: &Plan, dt_s: f64) -> &MotionState {
+        if self.stopped || plan.is_empty() {
+            self.stopped = true;
+            self.state.dq_rad_s = [0.0; DOF];
+            self.state.ddq_rad_s2 = [0.0; DOF];
+            return &self.state;
+        }
+        let scale = |tau: f64| 1.0 - 3.0 * tau * tau + 2.0 * tau * tau * tau;
+        let t = self.duration_s;
+        let tau0 = (self.elapsed_s / t).min(1.0);
+        self.elapsed_s += dt_s;
+        let tau1 = (self.elapsed_s / t).min(1.0);
+        let s = scale(tau1);
+        let s_dot = 6.0 * (tau1 * tau1 - tau1) / t;
+        let last = (plan.len() - 1) as f64;
+        self.at_sample = (self.at_sample + 0.5 * (scale(tau0) + s)).min(last);
+        let i = self.at_sample.floor() as usize;
+        let k = (i + 1).min(plan.len() - 1);
+        let f = self.at_sample - i as f64;
+        for j in 0..DOF {
+            let lerp = |a: &[Joints]| a[i][j] + (a[k][j] - a[i][j]) * f;
+            let dq = lerp(&plan.dq_rad_s);
+            self.state.q_rad[j] = lerp(&plan.q_rad);
+            self.state.dq_rad_s[j] = dq * s;
+            self.state.ddq_rad_s2[j] = lerp(&plan.ddq_rad_s2) * s * s + dq * s_dot;
+        }
+        if tau1 >= 1.0 || self.at_sample >= last {
+            self.stopped = true;
+            self.state.dq_rad_s = [0.0; DOF];
+            self.state.ddq_rad_s2 = [0.0; DOF];
+        }
+        &self.state
+    }
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::config::RuntimeConfig;
+
+    #[test]
+    fn the_path_stop_stays_on_the_plan_and_slows_to_rest_within_the_step_limit() {
+        let lim = RuntimeConfig::xarm5_default().limits;
+        let dt = 0.004;
+        // A straight plan at 0.8 rad/s on joint 0, 2 s long.
+        let mut plan = Plan::with_capacity(1, 1, dt, 500);
+        for i in 0..500 {
+            let q = 0.8 * dt * i as f64;
+            plan.push(
+                [q, 0.1, -0.2, 0.3, 0.0],
+                [0.8, 0.0, 0.0, 0.0, 0.0],
+                [0.0; DOF],
+            );
+        }
+        let mut stop = PathStop::new(&lim);
+        let at = 100;
+        stop.start(
+            MotionState {
+                q_rad: plan.q_rad[at],
+                dq_rad_s: plan.dq_rad_s[at],
+                ddq_rad_s2: plan.ddq_rad_s2[at],
+            },
+            at,
+            dt,
+        );
+        let envelope = stop.remaining_samples();
+        let mut prev = plan.q_rad[at];
+        let mut steps = 0;
+        let mut last_v = 0.8;
+        while !stop.is_stopped() {
+            let s = *stop.step(&plan, dt);
+            let step = (s.q_rad[0] - prev[0]).abs();
+            assert!(step <= 0.8 * dt + 1e-12, "step {step}");
+            assert!(s.dq_rad_s[0] <= last_v + 1e-12, "speed rises");
+            assert_eq!(&s.q_rad[1..], &plan.q_rad[0][1..], "off the path");
+            last_v = s.dq_rad_s[0];
+            prev = s.q_rad;
+            steps += 1;
+            assert!(steps < 1000);
+        }
+        let covered = (prev[0] - plan.q_rad[at][0]) / (0.8 * dt);
+        assert!(covered <= envelope + 1.0, "{covered} > {envelope}");
+        assert!(covered > 0.3 * envelope, "{covered} vs {envelope}");
+    }
 
     #[test]
     fn the_brake_stops_within_jerk_and_acceleration_limits() {

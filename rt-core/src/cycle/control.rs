@@ -7,16 +7,34 @@
 //! hand-overs are lock-free SPSC queues ([`super::handoff`]), plans are returned to the
 //! twin for freeing, and events go to the log ring ([`super::rt_log`]).
 //!
-//! Controlled stops: on a shield violation, a stale scene or robot state, a lost link, or a
-//! plan revoked by the twin, the cycle brakes to zero velocity ([`crate::cycle::brake::Brake`])
-//! and then stays [`Mode::Stopped`] until a *fresh* plan (an id above every plan seen before
-//! the stop) approved by the twin and starting at the stopped pose arrives.
+//! One check for every command: whatever picked it (a plan sample, a stop step, a hold, the
+//! first command after a reconnect), a command passes [`Shield::check_step`] against the
+//! last command *sent* before it reaches the link. A plan sample that fails starts a stop;
+//! a stop step that fails makes the cycle hold the last command sent and stop there; a hold
+//! that fails is not sent (the controller holds the arm).
+//!
+//! Controlled stops: on a shield violation, a stale scene or robot state, a lost link, a plan
+//! revoked by the twin, or a shutdown request, the cycle stops along the running plan by time
+//! scaling ([`crate::cycle::brake::PathStop`]; every pose until rest lies on the verified
+//! path, and the cycle checks the plan one stop envelope ahead of the arm each period), or
+//! with the per-joint brake ([`crate::cycle::brake::Brake`]) when the plan is not valid at
+//! the next sample. It then stays [`Mode::Stopped`] until a *fresh* plan (an id above every
+//! plan seen before the stop) approved by the twin and starting at the stopped pose arrives.
+//! The unavoidable case — an obstacle appearing inside the stop envelope, closer than the
+//! arm can stop — is counted ([`CycleReport::envelope_breaches`]).
+//!
+//! Protective stops: a controller error ([`StopReason::ArmError`]) and, unless
+//! [`CycleConfig::auto_resume_after_link_loss`], a lost link latch the cycle: it sends
+//! nothing and takes no plan until an operator acknowledges ([`CycleControl::acknowledge`]),
+//! which clears the controller's error and re-enables motion through the link. The cycle
+//! never clears an error on its own. When the link returns while stopping, the cycle snaps
+//! to the measured joints and finishes the stop there (the arm got no command meanwhile).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use crate::config::RuntimeConfig;
-use crate::cycle::brake::{Brake, MotionState};
+use crate::cycle::brake::{Brake, MotionState, PathStop};
 use crate::cycle::link::{LinkError, RobotLink};
 use crate::cycle::plan::Plan;
 use crate::cycle::shield::{Shield, ShieldModel, ShieldViolation};
@@ -91,6 +109,25 @@ pub enum CycleEvent {
         /// The link's error.
         error: LinkError,
     },
+    /// A command failed the check and was not sent.
+    CommandRefused {
+        /// Why.
+        violation: ShieldViolation,
+    },
+    /// The controller reports an error; the cycle is latched until acknowledged.
+    ArmError {
+        /// The controller's error code.
+        code: u16,
+    },
+    /// The link returned while stopping: the stop ends at the measured joints.
+    SnappedToMeasured,
+    /// An operator acknowledged the protective stop; motion was re-enabled.
+    Acknowledged,
+    /// An acknowledgement could not be passed to the controller.
+    AcknowledgeFailed {
+        /// The link's error.
+        error: LinkError,
+    },
     /// The cycle stopped.
     Finished,
 }
@@ -111,6 +148,10 @@ pub enum StopReason {
     LinkLost,
     /// The twin revoked the running plan (the lookahead found it unsafe).
     Revoked,
+    /// The controller reports an error (the code is in the report).
+    ArmError(u16),
+    /// The process is shutting down (signal, time limit, error, panic).
+    Shutdown,
 }
 
 impl StopReason {
@@ -123,6 +164,8 @@ impl StopReason {
             StopReason::StaleRobotState => 3,
             StopReason::LinkLost => 4,
             StopReason::Revoked => 5,
+            StopReason::ArmError(_) => 6,
+            StopReason::Shutdown => 7,
         }
     }
 }
@@ -165,13 +208,100 @@ pub struct CycleReport {
     pub last_refused_plan_id: u64,
     /// Plans adopted or joined so far.
     pub plans_taken: u64,
+    /// The controller's error code (0 = none).
+    pub arm_error_code: u16,
+    /// The controller's mode (from its report).
+    pub arm_mode: u8,
+    /// The controller's state (from its report).
+    pub arm_state: u8,
+    /// Latched after a protective stop: nothing is sent until an operator acknowledges.
+    pub awaiting_ack: bool,
+    /// Commands that failed the check and were not sent as picked.
+    pub commands_refused: u64,
+    /// Stops where the next command already failed the clearance check: an obstacle
+    /// appeared inside the stop envelope (the unavoidable case).
+    pub envelope_breaches: u64,
+    /// A shutdown was requested and the arm is at rest: the cycle may end.
+    pub shutdown_complete: bool,
+}
+
+/// Control flags shared by the cycle, the twin thread and the process (relaxed atomics).
+#[derive(Debug, Default)]
+pub struct CycleControl {
+    /// Every plan with an id up to this one is revoked (0 = none).
+    revoked_up_to: AtomicU64,
+    /// Plan id (upper 40 bits) and next sample index (lower 24 bits) of the plan the cycle
+    /// is following, written every cycle: the twin re-verifies from here.
+    progress: AtomicU64,
+    /// A controlled stop of the whole process was requested.
+    shutdown: Arc<AtomicBool>,
+    /// Operator acknowledgements so far.
+    acks: AtomicU64,
+}
+
+/// Bits of the sample index in [`CycleControl`]'s progress word.
+const PROGRESS_INDEX_BITS: u32 = 24;
+
+impl CycleControl {
+    /// Revokes every plan with an id up to `plan_id` (running and pending).
+    pub fn revoke_up_to(&self, plan_id: u64) {
+        self.revoked_up_to.fetch_max(plan_id, Ordering::AcqRel);
+    }
+
+    /// The highest revoked plan id.
+    pub fn revoked_up_to(&self) -> u64 {
+        self.revoked_up_to.load(Ordering::Acquire)
+    }
+
+    /// The plan the cycle follows and its next sample, as of the last cycle (`None` when
+    /// not following).
+    pub fn progress(&self) -> Option<(u64, usize)> {
+        let w = self.progress.load(Ordering::Acquire);
+        (w != 0).then(|| {
+            (
+                w >> PROGRESS_INDEX_BITS,
+                (w & ((1 << PROGRESS_INDEX_BITS) - 1)) as usize,
+            )
+        })
+    }
+
+    fn set_progress(&self, plan_id: u64, next_index: usize) {
+        let index = (next_index as u64).min((1 << PROGRESS_INDEX_BITS) - 1);
+        self.progress
+            .store((plan_id << PROGRESS_INDEX_BITS) | index, Ordering::Release);
+    }
+
+    /// Asks for a controlled stop of the whole process: the cycle stops the arm, takes no
+    /// plan, and reports `shutdown_complete` once at rest.
+    pub fn request_shutdown(&self) {
+        self.shutdown.store(true, Ordering::Release);
+    }
+
+    /// Whether a shutdown was requested.
+    pub fn shutdown_requested(&self) -> bool {
+        self.shutdown.load(Ordering::Acquire)
+    }
+
+    /// The shutdown flag itself (for signal handlers).
+    pub fn shutdown_flag(&self) -> Arc<AtomicBool> {
+        self.shutdown.clone()
+    }
+
+    /// An operator acknowledges a protective stop (controller error, lost link).
+    pub fn acknowledge(&self) {
+        self.acks.fetch_add(1, Ordering::AcqRel);
+    }
+
+    fn acks(&self) -> u64 {
+        self.acks.load(Ordering::Acquire)
+    }
 }
 
 /// The cycle's ends of the hand-overs.
 pub struct CycleIo<S: Copy + Send + 'static> {
     plans: BoxReceiver<Plan>,
     scenes: LatestReceiver<SceneUpdate<S>>,
-    revoked_plan_id: Arc<AtomicU64>,
+    control: Arc<CycleControl>,
     reports: LatestSender<CycleReport>,
     log: RtLogger<CycleEvent>,
 }
@@ -182,8 +312,8 @@ pub struct TwinIo<S: Copy + Send + 'static> {
     pub plans: BoxSender<Plan>,
     /// Scene snapshots to the cycle.
     pub scenes: LatestSender<SceneUpdate<S>>,
-    /// Id of a plan the twin revokes (the cycle stops it).
-    pub revoked_plan_id: Arc<AtomicU64>,
+    /// Revocation, the cycle's progress, shutdown and acknowledgement.
+    pub control: Arc<CycleControl>,
     /// The cycle's reports.
     pub reports: LatestReceiver<CycleReport>,
 }
@@ -194,18 +324,18 @@ pub fn wire<S: Copy + Send + 'static>() -> (TwinIo<S>, CycleIo<S>, RtLogDrain<Cy
     let (scene_tx, scene_rx) = handoff::latest();
     let (rep_tx, rep_rx) = handoff::latest();
     let (log, drain) = rt_log::ring();
-    let revoked = Arc::new(AtomicU64::new(0));
+    let control = Arc::new(CycleControl::default());
     (
         TwinIo {
             plans: plan_tx,
             scenes: scene_tx,
-            revoked_plan_id: revoked.clone(),
+            control: control.clone(),
             reports: rep_rx,
         },
         CycleIo {
             plans: plan_rx,
             scenes: scene_rx,
-            revoked_plan_id: revoked,
+            control,
             reports: rep_tx,
             log,
         },
@@ -228,6 +358,9 @@ pub struct CycleConfig {
     /// against the live scene: about the braking time, so a stop begun now ends before an
     /// obstacle that appears on the path.
     pub brake_horizon_samples: usize,
+    /// After the link returns, take fresh plans without an operator's acknowledgement
+    /// (opt-in for simulated arms; a real arm waits for the operator).
+    pub auto_resume_after_link_loss: bool,
 }
 
 impl CycleConfig {
@@ -239,17 +372,35 @@ impl CycleConfig {
             max_robot_state_age_ns: (cfg.stale.max_robot_state_age_s * 1e9) as u64,
             start_tolerance_rad: 0.02,
             brake_horizon_samples: {
+                // The longer of the per-joint brake's and the path stop's travel at full
+                // speed, in samples.
                 let l = &cfg.limits;
-                let t_s = (0..DOF)
+                let brake_s = (0..DOF)
                     .map(|j| {
                         l.max_velocity_rad_s[j] / l.max_acceleration_rad_s2[j]
                             + l.max_acceleration_rad_s2[j] / l.max_jerk_rad_s3[j]
                     })
                     .fold(0.0, f64::max);
-                (t_s * cfg.rate_hz).ceil() as usize
+                let path_s = 0.5
+                    * PathStop::duration_s(
+                        &l.max_velocity_rad_s,
+                        &l.max_acceleration_rad_s2,
+                        1.0 / cfg.rate_hz,
+                    );
+                (brake_s.max(path_s) * cfg.rate_hz).ceil() as usize
             },
+            auto_resume_after_link_loss: false,
         }
     }
+}
+
+/// How the running stop moves the arm.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum StopMotion {
+    /// Along the running plan (time scaling).
+    AlongPlan,
+    /// Per-joint brake (the plan is not valid at the next sample, or there is none).
+    Brake,
 }
 
 /// The control cycle.
@@ -259,8 +410,12 @@ pub struct Cycle<M: ShieldModel, L: RobotLink> {
     link: L,
     io: CycleIo<M::Scene>,
     brake: Brake,
+    path_stop: PathStop,
+    stop_motion: StopMotion,
     mode: Mode,
     cmd: MotionState,
+    /// The last command that reached the link: every new command is checked against it.
+    last_sent: MotionState,
     plan: Option<Box<Plan>>,
     pending: Option<Box<Plan>>,
     next: usize,
@@ -270,11 +425,12 @@ pub struct Cycle<M: ShieldModel, L: RobotLink> {
     fresh_after_id: u64,
     link_ok: bool,
     started: bool,
+    acks_seen: u64,
 }
 
 impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
     /// A cycle over `shield` and `link`, with its hand-overs (see [`wire`]). Allocates
-    /// nothing later.
+    /// nothing later. `brake` carries the arm's limits for both kinds of stop.
     pub fn new(
         cfg: CycleConfig,
         shield: Shield<M>,
@@ -287,9 +443,12 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             shield,
             link,
             io,
+            path_stop: PathStop::from_brake(&brake),
             brake,
+            stop_motion: StopMotion::Brake,
             mode: Mode::Idle,
             cmd: MotionState::default(),
+            last_sent: MotionState::default(),
             plan: None,
             pending: None,
             next: 0,
@@ -299,6 +458,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             fresh_after_id: 0,
             link_ok: true,
             started: false,
+            acks_seen: 0,
         }
     }
 
@@ -309,15 +469,20 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
     pub fn start(&mut self, now_ns: u64) -> Result<(), LinkError> {
         let st = self.link.read_state(now_ns)?;
         self.cmd = MotionState::at_rest(st.q_rad);
+        self.last_sent = MotionState::at_rest(st.q_rad);
         self.report.measured_q_rad = st.q_rad;
         self.mode = Mode::Idle;
         self.started = true;
+        self.acks_seen = self.io.control.acks();
         self.io.log.log(
             now_ns,
             CycleEvent::Started {
                 period_ns: self.cfg.period_ns,
             },
         );
+        if st.error_code != 0 {
+            self.on_arm_error(now_ns, st.error_code, st.q_rad);
+        }
         self.publish(now_ns);
         Ok(())
     }
@@ -349,13 +514,32 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         &self.link
     }
 
-    fn begin_stop(&mut self, now_ns: u64, reason: StopReason) {
+    /// The link, mutably (the cycle thread puts the controller in its stop state through
+    /// it once the loop has ended).
+    pub fn link_mut(&mut self) -> &mut L {
+        &mut self.link
+    }
+
+    /// The control flags shared with the twin thread and the process.
+    pub fn control(&self) -> &Arc<CycleControl> {
+        &self.io.control
+    }
+
+    fn begin_stop(&mut self, now_ns: u64, reason: StopReason, motion: StopMotion) {
         if let Some(p) = self.pending.take() {
             self.io.plans.give_back(p);
         }
         match self.mode {
             Mode::Following => {
-                self.brake.start(self.cmd);
+                let along = motion == StopMotion::AlongPlan && self.plan.is_some();
+                if along {
+                    self.path_stop
+                        .start(self.cmd, self.next.saturating_sub(1), self.dt_s());
+                    self.stop_motion = StopMotion::AlongPlan;
+                } else {
+                    self.brake.start(self.cmd);
+                    self.stop_motion = StopMotion::Brake;
+                }
                 self.mode = Mode::Stopping;
             }
             Mode::Idle => self.mode = Mode::Stopped,
@@ -365,6 +549,32 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         self.report.stop_reason = reason;
         self.report.stops += 1;
         self.io.log.log(now_ns, CycleEvent::StopBegun { reason });
+    }
+
+    /// Ends any stop at once at `q_rad` (the arm stands there: a controller that stopped
+    /// it, or a link that was down while the brake ran on without it).
+    fn snap_to(&mut self, now_ns: u64, q_rad: Joints) {
+        self.cmd = MotionState::at_rest(q_rad);
+        self.last_sent = MotionState::at_rest(q_rad);
+        if self.mode == Mode::Stopping || self.mode == Mode::Following {
+            self.mode = Mode::Stopped;
+            self.io.log.log(now_ns, CycleEvent::SnappedToMeasured);
+            self.io.log.log(now_ns, CycleEvent::Stopped);
+        }
+    }
+
+    fn on_arm_error(&mut self, now_ns: u64, code: u16, measured_q_rad: Joints) {
+        if self.report.arm_error_code != code {
+            self.io.log.log(now_ns, CycleEvent::ArmError { code });
+        }
+        self.report.arm_error_code = code;
+        if !self.report.awaiting_ack || self.report.stop_reason != StopReason::ArmError(code) {
+            // The controller has stopped the arm itself: the stop ends where it stands.
+            self.begin_stop(now_ns, StopReason::ArmError(code), StopMotion::Brake);
+            self.report.stop_reason = StopReason::ArmError(code);
+            self.report.awaiting_ack = true;
+        }
+        self.snap_to(now_ns, measured_q_rad);
     }
 
     fn refuse(&mut self, now_ns: u64, p: Box<Plan>) {
@@ -377,6 +587,13 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
 
     fn consider(&mut self, now_ns: u64, p: Box<Plan>, inputs_ok: bool) {
         self.newest_plan_id_seen = self.newest_plan_id_seen.max(p.id);
+        if self.report.awaiting_ack
+            || self.io.control.shutdown_requested()
+            || p.id <= self.io.control.revoked_up_to()
+        {
+            self.refuse(now_ns, p);
+            return;
+        }
         match self.mode {
             Mode::Idle | Mode::Stopped => {
                 let close = p.q_rad.first().is_some_and(|q0| {
@@ -423,28 +640,38 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         }
     }
 
-    /// One cycle at `now_ns`. Returns the mode after it.
-    pub fn process(&mut self, now_ns: u64) -> Mode {
-        let dt_s = self.cfg.period_ns as f64 * 1e-9;
-        if let Some(s) = self.io.scenes.latest() {
-            self.scene = Some(s);
-        }
-        // Inputs.
+    fn dt_s(&self) -> f64 {
+        self.cfg.period_ns as f64 * 1e-9
+    }
+
+    /// Reads the arm; returns whether the inputs allow motion.
+    fn read_inputs(&mut self, now_ns: u64) -> bool {
         let mut inputs_ok = self.started;
         match self.link.read_state(now_ns) {
             Ok(st) => {
-                if !self.link_ok && matches!(self.mode, Mode::Idle | Mode::Stopped) {
-                    // The link is back while at rest: hold where the arm is, not where the
-                    // commands left off (the arm got none while the link was down, a brake
-                    // may have run on without it, and a restarted controller may report the
-                    // arm elsewhere). A fresh plan must then start from this pose.
-                    self.cmd = MotionState::at_rest(st.q_rad);
-                }
+                let returned = !self.link_ok;
                 self.link_ok = true;
                 self.report.measured_q_rad = st.q_rad;
+                self.report.arm_mode = st.mode;
+                self.report.arm_state = st.state;
+                if returned {
+                    // The link is back: hold where the arm is, not where the commands left
+                    // off (the arm got none while the link was down, a stop may have run on
+                    // without it, and a restarted controller may report the arm elsewhere).
+                    // A stop under way ends here; a fresh plan must start from this pose.
+                    self.snap_to(now_ns, st.q_rad);
+                }
+                if st.error_code != 0 {
+                    inputs_ok = false;
+                    self.on_arm_error(now_ns, st.error_code, st.q_rad);
+                } else if self.report.arm_error_code != 0 {
+                    // Cleared on the controller (by the operator); the latch stays until
+                    // acknowledged here.
+                    self.report.arm_error_code = 0;
+                }
                 if now_ns.saturating_sub(st.stamp_ns) > self.cfg.max_robot_state_age_ns {
                     inputs_ok = false;
-                    self.begin_stop(now_ns, StopReason::StaleRobotState);
+                    self.begin_stop(now_ns, StopReason::StaleRobotState, StopMotion::AlongPlan);
                 }
             }
             Err(e) => {
@@ -453,55 +680,194 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                 }
                 self.link_ok = false;
                 inputs_ok = false;
-                self.begin_stop(now_ns, StopReason::LinkLost);
+                if let LinkError::ControllerError(code) = e {
+                    // An error without a readable state: latched like any controller error.
+                    self.report.arm_error_code = code;
+                    self.report.awaiting_ack = true;
+                    self.begin_stop(now_ns, StopReason::ArmError(code), StopMotion::Brake);
+                } else {
+                    if !self.cfg.auto_resume_after_link_loss && self.started {
+                        self.report.awaiting_ack = true;
+                    }
+                    self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
+                }
             }
         }
+        inputs_ok
+    }
+
+    /// Takes an operator's acknowledgement: clears the controller's error and re-enables
+    /// motion through the link, then holds where the arm is until a fresh plan arrives.
+    fn take_acknowledgement(&mut self, now_ns: u64) {
+        let acks = self.io.control.acks();
+        if acks == self.acks_seen {
+            return;
+        }
+        self.acks_seen = acks;
+        if !self.report.awaiting_ack || !self.link_ok || self.mode == Mode::Stopping {
+            return;
+        }
+        match self.link.acknowledge(now_ns) {
+            Ok(()) => {
+                self.report.awaiting_ack = false;
+                self.report.arm_error_code = 0;
+                let q = self.report.measured_q_rad;
+                self.snap_to(now_ns, q);
+                self.fresh_after_id = self.newest_plan_id_seen;
+                self.io.log.log(now_ns, CycleEvent::Acknowledged);
+            }
+            Err(error) => {
+                self.io
+                    .log
+                    .log(now_ns, CycleEvent::AcknowledgeFailed { error });
+            }
+        }
+    }
+
+    /// One cycle at `now_ns`. Returns the mode after it.
+    pub fn process(&mut self, now_ns: u64) -> Mode {
+        let dt_s = self.dt_s();
+        if let Some(s) = self.io.scenes.latest() {
+            self.scene = Some(s);
+        }
+        // Inputs.
+        let mut inputs_ok = self.read_inputs(now_ns);
         let scene_fresh = self
             .scene
             .is_some_and(|s| now_ns.saturating_sub(s.stamp_ns) <= self.cfg.max_detection_age_ns);
         if !scene_fresh {
             inputs_ok = false;
             if self.mode == Mode::Following {
-                self.begin_stop(now_ns, StopReason::StaleDetection);
+                self.begin_stop(now_ns, StopReason::StaleDetection, StopMotion::AlongPlan);
             }
         }
-        let revoked = self.io.revoked_plan_id.load(Ordering::Acquire);
-        if self.mode == Mode::Following && self.plan.as_ref().is_some_and(|p| p.id == revoked) {
+        if self.io.control.shutdown_requested() {
+            inputs_ok = false;
+            self.begin_stop(now_ns, StopReason::Shutdown, StopMotion::AlongPlan);
+        }
+        let revoked = self.io.control.revoked_up_to();
+        if self.pending.as_ref().is_some_and(|p| p.id <= revoked)
+            && let Some(p) = self.pending.take()
+        {
             self.io
                 .log
-                .log(now_ns, CycleEvent::PlanRevoked { plan_id: revoked });
-            self.begin_stop(now_ns, StopReason::Revoked);
+                .log(now_ns, CycleEvent::PlanRevoked { plan_id: p.id });
+            self.io.plans.give_back(p);
+        }
+        if self.mode == Mode::Following && self.plan.as_ref().is_some_and(|p| p.id <= revoked) {
+            let plan_id = self.plan.as_ref().map_or(0, |p| p.id);
+            self.io.log.log(now_ns, CycleEvent::PlanRevoked { plan_id });
+            self.begin_stop(now_ns, StopReason::Revoked, StopMotion::AlongPlan);
         }
         while let Some(p) = self.io.plans.take() {
             self.consider(now_ns, p, inputs_ok);
         }
-        // Command.
-        let prev_q = self.cmd.q_rad;
+        self.take_acknowledgement(now_ns);
+        // Command: picked by the mode, then the one check before it is sent.
         match self.mode {
-            Mode::Following => self.follow(now_ns, dt_s, &prev_q),
-            Mode::Stopping => {
-                self.cmd = *self.brake.step(dt_s);
-                if self.brake.is_stopped() {
-                    self.mode = Mode::Stopped;
-                    self.io.log.log(now_ns, CycleEvent::Stopped);
-                }
-            }
+            Mode::Following => self.follow(now_ns, dt_s),
+            Mode::Stopping => self.stop_step(now_ns, dt_s),
             Mode::Idle | Mode::Stopped => {
                 self.cmd = MotionState::at_rest(self.cmd.q_rad);
             }
         }
-        if self.link_ok
-            && let Err(e) = self.link.send_servo(now_ns, &self.cmd.q_rad)
-        {
-            self.io.log.log(now_ns, CycleEvent::LinkError { error: e });
-            self.link_ok = false;
-            self.begin_stop(now_ns, StopReason::LinkLost);
+        if self.link_ok && !self.report.awaiting_ack && self.checked(now_ns, dt_s) {
+            match self.link.send_servo(now_ns, &self.cmd.q_rad) {
+                Ok(()) => self.last_sent = self.cmd,
+                Err(e) => {
+                    self.io.log.log(now_ns, CycleEvent::LinkError { error: e });
+                    if let LinkError::ControllerError(code) = e {
+                        let q = self.report.measured_q_rad;
+                        self.on_arm_error(now_ns, code, q);
+                    } else {
+                        self.link_ok = false;
+                        if !self.cfg.auto_resume_after_link_loss {
+                            self.report.awaiting_ack = true;
+                        }
+                        self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
+                    }
+                }
+            }
         }
+        self.report.shutdown_complete =
+            self.io.control.shutdown_requested() && matches!(self.mode, Mode::Idle | Mode::Stopped);
         self.publish(now_ns);
         self.mode
     }
 
-    fn follow(&mut self, now_ns: u64, dt_s: f64, prev_q: &Joints) {
+    /// The one check of the command picked this cycle, against the last command sent.
+    /// On a refusal it falls back — a plan sample to a brake step, a stop step to holding
+    /// the last command sent — and returns whether a command passed (false: send nothing).
+    fn checked(&mut self, now_ns: u64, dt_s: f64) -> bool {
+        for _ in 0..3 {
+            let verdict = match &self.scene {
+                Some(s) => {
+                    self.shield
+                        .check_step(&self.last_sent.q_rad, &self.cmd.q_rad, dt_s, &s.scene)
+                }
+                None if self.cmd.q_rad == self.last_sent.q_rad => self
+                    .shield
+                    .check_motion(&self.last_sent.q_rad, &self.cmd.q_rad, dt_s)
+                    .map(|()| f64::INFINITY),
+                None => Err(ShieldViolation::NoScene),
+            };
+            let violation = match verdict {
+                Ok(d) => {
+                    self.report.clearance_m = d;
+                    return true;
+                }
+                Err(v) => v,
+            };
+            self.report.commands_refused += 1;
+            self.io
+                .log
+                .log(now_ns, CycleEvent::CommandRefused { violation });
+            if matches!(violation, ShieldViolation::Clearance { .. })
+                && matches!(self.mode, Mode::Following | Mode::Stopping)
+            {
+                self.report.envelope_breaches += 1;
+            }
+            match self.mode {
+                Mode::Following => {
+                    // The plan is not valid at this sample: per-joint brake from the last
+                    // command sent.
+                    self.cmd = self.last_sent;
+                    self.begin_stop(now_ns, StopReason::Shield(violation), StopMotion::Brake);
+                    self.cmd = *self.brake.step(dt_s);
+                }
+                _ if self.cmd.q_rad != self.last_sent.q_rad => {
+                    // A stop step failed: hold the last command sent and stop there.
+                    if self.mode == Mode::Stopping {
+                        self.mode = Mode::Stopped;
+                        self.io.log.log(now_ns, CycleEvent::Stopped);
+                    }
+                    self.cmd = MotionState::at_rest(self.last_sent.q_rad);
+                }
+                _ => return false,
+            }
+        }
+        false
+    }
+
+    fn stop_step(&mut self, now_ns: u64, dt_s: f64) {
+        let (state, stopped) = match (self.stop_motion, self.plan.as_deref()) {
+            (StopMotion::AlongPlan, Some(plan)) => {
+                let st = *self.path_stop.step(plan, dt_s);
+                (st, self.path_stop.is_stopped())
+            }
+            _ => {
+                let st = *self.brake.step(dt_s);
+                (st, self.brake.is_stopped())
+            }
+        };
+        self.cmd = state;
+        if stopped {
+            self.mode = Mode::Stopped;
+            self.io.log.log(now_ns, CycleEvent::Stopped);
+        }
+    }
+
+    fn follow(&mut self, now_ns: u64, dt_s: f64) {
         // Switch to a scheduled plan at its join point.
         if let Some(pending) = &self.pending
             && pending.join.is_some_and(|j| j.index + 1 == self.next)
@@ -533,28 +899,27 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             return;
         }
         let k = self.next;
+        // The stop envelope's far end: a stop begun now ends before it, so it must be
+        // clear of the live scene (checked here one sample further each period).
+        let ahead = plan.q_rad[(k + self.cfg.brake_horizon_samples).min(plan.len() - 1)];
         let candidate = MotionState {
             q_rad: plan.q_rad[k],
             dq_rad_s: plan.dq_rad_s[k],
             ddq_rad_s2: plan.ddq_rad_s2[k],
         };
-        let ahead = plan.q_rad[(k + self.cfg.brake_horizon_samples).min(plan.len() - 1)];
-        let verdict = match &self.scene {
-            Some(s) => self
-                .shield
-                .check_step(prev_q, &candidate.q_rad, dt_s, &s.scene)
-                .and_then(|d| self.shield.check_pose(&ahead, &s.scene).map(|_| d)),
-            None => Err(ShieldViolation::NonFinite),
+        let ahead_ok = match &self.scene {
+            Some(s) => self.shield.check_pose(&ahead, &s.scene).map(|_| ()),
+            None => Err(ShieldViolation::NoScene),
         };
-        match verdict {
-            Ok(d) => {
-                self.report.clearance_m = d;
+        match ahead_ok {
+            Ok(()) => {
                 self.cmd = candidate;
                 self.next += 1;
             }
             Err(v) => {
-                self.begin_stop(now_ns, StopReason::Shield(v));
-                self.cmd = *self.brake.step(dt_s);
+                // The path is valid up to here: stop along it.
+                self.begin_stop(now_ns, StopReason::Shield(v), StopMotion::AlongPlan);
+                self.stop_step(now_ns, dt_s);
             }
         }
     }
@@ -570,6 +935,10 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         }
         r.next_index = self.next;
         r.cmd = self.cmd;
+        match (&self.plan, self.mode) {
+            (Some(p), Mode::Following) => self.io.control.set_progress(p.id, self.next),
+            _ => self.io.control.progress.store(0, Ordering::Release),
+        }
         let report = *r;
         self.io.reports.send(report);
     }
@@ -629,10 +998,14 @@ pub struct LoopShared {
     pub missed_deadlines: AtomicU64,
     /// Compute time of the last cycle, ns.
     pub last_compute_ns: AtomicU64,
+    /// The cycle thread has ended (normally or by a panic) and the controller was put in
+    /// its stop state.
+    pub finished: AtomicBool,
 }
 
-/// Drives `cycle` every `period_ns` on `clock` until `stop` is set, recording timing into
-/// `stats` and publishing counters in `shared`. Allocation-free.
+/// Drives `cycle` every `period_ns` on `clock` until `stop` is set or, after a shutdown
+/// request ([`CycleControl::request_shutdown`]), until the arm is at rest, recording timing
+/// into `stats` and publishing counters in `shared`. Allocation-free.
 pub fn run_loop<M: ShieldModel, L: RobotLink, C: Clock>(
     cycle: &mut Cycle<M, L>,
     clock: &C,
@@ -656,6 +1029,9 @@ pub fn run_loop<M: ShieldModel, L: RobotLink, C: Clock>(
         }
         shared.last_compute_ns.store(compute, Ordering::Relaxed);
         shared.heartbeat.fetch_add(1, Ordering::Release);
+        if cycle.report.shutdown_complete {
+            break;
+        }
         deadline += period;
         if done > deadline {
             let behind = (done - deadline) / period + 1;

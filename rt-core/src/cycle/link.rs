@@ -6,7 +6,7 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use twin::{DOF, Joints};
+use twin::{DOF, Joints, max_joint_gap_rad};
 
 /// One reading of the arm.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -19,6 +19,11 @@ pub struct LinkState {
     pub dq_rad_s: Joints,
     /// Controller error code (0 = none).
     pub error_code: u16,
+    /// Controller mode (0 position, 1 servo, …; 0 for arms without one).
+    pub mode: u8,
+    /// Controller state (0 ready, 1 moving, 2 paused, 3 stopped, 4 stop requested; 0 for
+    /// arms without one).
+    pub state: u8,
 }
 
 /// Why the link failed (small and `Copy`: it travels through the cycle).
@@ -52,6 +57,21 @@ pub trait RobotLink: Send {
     /// # Errors
     /// [`LinkError`] when the target cannot be delivered.
     fn send_servo(&mut self, now_ns: u64, q_rad: &Joints) -> Result<(), LinkError>;
+
+    /// An operator acknowledged a protective stop: clear the controller's error and
+    /// re-enable motion (servo mode) without blocking. Called only on that action, never
+    /// on the cycle's own initiative.
+    ///
+    /// # Errors
+    /// [`LinkError`] when the request cannot be passed on.
+    fn acknowledge(&mut self, _now_ns: u64) -> Result<(), LinkError> {
+        Ok(())
+    }
+
+    /// Puts the controller in its stop state once the cycle has ended with the arm at
+    /// rest (the xArm's `SET_STATE 4`). Called off the loop, after its last period; may
+    /// block up to the link's reply timeout.
+    fn stop_controller(&mut self, _now_ns: u64) {}
 }
 
 /// A simulated arm in the same process. Each servo target is clamped into the joint limits
@@ -66,6 +86,9 @@ pub struct InProcessArm {
     max_velocity_rad_s: Joints,
     connected: Arc<AtomicBool>,
     commands: u64,
+    controller_stops: u64,
+    last_target_rad: Option<Joints>,
+    max_target_step_rad: f64,
 }
 
 impl InProcessArm {
@@ -85,6 +108,9 @@ impl InProcessArm {
             max_velocity_rad_s,
             connected: Arc::new(AtomicBool::new(true)),
             commands: 0,
+            controller_stops: 0,
+            last_target_rad: None,
+            max_target_step_rad: 0.0,
         }
     }
 
@@ -102,6 +128,17 @@ impl InProcessArm {
     pub fn q_rad(&self) -> Joints {
         self.q_rad
     }
+
+    /// The largest change of one joint between two consecutive targets received, rad
+    /// (what a controller would see as a jump).
+    pub fn max_target_step_rad(&self) -> f64 {
+        self.max_target_step_rad
+    }
+
+    /// How often the controller was put in its stop state.
+    pub fn controller_stops(&self) -> u64 {
+        self.controller_stops
+    }
 }
 
 impl RobotLink for InProcessArm {
@@ -114,7 +151,13 @@ impl RobotLink for InProcessArm {
             q_rad: self.q_rad,
             dq_rad_s: self.dq_rad_s,
             error_code: 0,
+            mode: 1,
+            state: if self.controller_stops > 0 { 4 } else { 0 },
         })
+    }
+
+    fn stop_controller(&mut self, _now_ns: u64) {
+        self.controller_stops += 1;
     }
 
     fn send_servo(&mut self, now_ns: u64, q_rad: &Joints) -> Result<(), LinkError> {
@@ -125,6 +168,11 @@ impl RobotLink for InProcessArm {
             .last_ns
             .map_or(0.0, |t| now_ns.saturating_sub(t) as f64 * 1e-9);
         self.last_ns = Some(now_ns);
+        if let Some(prev) = self.last_target_rad {
+            let step = max_joint_gap_rad(&prev, q_rad);
+            self.max_target_step_rad = self.max_target_step_rad.max(step);
+        }
+        self.last_target_rad = Some(*q_rad);
         #[allow(clippy::needless_range_loop)] // j indexes six per-joint arrays
         for j in 0..DOF {
             let target = q_rad[j].clamp(self.joint_min_rad[j], self.joint_max_rad[j]);
@@ -172,6 +220,14 @@ impl<L: RobotLink> RobotLink for DryRunLink<L> {
         self.withheld += 1;
         Ok(())
     }
+
+    // A dry run passes nothing on: no error clearing, no stop state (the arm's mode is
+    // left as it is).
+    fn acknowledge(&mut self, _now_ns: u64) -> Result<(), LinkError> {
+        Ok(())
+    }
+
+    fn stop_controller(&mut self, _now_ns: u64) {}
 }
 
 #[cfg(test)]

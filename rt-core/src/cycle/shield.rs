@@ -1,19 +1,37 @@
-//! The safety shield: every command the cycle is about to send is re-checked against the
-//! joint limits, the TCP workspace box, the TCP speed limit and the minimum distance to the
-//! *live* scene. The same checks verify a whole plan on the twin thread before approval.
-//! Checks are allocation-free; the model (kinematics + clearance) is injected through
-//! [`ShieldModel`] so the twin's geometry or a stand-in can serve.
+//! The safety shield: the one check every command passes before it leaves the process
+//! ([`Shield::check_step`]): finite, within the joint limits, a joint step of at most one
+//! period at the velocity limit (plus [`STEP_TOLERANCE`]), the TCP in the workspace box, the
+//! elbow, wrist and TCP slower than the TCP speed limit, and the minimum distance to the
+//! *live* scene. Plan samples, brake steps, holds and the first command after a reconnect
+//! all go through it; the same check verifies a whole plan on the twin thread before
+//! approval. Checks are allocation-free; the model (kinematics + clearance) is injected
+//! through [`ShieldModel`] so the twin's geometry or a stand-in can serve.
 
 use crate::config::{MotionLimits, ShieldConfig};
 use twin::{DOF, Joints};
+
+/// How many points [`ShieldModel::watched_points_m`] returns (elbow, wrist, TCP).
+pub const WATCHED_POINTS: usize = 3;
+
+/// Stated tolerance on the per-joint step: a command may move a joint at most
+/// `(1 + STEP_TOLERANCE) × max_velocity × period` from the last command sent. Jerk-limited
+/// plans and brakes stay within the velocity limit; 5 % absorbs rounding of the samples and
+/// of the time-scaled stop's interpolation, and is far below the controller's fault margin.
+pub const STEP_TOLERANCE: f64 = 0.05;
 
 /// Kinematics and clearance of the arm in a scene.
 pub trait ShieldModel: Send + 'static {
     /// The scene snapshot the clearance is measured against (obstacles, goal).
     type Scene: Copy + Send + PartialEq + 'static;
 
+    /// The points whose speed is limited, in the base frame, m: the elbow and wrist link
+    /// origins and the TCP (last).
+    fn watched_points_m(&mut self, q_rad: &Joints) -> [[f64; 3]; WATCHED_POINTS];
+
     /// TCP position in the base frame, m.
-    fn tcp_position_m(&mut self, q_rad: &Joints) -> [f64; 3];
+    fn tcp_position_m(&mut self, q_rad: &Joints) -> [f64; 3] {
+        self.watched_points_m(q_rad)[WATCHED_POINTS - 1]
+    }
 
     /// Minimum distance between the robot at `q_rad` and the obstacles of `scene`, m
     /// (negative when penetrating, `f64::INFINITY` without obstacles).
@@ -41,6 +59,23 @@ pub enum ShieldViolation {
         /// The speed, m/s.
         speed_m_s: f64,
     },
+    /// A joint would move more than one period at its velocity limit.
+    #[error("joint {joint} step over one period at its velocity limit")]
+    JointStep {
+        /// The joint index.
+        joint: u8,
+    },
+    /// A moving command without a scene to check its clearance against.
+    #[error("no scene to check the command against")]
+    NoScene,
+    /// The elbow (0) or wrist (1) link origin would move faster than the TCP limit.
+    #[error("link point {point} speed {speed_m_s} m/s over the limit")]
+    LinkSpeed {
+        /// 0 = elbow, 1 = wrist.
+        point: u8,
+        /// The speed, m/s.
+        speed_m_s: f64,
+    },
     /// The robot would come closer to an obstacle than allowed.
     #[error("clearance {distance_m} m below the minimum")]
     Clearance {
@@ -58,6 +93,9 @@ impl ShieldViolation {
             ShieldViolation::Workspace => 3,
             ShieldViolation::TcpSpeed { .. } => 4,
             ShieldViolation::Clearance { .. } => 5,
+            ShieldViolation::JointStep { .. } => 6,
+            ShieldViolation::LinkSpeed { .. } => 7,
+            ShieldViolation::NoScene => 8,
         }
     }
 }
@@ -73,8 +111,10 @@ pub struct ShieldLimits {
     pub workspace_min_m: [f64; 3],
     /// Workspace box, upper corner, m.
     pub workspace_max_m: [f64; 3],
-    /// Maximum TCP speed, m/s.
+    /// Maximum TCP speed (and elbow/wrist origin speed), m/s.
     pub max_tcp_speed_m_s: f64,
+    /// Maximum joint velocities, rad/s (the step limit is one period of these).
+    pub max_velocity_rad_s: Joints,
     /// Minimum clearance, m.
     pub min_distance_m: f64,
 }
@@ -94,6 +134,7 @@ impl ShieldLimits {
             workspace_min_m: shield.workspace_min_m,
             workspace_max_m: shield.workspace_max_m,
             max_tcp_speed_m_s: limits.max_tcp_speed_m_s,
+            max_velocity_rad_s: limits.max_velocity_rad_s,
             min_distance_m: shield.min_distance_m,
         }
     }
@@ -148,8 +189,10 @@ impl<M: ShieldModel> Shield<M> {
         Ok(d)
     }
 
-    /// Checks a command `q_rad` following `prev_q_rad` after `dt_s`: the pose checks plus the
-    /// TCP speed. Returns the clearance, m.
+    /// The one check of a command `q_rad` sent `dt_s` after `prev_q_rad` (the last command
+    /// sent): the pose checks, each joint's step against one period at its velocity limit
+    /// (plus [`STEP_TOLERANCE`]), and the speed of the elbow, the wrist and the TCP. Returns
+    /// the clearance, m.
     ///
     /// # Errors
     /// The first [`ShieldViolation`] found.
@@ -160,18 +203,50 @@ impl<M: ShieldModel> Shield<M> {
         dt_s: f64,
         scene: &M::Scene,
     ) -> Result<f64, ShieldViolation> {
-        let d = self.check_pose(q_rad, scene)?;
-        if dt_s > 0.0 {
-            let a = self.model.tcp_position_m(prev_q_rad);
-            let b = self.model.tcp_position_m(q_rad);
-            let dist =
-                ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
-            let speed_m_s = dist / dt_s;
-            if speed_m_s > self.limits.max_tcp_speed_m_s {
-                return Err(ShieldViolation::TcpSpeed { speed_m_s });
+        self.check_motion(prev_q_rad, q_rad, dt_s)?;
+        self.check_pose(q_rad, scene)
+    }
+
+    /// The motion part of [`Shield::check_step`] (steps and speeds, no clearance).
+    ///
+    /// # Errors
+    /// The first [`ShieldViolation`] found.
+    pub fn check_motion(
+        &mut self,
+        prev_q_rad: &Joints,
+        q_rad: &Joints,
+        dt_s: f64,
+    ) -> Result<(), ShieldViolation> {
+        if prev_q_rad.iter().chain(q_rad).any(|x| !x.is_finite()) || !(dt_s >= 0.0) {
+            return Err(ShieldViolation::NonFinite);
+        }
+        let scale = (1.0 + STEP_TOLERANCE) * dt_s;
+        for j in 0..DOF {
+            if (q_rad[j] - prev_q_rad[j]).abs() > self.limits.max_velocity_rad_s[j] * scale {
+                return Err(ShieldViolation::JointStep { joint: j as u8 });
             }
         }
-        Ok(d)
+        if dt_s > 0.0 && prev_q_rad != q_rad {
+            let a = self.model.watched_points_m(prev_q_rad);
+            let b = self.model.watched_points_m(q_rad);
+            for (k, (pa, pb)) in a.iter().zip(&b).enumerate() {
+                let dist =
+                    ((pa[0] - pb[0]).powi(2) + (pa[1] - pb[1]).powi(2) + (pa[2] - pb[2]).powi(2))
+                        .sqrt();
+                let speed_m_s = dist / dt_s;
+                if speed_m_s > self.limits.max_tcp_speed_m_s {
+                    return Err(if k == WATCHED_POINTS - 1 {
+                        ShieldViolation::TcpSpeed { speed_m_s }
+                    } else {
+                        ShieldViolation::LinkSpeed {
+                            point: k as u8,
+                            speed_m_s,
+                        }
+                    });
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Checks a sequence of samples `qs` spaced `dt_s` apart, starting after `prev`. Returns
@@ -224,6 +299,31 @@ mod tests {
     }
 
     #[test]
+    fn a_step_of_one_period_at_the_velocity_limit_passes_and_a_larger_one_does_not() {
+        let mut s = shield();
+        let empty = ToyScene::empty();
+        let dt = 0.004;
+        let v = s.limits().max_velocity_rad_s;
+        let mut ok = HOME;
+        ok[1] += v[1] * dt;
+        assert!(s.check_step(&HOME, &ok, dt, &empty).is_ok());
+        let mut jump = HOME;
+        jump[1] += v[1] * dt * (1.0 + STEP_TOLERANCE) * 1.01;
+        assert_eq!(
+            s.check_step(&HOME, &jump, dt, &empty),
+            Err(ShieldViolation::JointStep { joint: 1 })
+        );
+        // A hold passes; a non-finite previous command does not.
+        assert!(s.check_step(&HOME, &HOME, dt, &empty).is_ok());
+        let mut bad = HOME;
+        bad[0] = f64::NAN;
+        assert_eq!(
+            s.check_step(&bad, &HOME, dt, &empty),
+            Err(ShieldViolation::NonFinite)
+        );
+    }
+
+    #[test]
     fn each_kind_of_violation_is_detected() {
         let mut s = shield();
         let empty = ToyScene::empty();
@@ -247,7 +347,20 @@ mod tests {
         fast[0] += 0.2;
         assert!(matches!(
             s.check_step(&HOME, &fast, 0.004, &empty),
-            Err(ShieldViolation::TcpSpeed { .. })
+            Err(ShieldViolation::JointStep { joint: 0 })
+        ));
+        // Within the step limit per joint but too fast at the TCP: a far-reaching pose
+        // whose joints all move at once.
+        let mut slow_joints = HOME;
+        let mut limits = *s.limits();
+        limits.max_tcp_speed_m_s = 0.1;
+        let mut tight = Shield::new(ToyArm, limits);
+        for q in &mut slow_joints {
+            *q += 0.9 * limits.max_velocity_rad_s[0].min(1.0) * 0.004;
+        }
+        assert!(matches!(
+            tight.check_step(&HOME, &slow_joints, 0.004, &empty),
+            Err(ShieldViolation::TcpSpeed { .. } | ShieldViolation::LinkSpeed { .. })
         ));
         let below_table = [0.0, 2.0, 0.15, 0.5, 0.0];
         assert_eq!(

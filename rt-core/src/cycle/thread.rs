@@ -1,6 +1,8 @@
 //! The cycle thread itself: applies the real-time set-up on the thread that will run the
-//! cycle (pinning, SCHED_FIFO, locked memory), counts every allocation made on it, and runs
-//! [`run_loop`] until asked to stop. `rt-core run` and `rt-core bench-loop` both start their
+//! cycle (pinning, SCHED_FIFO, locked memory), counts every allocation made on it, runs
+//! [`run_loop`] until asked to stop (or, after a shutdown request, until the arm is at
+//! rest), and then — also after a panic in the loop — puts the controller in its stop
+//! state. `rt-core run` and `rt-core bench-loop` both start their
 //! cycle this way, so the figures of the bench are those of the real runtime.
 
 use std::sync::Arc;
@@ -49,9 +51,20 @@ where
             let mut stats = LoopStats::default();
             alloc_count::count_this_thread(true);
             let before = alloc_count::counted();
-            run_loop(&mut cycle, &clock, &stop, &shared, &mut stats);
+            // A panic inside the loop is caught here: the controller is still put in its
+            // stop state (SET_STATE 4 on an xArm) before the thread ends.
+            let looped = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                run_loop(&mut cycle, &clock, &stop, &shared, &mut stats);
+            }));
             let allocations = alloc_count::counted() - before;
             alloc_count::count_this_thread(false);
+            cycle.link_mut().stop_controller(clock.now_ns());
+            shared
+                .finished
+                .store(true, std::sync::atomic::Ordering::Release);
+            if let Err(panic) = looped {
+                std::panic::resume_unwind(panic);
+            }
             CycleThreadResult {
                 stats,
                 rt,

@@ -4,7 +4,7 @@
 //! [`ToyLookahead`] with [`ToyPolicy`] (a policy that is a small random MLP evaluated on the
 //! joint error, rolled out for a whole episode).
 
-use crate::cycle::shield::ShieldModel;
+use crate::cycle::shield::{ShieldModel, WATCHED_POINTS};
 use crate::twin_thread::worker::{Lookahead, Verdict};
 use twin::{DOF, Joints};
 
@@ -92,8 +92,9 @@ fn box_distance(p: &[f64; 3], c: &[f64; 3], h: &[f64; 3]) -> f64 {
 impl ShieldModel for ToyArm {
     type Scene = ToyScene;
 
-    fn tcp_position_m(&mut self, q_rad: &Joints) -> [f64; 3] {
-        Self::points_m(q_rad)[4]
+    fn watched_points_m(&mut self, q_rad: &Joints) -> [[f64; 3]; WATCHED_POINTS] {
+        let p = Self::points_m(q_rad);
+        [p[2], p[3], p[4]]
     }
 
     fn min_distance_m(&mut self, q_rad: &Joints, scene: &ToyScene) -> f64 {

@@ -174,6 +174,10 @@ impl TwinNode {
 
     /// Loads a start policy from a file; like any policy, it must pass the lookahead.
     ///
+    /// The file is read straight into a private blob, at most its size + 1 bytes
+    /// ([`policy::read_policy_file`]): a file of another length (`--policy /dev/zero`
+    /// included) is refused at once, naming the file and both sizes.
+    ///
     /// # Errors
     /// [`TwinNodeError::PolicyRead`], [`TwinNodeError::PolicyInvalid`],
     /// [`TwinNodeError::PolicyRejected`].
@@ -184,12 +188,13 @@ impl TwinNode {
         events: &mut Vec<TwinEvent<Scene>>,
     ) -> Result<(), TwinNodeError> {
         let shown = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|cause| TwinNodeError::PolicyRead {
+        let blob = policy::read_policy_file(path).map_err(|e| TwinNodeError::PolicyRead {
             path: shown.clone(),
-            cause,
+            cause: e.into(),
         })?;
-        let blob =
-            PolicyBlob::from_bytes(&bytes).map_err(|cause| TwinNodeError::PolicyInvalid {
+        // The field-level reason for the operator; the loader checks again and counts.
+        blob.validate()
+            .map_err(|cause| TwinNodeError::PolicyInvalid {
                 path: shown.clone(),
                 cause,
             })?;
@@ -232,8 +237,13 @@ impl TwinNode {
             twin.on_detection(scene, now_ns.saturating_sub(age_ns), events);
         }
         while let Some(sample) = self.pol_sub.receive().map_err(recv_err("policies"))? {
-            let blob: &PolicyBlob = sample.payload();
-            match self.loader.prepare(blob) {
+            // Copied into private memory before anything is checked: the publisher's process
+            // can still write the shared sample, and a value changed between its check and
+            // its use (e.g. a clip bound) would bypass validation. The loader only takes
+            // the copy (`&Box<PolicyBlob>`).
+            let blob = sample.payload().to_boxed();
+            drop(sample);
+            match self.loader.prepare(&blob) {
                 Ok(p) => {
                     tracing::info!(
                         policy_id = p.policy_id(),
@@ -244,6 +254,7 @@ impl TwinNode {
                 Err(reason) => tracing::warn!(
                     policy_id = blob.policy_id,
                     ?reason,
+                    detail = ?blob.validate().err(),
                     rejected_total = self.loader.counters().total_rejected(),
                     "policy blob rejected; the running policy stays"
                 ),
@@ -413,6 +424,9 @@ fn fill_robot_state(st: &mut RobotState, r: &CycleReport, shared: &LoopShared, f
     st.last_compute_us = shared.last_compute_ns.load(Ordering::Relaxed) as f32 / 1000.0;
     st.controlled_stop = u8::from(matches!(r.mode, Mode::Stopping | Mode::Stopped));
     st.stop_reason = stop_code(r.stop_reason) as u8;
+    st.arm_mode = r.arm_mode;
+    st.arm_state = r.arm_state;
+    st.arm_error_code = u8::try_from(r.arm_error_code).unwrap_or(u8::MAX);
     st.link_ok = u8::from(r.stop_reason != StopReason::LinkLost || r.mode == Mode::Following);
 }
 
@@ -463,6 +477,8 @@ pub fn stop_code(reason: StopReason) -> shm_schemas::StopReason {
         StopReason::StaleDetection => S::StaleDetections,
         StopReason::StaleRobotState => S::StaleRobotState,
         StopReason::LinkLost => S::LinkLost,
+        StopReason::ArmError(_) => S::ArmError,
+        StopReason::Shutdown => S::Requested,
     }
 }
 

@@ -1,7 +1,15 @@
 //! `rt-core run` as a library function: [`serve`] builds the cycle and the twin worker
 //! around a robot link, starts the cycle thread, and runs the twin thread's loop (iceoryx2
-//! in, the worker, iceoryx2 out) on the calling thread until a signal, the time limit or an
-//! error; then it stops the cycle thread and returns the run's figures.
+//! in, the worker, iceoryx2 out) on the calling thread until a signal, the time limit, an
+//! error or a panic; then it returns the run's figures.
+//!
+//! Every way out is a controlled stop: SIGINT, SIGTERM and `--seconds` request a shutdown;
+//! an error or a panic of the twin loop, and the watchdog (a stalled or dead cycle thread),
+//! end the loop with an error, which requests the same shutdown. The cycle then stops the
+//! arm along its plan (or brakes), reports it at rest, and puts the controller in its stop
+//! state (`SET_STATE 4`) before its thread ends; `serve` waits for that up to
+//! [`SHUTDOWN_TIMEOUT`] and returns the error, if any (the binary then exits non-zero).
+//! SIGUSR1 is the operator's acknowledgement of a protective stop.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -28,6 +36,24 @@ use crate::twin_thread::{TwinEvent, TwinWorker};
 /// How the twin thread polls between events.
 const POLL_PERIOD: Duration = Duration::from_micros(100);
 
+/// The longest wait for the cycle's controlled stop at shutdown (a stop from full speed
+/// takes well under a second); after it the cycle thread is told to end at once.
+pub const SHUTDOWN_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// The cycle thread must beat at least this often once running, or the watchdog ends the
+/// twin loop (and planning) with [`ServeError::CycleStalled`].
+const WATCHDOG_TIMEOUT: Duration = Duration::from_millis(250);
+
+/// A fault injected on purpose (tests of the exit paths; hidden `--inject-fault` flag).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum InjectedFault {
+    /// The twin loop panics once a plan has been followed for `after_ms`.
+    TwinPanic {
+        /// Time following a plan before the panic, ms.
+        after_ms: u64,
+    },
+}
+
 /// What `rt-core run` was asked to do besides the configuration.
 #[derive(Debug, Clone, Default)]
 pub struct ServeOptions {
@@ -35,7 +61,9 @@ pub struct ServeOptions {
     pub prefix: String,
     /// Stop after this many seconds (0 = until SIGINT/SIGTERM).
     pub seconds: f64,
-    /// Blind run: no lookahead gate, no clearance check.
+    /// Blind run: no lookahead gate, and the shield's clearance leaves the obstacle boxes
+    /// out (the table and every limit still hold). `rt-core run` allows it only on a
+    /// loopback robot address (`cycle::xarm_link::check_blind_mode_target`).
     pub no_lookahead: bool,
     /// Dry run (the link withholds every command); a command log is written.
     pub dry_run: bool,
@@ -45,6 +73,11 @@ pub struct ServeOptions {
     pub policy: Option<PathBuf>,
     /// Real-time set-up of the cycle thread.
     pub rt: RtRequest,
+    /// Take fresh plans after a lost link returns without an operator's acknowledgement
+    /// (simulated arms only).
+    pub auto_resume: bool,
+    /// A fault to inject (tests only).
+    pub inject: Option<InjectedFault>,
 }
 
 /// The figures of a finished run.
@@ -60,6 +93,10 @@ pub struct ServeSummary {
     pub detection_to_twin: Summary,
     /// Command lines logged.
     pub commands_logged: u64,
+    /// Commands that failed the one check (not sent as picked).
+    pub commands_refused: u64,
+    /// Stops with an obstacle already inside the stop envelope (the unavoidable case).
+    pub envelope_breaches: u64,
 }
 
 impl ServeSummary {
@@ -99,6 +136,8 @@ impl ServeSummary {
             "dry_run": opts.dry_run,
             "lookahead_gate": !opts.no_lookahead,
             "commands_logged": self.commands_logged,
+            "commands_refused": self.commands_refused,
+            "envelope_breaches": self.envelope_breaches,
         })
     }
 }
@@ -127,9 +166,18 @@ pub enum ServeError {
     /// A thread could not be spawned.
     #[error("spawning a thread: {0}")]
     Spawn(std::io::Error),
-    /// The cycle thread panicked.
+    /// The cycle thread panicked (the controller was put in its stop state).
     #[error("the cycle thread panicked")]
     CyclePanicked,
+    /// The twin loop panicked (the arm was stopped first).
+    #[error("the twin thread panicked: {0}")]
+    TwinPanicked(String),
+    /// The watchdog saw the cycle thread stall or end.
+    #[error("watchdog: the cycle thread {0}; planning stopped")]
+    CycleStalled(&'static str),
+    /// The cycle did not reach rest within the shutdown timeout.
+    #[error("the cycle did not stop the arm within {0:?}")]
+    ShutdownTimeout(Duration),
     /// An iceoryx2 operation failed.
     #[error(transparent)]
     Node(#[from] TwinNodeError),
@@ -155,12 +203,11 @@ pub fn serve<L: RobotLink + 'static>(
             shield_m: cfg.shield.min_distance_m,
         });
     }
-    let mut limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
     if opts.no_lookahead {
         tracing::warn!(
-            "--no-lookahead: plans run whatever the lookahead says, and the shield's clearance check is off"
+            "--no-lookahead: plans run whatever the lookahead says, and the shield leaves the \
+             obstacle boxes out of its clearance (the table and every limit still hold)"
         );
-        limits.min_distance_m = f64::NEG_INFINITY;
     }
     let task_hash = task.hash();
     let table_height_m = task.sampling.table_height_m;
@@ -168,11 +215,18 @@ pub fn serve<L: RobotLink + 'static>(
     lookahead.blind = opts.no_lookahead;
     let (twin_io, cycle_io, log_drain) = cycle::wire::<Scene>();
     let clock = MonotonicClock::new();
-    let cyc = start_cycle(cfg, &model, limits, link, cycle_io, &clock)?;
+    let cyc = start_cycle(
+        cfg,
+        opts,
+        run_shield(cfg, &model, opts.no_lookahead),
+        link,
+        cycle_io,
+        &clock,
+    )?;
     let mut twin = TwinWorker::new(
         cfg,
         lookahead,
-        Shield::new(TwinModel::new(model.clone()), limits),
+        run_shield(cfg, &model, opts.no_lookahead),
         twin_io,
     );
     if opts.no_lookahead {
@@ -185,10 +239,16 @@ pub fn serve<L: RobotLink + 'static>(
         ))?),
         (None, false) => None,
     };
+    // `stop` ends the cycle thread at once (after a controlled stop, or when it timed out);
+    // a shutdown (signals, time limit, errors) goes through the cycle's controlled stop.
     let stop = Arc::new(AtomicBool::new(false));
+    let control = cyc.control().clone();
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(sig, stop.clone()).map_err(ServeError::Signals)?;
+        signal_hook::flag::register(sig, control.shutdown_flag()).map_err(ServeError::Signals)?;
     }
+    let ack = Arc::new(AtomicBool::new(false));
+    signal_hook::flag::register(signal_hook::consts::SIGUSR1, ack.clone())
+        .map_err(ServeError::Signals)?;
     let shared = Arc::new(LoopShared::default());
     let log_thread = log_drain
         .spawn(Duration::from_millis(20), stop.clone())
@@ -203,33 +263,95 @@ pub fn serve<L: RobotLink + 'static>(
     let cycle_thread = spawn_cycle_thread(cyc, clock, opts.rt, stop.clone(), shared.clone())
         .map_err(ServeError::Spawn)?;
     let mut fk = TwinModel::new(model);
-    let looped = twin_loop(
-        opts,
-        cfg,
-        clock,
-        &mut node,
-        &mut twin,
-        &mut command_log,
-        &mut fk,
-        &shared,
-        &stop,
-        &mut events,
-    );
+    let looped = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        twin_loop(
+            opts,
+            cfg,
+            clock,
+            &mut node,
+            &mut twin,
+            &mut command_log,
+            &mut fk,
+            &shared,
+            &ack,
+            &mut events,
+        )
+    }))
+    .unwrap_or_else(|panic| {
+        let msg = panic
+            .downcast_ref::<&str>()
+            .map(|s| (*s).to_string())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        Err(ServeError::TwinPanicked(msg))
+    });
+    // Whatever ended the loop, the arm stops under control before anything else.
+    control.request_shutdown();
+    if let Err(e) = &looped {
+        tracing::error!(error = %e, "stopping the arm under control before exiting");
+    }
+    let deadline = Instant::now() + SHUTDOWN_TIMEOUT;
+    while !cycle_thread.is_finished() && Instant::now() < deadline {
+        twin.step(&mut events);
+        events.clear();
+        let _ = node.publish_state(twin.last_report(), &shared, &mut fk, clock.now_ns());
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let timed_out = !cycle_thread.is_finished();
     stop.store(true, Ordering::Release);
+    if timed_out {
+        // A stalled cycle thread: give it a moment to see `stop`, then leave without it
+        // (the process exit ends it; the controller stops streaming).
+        let grace = Instant::now() + Duration::from_secs(1);
+        while !cycle_thread.is_finished() && Instant::now() < grace {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        if !cycle_thread.is_finished() {
+            let _ = log_thread.join();
+            return Err(looped
+                .err()
+                .unwrap_or(ServeError::ShutdownTimeout(SHUTDOWN_TIMEOUT)));
+        }
+    }
     let commands_logged = match command_log.take() {
-        Some(log) => log.finish()?,
-        None => 0,
+        Some(log) => log.finish(),
+        None => Ok(0),
     };
-    let done = cycle_thread.join().map_err(|_| ServeError::CyclePanicked)?;
+    let done = cycle_thread.join().map_err(|_| ServeError::CyclePanicked);
     let _ = log_thread.join();
     looped?;
+    let done = done?;
+    if timed_out {
+        return Err(ServeError::ShutdownTimeout(SHUTDOWN_TIMEOUT));
+    }
+    let r = done.cycle.report();
+    tracing::info!(
+        stops = r.stops,
+        commands_refused = r.commands_refused,
+        envelope_breaches = r.envelope_breaches,
+        arm_error_code = r.arm_error_code,
+        "the arm is at rest; controller stop state requested"
+    );
     Ok(ServeSummary {
         cycle: done.stats.summary(),
         rt: done.rt,
         allocations_in_cycle: done.allocations,
         detection_to_twin: node.detection_age(),
-        commands_logged,
+        commands_logged: commands_logged?,
+        commands_refused: r.commands_refused,
+        envelope_breaches: r.envelope_breaches,
     })
+}
+
+/// The shield `rt-core run` gives the cycle and the twin worker alike: the configured limits
+/// over the twin's model. `blind` (`--no-lookahead`) leaves the obstacle boxes out of the
+/// clearance ([`TwinModel::with_boxes_ignored`]); the table clearance, the joint, workspace
+/// and speed limits still hold.
+pub fn run_shield(cfg: &RuntimeConfig, model: &RobotModel, blind: bool) -> Shield<TwinModel> {
+    Shield::new(
+        TwinModel::new(model.clone()).with_boxes_ignored(blind),
+        ShieldLimits::from_config(&cfg.limits, &cfg.shield),
+    )
 }
 
 /// [`serve`] on `link`, wrapped in a [`DryRunLink`] that withholds every command when
@@ -255,19 +377,15 @@ pub fn serve_on<L: RobotLink + 'static>(
 /// cycles to arrive).
 fn start_cycle<L: RobotLink>(
     cfg: &RuntimeConfig,
-    model: &RobotModel,
-    limits: ShieldLimits,
+    opts: &ServeOptions,
+    shield: Shield<TwinModel>,
     link: L,
     cycle_io: cycle::CycleIo<Scene>,
     clock: &MonotonicClock,
 ) -> Result<Cycle<TwinModel, L>, ServeError> {
-    let mut cyc = Cycle::new(
-        CycleConfig::from_runtime(cfg),
-        Shield::new(TwinModel::new(model.clone()), limits),
-        Brake::new(&cfg.limits),
-        link,
-        cycle_io,
-    );
+    let mut cycle_cfg = CycleConfig::from_runtime(cfg);
+    cycle_cfg.auto_resume_after_link_loss = opts.auto_resume;
+    let mut cyc = Cycle::new(cycle_cfg, shield, Brake::new(&cfg.limits), link, cycle_io);
     let mut started = cyc.start(clock.now_ns());
     for _ in 0..200 {
         if started.is_ok() {
@@ -280,8 +398,8 @@ fn start_cycle<L: RobotLink>(
     Ok(cyc)
 }
 
-/// The twin thread's loop: receive, step the worker, publish, log, until `stop` or the
-/// time limit.
+/// The twin thread's loop: receive, step the worker, publish, log, until a shutdown is
+/// requested or the time limit; an error or the watchdog ends it with an error.
 #[allow(clippy::too_many_arguments)]
 fn twin_loop(
     opts: &ServeOptions,
@@ -292,16 +410,36 @@ fn twin_loop(
     command_log: &mut Option<CommandLog>,
     fk: &mut TwinModel,
     shared: &LoopShared,
-    stop: &AtomicBool,
+    ack: &AtomicBool,
     events: &mut Vec<TwinEvent<Scene>>,
 ) -> Result<(), ServeError> {
     // The twin thread polls its subscribers every 100 µs; a 1 ns timer slack keeps the
     // sleeps close to that.
     let _ = rt_setup::set_timer_slack_ns(1);
     let t0 = Instant::now();
-    while !stop.load(Ordering::Acquire) {
+    let control = twin.control().clone();
+    let mut beat = (shared.heartbeat.load(Ordering::Acquire), Instant::now());
+    let mut following_since: Option<Instant> = None;
+    while !control.shutdown_requested() {
         if opts.seconds > 0.0 && t0.elapsed().as_secs_f64() >= opts.seconds {
+            tracing::info!(seconds = opts.seconds, "time limit: stopping the arm");
             break;
+        }
+        // Watchdog: a cycle thread that has ended or stopped beating.
+        if shared.finished.load(Ordering::Acquire) {
+            return Err(ServeError::CycleStalled("has ended"));
+        }
+        let now_beat = shared.heartbeat.load(Ordering::Acquire);
+        if now_beat != beat.0 {
+            beat = (now_beat, Instant::now());
+        } else if now_beat > 0 && beat.1.elapsed() > WATCHDOG_TIMEOUT {
+            return Err(ServeError::CycleStalled("stopped beating"));
+        }
+        if ack.swap(false, Ordering::AcqRel) {
+            tracing::warn!(
+                "operator acknowledgement (SIGUSR1): clearing the controller's error and re-enabling motion"
+            );
+            control.acknowledge();
         }
         node.receive(twin, clock.now_ns(), events)?;
         twin.step(events);
@@ -311,6 +449,18 @@ fn twin_loop(
             log.record(r)?;
         }
         node.publish_state(twin.last_report(), shared, fk, now)?;
+        if let Some(InjectedFault::TwinPanic { after_ms }) = opts.inject {
+            let following = twin
+                .last_report()
+                .is_some_and(|r| r.mode == cycle::Mode::Following);
+            match (following, following_since) {
+                (true, None) => following_since = Some(Instant::now()),
+                (true, Some(t)) if t.elapsed() >= Duration::from_millis(after_ms) => {
+                    panic!("injected fault: twin-thread panic {after_ms} ms into a plan")
+                }
+                _ => {}
+            }
+        }
         std::thread::sleep(POLL_PERIOD);
     }
     Ok(())

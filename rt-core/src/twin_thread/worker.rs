@@ -147,6 +147,10 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     scene: Option<L::Scene>,
     report: Option<CycleReport>,
     sent: Option<Plan>,
+    /// The scene `sent` was approved in.
+    scene_of_sent: Option<L::Scene>,
+    /// The plan `sent` joins (still running until the join point), if `sent` is a join.
+    joined: Option<Plan>,
     next_plan_id: u64,
     next_request_id: u64,
     want_plan: bool,
@@ -202,6 +206,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             scene: None,
             report: None,
             sent: None,
+            joined: None,
+            scene_of_sent: None,
             next_plan_id: 1,
             next_request_id: 1,
             want_plan: true,
@@ -269,31 +275,98 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         &mut self.la
     }
 
+    /// The control flags shared with the cycle (shutdown, acknowledgement, revocation).
+    pub fn control(&self) -> &std::sync::Arc<crate::cycle::CycleControl> {
+        &self.io.control
+    }
+
+    /// Re-verifies, against the scene now in force, the plan the cycle is following — from
+    /// the sample the cycle will send next (its own progress word, not the last report) —
+    /// and the plan scheduled to join it, if any. A failure revokes both.
     fn reverify_running(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
-        let (Some(r), Some(sent), Some(scene)) = (self.report, self.sent.as_ref(), self.scene)
-        else {
+        let Some(scene) = self.scene else {
             return;
         };
-        if r.mode != Mode::Following || r.plan_id != sent.id || r.next_index >= sent.len() {
+        let Some((running_id, next)) = self.io.control.progress() else {
+            return;
+        };
+        let (running, pending) = match (self.sent.as_ref(), self.joined.as_ref()) {
+            (Some(s), _) if s.id == running_id => (s, None),
+            (Some(s), Some(j)) if j.id == running_id => (j, Some(s)),
+            _ => return,
+        };
+        let mut first_bad: Option<(u64, usize)> = None;
+        if next < running.len() {
+            let prev = running.q_rad[next.saturating_sub(1)];
+            if let Err((i, _)) =
+                self.shield
+                    .check_path(&prev, &running.q_rad[next..], self.period_s, &scene)
+            {
+                first_bad = Some((running.id, next + i));
+            }
+        }
+        if first_bad.is_none()
+            && let Some(p) = pending
+            && let Some(j) = p.join
+            && j.index < running.len()
+            && let Err((i, _)) =
+                self.shield
+                    .check_path(&running.q_rad[j.index], &p.q_rad, self.period_s, &scene)
+        {
+            first_bad = Some((p.id, i));
+        }
+        if let Some((plan_id, at_index)) = first_bad {
+            let newest = pending.map_or(running.id, |p| p.id);
+            self.io.control.revoke_up_to(newest);
+            self.want_plan = true;
+            events.push(TwinEvent::Revoked { plan_id, at_index });
+        }
+    }
+
+    /// A lookahead run after a scene change found the policy's continuation unsafe while
+    /// a plan is under way: the running and any pending plan are revoked too (the cycle
+    /// stops along the checked path).
+    fn revoke_under_way(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
+        let Some((running_id, next)) = self.io.control.progress() else {
+            return;
+        };
+        let newest = self
+            .sent
+            .as_ref()
+            .map_or(running_id, |s| s.id.max(running_id));
+        if newest <= self.io.control.revoked_up_to() {
             return;
         }
-        let from = r.next_index.saturating_sub(1);
-        let prev = sent.q_rad[from];
-        let rest = &sent.q_rad[r.next_index..];
-        if let Err((i, _)) = self.shield.check_path(&prev, rest, self.period_s, &scene) {
-            self.io
-                .revoked_plan_id
-                .store(sent.id, std::sync::atomic::Ordering::Release);
-            events.push(TwinEvent::Revoked {
-                plan_id: sent.id,
-                at_index: r.next_index + i,
-            });
-        }
+        self.io.control.revoke_up_to(newest);
+        events.push(TwinEvent::Revoked {
+            plan_id: running_id,
+            at_index: next,
+        });
     }
 
     /// One iteration at `now_ns` (the cycle's clock): takes reports, frees returned plans,
     /// and plans when due. Events are appended to `events`.
     pub fn step(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
+        self.take_reports();
+        if self.return_home_due(events) {
+            return;
+        }
+        if !self.want_plan {
+            return;
+        }
+        let (Some(r), Some(scene)) = (self.report, self.scene) else {
+            return;
+        };
+        if r.t_ns < self.no_plan_before_ns || r.awaiting_ack || self.io.control.shutdown_requested()
+        {
+            return;
+        }
+        let _ = scene;
+        self.plan_due(events);
+    }
+
+    /// Takes the cycle's newest report and frees returned plans (no planning).
+    pub fn take_reports(&mut self) {
         self.io.plans.collect_returned();
         if let Some(r) = self.io.reports.latest() {
             if r.mode == Mode::Stopped && self.last_mode != Mode::Stopped {
@@ -309,18 +382,12 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             self.last_mode = r.mode;
             self.report = Some(r);
         }
-        if self.return_home_due(events) {
-            return;
-        }
-        if !self.want_plan {
-            return;
-        }
+    }
+
+    fn plan_due(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
         let (Some(r), Some(scene)) = (self.report, self.scene) else {
             return;
         };
-        if r.t_ns < self.no_plan_before_ns {
-            return;
-        }
         if self.policy.is_none() {
             return;
         }
@@ -506,10 +573,13 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// hand-over slot is full.
     fn send_plan(&mut self, plan: Plan) -> bool {
         let copy = plan.clone();
+        let joins = plan.join.is_some();
         if self.io.plans.send(Box::new(plan)).is_err() {
             return false;
         }
-        self.sent = Some(copy);
+        let previous = self.sent.replace(copy);
+        self.joined = if joins { previous } else { None };
+        self.scene_of_sent = self.scene;
         true
     }
 
@@ -533,6 +603,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             elapsed_s: t0.elapsed().as_secs_f64(),
         });
         if self.gate && !(verdict.task_ok && verdict.safe) {
+            if !verdict.safe && self.scene_of_sent.is_some_and(|s| s != scene) {
+                self.revoke_under_way(events);
+            }
             if self.last_retrain != Some((verdict.policy_id, scene)) {
                 self.last_retrain = Some((verdict.policy_id, scene));
                 events.push(TwinEvent::Retrain {
@@ -556,6 +629,33 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                     smooth,
                     shield,
                 });
+                // The lookahead passed but the plan the arm would follow does not: publish
+                // the verdict as failed and ask for retraining (once per policy and scene),
+                // instead of waiting for a plan that will not come.
+                let failed = Verdict {
+                    safe: false,
+                    min_distance_m: match shield {
+                        Some((_, ShieldViolation::Clearance { distance_m })) => {
+                            distance_m.min(verdict.min_distance_m)
+                        }
+                        _ => verdict.min_distance_m,
+                    },
+                    ..verdict
+                };
+                events.push(TwinEvent::Verdict {
+                    verdict: failed,
+                    scene,
+                    elapsed_s: t0.elapsed().as_secs_f64(),
+                });
+                if self.gate && self.last_retrain != Some((verdict.policy_id, scene)) {
+                    self.last_retrain = Some((verdict.policy_id, scene));
+                    events.push(TwinEvent::Retrain {
+                        request_id: self.next_request_id,
+                        verdict: failed,
+                        scene,
+                    });
+                    self.next_request_id += 1;
+                }
                 return;
             }
         };

@@ -18,10 +18,12 @@ fn the_cycle_path_does_not_allocate() {
     let mut d = XArmDriver::connect(cfg(&s)).expect("connect");
     let q0 = d.start_servo_mode().expect("servo mode");
     let mut next = Instant::now();
+    let mut k = 0_u32;
     let mut run = |d: &mut XArmDriver, cycles: u32| {
-        for k in 0..cycles {
+        for _ in 0..cycles {
             next += Duration::from_millis(4);
             sleep_until(next);
+            k += 1;
             let mut q = q0;
             q[0] += 0.001 * f64::from(k);
             let _ = d.read_state(clock.ns());
@@ -44,6 +46,9 @@ fn a_hanging_reconnect_never_blocks_read_state() {
     let clock = Clock(Instant::now());
     let mut c = cfg(&a);
     c.reply_timeout = Duration::from_secs(3);
+    // A simulated controller: the helper re-enters servo mode after the reconnect (a real
+    // arm would wait for the operator's acknowledgement).
+    c.resume_after_reconnect = true;
     let mut d = driver(c);
     let q0 = d.start_servo_mode().expect("servo mode");
     d.send_servo(clock.ns(), &q0).expect("send");

@@ -271,8 +271,21 @@ fn when_the_link_returns_the_arm_is_held_where_it_is_and_a_fresh_plan_moves_it()
         "the first command after the link returns holds the arm"
     );
     assert!(r.cmd.dq_rad_s.iter().all(|v| *v == 0.0));
-    // A fresh policy's plan starts from there and reaches its target.
+    // Latched: a fresh policy's plan does not move the arm before the operator
+    // acknowledges the protective stop.
+    assert!(r.awaiting_ack, "a lost link latches the stop");
     rig.policy(2, TARGET_B);
+    rig.run(600);
+    assert!(
+        Rig::near(&rig.arm_q(), &arm_at, 1e-9),
+        "moved without an acknowledgement: {:?}",
+        rig.arm_q()
+    );
+    // The acknowledgement releases it; a fresh plan starts from there and reaches its target.
+    rig.cycle.control().acknowledge();
+    rig.run(1);
+    assert!(!rig.cycle.report().awaiting_ack);
+    rig.policy(3, TARGET_B);
     rig.run(1500);
     assert!(
         Rig::near(&rig.arm_q(), &TARGET_B, 0.03),

@@ -1,5 +1,5 @@
 //! Integration tests of the runtime: the cycle and the twin worker together on the toy rig
-//! (`cycle`), the shield on the real twin model (`shield_twin`) and the `rt-core twin` CLI
+//! (`cycle`), its safety paths (`safety`), the shield on the real twin model (`shield_twin`) and the `rt-core twin` CLI
 //! (`twin_cli`).
 
 #![allow(missing_docs, clippy::unwrap_used)]
@@ -11,5 +11,6 @@ mod twin_common;
 
 mod cycle;
 mod limits;
+mod safety;
 mod shield_twin;
 mod twin_cli;

@@ -1,7 +1,9 @@
 //! The simulated controller's state machine: answers every command register like the xArm
-//! control box, keeps state/mode/enable/error semantics, and integrates servo targets within
-//! the joint limits and the 180°/s joint speed. Pure logic (no sockets, no clock): the server
-//! feeds it frames and time, the world check feeds it contacts.
+//! control box, keeps state/mode/enable/error semantics, integrates servo targets within
+//! the joint limits and the 180°/s joint speed, and raises the protective faults the real
+//! controller raises in servo mode when a `servo_j` target would move the arm too fast
+//! (see [`ProtectiveLimits`]). Pure logic (no sockets, no clock): the server feeds it frames
+//! and time, the world check feeds it contacts.
 
 use std::f64::consts::PI;
 
@@ -13,12 +15,166 @@ use xarm::codes::{ControllerError, ControllerWarning};
 use xarm::limits::{LIMIT_SLACK_RAD, XARM5_JOINT_LIMITS_RAD};
 use xarm::report::{ArmReport, ReportKind};
 
+use twin::RobotModel;
+
 /// The joint speed limit the simulator enforces (rad/s): 180°/s.
 pub const MAX_JOINT_SPEED_RAD_S: f64 = PI;
 /// How long the state stays 1 (moving) after a servo command (s).
 pub const MOVING_HOLD_S: f64 = 0.1;
 /// Version string the simulator reports (an xArm5, firmware 2.6.0).
 pub const SIM_VERSION: &str = "5,5,XF1302,AC1302,v2.6.0";
+/// Default TCP speed limit of the servo-mode protective check (m/s).
+pub const MAX_TCP_SPEED_M_S: f64 = 1.0;
+/// Default servo period the protective check assumes between two `servo_j` targets (s):
+/// the 250 Hz stream the controller expects.
+pub const SERVO_PERIOD_S: f64 = 0.004;
+/// Default relative slack of the protective check (0.25 = 25 % above the limits).
+pub const FAULT_TOLERANCE: f64 = 0.25;
+
+/// The controller's protective check in servo mode (mode 1): every accepted `servo_j` target
+/// is executed within one servo period, so a target further from the commanded position than
+/// the speed limits allow in one period is refused with an error, like the real control box
+/// does. On by default.
+///
+/// A joint faults when `|target − commanded| > max_joint_speed_rad_s × servo_period_s ×
+/// (1 + tolerance)`; the TCP (forward kinematics of the robot model) faults when it would
+/// move more than `max_tcp_speed_m_s × servo_period_s × (1 + tolerance)`. With the defaults:
+/// 0.0157 rad and 5 mm per target.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct ProtectiveLimits {
+    /// Whether the check runs at all.
+    pub enabled: bool,
+    /// Joint speed limit (rad/s); default π (the xArm's 180°/s).
+    pub max_joint_speed_rad_s: f64,
+    /// TCP linear speed limit (m/s); default 1.0.
+    pub max_tcp_speed_m_s: f64,
+    /// The period one `servo_j` target is executed in (s); default 0.004.
+    pub servo_period_s: f64,
+    /// Relative slack above the limits (≥ 0); default 0.25.
+    pub tolerance: f64,
+}
+
+impl Default for ProtectiveLimits {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            max_joint_speed_rad_s: MAX_JOINT_SPEED_RAD_S,
+            max_tcp_speed_m_s: MAX_TCP_SPEED_M_S,
+            servo_period_s: SERVO_PERIOD_S,
+            tolerance: FAULT_TOLERANCE,
+        }
+    }
+}
+
+/// A [`ProtectiveLimits`] field that is out of range.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[error("protective limit {field} must be {expected}, got {value}")]
+pub struct ProtectiveLimitsError {
+    /// The field's name.
+    pub field: &'static str,
+    /// What it must be ("positive and finite", "finite and ≥ 0").
+    pub expected: &'static str,
+    /// The value given.
+    pub value: f64,
+}
+
+impl ProtectiveLimits {
+    /// The defaults with the check switched off.
+    pub fn off() -> Self {
+        Self {
+            enabled: false,
+            ..Self::default()
+        }
+    }
+
+    /// Largest joint step one target may make (rad).
+    pub fn max_joint_step_rad(&self) -> f64 {
+        self.max_joint_speed_rad_s * self.servo_period_s * (1.0 + self.tolerance)
+    }
+
+    /// Largest TCP step one target may make (m).
+    pub fn max_tcp_step_m(&self) -> f64 {
+        self.max_tcp_speed_m_s * self.servo_period_s * (1.0 + self.tolerance)
+    }
+
+    /// Checks that the speeds and the period are positive and finite and the tolerance is
+    /// finite and not negative (also when the check is off).
+    ///
+    /// # Errors
+    /// [`ProtectiveLimitsError`] naming the first bad field.
+    pub fn validate(&self) -> Result<(), ProtectiveLimitsError> {
+        let positive = [
+            ("max_joint_speed_rad_s", self.max_joint_speed_rad_s),
+            ("max_tcp_speed_m_s", self.max_tcp_speed_m_s),
+            ("servo_period_s", self.servo_period_s),
+        ];
+        for (field, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(ProtectiveLimitsError {
+                    field,
+                    expected: "positive and finite",
+                    value,
+                });
+            }
+        }
+        if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
+            return Err(ProtectiveLimitsError {
+                field: "tolerance",
+                expected: "finite and >= 0",
+                value: self.tolerance,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// A protective fault the controller raised on a `servo_j` target.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum ProtectiveFault {
+    /// A joint would have moved faster than the joint speed limit: error 24
+    /// ([`ControllerError::SpeedLimit`], the xArm's "speed exceeds limit", which the control
+    /// box raises for joint speed).
+    JointSpeed {
+        /// Joint index (0-based).
+        joint: usize,
+        /// The step the target asked for (rad).
+        step_rad: f64,
+        /// The largest step allowed (rad).
+        limit_rad: f64,
+    },
+    /// The TCP would have moved faster than the linear speed limit: error 60
+    /// ([`ControllerError::LinearSpeed`], "linear speed exceeds limit").
+    TcpSpeed {
+        /// The TCP step the target asked for (m).
+        step_m: f64,
+        /// The largest step allowed (m).
+        limit_m: f64,
+    },
+}
+
+impl ProtectiveFault {
+    /// The controller error code this fault raises.
+    pub fn code(&self) -> ControllerError {
+        match self {
+            Self::JointSpeed { .. } => ControllerError::SpeedLimit,
+            Self::TcpSpeed { .. } => ControllerError::LinearSpeed,
+        }
+    }
+}
+
+/// Figures about the `servo_j` stream as received on the wire, for tests: steps between
+/// consecutive `servo_j` frames this controller received (over every connection and state,
+/// accepted or not; non-finite targets are skipped; the first frame has no step).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct ServoStreamStats {
+    /// Largest per-joint step between consecutive targets (rad), max over joints and frames.
+    pub max_joint_step_rad: f64,
+    /// Largest TCP step between consecutive targets (m); 0 without a robot model.
+    pub max_tcp_step_m: f64,
+    /// The last protective fault raised, if any.
+    pub last_fault: Option<ProtectiveFault>,
+}
 
 /// Counters the simulator keeps for its summary.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
@@ -29,12 +185,22 @@ pub struct ControllerCounters {
     pub bad_frames: u64,
     /// Servo_j targets accepted.
     pub servo_accepted: u64,
-    /// Servo_j targets rejected (not ready, error, out of range).
+    /// Servo_j targets rejected (not ready, error, out of range, protective fault).
     pub servo_rejected: u64,
     /// Collisions raised.
     pub collisions: u64,
-    /// Emergency/explicit stops (`SET_STATE(4)`).
+    /// Emergency/explicit stops (`SET_STATE(4)` and `SET_STATE(6)`).
     pub stops: u64,
+    /// `SET_STATE(4)` requests received.
+    pub stop_requests: u64,
+    /// `CLEAN_ERR` requests received.
+    pub clean_error_requests: u64,
+    /// Protective faults raised (joint speed + TCP speed).
+    pub protective_faults: u64,
+    /// Joint speed faults (error 24).
+    pub joint_speed_faults: u64,
+    /// TCP speed faults (error 60).
+    pub tcp_speed_faults: u64,
 }
 
 /// The controller's state.
@@ -58,12 +224,44 @@ pub struct Controller {
     joint_acc: f32,
     tcp_jerk: f32,
     tcp_acc: f32,
+    limits: ProtectiveLimits,
+    model: Option<RobotModel>,
+    stream: ServoStreamStats,
+    last_wire_target: Option<([f64; 5], Option<[f64; 3]>)>,
 }
 
 impl Default for Controller {
     fn default() -> Self {
         Self::new([0.0; 5])
     }
+}
+
+fn joints_f64(t: &JointTarget) -> [f64; 5] {
+    let mut q = [0.0; 5];
+    for (dst, src) in q.iter_mut().zip(t.joints_rad) {
+        *dst = f64::from(src);
+    }
+    q
+}
+
+/// The joint with the largest |b − a| and that step (rad).
+fn max_joint_step(a: &[f64; 5], b: &[f64; 5]) -> (usize, f64) {
+    let mut best = (0, 0.0);
+    for (i, (x, y)) in a.iter().zip(b).enumerate() {
+        let d = (y - x).abs();
+        if d > best.1 {
+            best = (i, d);
+        }
+    }
+    best
+}
+
+fn distance_m(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (y - x) * (y - x))
+        .sum::<f64>()
+        .sqrt()
 }
 
 fn within_limits(q: &[f32; WIRE_JOINTS]) -> bool {
@@ -95,7 +293,33 @@ impl Controller {
             joint_acc: 20.0,
             tcp_jerk: 10_000.0,
             tcp_acc: 50_000.0,
+            limits: ProtectiveLimits::default(),
+            model: None,
+            stream: ServoStreamStats::default(),
+            last_wire_target: None,
         }
+    }
+
+    /// Gives the controller the robot model, for the TCP speed check and the TCP step figure.
+    /// Without one only the joint speed check runs.
+    pub fn set_model(&mut self, model: RobotModel) {
+        self.model = Some(model);
+    }
+
+    /// Replaces the protective limits. The caller validates them
+    /// ([`ProtectiveLimits::validate`]).
+    pub fn set_protective_limits(&mut self, limits: ProtectiveLimits) {
+        self.limits = limits;
+    }
+
+    /// The protective limits in force.
+    pub fn protective_limits(&self) -> ProtectiveLimits {
+        self.limits
+    }
+
+    /// Figures about the received `servo_j` stream.
+    pub fn servo_stream(&self) -> ServoStreamStats {
+        self.stream
     }
 
     /// Current state (1 moving, 2 ready, 3 paused, 4 stopped).
@@ -173,8 +397,12 @@ impl Controller {
     }
 
     /// Raises a controller error the way the arm does on a collision: error code set,
-    /// motion stopped, state 4.
+    /// motion stopped, state 4. Every later motion command is answered with the error bit
+    /// until `CLEAN_ERR`. [`ControllerError::None`] is ignored.
     pub fn raise_error(&mut self, code: ControllerError) {
+        if code == ControllerError::None {
+            return;
+        }
         self.error = u8::from(code);
         if code.is_collision() {
             self.counters.collisions += 1;
@@ -209,7 +437,78 @@ impl Controller {
         };
     }
 
+    fn tcp_m(&self, q: &[f64; 5]) -> Option<[f64; 3]> {
+        self.model.as_ref().map(|m| {
+            let p = m.tcp_m(q);
+            [p.x, p.y, p.z]
+        })
+    }
+
+    /// Records the step from the previous `servo_j` frame received to this one.
+    fn record_wire_target(&mut self, t: &JointTarget) {
+        if !t.joints_rad[..5].iter().all(|v| v.is_finite()) {
+            return;
+        }
+        let q = joints_f64(t);
+        let tcp = self.tcp_m(&q);
+        if let Some((prev_q, prev_tcp)) = self.last_wire_target {
+            let step = max_joint_step(&prev_q, &q).1;
+            self.stream.max_joint_step_rad = self.stream.max_joint_step_rad.max(step);
+            if let (Some(a), Some(b)) = (prev_tcp, tcp) {
+                self.stream.max_tcp_step_m = self.stream.max_tcp_step_m.max(distance_m(&a, &b));
+            }
+        }
+        self.last_wire_target = Some((q, tcp));
+    }
+
+    /// The servo-mode protective check of `target` against the commanded position.
+    ///
+    /// The reference is `target_rad`, the position the arm was last commanded to, not the
+    /// integrated `q_rad`: the real controller executes each `servo_j` target within one
+    /// servo period, so what it limits is the step between consecutive set-points; `q_rad`
+    /// trails the set-point by up to one physics tick and would fault a compliant stream on
+    /// scheduling jitter. After any stop, mode change, enable or `SET_STATE(0)` the
+    /// commanded position is reset to the actual joints (`hold`), so the first target after
+    /// a (re)connect is compared with where the arm stands, and a jump faults.
+    fn protective_check(&self, target: &[f64; 5]) -> Option<ProtectiveFault> {
+        if !self.limits.enabled {
+            return None;
+        }
+        let limit_rad = self.limits.max_joint_step_rad();
+        let (joint, step_rad) = max_joint_step(&self.target_rad, target);
+        if step_rad > limit_rad {
+            return Some(ProtectiveFault::JointSpeed {
+                joint,
+                step_rad,
+                limit_rad,
+            });
+        }
+        if let (Some(a), Some(b)) = (self.tcp_m(&self.target_rad), self.tcp_m(target)) {
+            let step_m = distance_m(&a, &b);
+            let limit_m = self.limits.max_tcp_step_m();
+            if step_m > limit_m {
+                return Some(ProtectiveFault::TcpSpeed { step_m, limit_m });
+            }
+        }
+        None
+    }
+
+    /// Raises a protective fault: the target is not executed, the error is set and the arm
+    /// stops (state 4), like any other controller error.
+    fn protective_fault(&mut self, fault: ProtectiveFault) {
+        self.counters.protective_faults += 1;
+        match fault {
+            ProtectiveFault::JointSpeed { .. } => self.counters.joint_speed_faults += 1,
+            ProtectiveFault::TcpSpeed { .. } => self.counters.tcp_speed_faults += 1,
+        }
+        self.stream.last_fault = Some(fault);
+        self.raise_error(fault.code());
+    }
+
     fn servo(&mut self, t: &JointTarget, speed_limited: bool) -> bool {
+        if !speed_limited {
+            self.record_wire_target(t);
+        }
         if !self.can_move() || self.mode != 1 && !speed_limited {
             self.counters.servo_rejected += 1;
             return false;
@@ -219,9 +518,13 @@ impl Controller {
             self.counters.servo_rejected += 1;
             return false;
         }
-        for (dst, src) in self.target_rad.iter_mut().zip(t.joints_rad) {
-            *dst = f64::from(src);
+        let target = joints_f64(t);
+        if !speed_limited && let Some(fault) = self.protective_check(&target) {
+            self.counters.servo_rejected += 1;
+            self.protective_fault(fault);
+            return false;
         }
+        self.target_rad = target;
         self.speed_limit_rad_s =
             if speed_limited && t.speed_rad_s.is_finite() && t.speed_rad_s > 0.0 {
                 f64::from(t.speed_rad_s).min(MAX_JOINT_SPEED_RAD_S)
@@ -330,6 +633,7 @@ impl Controller {
                 n = 2;
             }
             Request::CleanError => {
+                self.counters.clean_error_requests += 1;
                 if self.error != 0 {
                     self.error = 0;
                     self.system_reset();
@@ -393,6 +697,9 @@ impl Controller {
                 }
             }
             4 | 6 => {
+                if s == 4 {
+                    self.counters.stop_requests += 1;
+                }
                 self.counters.stops += 1;
                 self.system_reset();
             }
@@ -447,8 +754,14 @@ mod tests {
     /// SDK does before streaming servo_j.
     fn servo_ready() -> Controller {
         let mut c = Controller::default();
+        enable_servo(&mut c);
+        c
+    }
+
+    /// Enable, mode 1, state 0 (transactions 1–3).
+    fn enable_servo(c: &mut Controller) {
         ask(
-            &mut c,
+            c,
             Request::MotionEnable {
                 servo_id: 8,
                 enable: true,
@@ -456,15 +769,14 @@ mod tests {
             1,
         );
         ask(
-            &mut c,
+            c,
             Request::SetMode {
                 mode: 1,
                 detection: Some(0),
             },
             2,
         );
-        ask(&mut c, Request::SetState(0), 3);
-        c
+        ask(c, Request::SetState(0), 3);
     }
 
     fn ask(c: &mut Controller, req: Request, tid: u16) -> (u8, Vec<u8>) {
@@ -480,6 +792,9 @@ mod tests {
     #[test]
     fn servo_j_is_refused_until_enabled_mode_1_and_state_0() {
         let mut c = Controller::default();
+        // A far target, to see the 180°/s integration: without the protective check, which
+        // would fault a 0.1 rad step (tested below).
+        c.set_protective_limits(ProtectiveLimits::off());
         let target = Request::ServoJ(JointTarget::xarm5(&[0.1, 0.0, 0.0, 0.0, 0.0]));
         let (s, _) = ask(&mut c, target, 1);
         assert_ne!(s & STATUS_NOT_READY, 0);
@@ -523,10 +838,10 @@ mod tests {
         let mut c = servo_ready();
         ask(
             &mut c,
-            Request::ServoJ(JointTarget::xarm5(&[1.0, 0.0, 0.0, 0.0, 0.0])),
+            Request::ServoJ(JointTarget::xarm5(&[0.01, 0.0, 0.0, 0.0, 0.0])),
             4,
         );
-        c.step(0.05);
+        c.step(0.002);
         c.raise_error(ControllerError::Collision);
         let q = c.q_rad();
         c.step(0.2);
@@ -570,5 +885,326 @@ mod tests {
             "heartbeat"
         );
         assert!(c.handle(&[0, 9, 0, 3, 0, 3, 0x0b, 8], &mut out).is_err());
+    }
+    // ---- protective faults -------------------------------------------------------------
+
+    fn model() -> RobotModel {
+        RobotModel::load(
+            &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/xarm5.urdf"),
+        )
+        .unwrap()
+    }
+
+    /// A controller with the robot model, the arm at home, in servo mode and state 2.
+    fn servo_ready_at_home() -> (Controller, [f64; 5]) {
+        let m = model();
+        let q0 = m.home();
+        let mut c = Controller::new(q0);
+        c.set_model(m);
+        enable_servo(&mut c);
+        assert_eq!((c.state(), c.mode()), (2, 1));
+        (c, q0)
+    }
+
+    fn servo_j(c: &mut Controller, q: &[f64; 5], tid: u16) -> u8 {
+        ask(c, Request::ServoJ(JointTarget::xarm5(q)), tid).0
+    }
+
+    fn tcp_distance_m(m: &RobotModel, a: &[f64; 5], b: &[f64; 5]) -> f64 {
+        (m.tcp_m(a) - m.tcp_m(b)).norm()
+    }
+
+    #[test]
+    fn default_limits_are_the_xarm_figures() {
+        let l = ProtectiveLimits::default();
+        assert!(l.enabled);
+        assert_eq!(l.max_joint_speed_rad_s, PI);
+        assert_eq!(l.max_tcp_speed_m_s, 1.0);
+        assert_eq!(l.servo_period_s, 0.004);
+        assert_eq!(l.tolerance, 0.25);
+        assert!((l.max_joint_step_rad() - PI * 0.005).abs() < 1e-12);
+        assert!((l.max_tcp_step_m() - 0.005).abs() < 1e-12);
+        assert_eq!(Controller::default().protective_limits(), l);
+    }
+
+    #[test]
+    fn a_slow_target_stream_passes_with_no_fault() {
+        let (mut c, q0) = servo_ready_at_home();
+        let n = 250u16;
+        let mut q = q0;
+        for k in 1..=n {
+            q = q0;
+            q[0] += 0.002 * f64::from(k);
+            q[3] -= 0.001 * f64::from(k);
+            let s = servo_j(&mut c, &q, 3 + k);
+            assert_eq!(s, 0, "target {k} accepted");
+            c.step(0.004 * f64::from(k));
+        }
+        c.step(1.5);
+        assert_eq!(c.error(), ControllerError::None);
+        assert_eq!(c.counters().servo_accepted, u64::from(n));
+        assert_eq!(c.counters().protective_faults, 0);
+        assert_eq!(c.servo_stream().last_fault, None);
+        for i in 0..5 {
+            assert!((c.q_rad()[i] - q[i]).abs() < 1e-6, "joint {i} reached");
+        }
+        let st = c.servo_stream();
+        assert!(
+            (st.max_joint_step_rad - 0.002).abs() < 1e-6,
+            "{}",
+            st.max_joint_step_rad
+        );
+        assert!(
+            st.max_tcp_step_m > 0.0 && st.max_tcp_step_m < 0.005,
+            "{}",
+            st.max_tcp_step_m
+        );
+    }
+
+    #[test]
+    fn a_joint_jump_faults_with_code_24_and_stops_motion() {
+        let (mut c, q0) = servo_ready_at_home();
+        let mut ok = q0;
+        ok[1] += 0.005;
+        assert_eq!(servo_j(&mut c, &ok, 4), 0);
+        c.step(0.004);
+        let q_before = c.q_rad();
+        // 0.018 rad in one 4 ms target: 4.5 rad/s > π × 1.25.
+        let mut jump = ok;
+        jump[0] += 0.018;
+        let s = servo_j(&mut c, &jump, 5);
+        assert_eq!(
+            s & (STATUS_ERROR | STATUS_NOT_READY),
+            STATUS_ERROR | STATUS_NOT_READY
+        );
+        assert_eq!(c.error(), ControllerError::SpeedLimit);
+        assert_eq!(c.state(), 4);
+        assert_eq!(c.target_rad(), c.q_rad(), "motion stopped where the arm is");
+        let (_, d) = ask(&mut c, Request::GetError, 6);
+        assert_eq!(d, vec![24, 0]);
+        assert_eq!(ask(&mut c, Request::GetState, 7).1, vec![4]);
+        let r = c.report(ReportKind::Normal, 0);
+        assert_eq!((r.error_code, r.state), (Some(24), 4));
+        // Further targets (even a small one) get the error bit and the arm does not move.
+        let q_stop = c.q_rad();
+        assert!(
+            (q_stop[0] - q_before[0]).abs() < 1e-12,
+            "the jump was not executed"
+        );
+        let mut small = ok;
+        small[0] += 0.001;
+        let s = servo_j(&mut c, &small, 8);
+        assert_ne!(s & STATUS_ERROR, 0);
+        c.step(0.5);
+        assert_eq!(c.q_rad(), q_stop, "the arm does not move");
+        let k = c.counters();
+        assert_eq!(
+            (
+                k.protective_faults,
+                k.joint_speed_faults,
+                k.tcp_speed_faults
+            ),
+            (1, 1, 0)
+        );
+        assert_eq!((k.servo_accepted, k.servo_rejected), (1, 2));
+        assert_eq!(k.collisions, 0);
+        match c.servo_stream().last_fault {
+            Some(ProtectiveFault::JointSpeed {
+                joint,
+                step_rad,
+                limit_rad,
+            }) => {
+                assert_eq!(joint, 0);
+                assert!((step_rad - 0.018).abs() < 1e-6, "{step_rad}");
+                assert!((limit_rad - PI * 0.005).abs() < 1e-12);
+            }
+            other => panic!("expected a joint speed fault, got {other:?}"),
+        }
+        let st = c.servo_stream();
+        assert!((st.max_joint_step_rad - 0.018).abs() < 1e-6);
+    }
+
+    /// A target whose joints each stay within the joint step but whose TCP moves > 5 mm.
+    fn tcp_fast_target(m: &RobotModel, q0: &[f64; 5]) -> [f64; 5] {
+        let lim = ProtectiveLimits::default();
+        let dq = 0.9 * lim.max_joint_step_rad();
+        // The sign pattern on J1..J3 that moves the TCP furthest.
+        let mut q = *q0;
+        for signs in 0..8u8 {
+            let mut c = *q0;
+            for (j, v) in c.iter_mut().take(3).enumerate() {
+                *v += if signs >> j & 1 == 1 { dq } else { -dq };
+            }
+            if tcp_distance_m(m, q0, &c) > tcp_distance_m(m, q0, &q) {
+                q = c;
+            }
+        }
+        let d = tcp_distance_m(m, q0, &q);
+        assert!(
+            d > 1.2 * lim.max_tcp_step_m(),
+            "test precondition: TCP step {d} m"
+        );
+        q
+    }
+
+    #[test]
+    fn a_tcp_speed_violation_faults_with_code_60() {
+        let (mut c, q0) = servo_ready_at_home();
+        let m = model();
+        let fast = tcp_fast_target(&m, &q0);
+        let s = servo_j(&mut c, &fast, 4);
+        assert_ne!(s & STATUS_ERROR, 0);
+        assert_eq!(c.error(), ControllerError::LinearSpeed);
+        assert_eq!(ask(&mut c, Request::GetError, 5).1, vec![60, 0]);
+        assert_eq!(c.state(), 4);
+        c.step(0.2);
+        assert_eq!(c.q_rad(), q0, "the target was not executed");
+        let k = c.counters();
+        assert_eq!(
+            (
+                k.protective_faults,
+                k.joint_speed_faults,
+                k.tcp_speed_faults
+            ),
+            (1, 0, 1)
+        );
+        let expected = tcp_distance_m(&m, &q0, &fast);
+        match c.servo_stream().last_fault {
+            Some(ProtectiveFault::TcpSpeed { step_m, limit_m }) => {
+                assert!((step_m - expected).abs() < 1e-5, "{step_m} vs {expected}");
+                assert!((limit_m - 0.005).abs() < 1e-12);
+            }
+            other => panic!("expected a TCP speed fault, got {other:?}"),
+        }
+        // The same target passes once the TCP limit is raised: the TCP check tripped.
+        let (mut c2, _) = servo_ready_at_home();
+        c2.set_protective_limits(ProtectiveLimits {
+            max_tcp_speed_m_s: 10.0,
+            ..ProtectiveLimits::default()
+        });
+        assert_eq!(servo_j(&mut c2, &fast, 4), 0);
+    }
+
+    #[test]
+    fn counters_and_max_steps_follow_the_wire() {
+        let (mut c, q0) = servo_ready_at_home();
+        let m = model();
+        let steps = [0.001, 0.006, 0.003];
+        let mut prev = q0;
+        let mut max_tcp = 0.0f64;
+        let mut first = true;
+        for (k, dq) in steps.iter().enumerate() {
+            let mut q = prev;
+            q[2] -= dq;
+            assert_eq!(servo_j(&mut c, &q, 4 + k as u16), 0);
+            if !first {
+                max_tcp = max_tcp.max(tcp_distance_m(&m, &prev, &q));
+            }
+            first = false;
+            prev = q;
+        }
+        let st = c.servo_stream();
+        // The first frame has no predecessor: the largest step is 0.006, not 0.001.
+        assert!((st.max_joint_step_rad - 0.006).abs() < 1e-6, "{st:?}");
+        assert!((st.max_tcp_step_m - max_tcp).abs() < 1e-5, "{st:?}");
+        // Frames refused while stopped still count on the wire.
+        ask(&mut c, Request::SetState(4), 10);
+        ask(&mut c, Request::SetState(4), 11);
+        ask(&mut c, Request::SetState(6), 12);
+        let mut far = prev;
+        far[4] += 0.05;
+        assert_ne!(servo_j(&mut c, &far, 13) & STATUS_NOT_READY, 0);
+        let st = c.servo_stream();
+        assert!((st.max_joint_step_rad - 0.05).abs() < 1e-6, "{st:?}");
+        assert_eq!(st.last_fault, None, "refused while stopped: no fault");
+        ask(&mut c, Request::CleanError, 14);
+        let k = c.counters();
+        assert_eq!((k.stop_requests, k.stops), (2, 3));
+        assert_eq!(k.clean_error_requests, 1);
+        assert_eq!(k.protective_faults, 0);
+        assert_eq!(c.state(), 4);
+    }
+
+    #[test]
+    fn clean_error_and_re_enable_resume_after_a_fault() {
+        let (mut c, q0) = servo_ready_at_home();
+        let mut jump = q0;
+        jump[3] += 0.05;
+        assert_ne!(servo_j(&mut c, &jump, 4) & STATUS_ERROR, 0);
+        ask(&mut c, Request::SetState(0), 5);
+        assert_eq!(c.state(), 4, "cannot start with an error");
+        let (s, _) = ask(&mut c, Request::CleanError, 6);
+        assert_eq!(s & STATUS_ERROR, 0);
+        assert_eq!(c.error(), ControllerError::None);
+        enable_servo(&mut c);
+        assert_eq!(c.state(), 2);
+        let mut q = q0;
+        q[3] += 0.01;
+        assert_eq!(servo_j(&mut c, &q, 7), 0);
+        c.step(0.1);
+        assert!((c.q_rad()[3] - q[3]).abs() < 1e-6, "the arm moves again");
+        let k = c.counters();
+        assert_eq!((k.clean_error_requests, k.joint_speed_faults), (1, 1));
+        assert_eq!(k.servo_accepted, 1);
+    }
+
+    #[test]
+    fn the_check_can_be_turned_off_and_limits_are_validated() {
+        let (mut c, q0) = servo_ready_at_home();
+        c.set_protective_limits(ProtectiveLimits::off());
+        let mut jump = q0;
+        jump[0] += 0.1;
+        assert_eq!(servo_j(&mut c, &jump, 4), 0);
+        assert_eq!(c.counters().protective_faults, 0);
+
+        assert_eq!(ProtectiveLimits::default().validate(), Ok(()));
+        assert_eq!(ProtectiveLimits::off().validate(), Ok(()));
+        let bad = [
+            (
+                ProtectiveLimits {
+                    max_joint_speed_rad_s: 0.0,
+                    ..ProtectiveLimits::default()
+                },
+                "max_joint_speed_rad_s",
+            ),
+            (
+                ProtectiveLimits {
+                    max_tcp_speed_m_s: f64::INFINITY,
+                    ..ProtectiveLimits::default()
+                },
+                "max_tcp_speed_m_s",
+            ),
+            (
+                ProtectiveLimits {
+                    servo_period_s: f64::NAN,
+                    ..ProtectiveLimits::default()
+                },
+                "servo_period_s",
+            ),
+            (
+                ProtectiveLimits {
+                    tolerance: -0.1,
+                    ..ProtectiveLimits::default()
+                },
+                "tolerance",
+            ),
+        ];
+        for (l, field) in bad {
+            let e = l.validate().unwrap_err();
+            assert_eq!(e.field, field);
+            assert!(e.to_string().contains(field), "{e}");
+        }
+    }
+
+    #[test]
+    fn a_joint_step_just_under_the_limit_passes_and_just_over_faults() {
+        let lim = ProtectiveLimits::default().max_joint_step_rad();
+        let (mut c, q0) = servo_ready_at_home();
+        let mut q = q0;
+        q[4] += lim - 1e-4;
+        assert_eq!(servo_j(&mut c, &q, 4), 0);
+        q[4] += lim + 1e-4;
+        assert_ne!(servo_j(&mut c, &q, 5) & STATUS_ERROR, 0);
+        assert_eq!(c.error(), ControllerError::SpeedLimit);
     }
 }

@@ -1,7 +1,10 @@
 //! `xarm-sim`'s library side: a simulated xArm5 control box that speaks the controller
 //! protocol on the command and report ports, integrates servo targets within the joint
 //! limits and 180°/s, and checks the arm against a ground-truth scene with the twin's
-//! geometry (a contact raises error 31 and stops the arm, like the real controller).
+//! geometry (a contact raises error 31 and stops the arm, like the real controller). In
+//! servo mode it raises the controller's protective faults: a `servo_j` target that would
+//! move a joint or the TCP too fast in one servo period is refused with error 24 (joint
+//! speed) or 60 (linear speed) and stops the arm ([`controller::ProtectiveLimits`]).
 //!
 //! [`controller::Controller`] is the pure state machine; [`server::SimServer`] binds the
 //! sockets and runs the threads; [`world::World`] is the ground truth.
@@ -10,5 +13,5 @@ pub mod controller;
 pub mod server;
 pub mod world;
 
-pub use controller::Controller;
+pub use controller::{Controller, ProtectiveFault, ProtectiveLimits, ServoStreamStats};
 pub use server::{SimError, SimOptions, SimPorts, SimServer, SimSummary};

@@ -2,7 +2,10 @@
 //!
 //! Listens on the command port and the four report ports (502, 30000–30003 by default, or
 //! shifted with `--port-offset`), plus a line-based control port (`scene <path>`,
-//! `status`, `shutdown`). Prints one JSON line `{"event":"listening",…}` when ready and one
+//! `status`, `error <code>`, `shutdown`). In servo mode a `servo_j` target that would move
+//! the arm too fast raises a protective fault (error 24 or 60), as on the real controller;
+//! `--max-joint-speed-rad-s`, `--max-tcp-speed-m-s`, `--servo-period-ms`,
+//! `--fault-tolerance` tune it and `--no-protective-faults` turns it off. Prints one JSON line `{"event":"listening",…}` when ready and one
 //! `{"event":"summary",…}` line at exit (SIGINT, SIGTERM or `shutdown`).
 //!
 //! ```text
@@ -22,7 +25,7 @@ use clap::Parser;
 use shm_schemas::scene_file::{SceneFile, WorldScript};
 use xarm_sim::server::default_urdf;
 use xarm_sim::world::World;
-use xarm_sim::{SimOptions, SimPorts, SimServer};
+use xarm_sim::{ProtectiveLimits, SimOptions, SimPorts, SimServer};
 
 /// Simulated xArm5 controller.
 #[derive(Debug, Parser)]
@@ -70,6 +73,35 @@ struct Args {
     /// Initial joints, 5 comma-separated values (rad); default: the model's home posture.
     #[arg(long, value_delimiter = ',', num_args = 5)]
     q0_rad: Option<Vec<f64>>,
+    /// Protective fault: joint speed limit (rad/s) a servo_j target may ask for.
+    #[arg(long, default_value_t = xarm_sim::controller::MAX_JOINT_SPEED_RAD_S, value_parser = positive_finite, allow_negative_numbers = true)]
+    max_joint_speed_rad_s: f64,
+    /// Protective fault: TCP speed limit (m/s) a servo_j target may ask for.
+    #[arg(long, default_value_t = xarm_sim::controller::MAX_TCP_SPEED_M_S, value_parser = positive_finite, allow_negative_numbers = true)]
+    max_tcp_speed_m_s: f64,
+    /// Protective fault: the servo period one target is executed in (ms).
+    #[arg(long, default_value_t = 1e3 * xarm_sim::controller::SERVO_PERIOD_S, value_parser = positive_finite, allow_negative_numbers = true)]
+    servo_period_ms: f64,
+    /// Protective fault: relative slack above the limits (0.25 = 25 %).
+    #[arg(long, default_value_t = xarm_sim::controller::FAULT_TOLERANCE, value_parser = non_negative_finite, allow_negative_numbers = true)]
+    fault_tolerance: f64,
+    /// Turn the protective faults (joint and TCP speed) off.
+    #[arg(long)]
+    no_protective_faults: bool,
+}
+
+fn positive_finite(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a positive finite number")),
+    }
+}
+
+fn non_negative_finite(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a finite number >= 0")),
+    }
 }
 
 fn parse_time_s(s: &str) -> Result<f64> {
@@ -130,6 +162,22 @@ fn options(a: &Args) -> Result<SimOptions> {
         }
         None => World::load(&urdf, 0.0)?.home(),
     };
+    let protective = ProtectiveLimits {
+        enabled: !a.no_protective_faults,
+        max_joint_speed_rad_s: a.max_joint_speed_rad_s,
+        max_tcp_speed_m_s: a.max_tcp_speed_m_s,
+        servo_period_s: a.servo_period_ms * 1e-3,
+        tolerance: a.fault_tolerance,
+    };
+    protective.validate().map_err(|e| {
+        let flag = match e.field {
+            "max_joint_speed_rad_s" => "--max-joint-speed-rad-s",
+            "max_tcp_speed_m_s" => "--max-tcp-speed-m-s",
+            "servo_period_s" => "--servo-period-ms",
+            _ => "--fault-tolerance",
+        };
+        anyhow::anyhow!("{flag}: {e}")
+    })?;
     Ok(SimOptions {
         bind: a.bind,
         ports,
@@ -137,6 +185,7 @@ fn options(a: &Args) -> Result<SimOptions> {
         scenes,
         contact_margin_m: a.contact_margin_m,
         q0_rad,
+        protective,
     })
 }
 

@@ -4,7 +4,8 @@
 //!
 //! Control port protocol (one command per line, one reply line each):
 //! `scene <path>` swaps the scene now (`ok` / `error: …`), `status` prints the summary JSON,
-//! `shutdown` asks the simulator to exit.
+//! `error <code>` raises a controller error now (e.g. `error 31`, a collision; `ok` /
+//! `error: …`), `shutdown` asks the simulator to exit.
 
 use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, TcpListener, TcpStream};
@@ -16,7 +17,9 @@ use std::time::{Duration, Instant};
 
 use shm_schemas::scene_file::SceneFile;
 
-use super::controller::{Controller, ControllerCounters};
+use super::controller::{
+    Controller, ControllerCounters, ProtectiveFault, ProtectiveLimits, ProtectiveLimitsError,
+};
 use super::world::{World, WorldError};
 use xarm::codec::{self, MAX_FRAME_LEN};
 use xarm::codes::ControllerError;
@@ -95,6 +98,8 @@ pub struct SimOptions {
     pub contact_margin_m: f64,
     /// Initial joints (rad).
     pub q0_rad: [f64; 5],
+    /// The servo-mode protective check (joint and TCP speed faults); on by default.
+    pub protective: ProtectiveLimits,
 }
 
 impl Default for SimOptions {
@@ -106,6 +111,7 @@ impl Default for SimOptions {
             scenes: Vec::new(),
             contact_margin_m: 0.0,
             q0_rad: [0.0; 5],
+            protective: ProtectiveLimits::default(),
         }
     }
 }
@@ -140,6 +146,9 @@ pub enum SimError {
     /// A thread could not be spawned.
     #[error("cannot spawn thread: {0}")]
     Spawn(std::io::Error),
+    /// The protective limits are invalid.
+    #[error(transparent)]
+    Limits(#[from] ProtectiveLimitsError),
 }
 
 /// What the simulator did, printed as one JSON line at exit.
@@ -163,6 +172,28 @@ pub struct SimSummary {
     pub q_rad: [f64; 5],
     /// Final error code.
     pub error_code: u8,
+    /// Controller state (1 moving, 2 ready, 3 paused, 4 stopped).
+    pub state: u8,
+    /// Controller mode (1 = servo).
+    pub mode: u8,
+    /// Protective faults raised (joint speed + TCP speed).
+    pub protective_faults: u64,
+    /// Joint speed faults (error 24).
+    pub joint_speed_faults: u64,
+    /// TCP speed faults (error 60).
+    pub tcp_speed_faults: u64,
+    /// The last protective fault, with the step that caused it and the limit.
+    pub last_protective_fault: Option<ProtectiveFault>,
+    /// Largest per-joint step between consecutive `servo_j` targets received (rad).
+    pub max_joint_step_rad: f64,
+    /// Largest TCP step between consecutive `servo_j` targets received (m).
+    pub max_tcp_step_m: f64,
+    /// `CLEAN_ERR` requests received.
+    pub clean_error_requests: u64,
+    /// `SET_STATE(4)` requests received.
+    pub stop_requests: u64,
+    /// The protective limits in force.
+    pub protective_limits: ProtectiveLimits,
 }
 
 struct Shared {
@@ -223,8 +254,10 @@ impl SimServer {
     /// Binds every port and starts the threads.
     ///
     /// # Errors
-    /// [`SimError`] when a port is taken, the model or first scene is invalid.
+    /// [`SimError`] when a port is taken, the model or first scene or the protective limits
+    /// are invalid.
     pub fn start(opts: SimOptions) -> Result<Self, SimError> {
+        opts.protective.validate()?;
         let mut world = World::load(&opts.urdf, opts.contact_margin_m)?;
         let mut schedule = opts.scenes.clone();
         schedule.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -235,6 +268,8 @@ impl SimServer {
             schedule.remove(0);
         }
         let mut controller = Controller::new(opts.q0_rad);
+        controller.set_model(world.model().clone());
+        controller.set_protective_limits(opts.protective);
         controller.set_tcp_pose(world.check(&opts.q0_rad).tcp_pose);
         let shared = Arc::new(Shared {
             controller: Mutex::new(controller),
@@ -314,6 +349,13 @@ impl SimServer {
         *lock(&self.shared.pending_scene) = Some(scene);
     }
 
+    /// Raises a controller error now, as the arm does (e.g. [`ControllerError::Collision`]):
+    /// error code set, motion stopped, state 4, motion refused until `CLEAN_ERR`. A collision
+    /// code counts as a collision. [`ControllerError::None`] is ignored.
+    pub fn inject_error(&self, code: ControllerError) {
+        lock(&self.shared.controller).raise_error(code);
+    }
+
     /// The summary so far.
     pub fn summary(&self) -> SimSummary {
         summary(&self.shared)
@@ -332,6 +374,7 @@ impl SimServer {
 fn summary(s: &Shared) -> SimSummary {
     let c = lock(&s.controller);
     let counters = c.counters();
+    let stream = c.servo_stream();
     SimSummary {
         uptime_s: s.now_s(),
         collisions: counters.collisions,
@@ -342,6 +385,17 @@ fn summary(s: &Shared) -> SimSummary {
         connections: s.connections.load(Ordering::Relaxed),
         q_rad: c.q_rad(),
         error_code: u8::from(c.error()),
+        state: c.state(),
+        mode: c.mode(),
+        protective_faults: counters.protective_faults,
+        joint_speed_faults: counters.joint_speed_faults,
+        tcp_speed_faults: counters.tcp_speed_faults,
+        last_protective_fault: stream.last_fault,
+        max_joint_step_rad: stream.max_joint_step_rad,
+        max_tcp_step_m: stream.max_tcp_step_m,
+        clean_error_requests: counters.clean_error_requests,
+        stop_requests: counters.stop_requests,
+        protective_limits: c.protective_limits(),
     }
 }
 
@@ -575,10 +629,19 @@ fn control_command(s: &Shared, cmd: &str) -> String {
             Err(e) => format!("error: {e}"),
         },
         "status" => serde_json::to_string(&summary(s)).unwrap_or_else(|e| format!("error: {e}")),
+        "error" => match arg.trim().parse::<u8>() {
+            Ok(code) if code != 0 => {
+                lock(&s.controller).raise_error(ControllerError::from(code));
+                "ok".into()
+            }
+            _ => format!("error: bad error code {:?} (1..=255)", arg.trim()),
+        },
         "shutdown" => {
             s.shutdown_requested.store(true, Ordering::Relaxed);
             "ok".into()
         }
-        other => format!("error: unknown command {other:?} (scene <path> | status | shutdown)"),
+        other => format!(
+            "error: unknown command {other:?} (scene <path> | status | error <code> | shutdown)"
+        ),
     }
 }

@@ -83,6 +83,11 @@ impl World {
         Ok(())
     }
 
+    /// The robot model (for the controller's TCP speed check).
+    pub fn model(&self) -> &RobotModel {
+        &self.model
+    }
+
     /// The robot model's home posture (rad).
     pub fn home(&self) -> [f64; 5] {
         self.model.home()

@@ -98,3 +98,342 @@ fn swaps_scenes_on_schedule_and_on_request_and_summarises_at_exit() {
     assert_eq!(s["scene_swaps"], 2);
     assert_eq!(s["collisions"], 0);
 }
+
+// ---- protective faults and injected errors (in-process server) -------------------------------
+
+use std::io::Read;
+use std::time::Instant;
+
+use twin::RobotModel;
+use xarm::codec::{JointTarget, Request, Response, STATUS_ERROR, STATUS_NOT_READY};
+use xarm::codes::ControllerError;
+use xarm::report::{self, ReportKind};
+use xarm_sim::{ProtectiveFault, SimOptions, SimPorts, SimServer};
+
+fn home() -> [f64; 5] {
+    RobotModel::load(&asset("xarm5.urdf")).expect("urdf").home()
+}
+
+fn in_process_sim() -> SimServer {
+    SimServer::start(SimOptions {
+        ports: SimPorts::ephemeral(),
+        urdf: asset("xarm5.urdf"),
+        q0_rad: home(),
+        ..SimOptions::default()
+    })
+    .expect("sim starts")
+}
+
+/// A bare command-port client: one request, one reply.
+struct Client {
+    s: TcpStream,
+    tid: u16,
+}
+
+impl Client {
+    fn connect(port: u16) -> Self {
+        let s = TcpStream::connect(("127.0.0.1", port)).expect("command port");
+        s.set_read_timeout(Some(Duration::from_secs(2)))
+            .expect("timeout");
+        Self { s, tid: 0 }
+    }
+
+    /// Sends `req`, returns the status byte and the data.
+    fn ask(&mut self, req: Request) -> (u8, Vec<u8>) {
+        self.tid += 1;
+        let mut buf = [0u8; 64];
+        let n = req.encode(self.tid, 3, &mut buf).expect("encode");
+        self.s.write_all(&buf[..n]).expect("send");
+        let mut head = [0u8; 6];
+        self.s.read_exact(&mut head).expect("reply head");
+        let len = usize::from(u16::from_be_bytes([head[4], head[5]]));
+        let mut frame = head.to_vec();
+        frame.resize(6 + len, 0);
+        self.s.read_exact(&mut frame[6..]).expect("reply body");
+        let r = Response::parse(&frame).expect("reply");
+        r.check(self.tid, 3, u8::from(req.register()))
+            .expect("matching reply");
+        (r.status, r.data.to_vec())
+    }
+
+    fn servo_j(&mut self, q: &[f64; 5]) -> u8 {
+        self.ask(Request::ServoJ(JointTarget::xarm5(q))).0
+    }
+
+    fn joints(&mut self) -> [f32; 5] {
+        let (_, d) = self.ask(Request::GetJointPos(None));
+        std::array::from_fn(|i| {
+            f32::from_le_bytes([d[4 * i], d[4 * i + 1], d[4 * i + 2], d[4 * i + 3]])
+        })
+    }
+
+    /// The SDK's sequence: clean error, enable, mode 1, state 0.
+    fn start_servo_mode(&mut self) {
+        self.ask(Request::CleanError);
+        self.ask(Request::MotionEnable {
+            servo_id: 8,
+            enable: true,
+        });
+        self.ask(Request::SetMode {
+            mode: 1,
+            detection: Some(0),
+        });
+        self.ask(Request::SetState(0));
+        assert_eq!(self.ask(Request::GetState).1, vec![2]);
+    }
+}
+
+/// Reads normal reports (5 Hz) until one shows `error`, or 3 s pass; returns it.
+fn normal_report_with_error(port: u16, error: u8) -> report::ArmReport {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).expect("report port");
+    s.set_read_timeout(Some(Duration::from_secs(2)))
+        .expect("timeout");
+    let mut buf = [0u8; report::NORMAL_LEN];
+    let deadline = Instant::now() + Duration::from_secs(3);
+    loop {
+        s.read_exact(&mut buf).expect("normal report");
+        let r = report::decode(ReportKind::Normal, &buf).expect("decodes");
+        if r.error_code == Some(error) || Instant::now() > deadline {
+            return r;
+        }
+    }
+}
+
+#[test]
+fn a_joint_speed_fault_reaches_get_error_the_reports_and_the_summary() {
+    let sim = in_process_sim();
+    let mut c = Client::connect(sim.ports().command);
+    c.start_servo_mode();
+    let q0 = home();
+    // A slow 250 Hz stream: 0.002 rad per 4 ms target on J1 (0.5 rad/s).
+    let mut q = q0;
+    for k in 1..=50 {
+        q = q0;
+        q[0] += 0.002 * f64::from(k);
+        assert_eq!(c.servo_j(&q), 0, "target {k}");
+        std::thread::sleep(Duration::from_millis(4));
+    }
+    std::thread::sleep(Duration::from_millis(100));
+    let s = sim.summary();
+    assert_eq!(
+        (s.protective_faults, s.error_code, s.state, s.mode),
+        (0, 0, 2, 1)
+    );
+    assert!((s.max_joint_step_rad - 0.002).abs() < 1e-6, "{s:?}");
+    assert!(s.max_tcp_step_m > 0.0 && s.max_tcp_step_m < 0.005, "{s:?}");
+
+    // 0.018 rad in one target: faults, and is not executed.
+    let at = c.joints();
+    let mut jump = q;
+    jump[1] += 0.018;
+    let st = c.servo_j(&jump);
+    assert_eq!(
+        st & (STATUS_ERROR | STATUS_NOT_READY),
+        STATUS_ERROR | STATUS_NOT_READY
+    );
+    assert_eq!(c.ask(Request::GetError).1, vec![24, 0]);
+    assert_eq!(c.ask(Request::GetState).1, vec![4]);
+    for _ in 0..10 {
+        assert_ne!(
+            c.servo_j(&q) & STATUS_ERROR,
+            0,
+            "motion refused until cleared"
+        );
+        std::thread::sleep(Duration::from_millis(4));
+    }
+    std::thread::sleep(Duration::from_millis(100));
+    let after = c.joints();
+    for i in 0..5 {
+        assert!(
+            (after[i] - at[i]).abs() < 1e-6,
+            "joint {i} did not move: {at:?} → {after:?}"
+        );
+    }
+    let r = normal_report_with_error(sim.ports().report_normal, 24);
+    assert_eq!((r.error_code, r.state), (Some(24), 4));
+
+    let s = sim.summary();
+    assert_eq!(
+        (
+            s.protective_faults,
+            s.joint_speed_faults,
+            s.tcp_speed_faults
+        ),
+        (1, 1, 0)
+    );
+    assert_eq!((s.error_code, s.state, s.collisions), (24, 4, 0));
+    assert!((s.max_joint_step_rad - 0.018).abs() < 1e-6, "{s:?}");
+    assert!(matches!(
+        s.last_protective_fault,
+        Some(ProtectiveFault::JointSpeed { joint: 1, .. })
+    ));
+    assert_eq!(s.counters.servo_accepted, 50);
+    assert_eq!(s.clean_error_requests, 1);
+
+    // CLEAN_ERR and re-enable: the stream resumes from where the arm stands.
+    c.start_servo_mode();
+    let mut resume = q;
+    resume[0] += 0.002;
+    assert_eq!(c.servo_j(&resume), 0);
+    assert_eq!(c.ask(Request::GetError).1, vec![0, 0]);
+    c.ask(Request::SetState(4));
+    let s = sim.shutdown();
+    assert_eq!(s.counters.servo_accepted, 51);
+    assert_eq!(
+        (s.clean_error_requests, s.stop_requests, s.state),
+        (2, 1, 4)
+    );
+    assert_eq!(s.protective_faults, 1, "no further fault");
+}
+
+#[test]
+fn the_first_target_far_from_the_arm_faults_and_tcp_speed_faults_too() {
+    let sim = in_process_sim();
+    let mut c = Client::connect(sim.ports().command);
+    c.start_servo_mode();
+    let mut far = home();
+    far[0] += 0.3;
+    assert_ne!(c.servo_j(&far) & STATUS_ERROR, 0);
+    assert_eq!(c.ask(Request::GetError).1, vec![24, 0]);
+
+    // Each joint within its step, the TCP beyond 5 mm: the linear speed error, 60.
+    c.start_servo_mode();
+    let model = RobotModel::load(&asset("xarm5.urdf")).expect("urdf");
+    let q0 = home();
+    let dq = 0.014;
+    let fast = (0..8u8)
+        .map(|signs| {
+            let mut q = q0;
+            for (j, v) in q.iter_mut().take(3).enumerate() {
+                *v += if signs >> j & 1 == 1 { dq } else { -dq };
+            }
+            q
+        })
+        .max_by(|a, b| {
+            let d = |q: &[f64; 5]| (model.tcp_m(q) - model.tcp_m(&q0)).norm();
+            d(a).total_cmp(&d(b))
+        })
+        .expect("a candidate");
+    assert!(
+        (model.tcp_m(&fast) - model.tcp_m(&q0)).norm() > 0.0055,
+        "precondition"
+    );
+    assert_ne!(c.servo_j(&fast) & STATUS_ERROR, 0);
+    assert_eq!(c.ask(Request::GetError).1, vec![60, 0]);
+    let s = sim.shutdown();
+    assert_eq!(
+        (
+            s.protective_faults,
+            s.joint_speed_faults,
+            s.tcp_speed_faults
+        ),
+        (2, 1, 1)
+    );
+    assert_eq!(s.error_code, 60);
+    assert!(matches!(
+        s.last_protective_fault,
+        Some(ProtectiveFault::TcpSpeed { .. })
+    ));
+    assert_eq!(s.counters.servo_accepted, 0);
+}
+
+#[test]
+fn an_injected_collision_raises_c31_and_stops_until_cleared() {
+    let sim = in_process_sim();
+    let mut c = Client::connect(sim.ports().command);
+    c.start_servo_mode();
+    let q = home();
+    assert_eq!(c.servo_j(&q), 0);
+    sim.inject_error(ControllerError::Collision);
+    assert_ne!(c.servo_j(&q) & STATUS_ERROR, 0);
+    assert_eq!(c.ask(Request::GetError).1, vec![31, 0]);
+    let r = normal_report_with_error(sim.ports().report_normal, 31);
+    assert_eq!((r.error_code, r.state), (Some(31), 4));
+    let s = sim.summary();
+    assert_eq!((s.collisions, s.error_code, s.state), (1, 31, 4));
+    assert_eq!(s.protective_faults, 0);
+    c.start_servo_mode();
+    assert_eq!(c.servo_j(&q), 0, "resumes after CLEAN_ERR and re-enable");
+    c.ask(Request::SetState(4));
+    let s = sim.shutdown();
+    assert_eq!((s.error_code, s.state, s.stop_requests), (0, 4, 1));
+}
+
+// ---- the binary's fault flags and control commands -------------------------------------------
+
+fn sim_command(extra: &[&str]) -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_xarm-sim"));
+    for flag in [
+        "--command-port",
+        "--report-rt-port",
+        "--report-normal-port",
+        "--report-rich-port",
+        "--report-real-port",
+        "--control-port",
+    ] {
+        cmd.args([flag, "0"]);
+    }
+    cmd.arg("--urdf").arg(asset("xarm5.urdf")).args(extra);
+    cmd
+}
+
+#[test]
+fn bad_fault_flags_are_refused_naming_the_flag() {
+    for (flag, value) in [
+        ("--servo-period-ms", "0"),
+        ("--max-joint-speed-rad-s", "-1"),
+        ("--max-tcp-speed-m-s", "inf"),
+        ("--fault-tolerance", "NaN"),
+        ("--servo-period-ms", "1e-320"),
+    ] {
+        let out = sim_command(&[flag, value])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .output()
+            .expect("xarm-sim runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{flag} {value} accepted");
+        assert!(err.contains(flag), "{flag} {value}: {err}");
+    }
+}
+
+#[test]
+fn control_port_injects_errors_and_status_shows_the_fault_figures() {
+    let mut child = Kill(
+        sim_command(&["--no-protective-faults", "--servo-period-ms", "8"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("xarm-sim starts"),
+    );
+    let mut out = BufReader::new(child.0.stdout.take().expect("stdout"));
+    let mut line = String::new();
+    out.read_line(&mut line).expect("listening line");
+    let v: serde_json::Value = serde_json::from_str(&line).expect("JSON");
+    let ctl = v["ports"]["control"].as_u64().expect("control port") as u16;
+    let status: serde_json::Value = serde_json::from_str(&control(ctl, "status")).expect("status");
+    assert_eq!(status["protective_limits"]["enabled"], false);
+    assert_eq!(status["protective_limits"]["servo_period_s"], 0.008);
+    assert_eq!(status["protective_faults"], 0);
+    assert_eq!(status["state"], 4);
+    assert!(control(ctl, "error 0").starts_with("error:"));
+    assert!(control(ctl, "error x").starts_with("error:"));
+    assert_eq!(control(ctl, "error 31"), "ok");
+    let status: serde_json::Value = serde_json::from_str(&control(ctl, "status")).expect("status");
+    assert_eq!(status["error_code"], 31);
+    assert_eq!(status["collisions"], 1);
+    assert_eq!(status["state"], 4);
+    for key in [
+        "joint_speed_faults",
+        "tcp_speed_faults",
+        "max_joint_step_rad",
+        "max_tcp_step_m",
+        "clean_error_requests",
+        "stop_requests",
+        "mode",
+    ] {
+        assert!(status.get(key).is_some(), "{key} in {status}");
+    }
+    assert_eq!(control(ctl, "shutdown"), "ok");
+    assert!(child.0.wait().expect("exit").success());
+}

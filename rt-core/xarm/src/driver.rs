@@ -96,6 +96,8 @@ pub struct XArmDriver {
     stats: DriverStats,
     servo_frame: [u8; SERVOJ_FRAME_LEN],
     origin: Instant,
+    /// When `GET_ERROR` was last asked while an error stands (ns).
+    last_error_poll_ns: u64,
     /// Re-opens a lost link off the caller's thread: the one reconnect path.
     reconnector: Reconnector,
 }
@@ -137,6 +139,7 @@ impl XArmDriver {
             stats: DriverStats::default(),
             servo_frame: [0; SERVOJ_FRAME_LEN],
             origin: Instant::now(),
+            last_error_poll_ns: 0,
             reconnector,
         };
         d.wait_for_first_report()?;
@@ -167,6 +170,11 @@ impl XArmDriver {
     /// The parsed version string.
     pub fn version(&self) -> Option<VersionInfo> {
         self.version
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &XArmConfig {
+        &self.cfg
     }
 
     /// Counters of the command channel.
@@ -310,6 +318,51 @@ impl XArmDriver {
         Ok(q)
     }
 
+    /// An operator acknowledged a protective stop: clears the error and the warning and
+    /// re-enables servo mode (enable all, mode 1, state 0), pipelined without blocking. The
+    /// next target must lie within `max_resume_step_rad` of the last reported joints. If the
+    /// error persists, the replies' error bit brings it back. Never called by the driver or
+    /// the runtime on their own.
+    ///
+    /// # Errors
+    /// [`XArmError::Disconnected`] without a link, [`XArmError::Backlog`] with a full
+    /// pipeline, link errors.
+    pub fn acknowledge(&mut self, now_ns: u64) -> Result<(), XArmError> {
+        if self.conn.is_none() {
+            return Err(XArmError::Disconnected);
+        }
+        self.drain_replies(now_ns, usize::MAX)?;
+        let requests = [
+            Request::CleanError,
+            Request::CleanWarn,
+            Request::MotionEnable {
+                servo_id: 8,
+                enable: true,
+            },
+            Request::SetMode {
+                mode: 1,
+                detection: Some(0),
+            },
+            Request::SetState(0),
+        ];
+        let conn = self.conn.as_mut().ok_or(XArmError::Disconnected)?;
+        if conn.in_flight.len + requests.len() > MAX_IN_FLIGHT {
+            return Err(XArmError::Backlog);
+        }
+        for r in &requests {
+            if let Err(e) = conn.send_request(r, now_ns) {
+                return Err(self.lose(e));
+            }
+        }
+        self.error = ControllerError::None;
+        self.warning = ControllerWarning::None;
+        self.error_bit_seen = false;
+        self.not_ready_seen = false;
+        self.servo_mode_wanted = true;
+        self.resume_from = self.state.map(|s| s.report.joints5_rad());
+        Ok(())
+    }
+
     /// Asks the controller to stop (`SET_STATE(4)`) without blocking; motion stops at once
     /// on the controller side. Further targets are refused until `start_servo_mode`.
     pub fn stop(&mut self, now_ns: u64) {
@@ -342,8 +395,11 @@ impl XArmDriver {
     fn lose(&mut self, why: XArmError) -> XArmError {
         if let Some(dead) = self.conn.take() {
             // The helper logs, closes the dead sockets and reconnects.
-            self.reconnector
-                .request(why, self.servo_mode_wanted, Some(dead));
+            self.reconnector.request(
+                why,
+                self.servo_mode_wanted && self.cfg.resume_after_reconnect,
+                Some(dead),
+            );
         }
         self.state = None;
         self.prev_q = None;
@@ -353,8 +409,11 @@ impl XArmDriver {
     /// Installs the connection the helper re-opened, if it has one; never blocks.
     fn try_reconnect(&mut self) -> Result<(), XArmError> {
         let Some(new) = self.reconnector.take() else {
-            self.reconnector
-                .request(XArmError::Disconnected, self.servo_mode_wanted, None);
+            self.reconnector.request(
+                XArmError::Disconnected,
+                self.servo_mode_wanted && self.cfg.resume_after_reconnect,
+                None,
+            );
             return Err(XArmError::Disconnected);
         };
         self.version = new.session.version();
@@ -366,6 +425,9 @@ impl XArmDriver {
         self.state = None;
         self.prev_q = None;
         self.resume_from = Some(new.q_rad);
+        // Without automatic resumption the new link is not in servo mode: motion waits for
+        // an operator's acknowledgement.
+        self.servo_mode_wanted = self.servo_mode_wanted && self.cfg.resume_after_reconnect;
         self.reconnects += 1;
         Ok(())
     }
@@ -445,14 +507,18 @@ impl XArmDriver {
         {
             return Err(self.lose(XArmError::Timeout));
         }
-        // An error bit with an unknown code: ask for it (pipelined).
-        if self.error_bit_seen
-            && self.error == ControllerError::None
+        // An error bit with an unknown code: ask for it (pipelined). A known error is
+        // re-read every `error_poll_ns` until it reads cleared (the operator may clear it on
+        // the controller; the 30003 report carries no code).
+        let poll_due = self.error != ControllerError::None
+            && now_ns.saturating_sub(self.last_error_poll_ns) >= self.cfg.error_poll_ns;
+        if ((self.error_bit_seen && self.error == ControllerError::None) || poll_due)
             && let Some(c) = self.conn.as_mut()
             && !c.error_query_in_flight
             && c.send_request(&Request::GetError, now_ns).is_ok()
         {
             c.error_query_in_flight = true;
+            self.last_error_poll_ns = now_ns;
         }
         Ok(())
     }

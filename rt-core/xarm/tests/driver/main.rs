@@ -387,13 +387,28 @@ fn bad_controller_bytes_are_typed_errors() {
 
 #[test]
 fn survives_a_controller_restart_reconnecting_off_the_cycle() {
+    restart_under_the_driver(true);
+}
+
+/// Without `resume_after_reconnect` (the default, a real arm) the re-opened link is not put
+/// back in servo mode: targets are refused until the operator's acknowledgement, which
+/// clears errors and re-enables servo mode (pipelined), after which the re-read joints are
+/// accepted and nothing else.
+#[test]
+fn after_a_reconnect_motion_waits_for_the_acknowledgement() {
+    restart_under_the_driver(false);
+}
+
+fn restart_under_the_driver(resume_after_reconnect: bool) {
     let a = sim(Vec::new());
     let ports = a.ports();
     let clock = Clock(Instant::now());
-    let mut d = driver(cfg(&a));
+    let mut c = cfg(&a);
+    c.resume_after_reconnect = resume_after_reconnect;
+    let mut d = driver(c);
     let q0 = d.start_servo_mode().expect("servo mode");
     let mut q1 = q0;
-    q1[0] += 0.02;
+    q1[0] += 0.01;
     d.send_servo(clock.ns(), &q1).expect("send");
     d.flush().expect("flush");
     a.shutdown();
@@ -428,6 +443,19 @@ fn survives_a_controller_restart_reconnecting_off_the_cycle() {
         d.send_servo(clock.ns(), &q1),
         Err(XArmError::ResumeJump { joint: 0 })
     );
+    if !resume_after_reconnect {
+        // Not in servo mode: the controller refuses the target (not-ready bit).
+        let _ = d.send_servo(clock.ns(), &moved);
+        let _ = d.flush();
+        let refused = d.send_servo(clock.ns(), &moved);
+        assert!(
+            matches!(refused, Err(XArmError::NotReady { .. })),
+            "{refused:?}"
+        );
+        d.acknowledge(clock.ns()).expect("acknowledge");
+        d.flush().expect("flush the acknowledgement");
+        let _ = d.read_state(clock.ns());
+    }
     d.send_servo(clock.ns(), &moved)
         .expect("resume from the actual joints");
     d.flush().expect("flush");

@@ -1,0 +1,186 @@
+//! The safety paths of the cycle and the twin worker on the toy rig (deterministic, one
+//! thread): the one check on every command across a link cut, re-verification of a plan
+//! scheduled to join, a plan the shield refuses after a passing lookahead, a shutdown
+//! request, and the latch of a protective stop.
+
+use std::sync::atomic::Ordering;
+
+use crate::common::{Rig, START, TARGET_A, TARGET_B};
+use rt_core::cycle::shield::{STEP_TOLERANCE, ShieldModel};
+use rt_core::cycle::{Mode, StopReason};
+use rt_core::testing::toy::ToyArm;
+use rt_core::twin_thread::TwinEvent;
+
+/// The most one joint may move between two targets: one period at its velocity limit.
+fn max_step_rad(rig: &Rig) -> f64 {
+    let v = rig
+        .cfg
+        .limits
+        .max_velocity_rad_s
+        .iter()
+        .copied()
+        .fold(0.0, f64::max);
+    v / rig.cfg.rate_hz * (1.0 + STEP_TOLERANCE) + 1e-12
+}
+
+/// A link cut of `cut_cycles` periods while the arm moves: the first target after the
+/// link returns is where the arm stands, never the stop's virtual position.
+fn link_cut_while_moving(cut_cycles: u64) {
+    let mut rig = Rig::new();
+    rig.policy(1, TARGET_A);
+    rig.run(150);
+    assert_eq!(rig.mode(), Mode::Following);
+    let conn = rig.cycle.link().connection();
+    conn.store(false, Ordering::Release);
+    rig.run(cut_cycles);
+    conn.store(true, Ordering::Release);
+    rig.run(200);
+    let limit = max_step_rad(&rig);
+    let seen = rig.cycle.link().max_target_step_rad();
+    assert!(
+        seen <= limit,
+        "a {cut_cycles}-cycle cut: a target step of {seen} rad on the wire (limit {limit})"
+    );
+    assert_eq!(rig.mode(), Mode::Stopped);
+    assert_eq!(rig.cycle.report().stop_reason, StopReason::LinkLost);
+}
+
+#[test]
+fn a_link_cut_of_one_cycle_while_moving_puts_no_jump_on_the_wire() {
+    link_cut_while_moving(1);
+}
+
+#[test]
+fn a_link_cut_of_two_and_three_cycles_while_moving_puts_no_jump_on_the_wire() {
+    link_cut_while_moving(2);
+    link_cut_while_moving(3);
+}
+
+#[test]
+fn every_command_of_a_run_stays_within_one_period_at_the_velocity_limit() {
+    let mut rig = Rig::new();
+    rig.policy(1, TARGET_A);
+    rig.run(300);
+    rig.policy(2, TARGET_B);
+    rig.run(1500);
+    let seen = rig.cycle.link().max_target_step_rad();
+    assert!(seen > 0.0 && seen <= max_step_rad(&rig), "{seen}");
+    assert_eq!(rig.cycle.report().commands_refused, 0);
+}
+
+#[test]
+fn a_box_on_the_path_of_a_plan_scheduled_to_join_revokes_it_and_the_running_plan() {
+    let mut rig = Rig::new();
+    rig.policy(1, TARGET_A);
+    rig.run(120);
+    assert_eq!(rig.mode(), Mode::Following);
+    // A hot swap: the new policy's plan joins the running one `join_ahead_s` ahead.
+    rig.policy(2, TARGET_B);
+    let mut joined_id = None;
+    for _ in 0..40 {
+        rig.run(1);
+        joined_id = rig.events.iter().find_map(|e| match e {
+            TwinEvent::PlanApproved {
+                plan_id,
+                joins: true,
+                ..
+            } => Some(*plan_id),
+            _ => None,
+        });
+        if joined_id.is_some() {
+            break;
+        }
+    }
+    let joined_id = joined_id.expect("a join plan was approved");
+    assert_eq!(rig.cycle.report().plan_id, 1, "still before the join point");
+    // In the join window a box appears where the joining plan ends (far from the
+    // running plan's rest).
+    rig.scene
+        .push_obstacle(ToyArm.tcp_position_m(&TARGET_B), [0.08; 3]);
+    rig.run(200);
+    assert!(
+        rig.events.iter().any(|e| matches!(
+            e,
+            TwinEvent::Revoked { plan_id, .. } if *plan_id == joined_id
+        )),
+        "the joining plan was not re-verified: {:?}",
+        rig.events
+    );
+    assert_eq!(rig.cycle.report().stop_reason, StopReason::Revoked);
+    assert_ne!(
+        rig.cycle.report().plan_id,
+        joined_id,
+        "the revoked plan took over"
+    );
+    assert_eq!(rig.mode(), Mode::Stopped);
+}
+
+#[test]
+fn a_plan_the_shield_refuses_after_a_passing_lookahead_asks_for_retraining() {
+    let mut rig = Rig::new();
+    // The lookahead sees no obstacle closer than it cares about; the shield does.
+    rig.twin.lookahead_mut().min_distance_m = f64::NEG_INFINITY;
+    let wp = {
+        let mut la = rt_core::testing::toy::ToyLookahead::default();
+        let mut wps = Vec::new();
+        let probe = rt_core::testing::toy::ToyPolicy::random(1, TARGET_A, 1);
+        use rt_core::twin_thread::Lookahead;
+        la.lookahead(&probe, &rig.scene, &START, &mut wps);
+        wps[wps.len() / 2]
+    };
+    rig.scene
+        .push_obstacle(ToyArm.tcp_position_m(&wp), [0.05; 3]);
+    rig.policy(1, TARGET_A);
+    rig.run(100);
+    assert!(
+        rig.events
+            .iter()
+            .any(|e| matches!(e, TwinEvent::PlanRejected { .. })),
+        "{:?}",
+        rig.events
+    );
+    assert!(
+        rig.events.iter().any(|e| matches!(
+            e,
+            TwinEvent::Verdict { verdict, .. } if !verdict.safe
+        )),
+        "no failed verdict published"
+    );
+    assert_eq!(rig.retrains(), 1, "one retrain request: {:?}", rig.events);
+    assert_ne!(rig.mode(), Mode::Following);
+}
+
+#[test]
+fn a_shutdown_request_stops_the_arm_along_its_plan_and_takes_no_new_plan() {
+    let mut rig = Rig::new();
+    rig.policy(1, TARGET_A);
+    rig.run(120);
+    assert_eq!(rig.mode(), Mode::Following);
+    let moving = rig.cycle.report().cmd.dq_rad_s;
+    assert!(moving.iter().any(|v| v.abs() > 0.05), "{moving:?}");
+    rig.cycle.control().request_shutdown();
+    let mut speeds = Vec::new();
+    for _ in 0..400 {
+        rig.run(1);
+        let r = rig.cycle.report();
+        speeds.push(r.cmd.dq_rad_s.iter().fold(0.0_f64, |m, v| m.max(v.abs())));
+        if r.shutdown_complete {
+            break;
+        }
+    }
+    let r = *rig.cycle.report();
+    assert!(r.shutdown_complete, "not at rest after 1.6 s");
+    assert_eq!(r.stop_reason, StopReason::Shutdown);
+    assert!(r.cmd.dq_rad_s.iter().all(|v| *v == 0.0));
+    // Along the plan the speed may rise briefly with the plan's own acceleration (the
+    // time scaling starts with zero slope), then falls to rest.
+    let peak = speeds.iter().copied().fold(0.0, f64::max);
+    assert!(peak <= speeds[0] * 1.05, "the stop speeds up: {speeds:?}");
+    let half = speeds.len() / 2;
+    assert!(speeds[half] < 0.7 * speeds[0], "{speeds:?}");
+    assert!(rig.cycle.link().max_target_step_rad() <= max_step_rad(&rig));
+    // No plan is taken any more.
+    rig.policy(2, TARGET_B);
+    rig.run(300);
+    assert_eq!(rig.mode(), Mode::Stopped);
+}
