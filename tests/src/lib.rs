@@ -2,6 +2,9 @@
 //! unique iceoryx2 service prefixes, child processes that are killed when a test ends, and
 //! running a test body inside a private network namespace (for DDS and real xArm ports).
 
+pub mod rt_rig;
+pub mod sim_proc;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::sync::atomic::{AtomicU32, Ordering};

@@ -72,6 +72,7 @@ fn run_bounded(cmd: &mut Command, limit: Duration) -> (Output, Duration) {
 /// the refusal and the address, and no connection at the listener.
 fn assert_refused(who: &str, out: &Output, elapsed: Duration, listener: &TcpListener) {
     let stderr = String::from_utf8_lossy(&out.stderr);
+    eprintln!("{who}: {} after {elapsed:?}; stderr:\n{stderr}", out.status);
     let connected = match listener.accept() {
         Ok((_, peer)) => Some(peer),
         Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => None,

@@ -1,6 +1,7 @@
 //! Zero-allocation tests with the one counting allocator (`rt_core::rt::alloc_count`): the
 //! cycle over 100 000 cycles with policy swaps, the twin's per-step work, policy inference
-//! and hot swaps, and the xArm driver on the cycle path. One test binary, so the allocator
+//! and hot swaps, the xArm driver on the cycle path, and the production cycle (twin model, xArm driver)
+//! moving on `xarm-sim`. One test binary, so the allocator
 //! is global only here; measurements are serialised, since the counter is process-wide.
 
 #![allow(missing_docs, clippy::unwrap_used)]
@@ -9,9 +10,12 @@
 mod common;
 #[path = "../common/twin.rs"]
 mod twin_fixtures;
+#[path = "../common/xarm_rig.rs"]
+mod xarm_rig;
 
 mod cycle;
 mod policy;
+mod production_cycle;
 mod twin_step;
 mod xarm_driver;
 

@@ -8,9 +8,12 @@
 mod common;
 #[path = "../common/twin.rs"]
 mod twin_common;
+#[path = "../common/xarm_rig.rs"]
+mod xarm_rig;
 
 mod cycle;
 mod limits;
 mod safety;
 mod shield_twin;
 mod twin_cli;
+mod xarm_paths;

@@ -121,7 +121,7 @@ impl XArmConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum LoopbackCheckError {
     /// It is, or resolves to, an address that is not loopback.
-    #[error("it resolves to {0}, which is not a loopback address")]
+    #[error("{0} is not a loopback address")]
     NotLoopback(IpAddr),
     /// The name does not resolve.
     #[error("the name does not resolve ({0})")]

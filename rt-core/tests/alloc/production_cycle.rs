@@ -1,0 +1,40 @@
+//! The cycle with the production parts allocates nothing while the arm moves: the twin's
+//! shield model (FK and capsule clearance each period, the look-ahead pose, the one command
+//! check) and the xArm driver streaming to `xarm-sim` over TCP, including a stop along the
+//! plan and a collision error latched and acknowledged.
+
+use std::time::Duration;
+
+use crate::xarm_rig::{MOVE, XRig};
+use rt_core::cycle::{Mode, StopReason};
+use xarm::codes::ControllerError;
+
+#[test]
+fn the_production_cycle_moving_on_the_xarm_driver_does_not_allocate() {
+    let mut rig = XRig::start(false);
+    rig.run_for(Duration::from_millis(100));
+    rig.send_plan(MOVE, 2.5);
+    rig.run_for(Duration::from_millis(200));
+    assert_eq!(rig.cycle.mode(), Mode::Following);
+    let ((), moving) = crate::count_allocations(|| rig.run_for(Duration::from_millis(800)));
+    assert_eq!(rig.cycle.mode(), Mode::Following);
+    assert_eq!(moving, 0, "the cycle allocated while following a plan");
+    // A protective stop and its acknowledgement on the same path.
+    rig.sim
+        .as_ref()
+        .expect("sim")
+        .inject_error(ControllerError::Collision);
+    let ((), stopping) = crate::count_allocations(|| {
+        rig.run_for(Duration::from_millis(400));
+        rig.cycle.control().acknowledge();
+        rig.run_for(Duration::from_millis(200));
+    });
+    assert_eq!(
+        rig.cycle.report().stop_reason,
+        StopReason::ArmError(31),
+        "{:?}",
+        rig.cycle.report()
+    );
+    assert!(!rig.cycle.report().awaiting_ack);
+    assert_eq!(stopping, 0, "the cycle allocated on the error path");
+}

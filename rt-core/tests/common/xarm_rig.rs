@@ -1,0 +1,286 @@
+//! A cycle over the production parts on the real protocol (included with `#[path]`): the
+//! twin's shield model ([`TwinModel`]), the xArm driver, and `xarm-sim` in this process,
+//! reached through a TCP proxy that can cut the link; stepped on this thread at the real
+//! period (4 ms), with a fresh scene every cycle and plans handed over directly.
+
+#![allow(dead_code, missing_docs)]
+
+use std::io::{Read, Write};
+use std::net::{Shutdown, TcpListener, TcpStream};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use rt_core::config::RuntimeConfig;
+use rt_core::cycle::brake::Brake;
+use rt_core::cycle::plan::Plan;
+use rt_core::cycle::shield::{STEP_TOLERANCE, Shield, ShieldLimits};
+use rt_core::cycle::twin_model::TwinModel;
+use rt_core::cycle::{self, Cycle, CycleConfig, CycleEvent, SceneUpdate, TwinIo};
+use rt_core::rt::clock::{Clock, MonotonicClock};
+use rt_core::rt::rt_log::RtLogDrain;
+use twin::{DOF, Goal, Joints, RobotModel, Scene};
+use xarm::driver::{XArmConfig, XArmDriver};
+use xarm::report::ReportKind;
+use xarm_sim::{SimOptions, SimPorts, SimServer, SimSummary};
+
+/// A TCP proxy in front of one port that can cut every connection and refuse new ones
+/// for a while (a pulled cable, a switch reboot).
+pub struct Proxy {
+    pub port: u16,
+    conns: Arc<Mutex<Vec<TcpStream>>>,
+    refuse_until_ns: Arc<AtomicU64>,
+    origin: Instant,
+    stop: Arc<AtomicBool>,
+}
+
+impl Proxy {
+    pub fn start(upstream: u16) -> Self {
+        let listener = TcpListener::bind(("127.0.0.1", 0)).expect("proxy bind");
+        let port = listener.local_addr().expect("addr").port();
+        listener.set_nonblocking(true).expect("nonblocking");
+        let conns: Arc<Mutex<Vec<TcpStream>>> = Arc::default();
+        let refuse_until_ns = Arc::new(AtomicU64::new(0));
+        let stop = Arc::new(AtomicBool::new(false));
+        let origin = Instant::now();
+        let (c, r, s) = (conns.clone(), refuse_until_ns.clone(), stop.clone());
+        std::thread::spawn(move || {
+            while !s.load(Ordering::Acquire) {
+                match listener.accept() {
+                    Ok((client, _)) => {
+                        let now = origin.elapsed().as_nanos() as u64;
+                        if now < r.load(Ordering::Acquire) {
+                            drop(client);
+                            continue;
+                        }
+                        let _ = client.set_nonblocking(false);
+                        let _ = client.set_nodelay(true);
+                        let Ok(server) = TcpStream::connect(("127.0.0.1", upstream)) else {
+                            continue;
+                        };
+                        let _ = server.set_nodelay(true);
+                        for (mut from, mut to) in [
+                            (
+                                client.try_clone().expect("clone"),
+                                server.try_clone().expect("clone"),
+                            ),
+                            (
+                                server.try_clone().expect("clone"),
+                                client.try_clone().expect("clone"),
+                            ),
+                        ] {
+                            std::thread::spawn(move || {
+                                let mut buf = [0_u8; 4096];
+                                while let Ok(n) = from.read(&mut buf) {
+                                    if n == 0 || to.write_all(&buf[..n]).is_err() {
+                                        break;
+                                    }
+                                }
+                                let _ = to.shutdown(Shutdown::Both);
+                                let _ = from.shutdown(Shutdown::Both);
+                            });
+                        }
+                        if let Ok(mut v) = c.lock() {
+                            v.push(client);
+                            v.push(server);
+                        }
+                    }
+                    Err(_) => std::thread::sleep(Duration::from_micros(200)),
+                }
+            }
+        });
+        Self {
+            port,
+            conns,
+            refuse_until_ns,
+            origin,
+            stop,
+        }
+    }
+
+    /// Cuts every connection now and refuses new ones for `for_dur`.
+    pub fn cut(&self, for_dur: Duration) {
+        let until = self.origin.elapsed() + for_dur;
+        self.refuse_until_ns
+            .store(until.as_nanos() as u64, Ordering::Release);
+        if let Ok(mut v) = self.conns.lock() {
+            for s in v.drain(..) {
+                let _ = s.shutdown(Shutdown::Both);
+            }
+        }
+    }
+}
+
+impl Drop for Proxy {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Release);
+        self.cut(Duration::ZERO);
+    }
+}
+
+pub struct XRig {
+    pub cfg: RuntimeConfig,
+    pub sim: Option<SimServer>,
+    pub command_proxy: Proxy,
+    pub report_proxy: Proxy,
+    pub cycle: Cycle<TwinModel, XArmDriver>,
+    pub twin_io: TwinIo<Scene>,
+    pub log: RtLogDrain<CycleEvent>,
+    pub clock: MonotonicClock,
+    pub scene: Scene,
+    next_plan_id: u64,
+    deadline_ns: u64,
+}
+
+fn urdf() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .ancestors()
+        .map(|d| d.join("assets/xarm5.urdf"))
+        .find(|p| p.is_file())
+        .expect("assets/xarm5.urdf above the crate")
+}
+
+impl XRig {
+    /// A cycle in servo mode on a fresh `xarm-sim` at the arm's home pose. `auto_resume`:
+    /// the link's return needs no acknowledgement (and the driver re-enters servo mode).
+    pub fn start(auto_resume: bool) -> Self {
+        let cfg = RuntimeConfig::xarm5_default();
+        let model = RobotModel::load(&urdf()).expect("urdf");
+        let sim = SimServer::start(SimOptions {
+            ports: SimPorts::ephemeral(),
+            urdf: urdf(),
+            q0_rad: model.home(),
+            ..SimOptions::default()
+        })
+        .expect("sim starts");
+        let ports = sim.ports();
+        let command_proxy = Proxy::start(ports.command);
+        let report_proxy = Proxy::start(ports.report(ReportKind::Real));
+        let mut xcfg = XArmConfig::new("127.0.0.1");
+        xcfg.command_port = command_proxy.port;
+        xcfg.report_port = report_proxy.port;
+        xcfg.report_kind = ReportKind::Real;
+        xcfg.backoff_initial_ns = 2_000_000;
+        xcfg.backoff_max_ns = 50_000_000;
+        xcfg.resume_after_reconnect = auto_resume;
+        xcfg.max_resume_step_rad = max_step_rad(&cfg);
+        let mut driver = XArmDriver::connect(xcfg).expect("connect");
+        driver.enter_servo_mode().expect("servo mode");
+        let (twin_io, cycle_io, log) = cycle::wire::<Scene>();
+        let mut cycle_cfg = CycleConfig::from_runtime(&cfg);
+        cycle_cfg.auto_resume_after_link_loss = auto_resume;
+        let mut cycle = Cycle::new(
+            cycle_cfg,
+            Shield::new(
+                TwinModel::new(model),
+                ShieldLimits::from_config(&cfg.limits, &cfg.shield),
+            ),
+            Brake::new(&cfg.limits),
+            driver,
+            cycle_io,
+        );
+        let clock = MonotonicClock::new();
+        let mut started = cycle.start(clock.now_ns());
+        for _ in 0..100 {
+            if started.is_ok() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+            started = cycle.start(clock.now_ns());
+        }
+        started.expect("the cycle reads the arm");
+        let scene = Scene::empty(
+            0.0,
+            Goal {
+                center_m: [0.35, 0.15, 0.025],
+                size_m: 0.05,
+            },
+        );
+        let deadline_ns = clock.now_ns();
+        Self {
+            cfg,
+            sim: Some(sim),
+            command_proxy,
+            report_proxy,
+            cycle,
+            twin_io,
+            log,
+            clock,
+            scene,
+            next_plan_id: 1,
+            deadline_ns,
+        }
+    }
+
+    pub fn period_ns(&self) -> u64 {
+        self.cfg.period_ns()
+    }
+
+    /// One cycle at the next deadline (sleeping until it), with a fresh scene.
+    pub fn cycle_once(&mut self) {
+        self.deadline_ns += self.period_ns();
+        self.clock.sleep_until_ns(self.deadline_ns);
+        let now = self.clock.now_ns();
+        self.twin_io.scenes.send(SceneUpdate {
+            scene: self.scene,
+            stamp_ns: now,
+        });
+        self.cycle.process(now);
+        self.twin_io.plans.collect_returned();
+        let _ = self.twin_io.reports.latest();
+    }
+
+    /// Runs for `dur` of real time.
+    pub fn run_for(&mut self, dur: Duration) {
+        let n = dur.as_nanos() as u64 / self.period_ns();
+        self.deadline_ns = self.deadline_ns.max(self.clock.now_ns());
+        for _ in 0..n {
+            self.cycle_once();
+        }
+    }
+
+    /// Hands over a plan from where the arm stands to `delta` away (cosine profile over
+    /// `duration_s`, within the velocity limit); returns its id.
+    pub fn send_plan(&mut self, delta: Joints, duration_s: f64) -> u64 {
+        let q0 = self.cycle.report().measured_q_rad;
+        let dt = 1.0 / self.cfg.rate_hz;
+        let id = self.next_plan_id;
+        self.next_plan_id += 1;
+        let n = (duration_s / dt).ceil() as usize;
+        let mut plan = Plan::with_capacity(id, 1, dt, n + 1);
+        let w = std::f64::consts::PI / duration_s;
+        for i in 0..=n {
+            let t = i as f64 * dt;
+            let (mut q, mut dq, mut ddq) = ([0.0; DOF], [0.0; DOF], [0.0; DOF]);
+            for j in 0..DOF {
+                q[j] = q0[j] + delta[j] * 0.5 * (1.0 - (w * t).cos());
+                dq[j] = delta[j] * 0.5 * w * (w * t).sin();
+                ddq[j] = delta[j] * 0.5 * w * w * (w * t).cos();
+            }
+            plan.push(q, dq, ddq);
+        }
+        assert!(
+            self.twin_io.plans.send(Box::new(plan)).is_ok(),
+            "plan slot full"
+        );
+        id
+    }
+
+    pub fn sim_summary(&self) -> SimSummary {
+        self.sim.as_ref().expect("sim").summary()
+    }
+}
+
+/// The most one joint may move between two targets: one period at its velocity limit.
+pub fn max_step_rad(cfg: &RuntimeConfig) -> f64 {
+    let v = cfg
+        .limits
+        .max_velocity_rad_s
+        .iter()
+        .copied()
+        .fold(0.0, f64::max);
+    v / cfg.rate_hz * (1.0 + STEP_TOLERANCE)
+}
+
+/// A move that peaks at about 0.75 rad/s on joint 1 over 2.5 s.
+pub const MOVE: Joints = [1.2, 0.25, -0.25, 0.2, 0.3];

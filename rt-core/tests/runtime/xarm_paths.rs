@@ -1,0 +1,129 @@
+//! The safety paths on the real protocol: the production cycle (twin shield model, xArm
+//! driver) against `xarm-sim`, whose protective faults are on and which measures every
+//! target it receives. A link cut while the arm moves, and a collision error from the
+//! controller.
+
+use std::time::Duration;
+
+use crate::xarm_rig::{MOVE, XRig, max_step_rad};
+use rt_core::cycle::{Mode, StopReason};
+use xarm::codes::ControllerError;
+
+/// Cuts the link for `cut` while the arm moves at ~0.6 rad/s; the reconnect helper (2 ms
+/// back-off) brings it back while the stop is still under way.
+fn cut_while_moving(cut: Duration) {
+    let mut rig = XRig::start(true);
+    rig.run_for(Duration::from_millis(100));
+    rig.send_plan(MOVE, 2.5);
+    rig.run_for(Duration::from_millis(700));
+    assert_eq!(rig.cycle.mode(), Mode::Following);
+    rig.command_proxy.cut(cut);
+    rig.report_proxy.cut(cut);
+    rig.run_for(Duration::from_millis(1200));
+    let r = *rig.cycle.report();
+    let s = rig.sim_summary();
+    let limit = max_step_rad(&rig.cfg);
+    assert!(
+        s.connections >= 2,
+        "the link never came back ({cut:?} cut): {s:?}"
+    );
+    assert!(
+        s.max_joint_step_rad <= limit,
+        "a {cut:?} cut: a step of {} rad reached the controller (limit {limit}); {s:?}",
+        s.max_joint_step_rad
+    );
+    assert_eq!(s.protective_faults, 0, "{s:?}");
+    assert_eq!(r.stop_reason, StopReason::LinkLost, "{r:?}");
+    assert_eq!(r.mode, Mode::Stopped, "{r:?}");
+    assert!(s.counters.servo_accepted > 100, "{s:?}");
+}
+
+#[test]
+fn a_1_ms_link_cut_while_moving_puts_no_jump_on_the_wire() {
+    cut_while_moving(Duration::from_millis(1));
+}
+
+#[test]
+fn a_5_ms_link_cut_while_moving_puts_no_jump_on_the_wire() {
+    cut_while_moving(Duration::from_millis(5));
+}
+
+#[test]
+fn a_10_ms_link_cut_while_moving_puts_no_jump_on_the_wire() {
+    cut_while_moving(Duration::from_millis(10));
+}
+
+#[test]
+fn after_a_link_cut_a_real_arm_waits_for_the_acknowledgement() {
+    let mut rig = XRig::start(false);
+    rig.run_for(Duration::from_millis(100));
+    rig.send_plan(MOVE, 2.5);
+    rig.run_for(Duration::from_millis(500));
+    rig.command_proxy.cut(Duration::from_millis(5));
+    rig.report_proxy.cut(Duration::from_millis(5));
+    rig.run_for(Duration::from_millis(800));
+    assert!(rig.cycle.report().awaiting_ack);
+    let accepted = rig.sim_summary().counters.servo_accepted;
+    rig.send_plan(MOVE, 2.5);
+    rig.run_for(Duration::from_millis(500));
+    let s = rig.sim_summary();
+    assert_eq!(
+        s.counters.servo_accepted, accepted,
+        "targets reached the arm before the acknowledgement: {s:?}"
+    );
+    rig.cycle.control().acknowledge();
+    rig.run_for(Duration::from_millis(100));
+    assert!(!rig.cycle.report().awaiting_ack);
+    rig.send_plan([0.1, 0.0, 0.0, 0.0, 0.0], 1.0);
+    rig.run_for(Duration::from_millis(600));
+    let s = rig.sim_summary();
+    assert!(s.counters.servo_accepted > accepted + 50, "{s:?}");
+    assert!(s.max_joint_step_rad <= max_step_rad(&rig.cfg), "{s:?}");
+    assert_eq!(s.protective_faults, 0, "{s:?}");
+}
+
+#[test]
+fn a_collision_error_is_an_arm_error_and_nothing_moves_until_acknowledged() {
+    let mut rig = XRig::start(false);
+    rig.run_for(Duration::from_millis(100));
+    rig.send_plan(MOVE, 2.5);
+    rig.run_for(Duration::from_millis(500));
+    assert_eq!(rig.cycle.mode(), Mode::Following);
+    rig.sim
+        .as_ref()
+        .expect("sim")
+        .inject_error(ControllerError::Collision);
+    rig.run_for(Duration::from_millis(400));
+    let r = *rig.cycle.report();
+    assert_eq!(r.stop_reason, StopReason::ArmError(31), "{r:?}");
+    assert_eq!(r.arm_error_code, 31, "{r:?}");
+    assert!(r.awaiting_ack, "{r:?}");
+    assert_eq!(r.mode, Mode::Stopped);
+    // No motion, no CLEAN_ERROR, whatever plans arrive.
+    let before = rig.sim_summary();
+    rig.send_plan(MOVE, 2.5);
+    rig.run_for(Duration::from_millis(600));
+    let s = rig.sim_summary();
+    assert_eq!(
+        s.clean_error_requests, 0,
+        "rt-core cleared the error: {s:?}"
+    );
+    assert_eq!(s.q_rad, before.q_rad, "the arm moved: {s:?}");
+    assert_eq!(s.error_code, 31, "{s:?}");
+    // The operator acknowledges: the error is cleared once, and a fresh plan moves.
+    rig.cycle.control().acknowledge();
+    rig.run_for(Duration::from_millis(300));
+    let r = *rig.cycle.report();
+    assert!(!r.awaiting_ack, "{r:?}");
+    let s = rig.sim_summary();
+    assert_eq!(s.clean_error_requests, 1, "{s:?}");
+    assert_eq!(s.error_code, 0, "{s:?}");
+    rig.send_plan([0.1, 0.0, 0.0, 0.0, 0.0], 1.0);
+    rig.run_for(Duration::from_millis(600));
+    let after = rig.sim_summary();
+    assert!(
+        (after.q_rad[0] - s.q_rad[0]).abs() > 0.05,
+        "no motion after the acknowledgement: {after:?}"
+    );
+    assert_eq!(after.protective_faults, 0, "{after:?}");
+}

@@ -1,0 +1,98 @@
+//! `xarm-sim` as a child process for the system tests: started on given ports (0: the OS
+//! picks) with the workspace's URDF and a scene, its `listening` line read for the ports it
+//! announced, and its summary line read when it is interrupted.
+
+use std::io::{BufRead, BufReader};
+use std::process::{ChildStdout, Command, Stdio};
+use std::time::Duration;
+
+use crate::{ChildGuard, bin_path, repo_root};
+
+/// `xarm-sim`'s port options and the keys of its `listening` line.
+pub const PORTS: [(&str, &str); 6] = [
+    ("--command-port", "command"),
+    ("--report-rt-port", "report_rt"),
+    ("--report-normal-port", "report_normal"),
+    ("--report-rich-port", "report_rich"),
+    ("--report-real-port", "report_real"),
+    ("--control-port", "control"),
+];
+
+/// The ports `xarm-sim` announced, in the order of [`PORTS`].
+pub type SimPorts = [u16; 6];
+
+/// A running `xarm-sim`.
+pub struct SimProc {
+    /// The child (killed when dropped).
+    pub guard: ChildGuard,
+    /// Its stdout after the `listening` line.
+    pub out: BufReader<ChildStdout>,
+    /// The ports it announced.
+    pub ports: SimPorts,
+}
+
+impl SimProc {
+    /// Starts `xarm-sim` on `ports` with `assets/scenes/small_box.toml` and `extra` args.
+    ///
+    /// # Panics
+    /// When it does not start or announce its ports.
+    pub fn start(ports: SimPorts, extra: &[&str]) -> Self {
+        let root = repo_root();
+        let mut cmd = Command::new(bin_path("xarm-sim"));
+        for ((flag, _), port) in PORTS.iter().zip(ports) {
+            cmd.arg(flag).arg(port.to_string());
+        }
+        cmd.arg("--urdf")
+            .arg(root.join("assets/xarm5.urdf"))
+            .arg("--scene")
+            .arg(root.join("assets/scenes/small_box.toml"))
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null());
+        let mut guard = ChildGuard::spawn("xarm-sim", &mut cmd);
+        let mut out = BufReader::new(guard.child.stdout.take().expect("sim stdout"));
+        let mut line = String::new();
+        out.read_line(&mut line).expect("listening line");
+        let v: serde_json::Value = serde_json::from_str(&line).expect("xarm-sim's listening line");
+        assert_eq!(v["event"], "listening", "{line}");
+        let ports = PORTS.map(|(_, key)| {
+            v["ports"][key]
+                .as_u64()
+                .and_then(|p| u16::try_from(p).ok())
+                .unwrap_or_else(|| panic!("no {key} port in {line}"))
+        });
+        Self { guard, out, ports }
+    }
+
+    /// The command port.
+    pub fn command_port(&self) -> u16 {
+        self.ports[0]
+    }
+
+    /// The real-time report port (30003's stand-in).
+    pub fn report_real_port(&self) -> u16 {
+        self.ports[4]
+    }
+
+    /// Interrupts it and returns its summary (the last JSON line on stdout).
+    ///
+    /// # Panics
+    /// When it does not stop or print a summary.
+    pub fn finish(mut self) -> serde_json::Value {
+        assert!(
+            self.guard
+                .interrupt_and_wait(Duration::from_secs(5))
+                .is_some(),
+            "xarm-sim did not stop"
+        );
+        let mut last = None;
+        let mut line = String::new();
+        while self.out.read_line(&mut line).is_ok_and(|n| n > 0) {
+            if let Ok(v) = serde_json::from_str::<serde_json::Value>(&line) {
+                last = Some(v);
+            }
+            line.clear();
+        }
+        last.expect("xarm-sim summary line")
+    }
+}
