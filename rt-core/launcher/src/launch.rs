@@ -23,7 +23,7 @@ use crate::run_dir::{RunDir, write_atomic};
 use crate::runtime_view::RuntimeView;
 use crate::scenario::{Action, Director, ScenarioConfig, TimelineEvent};
 use crate::sim_link::{sim_collisions, sim_control, sim_status};
-use crate::supervisor::{ProcessEvent, Supervisor, send_signal};
+use crate::supervisor::{ProcessEvent, Supervisor};
 
 /// Runs one scenario, or `--runs N` randomised ones; true when every run met its goal.
 pub fn run_all(args: &LaunchArgs) -> Result<bool> {
@@ -336,6 +336,12 @@ fn finish(
     director: &Director,
     mut notes: Vec<String>,
 ) -> Result<report::Summary> {
+    // rt-core first: it stops the arm under control and puts the controller in its stop
+    // state; the simulated arm's status is read after that.
+    let rt_status = sup.stop_one("rt-core", crate::processes::RT_CORE_STOP_GRACE);
+    if let Some(st) = rt_status.filter(|s| !s.success()) {
+        notes.push(format!("rt-core ended with {st}"));
+    }
     let sim_status = started.sim.and_then(|sim| {
         let status = sim_status(sim.control);
         if status.is_none() {
@@ -350,9 +356,6 @@ fn finish(
     let arm_rejected_commands = sim_status
         .as_ref()
         .and_then(|v| v["counters"]["servo_rejected"].as_u64());
-    if let Some(pid) = sup.pid("rt-core") {
-        send_signal(pid, "INT");
-    }
     sup.stop_all(Duration::from_secs(5));
     let (p99, p999) = read_cycle_stats(&setup.run.path.join("logs/rt-core.log"));
     let restarts = ["perception", "learner"]

@@ -184,6 +184,9 @@ fn start_learner(
     Ok(())
 }
 
+/// How long the launcher waits for rt-core's controlled stop before SIGKILL.
+pub const RT_CORE_STOP_GRACE: std::time::Duration = std::time::Duration::from_secs(6);
+
 fn start_rt_core(
     sup: &mut Supervisor,
     bins: &Path,
@@ -214,7 +217,13 @@ fn start_rt_core(
         s(&args.checkpoint.join("policy.blob")),
     ];
     if let Some(p) = sim {
-        rt_args.extend(["--report-port".into(), p.report_real.to_string()]);
+        // xarm-sim: a lost link may resume without an operator (a real arm waits for the
+        // acknowledgement, `kill -USR1` of rt-core).
+        rt_args.extend([
+            "--report-port".into(),
+            p.report_real.to_string(),
+            "--auto-resume".into(),
+        ]);
     }
     if args.no_lookahead {
         rt_args.push("--no-lookahead".into());
@@ -233,5 +242,8 @@ fn start_rt_core(
         env: vec![],
         restart: false,
     })?;
+    // On every way out of the launcher (the end, an error, Ctrl-C) rt-core is stopped
+    // first and given the time of its controlled stop (rt-core's own limit is 3 s).
+    sup.stop_first("rt-core", RT_CORE_STOP_GRACE);
     Ok(())
 }

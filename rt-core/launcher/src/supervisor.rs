@@ -72,6 +72,7 @@ struct Supervised {
 pub struct Supervisor {
     log_dir: PathBuf,
     procs: Vec<Supervised>,
+    first: Option<(String, Duration)>,
 }
 
 fn spawn(spec: &ProcessSpec, log_dir: &Path) -> Result<Child, SuperviseError> {
@@ -104,6 +105,7 @@ impl Supervisor {
         Self {
             log_dir: log_dir.to_path_buf(),
             procs: Vec::new(),
+            first: None,
         }
     }
 
@@ -204,8 +206,19 @@ impl Supervisor {
         status
     }
 
-    /// Stops every process in reverse start order (SIGINT, grace, SIGKILL).
+    /// Names the process stopped before all others, with its own grace time (rt-core: it
+    /// stops the arm under control and puts the controller in its stop state before it
+    /// exits, which must not be cut short, and needs its inputs alive meanwhile).
+    pub fn stop_first(&mut self, name: &str, grace: Duration) {
+        self.first = Some((name.to_owned(), grace));
+    }
+
+    /// Stops every process: the one named by [`Supervisor::stop_first`] first, then the
+    /// others in reverse start order (SIGINT, grace, SIGKILL).
     pub fn stop_all(&mut self, grace: Duration) {
+        if let Some((name, first_grace)) = self.first.clone() {
+            self.stop_one(&name, first_grace);
+        }
         let names: Vec<String> = self
             .procs
             .iter()

@@ -366,6 +366,21 @@ impl TwinNode {
         Ok(())
     }
 
+    /// Publishes the cycle's last report at once (at shutdown), whatever the rate limit.
+    ///
+    /// # Errors
+    /// [`TwinNodeError::Loan`], [`TwinNodeError::Send`].
+    pub fn publish_final_state(
+        &mut self,
+        report: Option<&CycleReport>,
+        shared: &LoopShared,
+        fk: &mut TwinModel,
+        now_ns: u64,
+    ) -> Result<(), TwinNodeError> {
+        self.last_state_ns = 0;
+        self.publish_state(report, shared, fk, now_ns)
+    }
+
     /// Publishes the robot state from the cycle's latest report (at most every 4 ms and
     /// once per cycle), and now and then lets the retrain publisher see new subscribers: a
     /// learner that (re)connects gets the last retrain request from the service's history,

@@ -292,8 +292,7 @@ pub fn serve<L: RobotLink + 'static>(
     }
     let deadline = Instant::now() + SHUTDOWN_TIMEOUT;
     while !cycle_thread.is_finished() && Instant::now() < deadline {
-        twin.step(&mut events);
-        events.clear();
+        twin.take_reports();
         let _ = node.publish_state(twin.last_report(), &shared, &mut fk, clock.now_ns());
         std::thread::sleep(Duration::from_millis(2));
     }
@@ -318,6 +317,9 @@ pub fn serve<L: RobotLink + 'static>(
         None => Ok(0),
     };
     let done = cycle_thread.join().map_err(|_| ServeError::CyclePanicked);
+    // The cycle's last report (at rest) goes out before the exit.
+    twin.take_reports();
+    let _ = node.publish_final_state(twin.last_report(), &shared, &mut fk, clock.now_ns());
     let _ = log_thread.join();
     looped?;
     let done = done?;
