@@ -50,6 +50,11 @@ pub struct LaunchArgs {
     /// Compute and log every command but send none to the arm.
     #[arg(long)]
     pub dry_run: bool,
+    /// Operator action: let rt-core clear the controller's error and warning at start
+    /// (it never does on its own). Acknowledge a protective stop while running with
+    /// `kill -USR1 <rt-core pid>`.
+    #[arg(long)]
+    pub clear_errors: bool,
     /// Also publish to ROS 2 (starts the `ros-bridge` process).
     #[arg(long)]
     pub ros: bool,

@@ -228,6 +228,9 @@ fn start_rt_core(
     if args.no_lookahead {
         rt_args.push("--no-lookahead".into());
     }
+    if args.clear_errors {
+        rt_args.push("--clear-errors".into());
+    }
     if args.dry_run {
         rt_args.extend([
             "--dry-run".into(),

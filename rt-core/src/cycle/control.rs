@@ -257,12 +257,10 @@ impl CycleControl {
     /// not following).
     pub fn progress(&self) -> Option<(u64, usize)> {
         let w = self.progress.load(Ordering::Acquire);
-        (w != 0).then(|| {
-            (
-                w >> PROGRESS_INDEX_BITS,
-                (w & ((1 << PROGRESS_INDEX_BITS) - 1)) as usize,
-            )
-        })
+        (w != 0).then_some((
+            w >> PROGRESS_INDEX_BITS,
+            (w & ((1 << PROGRESS_INDEX_BITS) - 1)) as usize,
+        ))
     }
 
     fn set_progress(&self, plan_id: u64, next_index: usize) {
@@ -394,6 +392,10 @@ impl CycleConfig {
     }
 }
 
+/// Periods an acknowledgement is retried when the link cannot pass it on (≈ 0.2 s at
+/// 250 Hz); then the operator must acknowledge again.
+const ACK_ATTEMPTS: u32 = 50;
+
 /// How the running stop moves the arm.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum StopMotion {
@@ -426,6 +428,7 @@ pub struct Cycle<M: ShieldModel, L: RobotLink> {
     link_ok: bool,
     started: bool,
     acks_seen: u64,
+    ack_failures: u32,
 }
 
 impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
@@ -459,6 +462,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             link_ok: true,
             started: false,
             acks_seen: 0,
+            ack_failures: 0,
         }
     }
 
@@ -686,7 +690,12 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                     self.report.awaiting_ack = true;
                     self.begin_stop(now_ns, StopReason::ArmError(code), StopMotion::Brake);
                 } else {
-                    if !self.cfg.auto_resume_after_link_loss && self.started {
+                    // A lost connection latches; a reading that is late or pending (no
+                    // fresh report, an error code still being read) only stops.
+                    if e == LinkError::Disconnected
+                        && !self.cfg.auto_resume_after_link_loss
+                        && self.started
+                    {
                         self.report.awaiting_ack = true;
                     }
                     self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
@@ -703,12 +712,18 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         if acks == self.acks_seen {
             return;
         }
-        self.acks_seen = acks;
-        if !self.report.awaiting_ack || !self.link_ok || self.mode == Mode::Stopping {
+        if !self.report.awaiting_ack {
+            self.acks_seen = acks;
+            return;
+        }
+        if !self.link_ok || self.mode == Mode::Stopping {
+            // Kept for when the link is back and the arm at rest.
             return;
         }
         match self.link.acknowledge(now_ns) {
             Ok(()) => {
+                self.acks_seen = acks;
+                self.ack_failures = 0;
                 self.report.awaiting_ack = false;
                 self.report.arm_error_code = 0;
                 let q = self.report.measured_q_rad;
@@ -717,9 +732,17 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                 self.io.log.log(now_ns, CycleEvent::Acknowledged);
             }
             Err(error) => {
-                self.io
-                    .log
-                    .log(now_ns, CycleEvent::AcknowledgeFailed { error });
+                // Tried again next period (e.g. a full pipeline); logged once.
+                if self.ack_failures == 0 {
+                    self.io
+                        .log
+                        .log(now_ns, CycleEvent::AcknowledgeFailed { error });
+                }
+                self.ack_failures = self.ack_failures.saturating_add(1);
+                if self.ack_failures > ACK_ATTEMPTS {
+                    self.acks_seen = acks;
+                    self.ack_failures = 0;
+                }
             }
         }
     }
@@ -779,11 +802,16 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                     if let LinkError::ControllerError(code) = e {
                         let q = self.report.measured_q_rad;
                         self.on_arm_error(now_ns, code, q);
-                    } else {
+                    } else if e == LinkError::Disconnected {
                         self.link_ok = false;
                         if !self.cfg.auto_resume_after_link_loss {
                             self.report.awaiting_ack = true;
                         }
+                        self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
+                    } else {
+                        // Refused before the wire or pending (a full pipeline, an error bit
+                        // whose code is being read): this command did not go out; stop.
+                        self.report.commands_refused += 1;
                         self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
                     }
                 }

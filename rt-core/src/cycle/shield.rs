@@ -217,7 +217,8 @@ impl<M: ShieldModel> Shield<M> {
         q_rad: &Joints,
         dt_s: f64,
     ) -> Result<(), ShieldViolation> {
-        if prev_q_rad.iter().chain(q_rad).any(|x| !x.is_finite()) || !(dt_s >= 0.0) {
+        if prev_q_rad.iter().chain(q_rad).any(|x| !x.is_finite()) || !dt_s.is_finite() || dt_s < 0.0
+        {
             return Err(ShieldViolation::NonFinite);
         }
         let scale = (1.0 + STEP_TOLERANCE) * dt_s;

@@ -61,8 +61,8 @@ pub struct ServeOptions {
     pub prefix: String,
     /// Stop after this many seconds (0 = until SIGINT/SIGTERM).
     pub seconds: f64,
-    /// Blind run: no lookahead gate, and the shield's clearance leaves the obstacle boxes
-    /// out (the table and every limit still hold). `rt-core run` allows it only on a
+    /// Blind run: no lookahead gate, no clearance in the plan check, and the cycle's shield
+    /// leaves the obstacle boxes out (the table and every limit still hold). `rt-core run` allows it only on a
     /// loopback robot address (`cycle::xarm_link::check_blind_mode_target`).
     pub no_lookahead: bool,
     /// Dry run (the link withholds every command); a command log is written.
@@ -205,7 +205,7 @@ pub fn serve<L: RobotLink + 'static>(
     }
     if opts.no_lookahead {
         tracing::warn!(
-            "--no-lookahead: plans run whatever the lookahead says, and the shield leaves the \
+            "--no-lookahead: plans run whatever the lookahead says; the cycle's shield leaves the \
              obstacle boxes out of its clearance (the table and every limit still hold)"
         );
     }
@@ -218,7 +218,7 @@ pub fn serve<L: RobotLink + 'static>(
     let cyc = start_cycle(
         cfg,
         opts,
-        run_shield(cfg, &model, opts.no_lookahead),
+        cycle_shield(cfg, &model, opts.no_lookahead),
         link,
         cycle_io,
         &clock,
@@ -226,7 +226,7 @@ pub fn serve<L: RobotLink + 'static>(
     let mut twin = TwinWorker::new(
         cfg,
         lookahead,
-        run_shield(cfg, &model, opts.no_lookahead),
+        plan_shield(cfg, &model, opts.no_lookahead),
         twin_io,
     );
     if opts.no_lookahead {
@@ -345,15 +345,28 @@ pub fn serve<L: RobotLink + 'static>(
     })
 }
 
-/// The shield `rt-core run` gives the cycle and the twin worker alike: the configured limits
-/// over the twin's model. `blind` (`--no-lookahead`) leaves the obstacle boxes out of the
-/// clearance ([`TwinModel::with_boxes_ignored`]); the table clearance, the joint, workspace
-/// and speed limits still hold.
-pub fn run_shield(cfg: &RuntimeConfig, model: &RobotModel, blind: bool) -> Shield<TwinModel> {
+/// The cycle's shield in `rt-core run`, the check of every command sent: the configured
+/// limits over the twin's model. `blind` (`--no-lookahead`) leaves the obstacle boxes out
+/// of the clearance ([`TwinModel::with_boxes_ignored`]); the table clearance, the joint,
+/// workspace and speed limits still hold.
+pub fn cycle_shield(cfg: &RuntimeConfig, model: &RobotModel, blind: bool) -> Shield<TwinModel> {
     Shield::new(
         TwinModel::new(model.clone()).with_boxes_ignored(blind),
         ShieldLimits::from_config(&cfg.limits, &cfg.shield),
     )
+}
+
+/// The twin worker's plan check in `rt-core run` (before approval, and again when the
+/// scene changes): the cycle's shield, except that `blind` (`--no-lookahead`) turns its
+/// clearance off altogether, so that a blind plan starts whatever the twin says of it (the
+/// demonstration); the cycle's shield ([`cycle_shield`]) still stops it at the table or a
+/// limit.
+pub fn plan_shield(cfg: &RuntimeConfig, model: &RobotModel, blind: bool) -> Shield<TwinModel> {
+    let mut limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
+    if blind {
+        limits.min_distance_m = f64::NEG_INFINITY;
+    }
+    Shield::new(TwinModel::new(model.clone()), limits)
 }
 
 /// [`serve`] on `link`, wrapped in a [`DryRunLink`] that withholds every command when

@@ -354,14 +354,13 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         if !self.want_plan {
             return;
         }
-        let (Some(r), Some(scene)) = (self.report, self.scene) else {
+        let (Some(r), Some(_)) = (self.report, self.scene) else {
             return;
         };
         if r.t_ns < self.no_plan_before_ns || r.awaiting_ack || self.io.control.shutdown_requested()
         {
             return;
         }
-        let _ = scene;
         self.plan_due(events);
     }
 

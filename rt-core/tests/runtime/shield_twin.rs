@@ -39,24 +39,27 @@ fn the_shield_model_measures_the_table_too() {
     );
 }
 
-/// Blind mode (`rt-core run --no-lookahead`) leaves the obstacle boxes out of the shield's
-/// clearance, never the table or a limit: the shield `rt-core run` builds for the cycle in
-/// blind mode ([`run_shield`]) passes a pose whose wrist is inside a box, and still refuses
-/// the wrist in the table, a joint out of range and the TCP out of the workspace.
+/// Blind mode (`rt-core run --no-lookahead`) leaves the obstacle boxes out of the cycle's
+/// shield, never the table or a limit: the shield `rt-core run` builds for the cycle in
+/// blind mode ([`cycle_shield`]) passes a pose whose TCP is inside a box, and still refuses
+/// the wrist in the table, a joint out of range and the TCP out of the workspace. (The
+/// twin worker's plan check, [`plan_shield`], has no clearance in blind mode: the plan
+/// starts, and the cycle stops it.)
 ///
-/// [`run_shield`]: rt_core::twin_thread::serve::run_shield
+/// [`cycle_shield`]: rt_core::twin_thread::serve::cycle_shield
+/// [`plan_shield`]: rt_core::twin_thread::serve::plan_shield
 #[test]
 fn blind_mode_ignores_the_boxes_but_keeps_the_table_and_the_limits() {
     use rt_core::config::RuntimeConfig;
     use rt_core::cycle::shield::{ShieldModel, ShieldViolation};
-    use rt_core::twin_thread::serve::run_shield;
+    use rt_core::twin_thread::serve::{cycle_shield, plan_shield};
     use twin::{BoxObstacle, Goal, Scene};
 
     let model = twin_common::model();
     let cfg = RuntimeConfig::load(&twin_common::assets().join("runtime.toml")).unwrap();
     let start = twin_common::task().start.joints_rad;
-    let mut blind = run_shield(&cfg, &model, true);
-    let mut gated = run_shield(&cfg, &model, false);
+    let mut blind = cycle_shield(&cfg, &model, true);
+    let mut gated = cycle_shield(&cfg, &model, false);
     assert!(blind.model_mut().boxes_ignored() && !gated.model_mut().boxes_ignored());
 
     let goal = Goal {
@@ -115,6 +118,18 @@ fn blind_mode_ignores_the_boxes_but_keeps_the_table_and_the_limits() {
             blind.check_pose(&low, scene)
         );
     }
+
+    // The plan check lets the blind plan start; the cycle stops it at the table.
+    assert!(
+        plan_shield(&cfg, &model, true)
+            .check_pose(&low, &boxed)
+            .is_ok()
+    );
+    assert!(
+        plan_shield(&cfg, &model, false)
+            .check_pose(&low, &empty)
+            .is_err()
+    );
 
     // The limits hold too.
     let mut q = start;

@@ -93,7 +93,13 @@ fn a_collision_error_is_an_arm_error_and_nothing_moves_until_acknowledged() {
         .as_ref()
         .expect("sim")
         .inject_error(ControllerError::Collision);
-    rig.run_for(Duration::from_millis(400));
+    for _ in 0..500 {
+        rig.cycle_once();
+        if rig.cycle.report().awaiting_ack {
+            break;
+        }
+    }
+    rig.run_for(Duration::from_millis(100));
     let r = *rig.cycle.report();
     assert_eq!(r.stop_reason, StopReason::ArmError(31), "{r:?}");
     assert_eq!(r.arm_error_code, 31, "{r:?}");

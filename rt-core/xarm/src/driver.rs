@@ -98,6 +98,10 @@ pub struct XArmDriver {
     origin: Instant,
     /// When `GET_ERROR` was last asked while an error stands (ns).
     last_error_poll_ns: u64,
+    /// An acknowledgement is under way until the reply to its last request (this
+    /// transaction id): error codes read meanwhile (reports, `GET_ERROR` replies) predate
+    /// the `CLEAN_ERROR` and are ignored.
+    acknowledging: Option<u16>,
     /// Re-opens a lost link off the caller's thread: the one reconnect path.
     reconnector: Reconnector,
 }
@@ -140,6 +144,7 @@ impl XArmDriver {
             servo_frame: [0; SERVOJ_FRAME_LEN],
             origin: Instant::now(),
             last_error_poll_ns: 0,
+            acknowledging: None,
             reconnector,
         };
         d.wait_for_first_report()?;
@@ -344,8 +349,14 @@ impl XArmDriver {
                 detection: Some(0),
             },
             Request::SetState(0),
+            // Last: the authoritative answer whether the error is gone (reports and replies
+            // read before it may still carry the old code and are ignored).
+            Request::GetError,
         ];
         let conn = self.conn.as_mut().ok_or(XArmError::Disconnected)?;
+        if conn.error_query_in_flight {
+            return Err(XArmError::Backlog);
+        }
         if conn.in_flight.len + requests.len() > MAX_IN_FLIGHT {
             return Err(XArmError::Backlog);
         }
@@ -354,6 +365,8 @@ impl XArmDriver {
                 return Err(self.lose(e));
             }
         }
+        conn.error_query_in_flight = true;
+        self.acknowledging = Some(conn.last_tid());
         self.error = ControllerError::None;
         self.warning = ControllerWarning::None;
         self.error_bit_seen = false;
@@ -452,13 +465,18 @@ impl XArmDriver {
             }));
         };
         r.check(expect.tid, conn.protocol, expect.register)?;
+        if self.acknowledging == Some(expect.tid) {
+            self.acknowledging = None;
+        }
         let event = if expect.register == u8::from(Register::GetError) {
             conn.error_query_in_flight = false;
             let (e, w) = r.err_warn()?;
             ReplyEvent::ErrorCode(e, w)
         } else if r.status & STATUS_ERROR != 0 {
             self.stats.error_replies += 1;
-            self.error_bit_seen = true;
+            // During an acknowledgement the replies still carry the bit of the error
+            // being cleared.
+            self.error_bit_seen |= self.acknowledging.is_none();
             ReplyEvent::Ok
         } else if r.status & STATUS_NOT_READY != 0
             && expect.register == u8::from(Register::MoveServoJ)
@@ -492,6 +510,7 @@ impl XArmDriver {
                 Ok(None) => break,
                 Ok(Some(ReplyEvent::Ok)) => {}
                 Ok(Some(ReplyEvent::NotReady)) => self.not_ready_seen = true,
+                Ok(Some(ReplyEvent::ErrorCode(..))) if self.acknowledging.is_some() => {}
                 Ok(Some(ReplyEvent::ErrorCode(e, w))) => {
                     self.error = ControllerError::from(e);
                     self.warning = ControllerWarning::from(w);
@@ -566,7 +585,9 @@ impl XArmDriver {
                 }
             }
             self.prev_q = Some((q, now_ns));
-            if let Some(e) = r.error_code {
+            if let Some(e) = r.error_code
+                && self.acknowledging.is_none()
+            {
                 self.error = ControllerError::from(e);
                 self.error_bit_seen = e != 0;
             }
@@ -599,7 +620,11 @@ impl XArmDriver {
         }
         self.drain_replies(now_ns, self.cfg.reply_budget)?;
         self.drain_reports(now_ns)?;
-        let s = self.state.ok_or(XArmError::NoState)?;
+        let mut s = self.state.ok_or(XArmError::NoState)?;
+        // The codes as known now (an acknowledgement may have cleared them since the
+        // last report was decoded).
+        s.error = self.error;
+        s.warning = self.warning;
         if now_ns.saturating_sub(s.stamp_ns) > self.cfg.stale_after_ns {
             return Err(XArmError::NoState);
         }

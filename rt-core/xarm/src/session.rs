@@ -134,6 +134,11 @@ impl Session {
         })
     }
 
+    /// The transaction id of the last request written.
+    pub(crate) fn last_tid(&self) -> u16 {
+        self.tid
+    }
+
     pub(crate) fn next_tid(&mut self) -> u16 {
         self.tid = if self.tid == u16::MAX {
             1
