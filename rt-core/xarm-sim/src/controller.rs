@@ -945,8 +945,8 @@ mod tests {
         assert_eq!(c.counters().servo_accepted, u64::from(n));
         assert_eq!(c.counters().protective_faults, 0);
         assert_eq!(c.servo_stream().last_fault, None);
-        for i in 0..5 {
-            assert!((c.q_rad()[i] - q[i]).abs() < 1e-6, "joint {i} reached");
+        for (i, (got, want)) in c.q_rad().iter().zip(q).enumerate() {
+            assert!((got - want).abs() < 1e-6, "joint {i} reached");
         }
         let st = c.servo_stream();
         assert!(
