@@ -117,6 +117,15 @@ impl ProtectiveLimits {
                 });
             }
         }
+        // The controller's servo period: 0.1 ms … 1 s (a subnormal "positive" period would
+        // turn every target into a fault).
+        if !(1e-4..=1.0).contains(&self.servo_period_s) {
+            return Err(ProtectiveLimitsError {
+                field: "servo_period_s",
+                expected: "between 0.0001 and 1 s",
+                value: self.servo_period_s,
+            });
+        }
         if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
             return Err(ProtectiveLimitsError {
                 field: "tolerance",

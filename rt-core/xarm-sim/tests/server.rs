@@ -384,15 +384,39 @@ fn bad_fault_flags_are_refused_naming_the_flag() {
         ("--max-joint-speed-rad-s", "-1"),
         ("--max-tcp-speed-m-s", "inf"),
         ("--fault-tolerance", "NaN"),
+        ("--fault-tolerance", "-0.1"),
+        // Positive and finite, but refused by the library's range check (0.1 ms … 1 s).
+        ("--servo-period-ms", "2000"),
         ("--servo-period-ms", "1e-320"),
     ] {
-        let out = sim_command(&[flag, value])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .output()
-            .expect("xarm-sim runs");
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert!(!out.status.success(), "{flag} {value} accepted");
+        let mut child = Kill(
+            sim_command(&[flag, value])
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .expect("xarm-sim runs"),
+        );
+        // A refused flag exits at once; a simulator still running after 5 s accepted it.
+        let deadline = std::time::Instant::now() + Duration::from_secs(5);
+        let status = loop {
+            if let Some(st) = child.0.try_wait().expect("wait") {
+                break st;
+            }
+            assert!(
+                std::time::Instant::now() < deadline,
+                "{flag} {value} accepted"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let mut err = String::new();
+        child
+            .0
+            .stderr
+            .take()
+            .expect("stderr")
+            .read_to_string(&mut err)
+            .expect("stderr text");
+        assert!(!status.success(), "{flag} {value} accepted");
         assert!(err.contains(flag), "{flag} {value}: {err}");
     }
 }
