@@ -38,7 +38,13 @@ fn states_after(seen: &[(Instant, Seen)], t: Instant) -> Vec<shm_schemas::RobotS
 }
 
 /// Starts the run, waits until the arm moves, ends it 0.3 s later, and checks the stop.
+/// One run at a time (each is a real-time process and a simulated controller; on a loaded
+/// 2-core machine four at once would measure the machine, not the stop).
 fn end_a_moving_run(test: &str, extra: &[&str], ending: Ending, expect_success: bool) {
+    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _serial = ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     let sim = SimProc::start([0; 6], &[]);
     let mut args: Vec<String> = [
         "--link",
@@ -61,7 +67,7 @@ fn end_a_moving_run(test: &str, extra: &[&str], ending: Ending, expect_success: 
     rig.publish_policy(&straight_line_blob(1, &task(), 0.0), false);
     let moving_at = rig.wait("the arm moving", Duration::from_secs(20), |s| {
         s.iter().find_map(|(t, x)| match x {
-            Seen::State(st) if st.active_policy_id == 1 && speed(st) > 0.05 => Some(*t),
+            Seen::State(st) if st.active_policy_id == 1 && speed(st) > 0.02 => Some(*t),
             _ => None,
         })
     });
@@ -147,7 +153,8 @@ fn sigterm_0_3_s_into_a_plan_stops_the_arm_then_the_controller() {
 
 #[test]
 fn a_twin_loop_error_stops_the_arm_then_exits_non_zero() {
-    // The command log on a full disk: its first flush, ~0.1 s into the plan, fails.
+    // The command log on a full disk: its first flush, 0.1 s after the first command line,
+    // fails.
     end_a_moving_run(
         "exit_twin_error",
         &["--command-log", "/dev/full"],

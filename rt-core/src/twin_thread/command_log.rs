@@ -68,6 +68,10 @@ impl CommandLog {
         }
         self.last_cycle = r.cycles;
         if r.mode == Mode::Following {
+            if self.lines == 0 {
+                // The 100 ms flush period counts from the first command line.
+                self.flushed = Instant::now();
+            }
             let q = r.cmd.q_rad;
             writeln!(
                 self.out,

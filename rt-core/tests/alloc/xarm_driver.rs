@@ -27,7 +27,12 @@ fn the_cycle_path_does_not_allocate() {
             let mut q = q0;
             q[0] += 0.001 * f64::from(k);
             let _ = d.read_state(clock.ns());
-            d.send_servo(clock.ns(), &q).expect("send");
+            // A loaded machine may leave the pipeline full for a cycle (the sim answers
+            // late): that is the driver refusing to queue more, not a failure here.
+            match d.send_servo(clock.ns(), &q) {
+                Ok(()) | Err(XArmError::Backlog) => {}
+                Err(e) => panic!("send: {e:?}"),
+            }
         }
     };
     run(&mut d, 50);

@@ -213,7 +213,8 @@ fn a_joint_speed_fault_reaches_get_error_the_reports_and_the_summary() {
         assert_eq!(c.servo_j(&q), 0, "target {k}");
         std::thread::sleep(Duration::from_millis(4));
     }
-    std::thread::sleep(Duration::from_millis(100));
+    // State 1 for 100 ms after the last target, then 2.
+    std::thread::sleep(Duration::from_millis(300));
     let s = sim.summary();
     assert_eq!(
         (s.protective_faults, s.error_code, s.state, s.mode),
