@@ -12,7 +12,7 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use rt_core::config::RuntimeConfig;
 use rt_core::cycle::link::{InProcessArm, RobotLink};
-use rt_core::cycle::shield::STEP_TOLERANCE;
+use rt_core::cycle::shield::ShieldLimits;
 use rt_core::cycle::xarm_link::{XArmOpenOptions, check_blind_mode_target, open_xarm};
 use rt_core::twin_thread::serve::{InjectedFault, ServeOptions, serve_on};
 use twin::{RobotModel, TaskConfig};
@@ -68,7 +68,7 @@ pub struct RunArgs {
     auto_resume: bool,
     /// Test hook: inject a fault to exercise an exit path (`twin-panic:MS`, a twin-thread
     /// panic MS ms after a plan starts). Hidden; never for operation.
-    #[arg(long, hide = true, value_parser = parse_fault)]
+    #[arg(long, hide = true)]
     inject_fault: Option<InjectedFault>,
     /// A policy blob file to start with (e.g. assets/policy/policy.blob); it is validated
     /// and must pass the lookahead like any policy the learner sends.
@@ -152,7 +152,8 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
                 report_port: args.report_port,
                 dry_run: args.dry_run,
                 clear_errors: args.clear_errors,
-                max_resume_step_rad: max_step_per_period_rad(&cfg),
+                max_resume_step_rad: ShieldLimits::from_config(&cfg.limits, &cfg.shield)
+                    .max_step_rad(1.0 / cfg.rate_hz),
                 resume_after_reconnect: args.auto_resume,
             };
             let driver = open_xarm(host, &open).map_err(|e| {
@@ -184,29 +185,4 @@ fn run_on<L: RobotLink + 'static>(
     // One JSON line on stdout with the run's figures, for the launcher's report.
     println!("{}", summary.to_json(opts));
     Ok(())
-}
-
-/// One period at the fastest joint's velocity limit (plus the shield's step tolerance):
-/// the most the first target after a reconnect may differ from the reported joints.
-fn max_step_per_period_rad(cfg: &RuntimeConfig) -> f64 {
-    let v = cfg
-        .limits
-        .max_velocity_rad_s
-        .iter()
-        .copied()
-        .fold(0.0, f64::max);
-    v * cfg.period_ns() as f64 * 1e-9 * (1.0 + STEP_TOLERANCE)
-}
-
-/// Parses `--inject-fault` (`twin-panic:MS`).
-fn parse_fault(s: &str) -> Result<InjectedFault, String> {
-    match s.split_once(':') {
-        Some(("twin-panic", ms)) => ms
-            .parse()
-            .map(|after_ms| InjectedFault::TwinPanic { after_ms })
-            .map_err(|e| format!("--inject-fault twin-panic:MS: bad MS {ms:?}: {e}")),
-        _ => Err(format!(
-            "--inject-fault: unknown fault {s:?} (known: twin-panic:MS)"
-        )),
-    }
 }

@@ -120,6 +120,14 @@ pub struct ShieldLimits {
 }
 
 impl ShieldLimits {
+    /// The most one joint may move between two commands sent one period apart: one
+    /// period at the fastest joint's velocity limit plus [`STEP_TOLERANCE`] (also the
+    /// driver's limit on the first target after a reconnect), rad.
+    pub fn max_step_rad(&self, period_s: f64) -> f64 {
+        let v = self.max_velocity_rad_s.iter().copied().fold(0.0, f64::max);
+        v * period_s * (1.0 + STEP_TOLERANCE)
+    }
+
     /// From the runtime configuration.
     pub fn from_config(limits: &MotionLimits, shield: &ShieldConfig) -> Self {
         let mut joint_min_rad = limits.joint_min_rad;

@@ -54,6 +54,21 @@ pub enum InjectedFault {
     },
 }
 
+impl std::str::FromStr for InjectedFault {
+    type Err = String;
+
+    /// `twin-panic:MS`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.split_once(':') {
+            Some(("twin-panic", ms)) => ms
+                .parse()
+                .map(|after_ms| InjectedFault::TwinPanic { after_ms })
+                .map_err(|e| format!("twin-panic:MS: bad MS {ms:?}: {e}")),
+            _ => Err(format!("unknown fault {s:?} (known: twin-panic:MS)")),
+        }
+    }
+}
+
 /// What `rt-core run` was asked to do besides the configuration.
 #[derive(Debug, Clone, Default)]
 pub struct ServeOptions {

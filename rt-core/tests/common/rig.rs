@@ -43,6 +43,18 @@ impl Rig {
 
     /// A rig over `cfg`.
     pub fn with_config(cfg: RuntimeConfig) -> Self {
+        Self::build(cfg, false)
+    }
+
+    /// A rig whose cycle takes fresh plans after a lost link returns without an
+    /// acknowledgement (a simulated arm's `--auto-resume`).
+    pub fn auto_resuming() -> Self {
+        let mut cfg = RuntimeConfig::xarm5_default();
+        cfg.return_home = false;
+        Self::build(cfg, true)
+    }
+
+    fn build(cfg: RuntimeConfig, auto_resume: bool) -> Self {
         let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
         let (twin_io, cycle_io, log) = cycle::wire::<ToyScene>();
         let arm = InProcessArm::new(
@@ -51,8 +63,10 @@ impl Rig {
             cfg.limits.joint_max_rad,
             [3.0; DOF],
         );
+        let mut cycle_cfg = CycleConfig::from_runtime(&cfg);
+        cycle_cfg.auto_resume_after_link_loss = auto_resume;
         let mut cycle = Cycle::new(
-            CycleConfig::from_runtime(&cfg),
+            cycle_cfg,
             Shield::new(ToyArm, limits),
             Brake::new(&cfg.limits),
             arm,

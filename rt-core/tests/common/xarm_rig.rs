@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use rt_core::config::RuntimeConfig;
 use rt_core::cycle::brake::Brake;
 use rt_core::cycle::plan::Plan;
-use rt_core::cycle::shield::{STEP_TOLERANCE, Shield, ShieldLimits};
+use rt_core::cycle::shield::{Shield, ShieldLimits};
 use rt_core::cycle::twin_model::TwinModel;
 use rt_core::cycle::{self, Cycle, CycleConfig, CycleEvent, SceneUpdate, TwinIo};
 use rt_core::rt::clock::{Clock, MonotonicClock};
@@ -266,6 +266,18 @@ impl XRig {
         id
     }
 
+    /// Hands over `plan` as built by the caller (e.g. a faulty one); returns its id.
+    pub fn send_raw_plan(&mut self, mut plan: Plan) -> u64 {
+        plan.id = self.next_plan_id;
+        self.next_plan_id += 1;
+        let id = plan.id;
+        assert!(
+            self.twin_io.plans.send(Box::new(plan)).is_ok(),
+            "plan slot full"
+        );
+        id
+    }
+
     pub fn sim_summary(&self) -> SimSummary {
         self.sim.as_ref().expect("sim").summary()
     }
@@ -273,13 +285,7 @@ impl XRig {
 
 /// The most one joint may move between two targets: one period at its velocity limit.
 pub fn max_step_rad(cfg: &RuntimeConfig) -> f64 {
-    let v = cfg
-        .limits
-        .max_velocity_rad_s
-        .iter()
-        .copied()
-        .fold(0.0, f64::max);
-    v / cfg.rate_hz * (1.0 + STEP_TOLERANCE)
+    ShieldLimits::from_config(&cfg.limits, &cfg.shield).max_step_rad(1.0 / cfg.rate_hz)
 }
 
 /// A move that peaks at about 0.75 rad/s on joint 1 over 2.5 s.

@@ -6,6 +6,8 @@
 use std::time::Duration;
 
 use crate::xarm_rig::{MOVE, XRig, max_step_rad};
+use rt_core::cycle::plan::Plan;
+use rt_core::cycle::shield::ShieldViolation;
 use rt_core::cycle::{Mode, StopReason};
 use xarm::codes::ControllerError;
 
@@ -132,4 +134,33 @@ fn a_collision_error_is_an_arm_error_and_nothing_moves_until_acknowledged() {
         "no motion after the acknowledgement: {after:?}"
     );
     assert_eq!(after.protective_faults, 0, "{after:?}");
+}
+
+#[test]
+fn a_plan_sample_that_jumps_never_reaches_the_controller() {
+    // A plan (as a faulty twin could hand over) whose sample 100 jumps 0.02 rad on joint 1:
+    // the one check refuses it before the wire and the arm brakes from the last command.
+    let mut rig = XRig::start(false);
+    rig.run_for(Duration::from_millis(100));
+    let q0 = rig.cycle.report().measured_q_rad;
+    let dt = 1.0 / rig.cfg.rate_hz;
+    let mut plan = Plan::with_capacity(0, 1, dt, 300);
+    for i in 0..300 {
+        let mut q = q0;
+        q[0] += 0.002 * i as f64 + if i >= 100 { 0.02 } else { 0.0 };
+        plan.push(q, [0.5, 0.0, 0.0, 0.0, 0.0], [0.0; 5]);
+    }
+    rig.send_raw_plan(plan);
+    rig.run_for(Duration::from_millis(900));
+    let r = *rig.cycle.report();
+    let s = rig.sim_summary();
+    assert_eq!(
+        r.stop_reason,
+        StopReason::Shield(ShieldViolation::JointStep { joint: 0 }),
+        "{r:?}"
+    );
+    assert!(r.commands_refused >= 1, "{r:?}");
+    assert!(s.max_joint_step_rad <= max_step_rad(&rig.cfg), "{s:?}");
+    assert_eq!(s.protective_faults, 0, "{s:?}");
+    assert_eq!(r.mode, Mode::Stopped);
 }

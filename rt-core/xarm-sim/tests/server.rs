@@ -31,43 +31,15 @@ fn control(port: u16, cmd: &str) -> String {
 
 #[test]
 fn swaps_scenes_on_schedule_and_on_request_and_summarises_at_exit() {
-    let mut child = Kill(
-        Command::new(env!("CARGO_BIN_EXE_xarm-sim"))
-            .args(["--bind", "127.0.0.1"])
-            .args([
-                "--command-port",
-                "0",
-                "--report-rt-port",
-                "0",
-                "--report-normal-port",
-                "0",
-            ])
-            .args([
-                "--report-rich-port",
-                "0",
-                "--report-real-port",
-                "0",
-                "--control-port",
-                "0",
-            ])
-            .arg("--urdf")
-            .arg(asset("xarm5.urdf"))
-            .arg("--scene")
-            .arg(asset("scenes/small_box.toml"))
-            .arg("--swap-scene-at")
-            .arg("0.5s")
-            .arg(asset("scenes/tall_box.toml"))
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("xarm-sim starts"),
-    );
-    let mut out = BufReader::new(child.0.stdout.take().expect("stdout"));
-    let mut line = String::new();
-    out.read_line(&mut line).expect("listening line");
-    let v: serde_json::Value = serde_json::from_str(&line).expect("JSON");
-    assert_eq!(v["event"], "listening");
-    let ctl = v["ports"]["control"].as_u64().expect("control port") as u16;
+    let (mut child, mut out, ctl) = start_listening(&[
+        "--bind",
+        "127.0.0.1",
+        "--scene",
+        &asset("scenes/small_box.toml").to_string_lossy(),
+        "--swap-scene-at",
+        "0.5s",
+        &asset("scenes/tall_box.toml").to_string_lossy(),
+    ]);
     assert_ne!(ctl, 0);
 
     let status: serde_json::Value = serde_json::from_str(&control(ctl, "status")).expect("status");
@@ -378,6 +350,25 @@ fn sim_command(extra: &[&str]) -> Command {
     cmd
 }
 
+/// Starts the binary with `extra` and reads its `listening` line: the child, its stdout
+/// (for the summary) and the control port.
+fn start_listening(extra: &[&str]) -> (Kill, BufReader<std::process::ChildStdout>, u16) {
+    let mut child = Kill(
+        sim_command(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("xarm-sim starts"),
+    );
+    let mut out = BufReader::new(child.0.stdout.take().expect("stdout"));
+    let mut line = String::new();
+    out.read_line(&mut line).expect("listening line");
+    let v: serde_json::Value = serde_json::from_str(&line).expect("JSON");
+    assert_eq!(v["event"], "listening");
+    let ctl = v["ports"]["control"].as_u64().expect("control port") as u16;
+    (child, out, ctl)
+}
+
 #[test]
 fn bad_fault_flags_are_refused_naming_the_flag() {
     for (flag, value) in [
@@ -424,18 +415,8 @@ fn bad_fault_flags_are_refused_naming_the_flag() {
 
 #[test]
 fn control_port_injects_errors_and_status_shows_the_fault_figures() {
-    let mut child = Kill(
-        sim_command(&["--no-protective-faults", "--servo-period-ms", "8"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("xarm-sim starts"),
-    );
-    let mut out = BufReader::new(child.0.stdout.take().expect("stdout"));
-    let mut line = String::new();
-    out.read_line(&mut line).expect("listening line");
-    let v: serde_json::Value = serde_json::from_str(&line).expect("JSON");
-    let ctl = v["ports"]["control"].as_u64().expect("control port") as u16;
+    let (mut child, _out, ctl) =
+        start_listening(&["--no-protective-faults", "--servo-period-ms", "8"]);
     let status: serde_json::Value = serde_json::from_str(&control(ctl, "status")).expect("status");
     assert_eq!(status["protective_limits"]["enabled"], false);
     assert_eq!(status["protective_limits"]["servo_period_s"], 0.008);
