@@ -77,6 +77,97 @@ pub struct StaleConfig {
     pub max_robot_state_age_s: f64,
 }
 
+/// What rt-core accepts from perception (`[intake]`): a frame with an object outside the
+/// calibrated workspace, a goal out of reach or a stamp that is not fresh is refused whole
+/// (counted, and the arm stops: see [`crate::twin_thread::intake`]).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IntakeConfig {
+    /// A goal detected with less confidence than this counts as no goal (no plan). Obstacles
+    /// are kept whatever their confidence: a false obstacle costs a detour, a missed one a
+    /// collision.
+    #[serde(default = "default_min_goal_confidence")]
+    pub min_goal_confidence: f32,
+    /// The calibrated workspace, lower corner (base frame, m): every detected object's
+    /// centre must lie in this box, or the frame is refused (a detection out there means a
+    /// wrong calibration or a wrong depth, not an object to plan around).
+    #[serde(default = "default_calibrated_min_m")]
+    pub calibrated_min_m: [f64; 3],
+    /// The calibrated workspace, upper corner, m.
+    #[serde(default = "default_calibrated_max_m")]
+    pub calibrated_max_m: [f64; 3],
+    /// A goal's centre must lie this far or farther from the base axis, m (closer, the arm
+    /// would fold onto itself).
+    #[serde(default = "default_goal_min_radius_m")]
+    pub goal_min_radius_m: f64,
+    /// A goal's centre must lie this far or nearer from the base axis, m (the xArm5 reaches
+    /// 0.7 m).
+    #[serde(default = "default_goal_max_radius_m")]
+    pub goal_max_radius_m: f64,
+}
+
+impl Default for IntakeConfig {
+    fn default() -> Self {
+        Self {
+            min_goal_confidence: default_min_goal_confidence(),
+            calibrated_min_m: default_calibrated_min_m(),
+            calibrated_max_m: default_calibrated_max_m(),
+            goal_min_radius_m: default_goal_min_radius_m(),
+            goal_max_radius_m: default_goal_max_radius_m(),
+        }
+    }
+}
+
+fn default_min_goal_confidence() -> f32 {
+    0.5
+}
+fn default_calibrated_min_m() -> [f64; 3] {
+    [-0.8, -0.8, -0.05]
+}
+fn default_calibrated_max_m() -> [f64; 3] {
+    [0.8, 0.8, 1.0]
+}
+fn default_goal_min_radius_m() -> f64 {
+    0.15
+}
+fn default_goal_max_radius_m() -> f64 {
+    0.65
+}
+
+/// The bounds every safety limit is validated against (documented in
+/// `assets/runtime.toml`). A value outside them is refused at load with the field named.
+pub mod bounds {
+    /// The xArm SDK's joint speed limit (180 °/s), rad/s: no configured joint velocity may
+    /// exceed it (nor the URDF's, checked against the model at start).
+    pub const SDK_MAX_JOINT_VELOCITY_RAD_S: f64 = std::f64::consts::PI;
+    /// The xArm SDK's joint acceleration limit (1145 °/s²), rad/s².
+    pub const SDK_MAX_JOINT_ACCELERATION_RAD_S2: f64 = 20.0;
+    /// Largest joint jerk accepted, rad/s³ (the SDK's 28 647 °/s³).
+    pub const SDK_MAX_JOINT_JERK_RAD_S3: f64 = 500.0;
+    /// Largest cycle rate on the xArm link, Hz (the controller's servo-mode maximum).
+    pub const XARM_MAX_RATE_HZ: f64 = 250.0;
+    /// Largest detection age, s: older, a dead perception would leave the arm moving on a
+    /// scene that may have changed.
+    pub const MAX_DETECTION_AGE_S: f64 = 1.0;
+    /// Largest robot-state age, s.
+    pub const MAX_ROBOT_STATE_AGE_S: f64 = 0.2;
+    /// Smallest clearance the shield may be given, m (the detection grid is 5 mm).
+    pub const MIN_CLEARANCE_FLOOR_M: f64 = 0.005;
+    /// Largest clearance, m (more leaves no room to work).
+    pub const MAX_CLEARANCE_M: f64 = 0.2;
+    /// Largest joint margin, rad.
+    pub const MAX_JOINT_MARGIN_RAD: f64 = 0.5;
+    /// The xArm5's reach (0.7 m) plus room for a tool, m: the TCP workspace and the
+    /// calibrated workspace lie within this of the base axis in x and y.
+    pub const REACH_BOUND_M: f64 = 0.8;
+    /// Lowest z of a workspace, m (below the base plate).
+    pub const WORKSPACE_MIN_Z_M: f64 = -0.1;
+    /// Highest z of a workspace, m (the xArm5 stretched up reaches about 0.95 m).
+    pub const WORKSPACE_MAX_Z_M: f64 = 1.1;
+    /// Smallest goal-confidence floor.
+    pub const MIN_GOAL_CONFIDENCE_FLOOR: f32 = 0.05;
+}
+
 /// The whole runtime configuration.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -105,6 +196,9 @@ pub struct RuntimeConfig {
     pub shield: ShieldConfig,
     /// Stale-input ages.
     pub stale: StaleConfig,
+    /// What is accepted from perception.
+    #[serde(default)]
+    pub intake: IntakeConfig,
 }
 
 fn default_rate_hz() -> f64 {
@@ -122,10 +216,6 @@ fn default_return_home() -> bool {
 }
 fn default_dwell_at_goal_s() -> f64 {
     1.0
-}
-
-fn finite_pos(v: &[f64]) -> bool {
-    v.iter().all(|x| x.is_finite() && *x > 0.0)
 }
 
 impl RuntimeConfig {
@@ -190,15 +280,55 @@ impl RuntimeConfig {
         if !(self.dwell_at_goal_s.is_finite() && (0.0..=60.0).contains(&self.dwell_at_goal_s)) {
             return bad("dwell_at_goal_s", "must be within 0..=60 s");
         }
+        self.validate_limits()?;
+        self.validate_shield()?;
+        let period_s = 1.0 / self.rate_hz;
+        let st = &self.stale;
+        if !(st.max_detection_age_s.is_finite()
+            && st.max_detection_age_s > period_s
+            && st.max_detection_age_s <= bounds::MAX_DETECTION_AGE_S)
+        {
+            return bad(
+                "stale.max_detection_age_s",
+                "must exceed one cycle period and be at most 1 s",
+            );
+        }
+        if !(st.max_robot_state_age_s.is_finite()
+            && st.max_robot_state_age_s > period_s
+            && st.max_robot_state_age_s <= bounds::MAX_ROBOT_STATE_AGE_S)
+        {
+            return bad(
+                "stale.max_robot_state_age_s",
+                "must exceed one cycle period and be at most 0.2 s",
+            );
+        }
+        self.validate_intake()
+    }
+
+    fn validate_limits(&self) -> Result<(), RuntimeConfigError> {
+        let bad = |field, why| Err(RuntimeConfigError::Invalid { field, why });
+        let within = |v: &[f64], max: f64| v.iter().all(|x| x.is_finite() && *x > 0.0 && *x <= max);
         let l = &self.limits;
-        if !finite_pos(&l.max_velocity_rad_s) {
-            return bad("limits.max_velocity_rad_s", "must be finite and > 0");
+        if !within(&l.max_velocity_rad_s, bounds::SDK_MAX_JOINT_VELOCITY_RAD_S) {
+            return bad(
+                "limits.max_velocity_rad_s",
+                "must be > 0 and at most the SDK's pi rad/s",
+            );
         }
-        if !finite_pos(&l.max_acceleration_rad_s2) {
-            return bad("limits.max_acceleration_rad_s2", "must be finite and > 0");
+        if !within(
+            &l.max_acceleration_rad_s2,
+            bounds::SDK_MAX_JOINT_ACCELERATION_RAD_S2,
+        ) {
+            return bad(
+                "limits.max_acceleration_rad_s2",
+                "must be > 0 and at most the SDK's 20 rad/s^2",
+            );
         }
-        if !finite_pos(&l.max_jerk_rad_s3) {
-            return bad("limits.max_jerk_rad_s3", "must be finite and > 0");
+        if !within(&l.max_jerk_rad_s3, bounds::SDK_MAX_JOINT_JERK_RAD_S3) {
+            return bad(
+                "limits.max_jerk_rad_s3",
+                "must be > 0 and at most 500 rad/s^3",
+            );
         }
         if l.joint_min_rad
             .iter()
@@ -216,36 +346,126 @@ impl RuntimeConfig {
         {
             return bad("limits.max_tcp_speed_m_s", "must be within (0, 1) m/s");
         }
+        Ok(())
+    }
+
+    fn validate_shield(&self) -> Result<(), RuntimeConfigError> {
+        let bad = |field, why| Err(RuntimeConfigError::Invalid { field, why });
         let s = &self.shield;
-        if s.workspace_min_m
-            .iter()
-            .zip(&s.workspace_max_m)
-            .any(|(a, b)| !(a.is_finite() && b.is_finite() && a < b))
-        {
+        if !box_within_reach(&s.workspace_min_m, &s.workspace_max_m) {
             return bad(
                 "shield.workspace_min_m",
-                "must be finite and below workspace_max_m",
+                "must be finite, below workspace_max_m and within reach (|x|, |y| <= 0.8 m, z in -0.1..=1.1 m)",
             );
         }
-        if !(s.min_distance_m.is_finite() && s.min_distance_m >= 0.0) {
-            return bad("shield.min_distance_m", "must be finite and >= 0");
+        if !(s.min_distance_m.is_finite()
+            && (bounds::MIN_CLEARANCE_FLOOR_M..=bounds::MAX_CLEARANCE_M)
+                .contains(&s.min_distance_m))
+        {
+            return bad("shield.min_distance_m", "must be within 0.005..=0.2 m");
         }
-        if !(s.joint_margin_rad.is_finite() && s.joint_margin_rad >= 0.0) {
-            return bad("shield.joint_margin_rad", "must be finite and >= 0");
+        if !(s.joint_margin_rad.is_finite()
+            && (0.0..=bounds::MAX_JOINT_MARGIN_RAD).contains(&s.joint_margin_rad))
+        {
+            return bad("shield.joint_margin_rad", "must be within 0..=0.5 rad");
         }
-        let period_s = 1.0 / self.rate_hz;
-        let st = &self.stale;
-        if !(st.max_detection_age_s.is_finite() && st.max_detection_age_s > period_s) {
-            return bad("stale.max_detection_age_s", "must exceed one cycle period");
+        Ok(())
+    }
+
+    fn validate_intake(&self) -> Result<(), RuntimeConfigError> {
+        let bad = |field, why| Err(RuntimeConfigError::Invalid { field, why });
+        let i = &self.intake;
+        if !(i.min_goal_confidence.is_finite()
+            && (bounds::MIN_GOAL_CONFIDENCE_FLOOR..=1.0).contains(&i.min_goal_confidence))
+        {
+            return bad("intake.min_goal_confidence", "must be within 0.05..=1");
         }
-        if !(st.max_robot_state_age_s.is_finite() && st.max_robot_state_age_s > period_s) {
+        if !box_within_reach(&i.calibrated_min_m, &i.calibrated_max_m) {
             return bad(
-                "stale.max_robot_state_age_s",
-                "must exceed one cycle period",
+                "intake.calibrated_min_m",
+                "must be finite, below calibrated_max_m and within reach (|x|, |y| <= 0.8 m, z in -0.1..=1.1 m)",
+            );
+        }
+        if !(i.goal_min_radius_m.is_finite() && (0.0..=0.5).contains(&i.goal_min_radius_m)) {
+            return bad("intake.goal_min_radius_m", "must be within 0..=0.5 m");
+        }
+        if !(i.goal_max_radius_m.is_finite()
+            && i.goal_max_radius_m > i.goal_min_radius_m
+            && i.goal_max_radius_m <= 0.7)
+        {
+            return bad(
+                "intake.goal_max_radius_m",
+                "must exceed goal_min_radius_m and be at most the xArm5's reach, 0.7 m",
             );
         }
         Ok(())
     }
+
+    /// Checks the parts that depend on the link: the xArm controller takes at most one
+    /// servo target per 4 ms.
+    ///
+    /// # Errors
+    /// [`RuntimeConfigError::Invalid`] naming `rate_hz`.
+    pub fn check_for_xarm_link(&self) -> Result<(), RuntimeConfigError> {
+        if self.rate_hz > bounds::XARM_MAX_RATE_HZ {
+            return Err(RuntimeConfigError::Invalid {
+                field: "rate_hz",
+                why: "must be at most 250 Hz on the xArm link (the controller's servo-mode maximum)",
+            });
+        }
+        Ok(())
+    }
+
+    /// Checks the joint limits against the robot model (URDF): every configured joint range
+    /// lies within the URDF's (1 mrad of rounding allowed), and every joint velocity is at
+    /// most the URDF's.
+    ///
+    /// # Errors
+    /// [`RuntimeConfigError::Invalid`] naming the field.
+    pub fn check_against_model(&self, model: &twin::RobotModel) -> Result<(), RuntimeConfigError> {
+        let l = &self.limits;
+        let urdf = model.limits();
+        for j in 0..l.joint_min_rad.len() {
+            if l.joint_min_rad[j] < urdf.lower_rad[j] - 1e-3 {
+                return Err(RuntimeConfigError::Invalid {
+                    field: "limits.joint_min_rad",
+                    why: "must lie within the URDF's joint limits",
+                });
+            }
+            if l.joint_max_rad[j] > urdf.upper_rad[j] + 1e-3 {
+                return Err(RuntimeConfigError::Invalid {
+                    field: "limits.joint_max_rad",
+                    why: "must lie within the URDF's joint limits",
+                });
+            }
+        }
+        if l.max_velocity_rad_s
+            .iter()
+            .zip(&urdf.velocity_rad_s)
+            .any(|(v, u)| *v > *u + 1e-9)
+        {
+            return Err(RuntimeConfigError::Invalid {
+                field: "limits.max_velocity_rad_s",
+                why: "must be at most the URDF's joint velocity limits",
+            });
+        }
+        Ok(())
+    }
+}
+
+/// A box given by two corners is finite, ordered and within [`bounds::REACH_BOUND_M`].
+fn box_within_reach(min_m: &[f64; 3], max_m: &[f64; 3]) -> bool {
+    let finite_ordered = min_m
+        .iter()
+        .zip(max_m)
+        .all(|(a, b)| a.is_finite() && b.is_finite() && a < b);
+    finite_ordered
+        && min_m[..2]
+            .iter()
+            .chain(&max_m[..2])
+            .all(|v| v.abs() <= bounds::REACH_BOUND_M)
+        && min_m[2] >= bounds::WORKSPACE_MIN_Z_M
+        && max_m[2] <= bounds::WORKSPACE_MAX_Z_M
 }
 
 #[cfg(test)]
@@ -307,6 +527,42 @@ mod tests {
                 "[40.0, 40.0, 0.0, 40.0, 40.0]",
                 "limits.max_jerk_rad_s3",
             ),
+            // Issue 14's limits without bounds: each of these loaded and ran.
+            ("max_detection_age_s", "1e9", "stale.max_detection_age_s"),
+            (
+                "max_velocity_rad_s",
+                "[100.0, 1.0, 1.0, 1.0, 1.0]",
+                "limits.max_velocity_rad_s",
+            ),
+            ("min_distance_m", "0.0", "shield.min_distance_m"),
+            (
+                "workspace_min_m",
+                "[-1000.0, -1000.0, 0.0]",
+                "shield.workspace_min_m",
+            ),
+            (
+                "workspace_max_m",
+                "[1000.0, 1000.0, 1000.0]",
+                "shield.workspace_min_m",
+            ),
+            (
+                "max_robot_state_age_s",
+                "5.0",
+                "stale.max_robot_state_age_s",
+            ),
+            (
+                "max_acceleration_rad_s2",
+                "[400.0, 4.0, 4.0, 4.0, 4.0]",
+                "limits.max_acceleration_rad_s2",
+            ),
+            ("joint_margin_rad", "3.0", "shield.joint_margin_rad"),
+            ("min_goal_confidence", "0.0", "intake.min_goal_confidence"),
+            (
+                "calibrated_max_m",
+                "[5.0, 0.8, 1.0]",
+                "intake.calibrated_min_m",
+            ),
+            ("goal_max_radius_m", "3.0", "intake.goal_max_radius_m"),
         ];
         for (key, value, field) in cases {
             match RuntimeConfig::from_toml(&with_value(key, value)) {
@@ -314,6 +570,59 @@ mod tests {
                 other => panic!("{key} = {value}: expected Invalid({field}), got {other:?}"),
             }
         }
+    }
+
+    #[test]
+    fn the_xarm_link_takes_at_most_250_hz() {
+        let cfg = RuntimeConfig::from_toml(&with_value("rate_hz", "500.0")).unwrap();
+        match cfg.check_for_xarm_link() {
+            Err(RuntimeConfigError::Invalid { field, .. }) => assert_eq!(field, "rate_hz"),
+            other => panic!("expected Invalid(rate_hz), got {other:?}"),
+        }
+        RuntimeConfig::xarm5_default()
+            .check_for_xarm_link()
+            .unwrap();
+    }
+
+    #[test]
+    fn joint_limits_are_checked_against_the_urdf() {
+        let urdf = concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/xarm5.urdf");
+        let model = twin::RobotModel::load(std::path::Path::new(urdf)).unwrap();
+        RuntimeConfig::xarm5_default()
+            .check_against_model(&model)
+            .unwrap();
+        let cases = [
+            (
+                "joint_max_rad",
+                "[6.283, 2.094, 1.5, 3.141, 6.283]",
+                "limits.joint_max_rad",
+            ),
+            (
+                "joint_min_rad",
+                "[-6.283, -2.5, -3.927, -1.693, -6.283]",
+                "limits.joint_min_rad",
+            ),
+        ];
+        for (key, value, field) in cases {
+            let cfg = RuntimeConfig::from_toml(&with_value(key, value)).unwrap();
+            match cfg.check_against_model(&model) {
+                Err(RuntimeConfigError::Invalid { field: f, .. }) => assert_eq!(f, field),
+                other => panic!("{key} = {value}: expected Invalid({field}), got {other:?}"),
+            }
+        }
+        // Velocity above the URDF's 3.14 rad/s but within the SDK's pi: refused by the model.
+        let cfg = RuntimeConfig::from_toml(&with_value(
+            "max_velocity_rad_s",
+            "[3.1415, 1.0, 1.0, 1.0, 1.0]",
+        ))
+        .unwrap();
+        assert!(matches!(
+            cfg.check_against_model(&model),
+            Err(RuntimeConfigError::Invalid {
+                field: "limits.max_velocity_rad_s",
+                ..
+            })
+        ));
     }
 
     #[test]

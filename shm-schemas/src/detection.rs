@@ -5,8 +5,12 @@ use iceoryx2::prelude::ZeroCopySend;
 use crate::error::{SchemaError, count_within, finite_f32};
 use crate::scene_file::MAX_SCENE_EXTENT_M;
 
-/// Most objects one frame can carry.
+/// Most objects one frame can carry. The twin's scene holds as many obstacles
+/// ([`crate::scene_file::MAX_OBSTACLES`]), so every object a valid frame carries reaches the
+/// twin: one capacity from the camera to the shield.
 pub const MAX_DETECTIONS: usize = 16;
+
+const _: () = assert!(MAX_DETECTIONS == crate::scene_file::MAX_OBSTACLES);
 
 /// What a detected object is. Stored as a `u8` in [`DetectedObject::class`]; convert with
 /// `ObjectClass::try_from(byte)` (never transmute).
@@ -120,10 +124,16 @@ impl DetectedObject {
 ///
 /// `capture_time_ns` is `CLOCK_MONOTONIC` of the machine all Foresight processes run on
 /// (shared by every process), taken when the frame was captured, so consumers can compute
-/// detection age and end-to-end latency directly.
+/// detection age and end-to-end latency directly. 0 means "no stamp" and is refused as stale
+/// by rt-core, as is a stamp in the future.
+///
+/// A frame that does not fit (perception saw more objects than [`MAX_DETECTIONS`]) is still
+/// published, with the nearest objects kept and `dropped_count` saying how many were left
+/// out: [`DetectionFrame::validate`] refuses it, so a hidden obstacle stops the arm instead of
+/// being silently ignored.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("foresight::DetectionFrame.v1")]
+#[type_name("foresight::DetectionFrame.v2")]
 pub struct DetectionFrame {
     /// Increases by one per published frame of one camera.
     pub sequence: u64,
@@ -133,15 +143,20 @@ pub struct DetectionFrame {
     pub camera_id: u32,
     /// Number of valid entries at the front of `objects` (≤ [`MAX_DETECTIONS`]).
     pub count: u32,
+    /// Objects seen in the camera frame but left out because the frame was full (0 in a
+    /// frame rt-core accepts).
+    pub dropped_count: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
     /// The objects; entries at and beyond `count` are ignored.
     pub objects: [DetectedObject; MAX_DETECTIONS],
 }
 
-const _: () = assert!(size_of::<DetectionFrame>() == 24 + 36 * MAX_DETECTIONS);
+const _: () = assert!(size_of::<DetectionFrame>() == 32 + 36 * MAX_DETECTIONS);
 
 impl DetectionFrame {
     /// Schema version carried as a service attribute.
-    pub const SCHEMA_VERSION: u32 = 1;
+    pub const SCHEMA_VERSION: u32 = 2;
 
     /// The valid objects (the first `count`, clamped to the capacity).
     pub fn objects(&self) -> &[DetectedObject] {
@@ -149,10 +164,12 @@ impl DetectionFrame {
         &self.objects[..n]
     }
 
-    /// Appends an object; returns `false` (and changes nothing) when the frame is full.
+    /// Appends an object; returns `false` and counts it in `dropped_count` when the frame is
+    /// full (a frame that then no longer validates).
     pub fn push(&mut self, object: DetectedObject) -> bool {
         let n = self.count as usize;
         if n >= MAX_DETECTIONS {
+            self.dropped_count = self.dropped_count.saturating_add(1);
             return false;
         }
         self.objects[n] = object;
@@ -160,12 +177,41 @@ impl DetectionFrame {
         true
     }
 
-    /// Checks the count and every valid object.
+    /// Checks the count, that nothing was dropped (`dropped_count` = 0: every object seen
+    /// fits), at most one goal, and every valid object.
     ///
     /// # Errors
     /// The first [`SchemaError`] found.
     pub fn validate(&self) -> Result<(), SchemaError> {
         count_within("count", self.count, MAX_DETECTIONS)?;
-        self.objects().iter().try_for_each(DetectedObject::validate)
+        if self.dropped_count != 0 {
+            return Err(SchemaError::CountOverCapacity {
+                field: "dropped_count",
+                count: self.count.saturating_add(self.dropped_count),
+                capacity: MAX_DETECTIONS as u32,
+            });
+        }
+        if self.reserved != 0 {
+            return Err(SchemaError::OutOfRange { field: "reserved" });
+        }
+        self.objects()
+            .iter()
+            .try_for_each(DetectedObject::validate)?;
+        let goals = self
+            .objects()
+            .iter()
+            .filter(|o| o.class == ObjectClass::Goal as u8)
+            .count();
+        if goals > 1 {
+            return Err(SchemaError::OutOfRange { field: "class" });
+        }
+        Ok(())
+    }
+
+    /// The goal object, if the frame has one.
+    pub fn goal(&self) -> Option<&DetectedObject> {
+        self.objects()
+            .iter()
+            .find(|o| o.class == ObjectClass::Goal as u8)
     }
 }

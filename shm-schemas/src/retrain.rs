@@ -44,7 +44,7 @@ fn check_box(
 /// A scene the current policy failed in the lookahead, sent to the learner for retraining.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("foresight::RetrainRequest.v1")]
+#[type_name("foresight::RetrainRequest.v2")]
 pub struct RetrainRequest {
     /// Increases by one per request of one rt-core process.
     pub request_id: u64,
@@ -76,7 +76,7 @@ const _: () = assert!(size_of::<RetrainRequest>() == 40 + 40 + 8 + 48 * MAX_OBST
 
 impl RetrainRequest {
     /// Schema version carried as a service attribute.
-    pub const SCHEMA_VERSION: u32 = 1;
+    pub const SCHEMA_VERSION: u32 = 2;
 
     /// The valid obstacles.
     pub fn obstacles(&self) -> &[ObstacleBox] {

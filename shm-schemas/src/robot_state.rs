@@ -28,6 +28,11 @@ pub enum StopReason {
     ArmError = 6,
     /// An operator or shutdown request.
     Requested = 7,
+    /// A detection frame was refused (overfull, stale stamp, outside the calibrated
+    /// workspace, a second publisher): the scene cannot be trusted.
+    DetectionRefused = 8,
+    /// The twin's model and the controller disagree (e.g. the TCP pose it reports).
+    ModelMismatch = 9,
 }
 
 impl TryFrom<u8> for StopReason {
@@ -42,6 +47,8 @@ impl TryFrom<u8> for StopReason {
             5 => Self::LinkLost,
             6 => Self::ArmError,
             7 => Self::Requested,
+            8 => Self::DetectionRefused,
+            9 => Self::ModelMismatch,
             _ => {
                 return Err(SchemaError::BadEnum {
                     field: "stop_reason",
@@ -57,7 +64,7 @@ impl TryFrom<u8> for StopReason {
 /// through unchanged.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("foresight::RobotState.v1")]
+#[type_name("foresight::RobotState.v2")]
 pub struct RobotState {
     /// When the state was sampled, `CLOCK_MONOTONIC` (ns).
     pub time_ns: u64,
@@ -101,7 +108,7 @@ const _: () = assert!(size_of::<RobotState>() == 32 + 18 * 8 + 8 + 8);
 
 impl RobotState {
     /// Schema version carried as a service attribute.
-    pub const SCHEMA_VERSION: u32 = 1;
+    pub const SCHEMA_VERSION: u32 = 2;
 
     /// `controlled_stop == 1`.
     pub fn is_stopped(&self) -> bool {

@@ -36,7 +36,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 /// Most obstacle boxes a scene may hold (fixed capacity everywhere downstream).
-pub const MAX_OBSTACLES: usize = 8;
+pub const MAX_OBSTACLES: usize = 16;
 
 /// Largest coordinate magnitude accepted anywhere in a scene (m): the xArm5 reaches 0.7 m.
 pub const MAX_SCENE_EXTENT_M: f64 = 3.0;

@@ -19,6 +19,9 @@ pub enum EpisodeEnd {
     LimitViolation = 4,
     /// The episode ended for another reason (e.g. clearance below the safety margin).
     Other = 5,
+    /// No lookahead ran: the latest detection frame has no goal (none seen, or below the
+    /// confidence floor), so there is nothing to plan toward and the arm holds.
+    NoGoal = 6,
 }
 
 impl TryFrom<u8> for EpisodeEnd {
@@ -30,6 +33,7 @@ impl TryFrom<u8> for EpisodeEnd {
             3 => Ok(Self::Timeout),
             4 => Ok(Self::LimitViolation),
             5 => Ok(Self::Other),
+            6 => Ok(Self::NoGoal),
             _ => Err(SchemaError::BadEnum {
                 field: "episode_end",
                 value: u32::from(value),
@@ -42,7 +46,7 @@ impl TryFrom<u8> for EpisodeEnd {
 /// any other byte undefined behaviour); use the `is_*` accessors.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("foresight::TwinVerdict.v1")]
+#[type_name("foresight::TwinVerdict.v2")]
 pub struct TwinVerdict {
     /// Increases by one per verdict of one rt-core process.
     pub verdict_id: u64,
@@ -77,7 +81,7 @@ const _: () = assert!(size_of::<TwinVerdict>() == 64);
 
 impl TwinVerdict {
     /// Schema version carried as a service attribute.
-    pub const SCHEMA_VERSION: u32 = 1;
+    pub const SCHEMA_VERSION: u32 = 2;
 
     /// Sets the three flags from bools.
     pub fn set_flags(&mut self, task_ok: bool, safe: bool, plan_approved: bool) {

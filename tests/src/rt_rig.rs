@@ -81,6 +81,8 @@ pub struct Rig {
     pub detector: Option<std::thread::JoinHandle<()>>,
     pub log: PathBuf,
     pub seen: Vec<(Instant, Seen)>,
+    /// The test's iceoryx2 service prefix.
+    pub prefix: String,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -190,6 +192,7 @@ impl Rig {
             detector: Some(detector),
             log,
             seen: Vec::new(),
+            prefix,
         }
     }
 

@@ -61,6 +61,8 @@ pub(crate) fn load_assets(
         cfg.validate().context("--rate")?;
     }
     let model = RobotModel::load(&assets.join("xarm5.urdf")).context("loading xarm5.urdf")?;
+    cfg.check_against_model(&model)
+        .with_context(|| format!("{} against xarm5.urdf", cfg_path.display()))?;
     let task = TaskConfig::load(&assets.join("task.toml")).context("loading task.toml")?;
     Ok((cfg, model, task))
 }
@@ -285,7 +287,7 @@ fn drive_twin(
     let mut last_swap: Option<Instant> = None;
     while !stop.load(Ordering::Acquire) {
         if last_det.elapsed() >= Duration::from_millis(33) {
-            twin.on_detection(scene, clock.now_ns(), &mut events);
+            twin.on_detection(scene, clock.now_ns(), true, &mut events);
             last_det = Instant::now();
         }
         let due = match last_swap {

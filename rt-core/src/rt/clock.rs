@@ -29,6 +29,12 @@ impl MonotonicClock {
             origin_ns: rt_setup::monotonic_now_ns(),
         }
     }
+
+    /// `CLOCK_MONOTONIC` at this clock's origin, ns: a stamp taken on the shared clock
+    /// (a detection's capture time) minus this is a time on this clock.
+    pub fn origin_ns(&self) -> u64 {
+        self.origin_ns
+    }
 }
 
 impl Default for MonotonicClock {

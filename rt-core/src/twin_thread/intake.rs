@@ -1,66 +1,395 @@
-//! Scene intake: a validated [`DetectionFrame`] becomes the twin's [`Scene`], and its
-//! capture stamp an age on the machine's monotonic clock.
+//! Scene intake: what rt-core accepts from perception. A [`DetectionFrame`] becomes the
+//! twin's [`Scene`] only when nothing in it is hidden, stale or implausible; otherwise the
+//! whole frame is refused with a [`FrameRefusal`] naming the reason, counted, and the cycle
+//! stops the arm (a refused frame is never half-used).
+//!
+//! Refused:
+//! - an invalid frame, or one that does not fit (`dropped_count` > 0: perception saw more
+//!   objects than a frame and the twin hold) — see [`DetectionFrame::validate`];
+//! - a stamp that is zero, in the future, older than the configured age, or from before
+//!   rt-core's clock began (stamps are `CLOCK_MONOTONIC`, shared by every process; a frame
+//!   that cannot be dated on the cycle's clock is not made to look younger);
+//! - an object centred outside the calibrated workspace, or a goal out of reach;
+//! - a frame from a second publisher, another camera, or with a sequence that did not
+//!   increase (someone else is writing the detection service).
+//!
+//! A frame without a goal (none, or one below the confidence floor) is accepted — its
+//! obstacles count — but nothing is planned until a goal is seen again.
 
-use shm_schemas::{DetectionFrame, ObjectClass};
+use shm_schemas::{DetectionFrame, ObjectClass, SchemaError};
 use twin::{BoxObstacle, Goal, Scene};
+
+use crate::config::IntakeConfig;
 
 /// Grid every detected position and size is snapped to, m: sensor noise below it does not
 /// count as a scene change (a change re-runs the lookahead).
 pub const SNAP_GRID_M: f64 = 0.005;
 
-/// The twin scene of a detection frame: goal and obstacles, positions snapped to
-/// [`SNAP_GRID_M`]. Without a goal in the frame, `last_goal` (the last one seen) stays.
-pub fn scene_from_detection(
-    frame: &DetectionFrame,
-    table_height_m: f64,
-    last_goal: &mut Goal,
-) -> Scene {
-    let snap = |v: f32| (f64::from(v) / SNAP_GRID_M).round() * SNAP_GRID_M;
-    let mut scene = Scene::empty(table_height_m, *last_goal);
-    for o in frame.objects() {
-        let center_m = [
-            snap(o.center_m[0]),
-            snap(o.center_m[1]),
-            snap(o.center_m[2]),
-        ];
-        let size_m = [snap(o.size_m[0]), snap(o.size_m[1]), snap(o.size_m[2])];
-        match o.class() {
-            Ok(ObjectClass::Goal) => {
-                *last_goal = Goal {
-                    center_m,
-                    size_m: size_m[0].max(SNAP_GRID_M),
-                };
-                scene.goal = *last_goal;
-            }
-            Ok(ObjectClass::Obstacle) => {
-                // Snap the top and the bottom (not the centre and the height): a box
-                // standing on the table must not reach below it after rounding, or the
-                // learner would refuse the scene of a retrain request.
-                let top = snap(o.center_m[2] + o.size_m[2] / 2.0);
-                let bottom = snap(o.center_m[2] - o.size_m[2] / 2.0).max(table_height_m);
-                let height = (top - bottom).max(SNAP_GRID_M);
-                let _ = scene.obstacles.push(BoxObstacle {
-                    center_m: [center_m[0], center_m[1], bottom + height / 2.0],
-                    size_m: [
-                        size_m[0].max(SNAP_GRID_M),
-                        size_m[1].max(SNAP_GRID_M),
-                        height,
-                    ],
-                });
-            }
-            Err(_) => {}
-        }
-    }
-    scene
+/// Why a detection frame was refused.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum FrameRefusal {
+    /// The frame failed its schema validation.
+    #[error("invalid frame: {0}")]
+    Invalid(SchemaError),
+    /// Perception saw more objects than fit: some obstacle would be hidden.
+    #[error(
+        "frame does not fit: {dropped} object(s) left out beyond the {kept} carried (capacity {})",
+        shm_schemas::MAX_DETECTIONS
+    )]
+    Overfull {
+        /// Objects carried.
+        kept: u32,
+        /// Objects left out.
+        dropped: u32,
+    },
+    /// `capture_time_ns` is 0.
+    #[error("capture_time_ns is 0 (no stamp)")]
+    NoStamp,
+    /// `capture_time_ns` lies in the future.
+    #[error("capture_time_ns is {ahead_ns} ns in the future")]
+    FutureStamp {
+        /// How far ahead, ns.
+        ahead_ns: u64,
+    },
+    /// The frame is older than the configured age.
+    #[error("capture_time_ns is {age_ns} ns old (at most {max_age_ns} ns allowed)")]
+    Stale {
+        /// Its age, ns.
+        age_ns: u64,
+        /// The configured maximum, ns.
+        max_age_ns: u64,
+    },
+    /// The frame was captured before rt-core's clock began.
+    #[error("captured {before_ns} ns before rt-core started")]
+    BeforeStart {
+        /// How long before, ns.
+        before_ns: u64,
+    },
+    /// An object's centre lies outside the calibrated workspace.
+    #[error(
+        "object {index} ({class:?}) centred at {center_m:?} m lies outside the calibrated workspace"
+    )]
+    OutsideWorkspace {
+        /// Its index in the frame.
+        index: usize,
+        /// Its class.
+        class: ObjectClass,
+        /// Its centre, m.
+        center_m: [f32; 3],
+    },
+    /// The goal lies out of reach (too near or too far from the base axis).
+    #[error("goal at {radius_m:.3} m from the base axis is out of reach ({min_m}..={max_m} m)")]
+    GoalOutOfReach {
+        /// Its distance from the base axis, m.
+        radius_m: f64,
+        /// Nearest allowed, m.
+        min_m: f64,
+        /// Farthest allowed, m.
+        max_m: f64,
+    },
+    /// More than one publisher is connected to the detection service.
+    #[error("{publishers} publishers on the detection service (one expected)")]
+    SecondPublisher {
+        /// Publishers seen.
+        publishers: usize,
+    },
+    /// The frame comes from another camera than the frames before it.
+    #[error("camera_id {found} after frames from camera {expected}")]
+    CameraChanged {
+        /// The camera so far.
+        expected: u32,
+        /// The camera of this frame.
+        found: u32,
+    },
+    /// The sequence did not increase.
+    #[error("sequence {found} does not follow {last}")]
+    SequenceRegressed {
+        /// The last sequence accepted.
+        last: u64,
+        /// This frame's.
+        found: u64,
+    },
 }
 
-/// Age of a frame captured at `capture_ns` (CLOCK_MONOTONIC of this machine) at `now_ns`;
-/// an absent (0) or future stamp counts as age 0 (receipt time).
-pub fn detection_age_ns(capture_ns: u64, now_ns: u64) -> u64 {
-    if capture_ns == 0 || capture_ns > now_ns {
-        0
-    } else {
-        now_ns - capture_ns
+impl FrameRefusal {
+    /// Number of refusal kinds (size of [`IntakeCounters::refused`]).
+    pub const KINDS: usize = 11;
+
+    /// A stable index for counting.
+    pub fn index(&self) -> usize {
+        match self {
+            FrameRefusal::Invalid(_) => 0,
+            FrameRefusal::Overfull { .. } => 1,
+            FrameRefusal::NoStamp => 2,
+            FrameRefusal::FutureStamp { .. } => 3,
+            FrameRefusal::Stale { .. } => 4,
+            FrameRefusal::BeforeStart { .. } => 5,
+            FrameRefusal::OutsideWorkspace { .. } => 6,
+            FrameRefusal::GoalOutOfReach { .. } => 7,
+            FrameRefusal::SecondPublisher { .. } => 8,
+            FrameRefusal::CameraChanged { .. } => 9,
+            FrameRefusal::SequenceRegressed { .. } => 10,
+        }
+    }
+
+    /// A short name per kind (for counters and reports).
+    pub const NAMES: [&'static str; Self::KINDS] = [
+        "invalid",
+        "overfull",
+        "no_stamp",
+        "future_stamp",
+        "stale",
+        "before_start",
+        "outside_workspace",
+        "goal_out_of_reach",
+        "second_publisher",
+        "camera_changed",
+        "sequence_regressed",
+    ];
+}
+
+/// What the intake counted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct IntakeCounters {
+    /// Frames accepted.
+    pub accepted: u64,
+    /// Of those, frames without a (confident enough) goal.
+    pub without_goal: u64,
+    /// Frames refused, per [`FrameRefusal::index`].
+    pub refused: [u64; FrameRefusal::KINDS],
+}
+
+impl IntakeCounters {
+    /// Frames refused, all reasons.
+    pub fn total_refused(&self) -> u64 {
+        self.refused.iter().sum()
+    }
+}
+
+/// An accepted frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AcceptedFrame {
+    /// The twin's scene (positions snapped to [`SNAP_GRID_M`]). Without a goal in the
+    /// frame, its goal is the last one seen (or the start default) and must not be planned
+    /// toward: see `goal_seen`.
+    pub scene: Scene,
+    /// The frame carries a goal at or above the confidence floor.
+    pub goal_seen: bool,
+    /// Capture time on the cycle's clock (since its origin), ns.
+    pub stamp_ns: u64,
+}
+
+/// Turns detection frames into scenes, refusing what cannot be trusted.
+#[derive(Debug, Clone)]
+pub struct SceneIntake {
+    cfg: IntakeConfig,
+    max_age_ns: u64,
+    table_height_m: f64,
+    /// `CLOCK_MONOTONIC` at the cycle clock's origin, ns.
+    clock_origin_ns: u64,
+    last_goal: Goal,
+    /// Camera and sequence of the last frame that passed the source checks.
+    last_source: Option<(u32, u64)>,
+    counters: IntakeCounters,
+}
+
+impl SceneIntake {
+    /// An intake for frames whose age may be at most `max_age_ns`, over a table at
+    /// `table_height_m`, for a cycle clock whose origin is `clock_origin_ns`
+    /// (`CLOCK_MONOTONIC`).
+    pub fn new(
+        cfg: IntakeConfig,
+        max_age_ns: u64,
+        table_height_m: f64,
+        clock_origin_ns: u64,
+    ) -> Self {
+        Self {
+            cfg,
+            max_age_ns,
+            table_height_m,
+            clock_origin_ns,
+            last_goal: Goal {
+                center_m: [0.35, 0.0, table_height_m + 0.025],
+                size_m: 0.05,
+            },
+            last_source: None,
+            counters: IntakeCounters::default(),
+        }
+    }
+
+    /// What was counted so far.
+    pub fn counters(&self) -> &IntakeCounters {
+        &self.counters
+    }
+
+    /// Checks one frame received at `mono_now_ns` (`CLOCK_MONOTONIC`) while `publishers`
+    /// publishers are connected to the detection service; counts the outcome.
+    ///
+    /// # Errors
+    /// The [`FrameRefusal`] (already counted).
+    pub fn accept(
+        &mut self,
+        frame: &DetectionFrame,
+        mono_now_ns: u64,
+        publishers: usize,
+    ) -> Result<AcceptedFrame, FrameRefusal> {
+        let result = self.check(frame, mono_now_ns, publishers);
+        match &result {
+            Ok(a) => {
+                self.counters.accepted += 1;
+                if !a.goal_seen {
+                    self.counters.without_goal += 1;
+                }
+            }
+            Err(r) => self.counters.refused[r.index()] += 1,
+        }
+        result
+    }
+
+    fn check(
+        &mut self,
+        frame: &DetectionFrame,
+        mono_now_ns: u64,
+        publishers: usize,
+    ) -> Result<AcceptedFrame, FrameRefusal> {
+        if publishers > 1 {
+            return Err(FrameRefusal::SecondPublisher { publishers });
+        }
+        self.check_source(frame)?;
+        if frame.dropped_count != 0 {
+            return Err(FrameRefusal::Overfull {
+                kept: frame.count,
+                dropped: frame.dropped_count,
+            });
+        }
+        frame.validate().map_err(FrameRefusal::Invalid)?;
+        let stamp_ns = self.check_stamp(frame.capture_time_ns, mono_now_ns)?;
+        self.check_places(frame)?;
+        let (scene, goal_seen) = self.scene_of(frame);
+        Ok(AcceptedFrame {
+            scene,
+            goal_seen,
+            stamp_ns,
+        })
+    }
+
+    /// One camera, increasing sequences. A regression is refused once and becomes the new
+    /// baseline (a restarted perception resumes after one refused frame, i.e. one stop);
+    /// two publishers interleaving keep being refused.
+    fn check_source(&mut self, frame: &DetectionFrame) -> Result<(), FrameRefusal> {
+        let last = self.last_source.replace((frame.camera_id, frame.sequence));
+        match last {
+            Some((camera, _)) if camera != frame.camera_id => Err(FrameRefusal::CameraChanged {
+                expected: camera,
+                found: frame.camera_id,
+            }),
+            Some((_, seq)) if frame.sequence <= seq => Err(FrameRefusal::SequenceRegressed {
+                last: seq,
+                found: frame.sequence,
+            }),
+            _ => Ok(()),
+        }
+    }
+
+    fn check_stamp(&self, capture_ns: u64, mono_now_ns: u64) -> Result<u64, FrameRefusal> {
+        if capture_ns == 0 {
+            return Err(FrameRefusal::NoStamp);
+        }
+        if capture_ns > mono_now_ns {
+            return Err(FrameRefusal::FutureStamp {
+                ahead_ns: capture_ns - mono_now_ns,
+            });
+        }
+        let age_ns = mono_now_ns - capture_ns;
+        if age_ns > self.max_age_ns {
+            return Err(FrameRefusal::Stale {
+                age_ns,
+                max_age_ns: self.max_age_ns,
+            });
+        }
+        if capture_ns < self.clock_origin_ns {
+            return Err(FrameRefusal::BeforeStart {
+                before_ns: self.clock_origin_ns - capture_ns,
+            });
+        }
+        Ok(capture_ns - self.clock_origin_ns)
+    }
+
+    fn check_places(&self, frame: &DetectionFrame) -> Result<(), FrameRefusal> {
+        let (lo, hi) = (self.cfg.calibrated_min_m, self.cfg.calibrated_max_m);
+        for (index, o) in frame.objects().iter().enumerate() {
+            let class = o.class().map_err(FrameRefusal::Invalid)?;
+            let inside = (0..3).all(|k| (lo[k]..=hi[k]).contains(&f64::from(o.center_m[k])));
+            if !inside {
+                return Err(FrameRefusal::OutsideWorkspace {
+                    index,
+                    class,
+                    center_m: o.center_m,
+                });
+            }
+            if class == ObjectClass::Goal && o.confidence >= self.cfg.min_goal_confidence {
+                let radius_m = f64::from(o.center_m[0]).hypot(f64::from(o.center_m[1]));
+                let (min_m, max_m) = (self.cfg.goal_min_radius_m, self.cfg.goal_max_radius_m);
+                if !(min_m..=max_m).contains(&radius_m) {
+                    return Err(FrameRefusal::GoalOutOfReach {
+                        radius_m,
+                        min_m,
+                        max_m,
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The scene of a checked frame; whether it has a goal.
+    fn scene_of(&mut self, frame: &DetectionFrame) -> (Scene, bool) {
+        let snap = |v: f32| (f64::from(v) / SNAP_GRID_M).round() * SNAP_GRID_M;
+        let table_height_m = self.table_height_m;
+        let mut scene = Scene::empty(table_height_m, self.last_goal);
+        let mut goal_seen = false;
+        for o in frame.objects() {
+            let center_m = [
+                snap(o.center_m[0]),
+                snap(o.center_m[1]),
+                snap(o.center_m[2]),
+            ];
+            let size_m = [snap(o.size_m[0]), snap(o.size_m[1]), snap(o.size_m[2])];
+            match o.class() {
+                Ok(ObjectClass::Goal) if o.confidence >= self.cfg.min_goal_confidence => {
+                    self.last_goal = Goal {
+                        center_m,
+                        size_m: size_m[0].max(SNAP_GRID_M),
+                    };
+                    scene.goal = self.last_goal;
+                    goal_seen = true;
+                }
+                // Below the floor: as if not seen (no plan toward a doubtful goal).
+                Ok(ObjectClass::Goal) => {}
+                Ok(ObjectClass::Obstacle) => {
+                    // Snap the top and the bottom (not the centre and the height): a box
+                    // standing on the table must not reach below it after rounding, or the
+                    // learner would refuse the scene of a retrain request.
+                    let top = snap(o.center_m[2] + o.size_m[2] / 2.0);
+                    let bottom = snap(o.center_m[2] - o.size_m[2] / 2.0).max(table_height_m);
+                    let height = (top - bottom).max(SNAP_GRID_M);
+                    // Cannot fail: a valid frame carries at most MAX_DETECTIONS objects and
+                    // the scene holds as many obstacles (one capacity, asserted in
+                    // shm-schemas).
+                    let pushed = scene.obstacles.push(BoxObstacle {
+                        center_m: [center_m[0], center_m[1], bottom + height / 2.0],
+                        size_m: [
+                            size_m[0].max(SNAP_GRID_M),
+                            size_m[1].max(SNAP_GRID_M),
+                            height,
+                        ],
+                    });
+                    debug_assert!(pushed.is_ok(), "scene capacity below frame capacity");
+                }
+                Err(_) => {}
+            }
+        }
+        (scene, goal_seen)
     }
 }
 
@@ -68,34 +397,53 @@ pub fn detection_age_ns(capture_ns: u64, now_ns: u64) -> u64 {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
-    use shm_schemas::DetectedObject;
     use shm_schemas::scene_file::SceneFile;
+    use shm_schemas::{DetectedObject, MAX_DETECTIONS};
+
+    const ORIGIN_NS: u64 = 1_000_000_000_000;
+    const MAX_AGE_NS: u64 = 500_000_000;
+
+    fn intake() -> SceneIntake {
+        SceneIntake::new(IntakeConfig::default(), MAX_AGE_NS, 0.0, ORIGIN_NS)
+    }
+
+    fn goal(center_m: [f32; 3]) -> DetectedObject {
+        DetectedObject::new(1, ObjectClass::Goal, 0.9, center_m, [0.05, 0.05, 0.05])
+    }
+
+    fn obstacle(id: u32, center_m: [f32; 3], size_m: [f32; 3]) -> DetectedObject {
+        DetectedObject::new(id, ObjectClass::Obstacle, 0.9, center_m, size_m)
+    }
+
+    /// A frame captured 10 ms before `now`.
+    fn frame(sequence: u64, now_ns: u64, objects: &[DetectedObject]) -> DetectionFrame {
+        let mut f = DetectionFrame {
+            sequence,
+            capture_time_ns: now_ns - 10_000_000,
+            camera_id: 7,
+            ..DetectionFrame::default()
+        };
+        for o in objects {
+            f.push(*o);
+        }
+        f
+    }
 
     /// A tall box on the table whose centre and height both round up (0.1614 → 0.160 and
     /// 0.3227 → 0.325 on the 5 mm grid) once made a box reaching 2.5 mm below the table:
     /// a scene the learner refused, leaving the arm waiting for a policy that never came.
     #[test]
     fn a_detected_box_on_the_table_stays_on_it_after_snapping() {
-        let mut frame = DetectionFrame::default();
-        assert!(frame.push(DetectedObject::new(
+        let now = ORIGIN_NS + 1_000_000_000;
+        let f = frame(
             1,
-            ObjectClass::Goal,
-            0.9,
-            [0.28, -0.32, 0.025],
-            [0.05, 0.05, 0.05]
-        )));
-        assert!(frame.push(DetectedObject::new(
-            2,
-            ObjectClass::Obstacle,
-            0.9,
-            [0.2887, -0.1333, 0.16136],
-            [0.053, 0.0518, 0.32272]
-        )));
-        let mut goal = Goal {
-            center_m: [0.3, 0.0, 0.025],
-            size_m: 0.05,
-        };
-        let scene = scene_from_detection(&frame, 0.0, &mut goal);
+            now,
+            &[
+                goal([0.28, -0.32, 0.025]),
+                obstacle(2, [0.2887, -0.1333, 0.16136], [0.053, 0.0518, 0.32272]),
+            ],
+        );
+        let scene = intake().accept(&f, now, 1).unwrap().scene;
         let b = scene.obstacles[0];
         let bottom = b.center_m[2] - b.size_m[2] / 2.0;
         assert!(bottom >= -1e-12, "box bottom {bottom} below the table");
@@ -114,5 +462,171 @@ mod tests {
             }],
         };
         file.validate().unwrap();
+    }
+
+    /// Issue 14, item 1: a goal, 8 small boxes, then a tall box on the path. The twin
+    /// held 8 obstacles and dropped the tall one silently. Now every obstacle of a valid
+    /// frame reaches the scene, and a frame that does not fit is refused.
+    #[test]
+    fn every_obstacle_of_a_full_frame_reaches_the_scene_and_an_overfull_frame_is_refused() {
+        let now = ORIGIN_NS + 1_000_000_000;
+        let mut objects = vec![goal([0.3, 0.2, 0.025])];
+        for i in 0..(MAX_DETECTIONS - 2) {
+            let x = -0.5 + 0.05 * i as f32;
+            objects.push(obstacle(10 + i as u32, [x, -0.6, 0.01], [0.01, 0.01, 0.02]));
+        }
+        objects.push(obstacle(99, [0.3, 0.0, 0.15], [0.05, 0.05, 0.3]));
+        let mut k = intake();
+        let a = k.accept(&frame(1, now, &objects), now, 1).unwrap();
+        assert_eq!(a.scene.obstacles.len(), MAX_DETECTIONS - 1);
+        let tall = a.scene.obstacles[MAX_DETECTIONS - 2];
+        assert!(
+            (tall.size_m[2] - 0.3).abs() < 1e-9,
+            "the tall box is in the scene"
+        );
+
+        // One more object than fits: perception publishes the frame with dropped_count.
+        objects.push(obstacle(100, [0.3, 0.1, 0.15], [0.05, 0.05, 0.3]));
+        let f = frame(2, now, &objects);
+        assert_eq!(f.dropped_count, 1);
+        let r = k.accept(&f, now, 1).unwrap_err();
+        assert_eq!(
+            r,
+            FrameRefusal::Overfull {
+                kept: MAX_DETECTIONS as u32,
+                dropped: 1
+            }
+        );
+        assert_eq!(k.counters().refused[r.index()], 1);
+    }
+
+    /// Issue 14, item 2: frames without a goal gave a plan toward a default goal.
+    #[test]
+    fn a_frame_without_a_goal_or_with_a_doubtful_one_has_no_goal() {
+        let now = ORIGIN_NS + 1_000_000_000;
+        let mut k = intake();
+        let a = k
+            .accept(
+                &frame(1, now, &[obstacle(2, [0.3, 0.0, 0.1], [0.05, 0.05, 0.2])]),
+                now,
+                1,
+            )
+            .unwrap();
+        assert!(!a.goal_seen);
+        assert_eq!(a.scene.obstacles.len(), 1, "its obstacles still count");
+        let mut doubtful = goal([0.3, 0.2, 0.025]);
+        doubtful.confidence = 0.2;
+        let a = k.accept(&frame(2, now, &[doubtful]), now, 1).unwrap();
+        assert!(!a.goal_seen, "a goal below the confidence floor is no goal");
+        let a = k
+            .accept(&frame(3, now, &[goal([0.3, 0.2, 0.025])]), now, 1)
+            .unwrap();
+        assert!(a.goal_seen);
+        assert_eq!(k.counters().without_goal, 2);
+    }
+
+    /// Issue 14, item 3: zero, future, old and pre-start stamps looked fresh.
+    #[test]
+    fn zero_future_stale_and_pre_start_stamps_are_refused() {
+        let now = ORIGIN_NS + 100_000_000; // 0.1 s after rt-core's clock began
+        let objects = [goal([0.3, 0.2, 0.025])];
+        let mut k = intake();
+        let mut f = frame(1, now, &objects);
+        f.capture_time_ns = 0;
+        assert_eq!(k.accept(&f, now, 1), Err(FrameRefusal::NoStamp));
+        f.sequence = 2;
+        f.capture_time_ns = now + 5;
+        assert_eq!(
+            k.accept(&f, now, 1),
+            Err(FrameRefusal::FutureStamp { ahead_ns: 5 })
+        );
+        f.sequence = 3;
+        f.capture_time_ns = now - 10_000_000_000; // 10 s old, published before the start
+        assert!(matches!(
+            k.accept(&f, now, 1),
+            Err(FrameRefusal::Stale { .. })
+        ));
+        f.sequence = 4;
+        f.capture_time_ns = ORIGIN_NS - 1_000; // young, but from before the clock began
+        assert_eq!(
+            k.accept(&f, now, 1),
+            Err(FrameRefusal::BeforeStart { before_ns: 1_000 })
+        );
+        f.sequence = 5;
+        f.capture_time_ns = now - 1_000_000;
+        let a = k.accept(&f, now, 1).unwrap();
+        assert_eq!(a.stamp_ns, 99_000_000, "stamped on the cycle's clock");
+        assert_eq!(k.counters().total_refused(), 4);
+    }
+
+    /// Issue 14, item 3: goals 3 m away were accepted.
+    #[test]
+    fn objects_outside_the_calibrated_workspace_and_goals_out_of_reach_are_refused() {
+        let now = ORIGIN_NS + 1_000_000_000;
+        let mut k = intake();
+        assert!(matches!(
+            k.accept(&frame(1, now, &[goal([2.9, 0.0, 0.025])]), now, 1),
+            Err(FrameRefusal::OutsideWorkspace {
+                index: 0,
+                class: ObjectClass::Goal,
+                ..
+            })
+        ));
+        assert!(matches!(
+            k.accept(
+                &frame(
+                    2,
+                    now,
+                    &[
+                        goal([0.3, 0.0, 0.025]),
+                        obstacle(3, [0.0, 0.0, -1.0], [0.05, 0.05, 0.05])
+                    ]
+                ),
+                now,
+                1
+            ),
+            Err(FrameRefusal::OutsideWorkspace { index: 1, .. })
+        ));
+        assert!(matches!(
+            k.accept(&frame(3, now, &[goal([0.05, 0.02, 0.025])]), now, 1),
+            Err(FrameRefusal::GoalOutOfReach { .. })
+        ));
+        assert!(matches!(
+            k.accept(&frame(4, now, &[goal([0.7, 0.0, 0.025])]), now, 1),
+            Err(FrameRefusal::GoalOutOfReach { .. })
+        ));
+        k.accept(&frame(5, now, &[goal([0.3, 0.0, 0.025])]), now, 1)
+            .unwrap();
+    }
+
+    /// Issue 14, item 7: a second publisher on the detection service went unnoticed.
+    #[test]
+    fn a_second_publisher_another_camera_and_a_sequence_regression_are_refused() {
+        let now = ORIGIN_NS + 1_000_000_000;
+        let objects = [goal([0.3, 0.0, 0.025])];
+        let mut k = intake();
+        k.accept(&frame(10, now, &objects), now, 1).unwrap();
+        assert_eq!(
+            k.accept(&frame(11, now, &objects), now, 2),
+            Err(FrameRefusal::SecondPublisher { publishers: 2 })
+        );
+        let mut other = frame(12, now, &objects);
+        other.camera_id = 8;
+        assert_eq!(
+            k.accept(&other, now, 1),
+            Err(FrameRefusal::CameraChanged {
+                expected: 7,
+                found: 8
+            })
+        );
+        // Back to camera 7 (a baseline switch is refused once more, then accepted).
+        assert!(k.accept(&frame(13, now, &objects), now, 1).is_err());
+        k.accept(&frame(14, now, &objects), now, 1).unwrap();
+        assert_eq!(
+            k.accept(&frame(3, now, &objects), now, 1),
+            Err(FrameRefusal::SequenceRegressed { last: 14, found: 3 })
+        );
+        // A restarted perception (sequence from 3 on) resumes after that one refusal.
+        k.accept(&frame(4, now, &objects), now, 1).unwrap();
     }
 }

@@ -12,22 +12,24 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::port::{LoanError, ReceiveError, SendError};
 use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 use policy::{PolicyExpectation, PolicyLoader, PolicyRejectReason};
 use shm_schemas::services::{
-    NodeCreateError, ShmOpenError, create_node, loan_zeroed, open_publisher, open_subscriber,
+    NodeCreateError, ShmOpenError, create_node, loan_zeroed, open_publisher, open_service,
+    open_subscriber,
 };
 use shm_schemas::{
     DetectionFrame, EpisodeEnd, ObstacleBox, PolicyBlob, RetrainRequest, RobotState, SchemaError,
     TwinVerdict,
 };
-use twin::{Goal, Scene};
+use twin::Scene;
 
 use crate::cycle::shield::ShieldModel;
 use crate::cycle::twin_model::TwinModel;
 use crate::cycle::{CycleReport, LoopShared, Mode, StopReason};
 use crate::rt::histogram::{Histogram, Summary};
 use crate::rt::rt_setup;
-use crate::twin_thread::intake::{detection_age_ns, scene_from_detection};
+use crate::twin_thread::intake::{IntakeCounters, SceneIntake};
 use crate::twin_thread::lookahead::TwinLookahead;
 use crate::twin_thread::{TwinEvent, TwinWorker, Verdict};
 
@@ -104,6 +106,8 @@ pub enum TwinNodeError {
 /// The twin thread's ports and what crossed them.
 pub struct TwinNode {
     _node: Node<ipc::Service>,
+    /// The detection service, to count its publishers (one expected).
+    det_service: PubSubFactory<ipc::Service, DetectionFrame, ()>,
     det_sub: Subscriber<ipc::Service, DetectionFrame, ()>,
     pol_sub: Subscriber<ipc::Service, PolicyBlob, ()>,
     state_pub: Publisher<ipc::Service, RobotState, ()>,
@@ -111,10 +115,12 @@ pub struct TwinNode {
     retrain_pub: Publisher<ipc::Service, RetrainRequest, ()>,
     loader: PolicyLoader,
     task_hash: u64,
-    table_height_m: f64,
     /// `false` with `--no-lookahead`: every verdict reads approved.
     gate: bool,
-    last_goal: Goal,
+    intake: SceneIntake,
+    /// Refusals logged so far (the first ones of each stretch are logged, then every
+    /// 100th: a refusing stream must not flood the log).
+    refusals_in_a_row: u64,
     scene_seq: u64,
     verdict_id: u64,
     last_verdict: Option<TwinVerdict>,
@@ -125,20 +131,32 @@ pub struct TwinNode {
 }
 
 impl TwinNode {
-    /// Creates the node and opens every service under `prefix`.
+    /// Creates the node and opens every service under `prefix`; detection frames pass
+    /// `intake` before the worker sees them.
     ///
     /// # Errors
     /// [`TwinNodeError::NodeCreate`], [`TwinNodeError::Open`].
     pub fn open(
         prefix: &str,
         task_hash: u64,
-        table_height_m: f64,
+        intake: SceneIntake,
         gate: bool,
     ) -> Result<(Self, CleanupState), TwinNodeError> {
         let (node, cleanup) = create_node::<ipc::Service>("rt-core")?;
         let open = |service| move |cause| TwinNodeError::Open { service, cause };
+        let det_service =
+            open_service::<DetectionFrame, _>(&node, prefix).map_err(open("detections"))?;
         let det_sub =
-            open_subscriber::<DetectionFrame, _>(&node, prefix).map_err(open("detections"))?;
+            det_service
+                .subscriber_builder()
+                .create()
+                .map_err(|error| TwinNodeError::Open {
+                    service: "detections",
+                    cause: ShmOpenError::Subscriber {
+                        service: "detections",
+                        error,
+                    },
+                })?;
         let pol_sub = open_subscriber::<PolicyBlob, _>(&node, prefix).map_err(open("policies"))?;
         let state_pub =
             open_publisher::<RobotState, _>(&node, prefix).map_err(open("robot state"))?;
@@ -148,6 +166,7 @@ impl TwinNode {
             open_publisher::<RetrainRequest, _>(&node, prefix).map_err(open("retrain requests"))?;
         let node_ends = Self {
             _node: node,
+            det_service,
             det_sub,
             pol_sub,
             state_pub,
@@ -155,12 +174,9 @@ impl TwinNode {
             retrain_pub,
             loader: PolicyLoader::new(PolicyExpectation::for_task(task_hash)),
             task_hash,
-            table_height_m,
             gate,
-            last_goal: Goal {
-                center_m: [0.35, 0.0, table_height_m + 0.025],
-                size_m: 0.05,
-            },
+            intake,
+            refusals_in_a_row: 0,
             scene_seq: 0,
             verdict_id: 0,
             last_verdict: None,
@@ -210,31 +226,51 @@ impl TwinNode {
         Ok(())
     }
 
-    /// Hands every new detection frame and policy blob to the worker (validated first;
-    /// bad input is logged, counted and dropped). `now_ns` is the cycle clock's time.
+    /// Hands every new detection frame (through the scene intake: a refused frame stops
+    /// the arm) and policy blob (validated; bad ones are logged, counted and dropped) to
+    /// the worker.
     ///
     /// # Errors
     /// [`TwinNodeError::Receive`].
     pub fn receive(
         &mut self,
         twin: &mut ProductionWorker,
-        now_ns: u64,
         events: &mut Vec<TwinEvent<Scene>>,
     ) -> Result<(), TwinNodeError> {
         let recv_err = |service| move |cause| TwinNodeError::Receive { service, cause };
         while let Some(sample) = self.det_sub.receive().map_err(recv_err("detections"))? {
+            // Copied out of shared memory before it is checked (the publisher can still
+            // write the sample).
             let frame = *sample.payload();
-            if let Err(e) = frame.validate() {
-                tracing::warn!(sequence = frame.sequence, "detection frame rejected: {e}");
-                continue;
+            drop(sample);
+            let publishers = self.det_service.dynamic_config().number_of_publishers();
+            let mono_now_ns = rt_setup::monotonic_now_ns();
+            match self.intake.accept(&frame, mono_now_ns, publishers) {
+                Ok(accepted) => {
+                    self.refusals_in_a_row = 0;
+                    self.scene_seq = frame.sequence;
+                    self.detection_age
+                        .record_ns(mono_now_ns.saturating_sub(frame.capture_time_ns));
+                    twin.on_detection(
+                        accepted.scene,
+                        accepted.stamp_ns,
+                        accepted.goal_seen,
+                        events,
+                    );
+                }
+                Err(refusal) => {
+                    if self.refusals_in_a_row.is_multiple_of(100) {
+                        tracing::warn!(
+                            sequence = frame.sequence,
+                            camera_id = frame.camera_id,
+                            refused_total = self.intake.counters().total_refused(),
+                            "detection frame refused, the arm stops: {refusal}"
+                        );
+                    }
+                    self.refusals_in_a_row += 1;
+                    twin.on_refused_detection();
+                }
             }
-            self.scene_seq = frame.sequence;
-            // Capture time is CLOCK_MONOTONIC of this machine: its age, carried into the
-            // cycle's clock, is what the staleness check sees (receipt time when absent).
-            let age_ns = detection_age_ns(frame.capture_time_ns, rt_setup::monotonic_now_ns());
-            self.detection_age.record_ns(age_ns);
-            let scene = scene_from_detection(&frame, self.table_height_m, &mut self.last_goal);
-            twin.on_detection(scene, now_ns.saturating_sub(age_ns), events);
         }
         while let Some(sample) = self.pol_sub.receive().map_err(recv_err("policies"))? {
             // Copied into private memory before anything is checked: the publisher's process
@@ -283,6 +319,7 @@ impl TwinNode {
                     verdict,
                     scene,
                 } => self.publish_retrain(request_id, &verdict, &scene, now_ns)?,
+                TwinEvent::NoGoal { policy_id } => self.publish_no_goal(policy_id, now_ns)?,
                 other => log_event(&other, rate_hz),
             }
         }
@@ -312,6 +349,36 @@ impl TwinNode {
             min_distance_m = verdict.min_distance_m,
             lookahead_ms = elapsed_s * 1e3,
             "lookahead"
+        );
+        self.last_verdict = Some(v);
+        let mut s = loan_zeroed(&self.verdict_pub).map_err(|cause| TwinNodeError::Loan {
+            service: "verdicts",
+            cause,
+        })?;
+        *s.payload_mut() = v;
+        s.send().map_err(|cause| TwinNodeError::Send {
+            service: "verdicts",
+            cause,
+        })?;
+        Ok(())
+    }
+
+    /// A verdict saying why nothing is planned: no goal in the latest frame.
+    fn publish_no_goal(&mut self, policy_id: u64, now_ns: u64) -> Result<(), TwinNodeError> {
+        self.verdict_id += 1;
+        let mut v = TwinVerdict {
+            verdict_id: self.verdict_id,
+            scene_sequence: self.scene_seq,
+            policy_id,
+            computed_time_ns: now_ns,
+            episode_end: EpisodeEnd::NoGoal as u8,
+            ..TwinVerdict::default()
+        };
+        v.set_flags(false, true, false);
+        tracing::warn!(
+            policy_id,
+            "no goal in the latest detection frame (none, or below the confidence floor): \
+             nothing is planned, the arm holds"
         );
         self.last_verdict = Some(v);
         let mut s = loan_zeroed(&self.verdict_pub).map_err(|cause| TwinNodeError::Loan {
@@ -421,9 +488,14 @@ impl TwinNode {
         Ok(())
     }
 
-    /// Capture → visible in the twin thread, over every frame received so far.
+    /// Capture → visible in the twin thread, over every frame accepted so far.
     pub fn detection_age(&self) -> Summary {
         self.detection_age.summary()
+    }
+
+    /// What the scene intake accepted and refused so far.
+    pub fn intake_counters(&self) -> IntakeCounters {
+        *self.intake.counters()
     }
 }
 
@@ -479,7 +551,7 @@ fn log_event(e: &TwinEvent<Scene>, rate_hz: f64) {
             ?smooth,
             "the way home is unsafe in the current scene: holding; the lookahead takes over"
         ),
-        TwinEvent::Verdict { .. } | TwinEvent::Retrain { .. } => {}
+        TwinEvent::Verdict { .. } | TwinEvent::Retrain { .. } | TwinEvent::NoGoal { .. } => {}
     }
 }
 
@@ -494,6 +566,8 @@ pub fn stop_code(reason: StopReason) -> shm_schemas::StopReason {
         StopReason::LinkLost => S::LinkLost,
         StopReason::ArmError(_) => S::ArmError,
         StopReason::Shutdown => S::Requested,
+        StopReason::DetectionRefused => S::DetectionRefused,
+        StopReason::ModelMismatch => S::ModelMismatch,
     }
 }
 

@@ -29,6 +29,7 @@ use crate::rt::clock::{Clock, MonotonicClock};
 use crate::rt::histogram::Summary;
 use crate::rt::rt_setup::{self, RtRequest, RtSetupReport};
 use crate::twin_thread::command_log::{CommandLog, CommandLogError};
+use crate::twin_thread::intake::{FrameRefusal, IntakeCounters, SceneIntake};
 use crate::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
 use crate::twin_thread::node::{ProductionWorker, TwinNode, TwinNodeError};
 use crate::twin_thread::{TwinEvent, TwinWorker};
@@ -112,6 +113,8 @@ pub struct ServeSummary {
     pub commands_refused: u64,
     /// Stops with an obstacle already inside the stop envelope (the unavoidable case).
     pub envelope_breaches: u64,
+    /// Detection frames accepted and refused (per reason).
+    pub intake: IntakeCounters,
 }
 
 impl ServeSummary {
@@ -124,6 +127,12 @@ impl ServeSummary {
             p99_us = age.p99_us,
             max_us = age.max_us,
             "detection capture -> visible in the twin thread"
+        );
+        tracing::info!(
+            accepted = self.intake.accepted,
+            without_goal = self.intake.without_goal,
+            refused = self.intake.total_refused(),
+            "detection frames"
         );
         tracing::info!(
             cycles = c.cycles,
@@ -153,6 +162,14 @@ impl ServeSummary {
             "commands_logged": self.commands_logged,
             "commands_refused": self.commands_refused,
             "envelope_breaches": self.envelope_breaches,
+            "detections_accepted": self.intake.accepted,
+            "detections_without_goal": self.intake.without_goal,
+            "detections_refused": FrameRefusal::NAMES
+                .iter()
+                .zip(self.intake.refused)
+                .filter(|(_, n)| *n > 0)
+                .map(|(k, n)| ((*k).to_owned(), serde_json::json!(n)))
+                .collect::<serde_json::Map<_, _>>(),
         })
     }
 }
@@ -218,6 +235,9 @@ pub fn serve<L: RobotLink + 'static>(
             shield_m: cfg.shield.min_distance_m,
         });
     }
+    // The task's tool (gripper) shape counts in every distance query: the lookahead, both
+    // shields and the state model all use this model.
+    let model = model.with_tool(task.tool.map(|t| t.capsule()));
     if opts.no_lookahead {
         tracing::warn!(
             "--no-lookahead: plans run whatever the lookahead says; the cycle's shield leaves the \
@@ -268,8 +288,13 @@ pub fn serve<L: RobotLink + 'static>(
     let log_thread = log_drain
         .spawn(Duration::from_millis(20), stop.clone())
         .map_err(ServeError::Spawn)?;
-    let (mut node, cleanup) =
-        TwinNode::open(&opts.prefix, task_hash, table_height_m, !opts.no_lookahead)?;
+    let intake = SceneIntake::new(
+        cfg.intake,
+        (cfg.stale.max_detection_age_s * 1e9) as u64,
+        table_height_m,
+        clock.origin_ns(),
+    );
+    let (mut node, cleanup) = TwinNode::open(&opts.prefix, task_hash, intake, !opts.no_lookahead)?;
     tracing::info!(?cleanup, prefix = opts.prefix, "iceoryx2 node up");
     let mut events = Vec::new();
     if let Some(path) = &opts.policy {
@@ -357,6 +382,7 @@ pub fn serve<L: RobotLink + 'static>(
         commands_logged: commands_logged?,
         commands_refused: r.commands_refused,
         envelope_breaches: r.envelope_breaches,
+        intake: node.intake_counters(),
     })
 }
 
@@ -471,7 +497,7 @@ fn twin_loop(
             );
             control.acknowledge();
         }
-        node.receive(twin, clock.now_ns(), events)?;
+        node.receive(twin, events)?;
         twin.step(events);
         let now = clock.now_ns();
         node.publish_events(events, now, cfg.rate_hz)?;

@@ -133,6 +133,12 @@ pub enum TwinEvent<S> {
         /// Its id.
         policy_id: u64,
     },
+    /// A plan is due but the latest detection frame has no goal: nothing is planned, the
+    /// arm holds (reported once per stretch without a goal).
+    NoGoal {
+        /// The current policy, 0 for none.
+        policy_id: u64,
+    },
 }
 
 /// The twin thread's state.
@@ -179,6 +185,14 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     gate: bool,
     /// After a refusal, no planning before this (cycle clock, ns).
     no_plan_before_ns: u64,
+    /// The latest accepted frame carries a goal; without one nothing is planned.
+    goal_seen: bool,
+    /// [`TwinEvent::NoGoal`] was reported for the current stretch without a goal.
+    no_goal_reported: bool,
+    /// The latest frame was refused: no planning until a good frame arrives.
+    scene_refused: bool,
+    /// Capture stamp of the latest accepted frame (cycle clock), ns.
+    scene_stamp_ns: u64,
 }
 
 /// Why a smoothed plan was not approved: the smoothing error or the shield's first
@@ -225,6 +239,10 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             last_retrain: None,
             gate: true,
             no_plan_before_ns: 0,
+            goal_seen: false,
+            no_goal_reported: false,
+            scene_refused: false,
+            scene_stamp_ns: 0,
         }
     }
 
@@ -235,18 +253,51 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         self.gate = false;
     }
 
-    /// A detection arrived: forwards it to the cycle at once and marks a scene change.
+    /// An accepted detection arrived (captured at `stamp_ns` on the cycle's clock; with a
+    /// goal or without one): forwards it to the cycle at once and marks a scene change.
+    /// Without a goal the obstacles count (the running plan is re-verified against them)
+    /// but nothing new is planned.
     pub fn on_detection(
         &mut self,
         scene: L::Scene,
         stamp_ns: u64,
+        goal_seen: bool,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) {
-        self.io.scenes.send(SceneUpdate { scene, stamp_ns });
+        self.io.scenes.send(SceneUpdate {
+            scene,
+            stamp_ns,
+            refused: false,
+        });
+        self.scene_stamp_ns = stamp_ns;
+        if self.scene_refused {
+            self.scene_refused = false;
+            self.want_plan = true;
+        }
+        if goal_seen != self.goal_seen {
+            self.goal_seen = goal_seen;
+            self.no_goal_reported = false;
+            self.want_plan = true;
+        }
         if self.scene != Some(scene) {
             self.scene = Some(scene);
             self.want_plan = true;
             self.reverify_running(events);
+        }
+    }
+
+    /// A detection frame was refused (see `twin_thread::intake`): the cycle is told at once
+    /// (it stops the arm, keeping the last trusted scene for the shield) and nothing is
+    /// planned until an accepted frame arrives.
+    pub fn on_refused_detection(&mut self) {
+        self.scene_refused = true;
+        self.want_plan = true;
+        if let Some(scene) = self.scene {
+            self.io.scenes.send(SceneUpdate {
+                scene,
+                stamp_ns: self.scene_stamp_ns,
+                refused: true,
+            });
         }
     }
 
@@ -348,6 +399,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// and plans when due. Events are appended to `events`.
     pub fn step(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
         self.take_reports();
+        if self.scene_refused {
+            return;
+        }
         if self.return_home_due(events) {
             return;
         }
@@ -388,6 +442,15 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             return;
         };
         if self.policy.is_none() {
+            return;
+        }
+        if !self.goal_seen {
+            if !self.no_goal_reported {
+                self.no_goal_reported = true;
+                events.push(TwinEvent::NoGoal {
+                    policy_id: self.policy.as_deref().map_or(0, L::policy_id),
+                });
+            }
             return;
         }
         // Where the plan starts.

@@ -30,6 +30,10 @@ pub struct Rig {
     pub reports: Vec<CycleReport>,
     pub detections_every: u64,
     pub detections_on: bool,
+    /// The frames carry a goal.
+    pub goal_seen: bool,
+    /// The frames are refused by the intake (as `twin_thread::intake` does).
+    pub refusing: bool,
     pub cycles: u64,
 }
 
@@ -91,6 +95,8 @@ impl Rig {
             reports: Vec::new(),
             detections_every: 8,
             detections_on: true,
+            goal_seen: true,
+            refusing: false,
             cycles: 0,
         }
     }
@@ -106,7 +112,12 @@ impl Rig {
         for _ in 0..n {
             let now = self.clock.now_ns();
             if self.detections_on && self.cycles.is_multiple_of(self.detections_every) {
-                self.twin.on_detection(self.scene, now, &mut self.events);
+                if self.refusing {
+                    self.twin.on_refused_detection();
+                } else {
+                    self.twin
+                        .on_detection(self.scene, now, self.goal_seen, &mut self.events);
+                }
             }
             self.twin.step(&mut self.events);
             self.cycle.process(now);

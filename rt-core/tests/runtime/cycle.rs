@@ -166,6 +166,56 @@ fn a_scene_change_that_makes_the_plan_unsafe_stops_the_arm_and_requests_retraini
     assert!(Rig::near(&rig.arm_q(), &TARGET_B, 0.03));
 }
 
+/// Issue 14, items 1, 3 and 7: a refused frame (overfull, stale stamp, second publisher…)
+/// stops the arm at once — not after the detection age runs out — and nothing is planned
+/// until a good frame arrives.
+#[test]
+fn a_refused_detection_frame_stops_the_arm_at_once_and_a_good_frame_resumes_it() {
+    let mut rig = Rig::new();
+    rig.policy(1, TARGET_A);
+    rig.run(100);
+    assert_eq!(rig.mode(), Mode::Following);
+    rig.refusing = true;
+    rig.run(9); // one refused frame (every 8 cycles)
+    assert_eq!(
+        rig.mode(),
+        Mode::Stopping,
+        "the stop begins with the refused frame"
+    );
+    assert_eq!(rig.cycle.report().stop_reason, StopReason::DetectionRefused);
+    rig.run(500);
+    assert_eq!(rig.mode(), Mode::Stopped);
+    let approvals = rig.approvals().len();
+    assert_eq!(approvals, 1, "no plan while the frames are refused");
+    rig.refusing = false;
+    rig.run(2500);
+    assert!(rig.approvals().len() > approvals, "{:?}", rig.approvals());
+    assert!(Rig::near(&rig.arm_q(), &TARGET_A, 0.03));
+}
+
+/// Issue 14, item 2: frames without a goal gave a plan toward an invented goal. Now no
+/// plan is made, the arm holds, and the verdict says why; a goal seen again plans.
+#[test]
+fn without_a_goal_nothing_is_planned_and_the_arm_holds() {
+    let mut rig = Rig::new();
+    rig.goal_seen = false;
+    rig.policy(1, TARGET_A);
+    rig.run(500);
+    assert_eq!(rig.mode(), Mode::Idle);
+    assert!(rig.approvals().is_empty(), "{:?}", rig.events);
+    assert!(Rig::near(&rig.arm_q(), &START, 1e-9));
+    let no_goal = rig
+        .events
+        .iter()
+        .filter(|e| matches!(e, TwinEvent::NoGoal { policy_id: 1 }))
+        .count();
+    assert_eq!(no_goal, 1, "said once: {:?}", rig.events);
+    rig.goal_seen = true;
+    rig.run(2500);
+    assert_eq!(rig.approvals().len(), 1);
+    assert!(Rig::near(&rig.arm_q(), &TARGET_A, 0.03));
+}
+
 #[test]
 fn stale_detections_stop_the_arm_and_it_resumes_only_with_a_fresh_plan() {
     let mut rig = Rig::new();
@@ -355,6 +405,7 @@ fn the_cycle_shield_stops_a_plan_that_runs_into_the_live_scene_without_the_twin(
         twin_io.scenes.send(SceneUpdate {
             scene,
             stamp_ns: now,
+            refused: false,
         });
         cyc.process(now);
         now += period;
@@ -368,6 +419,7 @@ fn the_cycle_shield_stops_a_plan_that_runs_into_the_live_scene_without_the_twin(
         twin_io.scenes.send(SceneUpdate {
             scene,
             stamp_ns: now,
+            refused: false,
         });
         cyc.process(now);
         let q = cyc.report().cmd.q_rad;
