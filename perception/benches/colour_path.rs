@@ -39,7 +39,7 @@ fn bench(c: &mut Criterion) {
     let cam = SyntheticCamera::load(&assets.join("synthetic_camera.toml")).unwrap();
     let scene = SceneFile::from_toml_str(SCENE, Path::new("<bench>")).unwrap();
     let rendered = cam.render(&scene);
-    let frame = Frame::from_rendered(&rendered, 1, 0).unwrap();
+    let frame = Frame::from_rendered(&rendered, 1, perception::frame::monotonic_now_ns()).unwrap();
     let calibration = Calibration::new(CalibrationFile {
         intrinsics: cam.config.intrinsics,
         workspace: cam.workspace_for(&scene),
@@ -55,6 +55,7 @@ fn bench(c: &mut Criterion) {
     let mut pipeline = Pipeline {
         detector: Detector::Colour(Box::new(detector)),
         calibration,
+        selection: perception::selection::SelectionConfig::default(),
         tracker: Tracker::new(TrackerConfig::default()).unwrap(),
         publisher: DetectionPublisher::open(&prefix, 0).unwrap(),
     };

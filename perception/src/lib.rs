@@ -21,8 +21,12 @@
 //!   connected components); [`measure`] (a blob with depth → position, footprint, height);
 //!   [`yolo`] and [`onnx_patch`] (YOLOv8 ONNX through OpenCV 4.6 DNN); [`detection`] (the
 //!   [`detection::Detection`] every detector returns).
-//! - Out: [`tracker`] (stable ids, debouncing); [`publisher`] (`DetectionFrame`s over
-//!   iceoryx2); [`annotate`] (detections drawn on the image).
+//! - Out: [`selection`] (confidence floors, the one goal, nearest obstacles first);
+//!   [`tracker`] (stable ids, debouncing); [`publisher`] (`DetectionFrame`s over iceoryx2,
+//!   `dropped_count` when objects did not fit); [`annotate`] (detections drawn on the image).
+//! - Time: every frame carries its capture time on `CLOCK_MONOTONIC`, never 0; [`stamp`]
+//!   converts a ROS 2 camera's `header.stamp` and refuses zero, future and stale stamps.
+//!   [`log_limit`] rate-limits repeated warnings.
 //!
 //! Errors are typed per operation (`thiserror` enums such as
 //! [`tracker::TrackerConfigError`] or [`calibration::CalibrationError`]), each message
@@ -47,13 +51,16 @@ pub mod color_detector;
 pub mod detection;
 pub mod frame;
 pub mod geometry;
+pub mod log_limit;
 pub mod measure;
 pub mod onnx_patch;
 pub mod pipeline;
 pub mod publisher;
 pub mod ros2_source;
 pub mod runs;
+pub mod selection;
 pub mod source;
+pub mod stamp;
 pub mod synthetic;
 pub mod tracker;
 pub mod workspace;

@@ -1,12 +1,24 @@
 //! ROS 2 frame source through `ros2-client`: colour image, depth image and camera info,
-//! by default on the ZED ROS 2 wrapper's topics (configurable in TOML).
+//! by default on the ZED ROS 2 wrapper's topics (configurable in TOML, [`Ros2Topics`]).
 //!
-//! DDS can be restricted to given local addresses (`networks = ["127.0.0.1"]`), through
-//! `DomainParticipantBuilder::with_only_networks`, so tests and single-machine setups never
-//! send multicast out of the machine's real interface. Discovery on loopback needs the
-//! `MULTICAST` flag on `lo` (`ip link set lo multicast on`), which the test sets inside its
-//! own network namespace.
+//! **Closed by default.** DDS is restricted to loopback (`networks = ["127.0.0.1"]`, through
+//! `DomainParticipantBuilder::with_only_networks`): a host on the LAN cannot inject camera
+//! images, which would become obstacles and goals for the real arm. Using another address
+//! (the camera PC's network) or every interface (`networks = []`) needs
+//! [`NetworkAccess::Open`], which only `perception run --ros2-open-network` gives; without
+//! it such a configuration is refused at start, naming `networks`. rustdds also announces
+//! itself to same-host peers over unicast, so a camera driver on this machine is found on
+//! loopback; discovery over `lo` multicast needs the `MULTICAST` flag on `lo`
+//! (`ip link set lo multicast on`), which the system test sets inside its own network
+//! namespace.
+//!
+//! **Stamps.** A frame's `capture_time_ns` is the colour image's `header.stamp` (the
+//! camera's capture time, on the ROS/system clock) converted to `CLOCK_MONOTONIC` with the
+//! clock offset measured when the image was received ([`crate::stamp`]); an image whose
+//! stamp is zero, in the future beyond `stamp.max_ahead_s`, or older than `stamp.max_age_s`
+//! is refused ([`SourceError::Stamp`], counted as `bad_stamps` by the run loop).
 
+use std::net::{IpAddr, Ipv4Addr};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -19,8 +31,9 @@ use ros2_client::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::frame::{Frame, FrameError, monotonic_now_ns};
+use crate::frame::{Frame, FrameError};
 use crate::source::{FrameSource, SourceError};
+use crate::stamp::{ClockPair, StampLimits, StampLimitsError, ros_stamp_to_monotonic_ns};
 
 /// `builtin_interfaces/Time`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
@@ -103,16 +116,18 @@ pub struct CameraInfo {
 }
 impl ros2_client::Message for CameraInfo {}
 
-/// Topic names and DDS settings.
+/// Topic names, DDS settings and stamp limits (TOML; unknown fields are refused).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Ros2Topics {
     /// DDS domain.
     #[serde(default)]
     pub domain_id: u16,
-    /// Local addresses DDS may use (empty: all, the rustdds default).
-    #[serde(default)]
-    pub networks: Vec<std::net::IpAddr>,
+    /// Local addresses DDS may use. Default: loopback only (`["127.0.0.1"]`). A
+    /// non-loopback address, or an empty list (every interface), is accepted only with
+    /// [`NetworkAccess::Open`].
+    #[serde(default = "loopback_only")]
+    pub networks: Vec<IpAddr>,
     /// Colour image topic.
     pub colour: String,
     /// Depth image topic (32FC1 metres or 16UC1 millimetres, registered to colour).
@@ -122,35 +137,146 @@ pub struct Ros2Topics {
     /// Longest wait for a new colour image (s).
     #[serde(default = "default_timeout_s")]
     pub timeout_s: f64,
+    /// How old or how far ahead a colour image's `header.stamp` may be (`[stamp]`).
+    #[serde(default)]
+    pub stamp: StampLimits,
 }
 
 fn default_timeout_s() -> f64 {
     2.0
 }
 
+/// `["127.0.0.1"]`: the default of [`Ros2Topics::networks`].
+pub fn loopback_only() -> Vec<IpAddr> {
+    vec![IpAddr::V4(Ipv4Addr::LOCALHOST)]
+}
+
 impl Default for Ros2Topics {
-    /// The ZED ROS 2 wrapper's topics for a camera named `zed`.
+    /// The ZED ROS 2 wrapper's topics for a camera named `zed`, loopback only.
     fn default() -> Self {
         Self {
             domain_id: 0,
-            networks: Vec::new(),
+            networks: loopback_only(),
             colour: "/zed/zed_node/rgb/image_rect_color".into(),
             depth: "/zed/zed_node/depth/depth_registered".into(),
             camera_info: "/zed/zed_node/rgb/camera_info".into(),
             timeout_s: default_timeout_s(),
+            stamp: StampLimits::default(),
         }
     }
 }
 
+/// Whether the ROS 2 source may listen beyond loopback.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum NetworkAccess {
+    /// Only loopback addresses (the default): no other host can send camera images.
+    #[default]
+    LoopbackOnly,
+    /// The addresses in [`Ros2Topics::networks`] whatever they are; every interface when
+    /// the list is empty (`perception run --ros2-open-network`).
+    Open,
+}
+
+/// Why ROS 2 topic settings were refused; each message names the file or the field.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum Ros2TopicsError {
+    /// The file could not be read.
+    #[error("cannot read ROS 2 topics file {path}: {message}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// What failed.
+        message: String,
+    },
+    /// The file is not valid TOML for [`Ros2Topics`].
+    #[error("malformed ROS 2 topics file {path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// The parser's message (names the field).
+        message: String,
+    },
+    /// A value in the file is out of bounds.
+    #[error("ROS 2 topics file {path}: {error}")]
+    InFile {
+        /// The file.
+        path: PathBuf,
+        /// The bound broken (names the field).
+        error: Box<Ros2TopicsError>,
+    },
+    /// `networks` would open DDS beyond loopback without [`NetworkAccess::Open`].
+    #[error(
+        "networks = {networks:?}: the ROS 2 camera source is loopback-only unless opened with --ros2-open-network ({why})"
+    )]
+    NotLoopback {
+        /// The addresses given.
+        networks: Vec<IpAddr>,
+        /// What is not loopback.
+        why: &'static str,
+    },
+    /// `timeout_s` is not a positive number of seconds up to 600.
+    #[error("timeout_s = {0} must be within (0, 600] s")]
+    Timeout(f64),
+    /// A `[stamp]` limit is out of bounds.
+    #[error(transparent)]
+    Stamp(#[from] StampLimitsError),
+}
+
+impl From<Ros2TopicsError> for SourceError {
+    fn from(e: Ros2TopicsError) -> Self {
+        SourceError::Open(e.to_string())
+    }
+}
+
 impl Ros2Topics {
-    /// Loads topic settings from TOML.
+    /// Loads topic settings from TOML and checks the values that do not depend on the
+    /// network access ([`Ros2Topics::validate`] checks all).
     ///
     /// # Errors
-    /// [`SourceError::Open`].
-    pub fn load(path: &Path) -> Result<Self, SourceError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| SourceError::Open(format!("{}: {e}", path.display())))?;
-        toml::from_str(&text).map_err(|e| SourceError::Open(format!("{}: {e}", path.display())))
+    /// [`Ros2TopicsError`] naming the file or the field.
+    pub fn load(path: &Path) -> Result<Self, Ros2TopicsError> {
+        let text = std::fs::read_to_string(path).map_err(|e| Ros2TopicsError::Read {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        let t: Self = toml::from_str(&text).map_err(|e| Ros2TopicsError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        t.validate(NetworkAccess::Open)
+            .map_err(|e| Ros2TopicsError::InFile {
+                path: path.to_path_buf(),
+                error: Box::new(e),
+            })?;
+        Ok(t)
+    }
+
+    /// Checks the values: with [`NetworkAccess::LoopbackOnly`], `networks` must list only
+    /// loopback addresses (and at least one); `timeout_s` and the stamp limits in bounds.
+    ///
+    /// # Errors
+    /// [`Ros2TopicsError`] naming the field.
+    pub fn validate(&self, access: NetworkAccess) -> Result<(), Ros2TopicsError> {
+        if access == NetworkAccess::LoopbackOnly {
+            let why = if self.networks.is_empty() {
+                Some("an empty list means every interface")
+            } else if self.networks.iter().any(|a| !a.is_loopback()) {
+                Some("an address is not loopback")
+            } else {
+                None
+            };
+            if let Some(why) = why {
+                return Err(Ros2TopicsError::NotLoopback {
+                    networks: self.networks.clone(),
+                    why,
+                });
+            }
+        }
+        if !(self.timeout_s > 0.0 && self.timeout_s <= 600.0) {
+            return Err(Ros2TopicsError::Timeout(self.timeout_s));
+        }
+        self.stamp.validate()?;
+        Ok(())
     }
 }
 
@@ -162,11 +288,12 @@ fn qos() -> QosProfile {
         .history(History::KeepLast { depth: 2 })
 }
 
-/// Creates a ROS 2 context, restricted to `networks` when not empty.
+/// Creates a ROS 2 context, restricted to `networks` when not empty (every interface when
+/// empty: [`Ros2Source::open`] allows that only with [`NetworkAccess::Open`]).
 ///
 /// # Errors
 /// [`SourceError::Open`].
-pub fn context(domain_id: u16, networks: &[std::net::IpAddr]) -> Result<Context, SourceError> {
+pub fn context(domain_id: u16, networks: &[IpAddr]) -> Result<Context, SourceError> {
     let open = |e: String| SourceError::Open(format!("ROS 2: {e}"));
     if networks.is_empty() {
         let opts = ros2_client::ContextOptions::new().domain_id(domain_id);
@@ -377,15 +504,23 @@ pub struct Ros2Source {
     sequence: u64,
     /// Topic names in use.
     pub topics: Ros2Topics,
-    _path: Option<PathBuf>,
 }
 
 impl Ros2Source {
-    /// Subscribes to the three topics.
+    /// Checks the settings against `access` ([`Ros2Topics::validate`]: loopback only
+    /// unless [`NetworkAccess::Open`]) and subscribes to the three topics.
     ///
     /// # Errors
-    /// [`SourceError::Open`].
-    pub fn open(topics: &Ros2Topics) -> Result<Self, SourceError> {
+    /// [`SourceError::Open`], naming the field for refused settings.
+    pub fn open(topics: &Ros2Topics, access: NetworkAccess) -> Result<Self, SourceError> {
+        topics.validate(access)?;
+        if topics.networks.is_empty() {
+            tracing::warn!(
+                "ROS 2 camera source open on every interface (--ros2-open-network, networks = []): any host on the LAN can send camera images"
+            );
+        } else if topics.networks.iter().any(|a| !a.is_loopback()) {
+            tracing::warn!(networks = ?topics.networks, "ROS 2 camera source open beyond loopback (--ros2-open-network)");
+        }
         let ctx = context(topics.domain_id, &topics.networks)?;
         let mut node = node(&ctx, "perception")?;
         let t_colour = topic(&mut node, &topics.colour, "sensor_msgs", "Image")?;
@@ -412,7 +547,6 @@ impl Ros2Source {
             timeout: Duration::from_secs_f64(topics.timeout_s.clamp(0.01, 600.0)),
             sequence: 0,
             topics: topics.clone(),
-            _path: None,
         })
     }
 
@@ -427,6 +561,13 @@ impl Ros2Source {
 }
 
 impl FrameSource for Ros2Source {
+    /// The latest colour image with the depth image of the same stamp when it arrives
+    /// within 50 ms (else the latest depth image; none yet: the frame is refused), stamped
+    /// with its `header.stamp` on `CLOCK_MONOTONIC`.
+    ///
+    /// # Errors
+    /// [`SourceError::Stamp`] for a refused stamp (this frame only), [`SourceError::Frame`]
+    /// for a bad image, [`SourceError::Failed`] when no image came within `timeout_s`.
     fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
         let deadline = Instant::now() + self.timeout;
         let mut colour = None;
@@ -434,7 +575,8 @@ impl FrameSource for Ros2Source {
             self.drain_side_topics();
             loop {
                 match self.colour.take() {
-                    Ok(Some((m, _))) => colour = Some(m),
+                    // The clocks are read as each image is taken, for its stamp's conversion.
+                    Ok(Some((m, _))) => colour = Some((m, ClockPair::now())),
                     Ok(None) => break,
                     Err(e) => return Err(SourceError::Failed(format!("colour topic: {e:?}"))),
                 }
@@ -451,11 +593,13 @@ impl FrameSource for Ros2Source {
             }
             std::thread::sleep(Duration::from_millis(2));
         }
-        let capture = monotonic_now_ns();
-        // Give a depth image of the same stamp a moment to arrive.
-        let Some(colour) = colour else {
+        let Some((colour, received)) = colour else {
             return Ok(None);
         };
+        let stamp = colour.header.stamp;
+        let capture =
+            ros_stamp_to_monotonic_ns(stamp.sec, stamp.nanosec, received, &self.topics.stamp)?;
+        // Give a depth image of the same stamp a moment to arrive.
         let wait_depth = Instant::now() + Duration::from_millis(50);
         while self
             .latest_depth
@@ -466,12 +610,17 @@ impl FrameSource for Ros2Source {
             std::thread::sleep(Duration::from_millis(1));
             self.drain_side_topics();
         }
+        // Without depth every box would be measured as a flat footprint on the table (a
+        // tall obstacle published 1 mm high): refuse the frame until depth arrives.
+        let Some(depth) = &self.latest_depth else {
+            return Err(SourceError::Frame(FrameError::BadDepth(format!(
+                "no depth image received yet on {}",
+                self.topics.depth
+            ))));
+        };
+        let depth_m = Some(depth_from_msg(depth)?);
         self.sequence += 1;
         let bgr = colour_from_msg(&colour)?;
-        let depth_m = match &self.latest_depth {
-            Some(d) => Some(depth_from_msg(d)?),
-            None => None,
-        };
         let f = Frame {
             sequence: self.sequence,
             capture_time_ns: capture,
@@ -486,6 +635,68 @@ impl FrameSource for Ros2Source {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_source_is_loopback_only_unless_opened() {
+        let t = Ros2Topics::default();
+        assert_eq!(t.networks, ["127.0.0.1".parse::<IpAddr>().unwrap()]);
+        t.validate(NetworkAccess::LoopbackOnly).unwrap();
+        // A file without `networks` stays on loopback too.
+        let parsed: Ros2Topics =
+            toml::from_str("colour = \"/c\"\ndepth = \"/d\"\ncamera_info = \"/i\"\n").unwrap();
+        assert_eq!(parsed.networks, loopback_only());
+        assert_eq!(parsed.stamp, StampLimits::default());
+        for networks in [
+            vec![],
+            vec!["192.168.1.20".parse().unwrap()],
+            vec!["127.0.0.1".parse().unwrap(), "0.0.0.0".parse().unwrap()],
+        ] {
+            let open = Ros2Topics {
+                networks,
+                ..Ros2Topics::default()
+            };
+            let e = open.validate(NetworkAccess::LoopbackOnly).unwrap_err();
+            assert!(matches!(e, Ros2TopicsError::NotLoopback { .. }), "{e:?}");
+            let m = e.to_string();
+            assert!(
+                m.contains("networks") && m.contains("--ros2-open-network"),
+                "{m}"
+            );
+            open.validate(NetworkAccess::Open).unwrap();
+            // Opening the source itself refuses before touching DDS.
+            let Err(e) = Ros2Source::open(&open, NetworkAccess::LoopbackOnly) else {
+                panic!("a source open beyond loopback was created without the flag");
+            };
+            assert!(e.to_string().contains("networks"), "{e}");
+        }
+        let v6 = Ros2Topics {
+            networks: vec!["::1".parse().unwrap()],
+            ..Ros2Topics::default()
+        };
+        v6.validate(NetworkAccess::LoopbackOnly).unwrap();
+    }
+
+    #[test]
+    fn topics_files_are_checked_with_the_field_named() {
+        let dir = std::env::temp_dir().join(format!("foresight-ros2topics-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("t.toml");
+        let base = "colour = \"/c\"\ndepth = \"/d\"\ncamera_info = \"/i\"\n";
+        std::fs::write(&p, format!("{base}[stamp]\nmax_age_s = 5.0\n")).unwrap();
+        let e = Ros2Topics::load(&p).unwrap_err().to_string();
+        assert!(e.contains("stamp.max_age_s") && e.contains("t.toml"), "{e}");
+        std::fs::write(&p, format!("{base}[stamp]\nmax_ahead_s = 0.01\n")).unwrap();
+        let t = Ros2Topics::load(&p).unwrap();
+        assert_eq!(t.stamp.max_ahead_s, 0.01);
+        assert_eq!(t.stamp.max_age_s, StampLimits::default().max_age_s);
+        std::fs::write(&p, format!("{base}timeout_s = 0\n")).unwrap();
+        let e = Ros2Topics::load(&p).unwrap_err().to_string();
+        assert!(e.contains("timeout_s"), "{e}");
+        std::fs::write(&p, format!("{base}max_age = 1\n")).unwrap();
+        let e = Ros2Topics::load(&p).unwrap_err().to_string();
+        assert!(e.contains("max_age") && e.contains("t.toml"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     #[test]
     fn images_convert_and_bad_ones_are_refused() {

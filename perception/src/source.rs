@@ -50,6 +50,10 @@ pub enum SourceError {
     /// This frame was bad; the source goes on.
     #[error(transparent)]
     Frame(#[from] FrameError),
+    /// This frame's capture stamp was refused (zero, in the future, too old); the source
+    /// goes on.
+    #[error("image refused: {0}")]
+    Stamp(#[from] crate::stamp::StampError),
     /// A transport failure.
     #[error("source failed: {0}")]
     Failed(String),

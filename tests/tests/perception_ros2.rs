@@ -3,10 +3,14 @@
 //! default topic names; the real `perception run --source ros2` process turns them into
 //! `DetectionFrame`s on iceoryx2 with the right objects.
 //!
-//! DDS stays on loopback: both sides restrict rustdds to 127.0.0.1 (`with_only_networks`),
-//! and the test runs inside a private network namespace (`unshare -n`, `lo` up with
-//! MULTICAST on, which rustdds' discovery needs) made by `run_in_private_netns`.
-//! Needs `cargo build --release -p perception` first.
+//! Stamps: the images carry the system clock at capture (as a ROS 2 driver stamps them);
+//! the frames carry that time on CLOCK_MONOTONIC, and unstamped images are refused, counted
+//! and logged naming `header.stamp`.
+//!
+//! DDS stays on loopback: both sides restrict rustdds to 127.0.0.1 (`with_only_networks`,
+//! perception's default), and the test runs inside a private network namespace
+//! (`unshare -n`, `lo` up with MULTICAST on, which rustdds' discovery needs) made by
+//! `run_in_private_netns`. Needs `cargo build --release -p perception` first.
 
 use std::process::{Command, Stdio};
 use std::sync::Arc;
@@ -18,6 +22,7 @@ use foresight_tests::{
 };
 use iceoryx2::prelude::*;
 use perception::calibration::{Calibration, CalibrationFile};
+use perception::frame::monotonic_now_ns;
 use perception::ros2_source::{
     CameraInfo, Header, Image, Ros2Topics, Time, camera_info_publisher, context, image_publisher,
     node,
@@ -110,11 +115,10 @@ fn ros2_camera_topics_become_detection_frames() {
         let colour_pub = image_publisher(&mut n, &topics.colour).unwrap();
         let depth_pub = image_publisher(&mut n, &topics.depth).unwrap();
         let info_pub = camera_info_publisher(&mut n, &topics.camera_info).unwrap();
-        let mut i = 0;
         while !stop2.load(Ordering::Relaxed) {
-            i += 1;
+            // Stamped as a ROS 2 driver does: the system clock at capture.
             let header = Header {
-                stamp: Time { sec: i, nanosec: 0 },
+                stamp: ros_time(0),
                 frame_id: "zed_left_camera_optical_frame".into(),
             };
             let info = CameraInfo {
@@ -179,9 +183,212 @@ fn ros2_camera_topics_become_detection_frames() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `builtin_interfaces/Time` of the system clock `before_ns` ago.
+fn ros_time(before_ns: u64) -> Time {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap();
+    let t = now - Duration::from_nanos(before_ns);
+    Time {
+        sec: t.as_secs() as i32,
+        nanosec: t.subsec_nanos(),
+    }
+}
+
 fn toml_of(t: &Ros2Topics) -> String {
     format!(
         "domain_id = {}\nnetworks = [\"127.0.0.1\"]\ncolour = {:?}\ndepth = {:?}\ncamera_info = {:?}\ntimeout_s = {}\n",
         t.domain_id, t.colour, t.depth, t.camera_info, t.timeout_s
     )
+}
+
+/// Images stamped 400 ms before they are sent (a slow camera pipeline) give frames whose
+/// `capture_time_ns` is that capture time on CLOCK_MONOTONIC, not the receipt time; images
+/// with a zero stamp, sent first, are refused, counted in `bad_stamps` and logged naming
+/// `header.stamp`. No frame ever carries 0.
+#[test]
+fn ros2_frames_carry_the_camera_stamp_on_the_monotonic_clock_and_unstamped_images_are_refused() {
+    const BEFORE_NS: u64 = 400_000_000;
+    let name = "ros2_frames_carry_the_camera_stamp_on_the_monotonic_clock_and_unstamped_images_are_refused";
+    if run_in_private_netns(name) == NetnsOutcome::RanInChild {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("foresight-perc-stamp-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut cam =
+        SyntheticCamera::load(&foresight_tests::asset("perception/synthetic_camera.toml"))
+            .unwrap()
+            .config;
+    cam.intrinsics.fx_px /= 4.0;
+    cam.intrinsics.fy_px /= 4.0;
+    cam.intrinsics.cx_px /= 4.0;
+    cam.intrinsics.cy_px /= 4.0;
+    cam.intrinsics.width_px /= 4;
+    cam.intrinsics.height_px /= 4;
+    let cam = SyntheticCamera::new(cam).unwrap();
+    let scene = SceneFile::from_toml_str(SCENE, std::path::Path::new("<test>")).unwrap();
+    let r = cam.render(&scene);
+    Calibration::new(CalibrationFile {
+        intrinsics: cam.config.intrinsics,
+        workspace: cam.workspace_for(&scene),
+        corners_px: cam.workspace_corners_px(&scene).unwrap(),
+        rectified_px_per_m: 1000.0,
+    })
+    .unwrap()
+    .save(&dir.join("calibration.toml"))
+    .unwrap();
+    // The default networks (loopback only); a wider age bound for the 400 ms old stamps.
+    let topics = Ros2Topics {
+        timeout_s: 5.0,
+        ..Ros2Topics::default()
+    };
+    std::fs::write(
+        dir.join("topics.toml"),
+        format!(
+            "colour = {:?}\ndepth = {:?}\ncamera_info = {:?}\ntimeout_s = 5.0\n[stamp]\nmax_age_s = 1.0\n",
+            topics.colour, topics.depth, topics.camera_info
+        ),
+    )
+    .unwrap();
+
+    let prefix = unique_prefix("percstamp");
+    let (ice, _) = services::create_node::<ipc::Service>("perception-stamp-test").unwrap();
+    let sub = services::open_subscriber::<DetectionFrame, _>(&ice, &prefix).unwrap();
+    let mut p = ChildGuard::spawn(
+        "perception run --source ros2",
+        Command::new(bin_path("perception"))
+            .args(["run", "--source", "ros2", "--prefix", &prefix])
+            .args(["--rate", "10", "--frames", "60", "--persist-frames", "1"])
+            .arg("--ros2-topics")
+            .arg(dir.join("topics.toml"))
+            .arg("--calibration")
+            .arg(dir.join("calibration.toml"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped()),
+    );
+    // perception's log, line by line: the camera stamps its images only once perception
+    // has refused an unstamped one.
+    let refused = Arc::new(AtomicBool::new(false));
+    let stderr = p.child.stderr.take().unwrap();
+    let refused2 = refused.clone();
+    let log = std::thread::spawn(move || {
+        use std::io::BufRead;
+        let mut all = String::new();
+        for line in std::io::BufReader::new(stderr).lines() {
+            let Ok(line) = line else { break };
+            if line.contains("header.stamp is zero") {
+                refused2.store(true, Ordering::Relaxed);
+            }
+            all += &line;
+            all.push('\n');
+        }
+        all
+    });
+
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop2 = stop.clone();
+    let (w, h) = (r.width_px as u32, r.height_px as u32);
+    let bgra: Vec<u8> = r
+        .bgr
+        .chunks_exact(3)
+        .flat_map(|p| [p[0], p[1], p[2], 255])
+        .collect();
+    let depth: Vec<u8> = r.depth_m.iter().flat_map(|d| d.to_le_bytes()).collect();
+    // CLOCK_MONOTONIC when the first stamped image was sent.
+    let first_stamped_mono_ns = Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let first2 = first_stamped_mono_ns.clone();
+    let camera = std::thread::spawn(move || {
+        let ctx = context(0, &topics.networks).unwrap();
+        let mut n = node(&ctx, "fake_zed").unwrap();
+        let colour_pub = image_publisher(&mut n, &topics.colour).unwrap();
+        let depth_pub = image_publisher(&mut n, &topics.depth).unwrap();
+        while !stop2.load(Ordering::Relaxed) {
+            let stamped = refused.load(Ordering::Relaxed);
+            if stamped && first2.load(Ordering::Relaxed) == 0 {
+                first2.store(monotonic_now_ns(), Ordering::Relaxed);
+            }
+            let header = Header {
+                stamp: if stamped {
+                    ros_time(BEFORE_NS)
+                } else {
+                    Time::default()
+                },
+                frame_id: "zed_left_camera_optical_frame".into(),
+            };
+            let _ = depth_pub.publish(Image {
+                header: header.clone(),
+                height: h,
+                width: w,
+                encoding: "32FC1".into(),
+                is_bigendian: 0,
+                step: w * 4,
+                data: depth.clone(),
+            });
+            let _ = colour_pub.publish(Image {
+                header,
+                height: h,
+                width: w,
+                encoding: "bgra8".into(),
+                is_bigendian: 0,
+                step: w * 4,
+                data: bgra.clone(),
+            });
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    });
+
+    let mut frames = Vec::new();
+    let done = wait_for(Duration::from_secs(90), || {
+        while let Ok(Some(s)) = sub.receive() {
+            frames.push((*s.payload(), monotonic_now_ns()));
+        }
+        p.child.try_wait().unwrap()
+    });
+    while let Ok(Some(s)) = sub.receive() {
+        frames.push((*s.payload(), monotonic_now_ns()));
+    }
+    stop.store(true, Ordering::Relaxed);
+    camera.join().unwrap();
+    let log = log.join().unwrap();
+    assert!(
+        done.is_some_and(|s| s.success()),
+        "perception run failed:\n{log}"
+    );
+    let mut stdout = String::new();
+    use std::io::Read;
+    p.child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut stdout)
+        .unwrap();
+    let stats: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert!(
+        stats["bad_stamps"].as_u64().is_some_and(|n| n >= 1),
+        "{stdout}\n{log}"
+    );
+    assert!(log.contains("header.stamp is zero"), "{log}");
+    assert!(
+        !frames.is_empty(),
+        "no DetectionFrame arrived:\n{stdout}\n{log}"
+    );
+    let first_stamped = first_stamped_mono_ns.load(Ordering::Relaxed);
+    assert!(first_stamped > 0);
+    for (f, received_ns) in &frames {
+        assert!(f.capture_time_ns > 0, "{f:?}");
+        // Captured 400 ms before the image was sent, which is before the frame arrived
+        // here: a receipt-time stamp would be later than this bound.
+        assert!(
+            f.capture_time_ns + BEFORE_NS <= *received_ns,
+            "capture_time_ns {} is not 400 ms before the frame arrived ({received_ns})",
+            f.capture_time_ns
+        );
+        // And not earlier than the first stamped image's capture.
+        assert!(
+            f.capture_time_ns + BEFORE_NS + 5_000_000 >= first_stamped,
+            "capture_time_ns {} is before the first stamped image's capture",
+            f.capture_time_ns
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
 }

@@ -9,7 +9,7 @@ use clap::Args;
 use perception::annotate::{annotate, write_image};
 use perception::calibration::Calibration;
 use perception::detection::DetectionReport;
-use perception::frame::{Frame, read_colour, read_depth};
+use perception::frame::{Frame, monotonic_now_ns, read_colour, read_depth};
 
 use super::shared::load_detector;
 
@@ -53,7 +53,7 @@ pub fn run(args: DetectArgs) -> Result<()> {
         .transpose()?;
     let frame = Frame {
         sequence: 1,
-        capture_time_ns: 0,
+        capture_time_ns: monotonic_now_ns(),
         bgr: read_colour(&args.image)?,
         depth_m: args.depth.as_deref().map(read_depth).transpose()?,
     };

@@ -1,8 +1,13 @@
 //! `perception run`: the long-running process. Frames from a source (the synthetic camera
 //! playing a world script, image files, or ROS 2 topics) go through the detector, the
 //! calibration and the tracker; changes are published as `DetectionFrame`s over iceoryx2.
-//! At the end (`--frames`, or a finite source) prints
-//! `{"frames","published","bad_frames","failed"}`.
+//! At the end (`--frames`, or a finite source) prints its counters as one JSON object
+//! ([`perception::pipeline::RunStats`]: `frames`, `published`, `bad_frames`, `failed`,
+//! `bad_stamps`, `truncated_frames`, `dropped_objects`, `goals_demoted`,
+//! `low_confidence_dropped`, `extra_goals`).
+//!
+//! The ROS 2 source listens on loopback only unless `--ros2-open-network` is given (see
+//! [`perception::ros2_source`]).
 
 use std::path::PathBuf;
 
@@ -11,7 +16,8 @@ use clap::Args;
 use perception::calibration::Calibration;
 use perception::pipeline::Pipeline;
 use perception::publisher::DetectionPublisher;
-use perception::ros2_source::{Ros2Source, Ros2Topics};
+use perception::ros2_source::{NetworkAccess, Ros2Source, Ros2Topics};
+use perception::selection::SelectionConfig;
 use perception::source::{FileSource, FrameSource, SourceSpec, SyntheticSource};
 use perception::tracker::{Tracker, TrackerConfig};
 
@@ -20,7 +26,8 @@ use super::shared::{asset, load_detector, synthetic_calibration};
 /// `perception run`
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    /// synthetic:WORLD.toml | file:PATH | ros2
+    /// synthetic:WORLD.toml | file:PATH | ros2 (the ROS 2 camera topics; DDS on loopback
+    /// only unless --ros2-open-network)
     #[arg(long)]
     source: SourceSpec,
     /// Calibration file (synthetic source: derived exactly from the camera when absent).
@@ -53,9 +60,32 @@ pub struct RunArgs {
     /// Frames a change must persist before it is published.
     #[arg(long, default_value_t = 3)]
     persist_frames: u32,
-    /// ROS 2 topics config (TOML); ZED wrapper names by default.
+    /// ROS 2 topics config (TOML: topic names, `domain_id`, `networks`, `timeout_s`,
+    /// `[stamp] max_age_s / max_ahead_s`); ZED wrapper names by default.
     #[arg(long)]
     ros2_topics: Option<PathBuf>,
+    /// Local address the ROS 2 camera source's DDS may use (repeatable; replaces the topics
+    /// file's `networks`). Default: loopback only (127.0.0.1). A non-loopback address needs
+    /// --ros2-open-network.
+    #[arg(long = "ros2-network", value_name = "ADDR")]
+    ros2_networks: Vec<std::net::IpAddr>,
+    /// Let the ROS 2 camera source listen beyond loopback: on the addresses given (the
+    /// camera PC's network), or on every interface when `networks = []`. Without it the
+    /// source is loopback-only and no other host can send it camera images.
+    #[arg(long)]
+    ros2_open_network: bool,
+    /// Confidence floors (TOML: `min_goal_confidence`, `min_obstacle_confidence`); the flags
+    /// below override it.
+    #[arg(long)]
+    selection_config: Option<PathBuf>,
+    /// A goal detection below this confidence is reported as an obstacle, not the goal
+    /// (0.05..=1; default 0.5).
+    #[arg(long)]
+    min_goal_confidence: Option<f32>,
+    /// An obstacle detection below this confidence is left out (0..=0.25 and not above the
+    /// goal floor; default 0.05): a doubtful obstacle is still reported.
+    #[arg(long)]
+    min_obstacle_confidence: Option<f32>,
     /// Camera id written into each DetectionFrame.
     #[arg(long, default_value_t = 0)]
     camera_id: u32,
@@ -67,6 +97,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     if !(rate.is_finite() && rate > 0.0 && rate <= 1000.0) {
         bail!("--rate {rate}: must be in (0, 1000] Hz");
     }
+    let selection = selection(&args)?;
     let detector = load_detector(
         args.detector.as_deref(),
         args.model.as_deref(),
@@ -87,6 +118,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     let mut pipeline = Pipeline {
         detector,
         calibration,
+        selection,
         tracker,
         publisher,
     };
@@ -94,11 +126,24 @@ pub fn run(args: RunArgs) -> Result<()> {
     let stats =
         perception::pipeline::run(src.as_mut(), &mut pipeline, rate, args.frames, &|| false)?;
     tracing::info!(?stats, "done");
-    println!(
-        "{{\"frames\":{},\"published\":{},\"bad_frames\":{},\"failed\":{}}}",
-        stats.frames, stats.published, stats.bad_frames, stats.failed
-    );
+    println!("{}", serde_json::to_string(&stats)?);
     Ok(())
+}
+
+/// The confidence floors: `--selection-config`, else the defaults, then the flags; checked.
+fn selection(args: &RunArgs) -> Result<SelectionConfig> {
+    let mut cfg = match &args.selection_config {
+        Some(p) => SelectionConfig::load(p)?,
+        None => SelectionConfig::default(),
+    };
+    if let Some(v) = args.min_goal_confidence {
+        cfg.min_goal_confidence = v;
+    }
+    if let Some(v) = args.min_obstacle_confidence {
+        cfg.min_obstacle_confidence = v;
+    }
+    cfg.validate().context("confidence floors")?;
+    Ok(cfg)
 }
 
 /// The frame source; for the synthetic camera also its exact calibration.
@@ -118,11 +163,19 @@ fn open_source(args: &RunArgs) -> Result<(Box<dyn FrameSource>, Option<Calibrati
         }
         SourceSpec::File(p) => (Box::new(FileSource::open(p)?), None),
         SourceSpec::Ros2 => {
-            let topics = match &args.ros2_topics {
+            let mut topics = match &args.ros2_topics {
                 Some(p) => Ros2Topics::load(p)?,
                 None => Ros2Topics::default(),
             };
-            (Box::new(Ros2Source::open(&topics)?), None)
+            if !args.ros2_networks.is_empty() {
+                topics.networks = args.ros2_networks.clone();
+            }
+            let access = if args.ros2_open_network {
+                NetworkAccess::Open
+            } else {
+                NetworkAccess::LoopbackOnly
+            };
+            (Box::new(Ros2Source::open(&topics, access)?), None)
         }
     })
 }
