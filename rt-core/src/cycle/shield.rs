@@ -1,11 +1,13 @@
 //! The safety shield: the one check every command passes before it leaves the process
 //! ([`Shield::check_step`]): finite, within the joint limits, a joint step of at most one
 //! period at the velocity limit (plus [`STEP_TOLERANCE`]), the TCP in the workspace box, the
-//! elbow, wrist and TCP slower than the TCP speed limit, and the minimum distance to the
-//! *live* scene. Plan samples, brake steps, holds and the first command after a reconnect
-//! all go through it; the same check verifies a whole plan on the twin thread before
-//! approval. Checks are allocation-free; the model (kinematics + clearance) is injected
-//! through [`ShieldModel`] so the twin's geometry or a stand-in can serve.
+//! elbow, wrist and TCP slower than the TCP speed limit, no self-collision (checked link
+//! pairs of the arm and the tool, [`ShieldModel::self_collision`]), and the minimum
+//! distance to the *live* scene. Plan samples, brake steps, holds and the first command
+//! after a reconnect all go through it; the same check verifies a whole plan on the twin
+//! thread before approval. Checks are allocation-free; the model (kinematics, clearance,
+//! self-collision) is injected through [`ShieldModel`] so the twin's geometry or a
+//! stand-in can serve.
 
 use crate::config::{MotionLimits, ShieldConfig};
 use twin::{DOF, Joints};
@@ -36,6 +38,15 @@ pub trait ShieldModel: Send + 'static {
     /// Minimum distance between the robot at `q_rad` and the obstacles of `scene`, m
     /// (negative when penetrating, `f64::INFINITY` without obstacles).
     fn min_distance_m(&mut self, q_rad: &Joints, scene: &Self::Scene) -> f64;
+
+    /// The arm's self-collision at `q_rad`, if any: the two links (frame indices; the tool
+    /// is `twin::TOOL_FRAME`) and the distance of their padded capsules, m. Independent of
+    /// the scene, so it holds in blind mode too. The default (a model without link
+    /// geometry, such as a test stand-in) reports none.
+    fn self_collision(&mut self, q_rad: &Joints) -> Option<([u8; 2], f64)> {
+        let _ = q_rad;
+        None
+    }
 }
 
 /// Why a command was refused (`Copy`; it travels through the cycle).
@@ -82,6 +93,14 @@ pub enum ShieldViolation {
         /// The distance, m.
         distance_m: f64,
     },
+    /// Two of the arm's own links (or a link and the tool) would come too close.
+    #[error("self-collision between links {} and {} ({distance_m} m)", links[0], links[1])]
+    SelfCollision {
+        /// The two link frames (`0` = base … `5` = link5, `twin::TOOL_FRAME` = the tool).
+        links: [u8; 2],
+        /// The distance between their padded capsules, m.
+        distance_m: f64,
+    },
 }
 
 impl ShieldViolation {
@@ -96,6 +115,7 @@ impl ShieldViolation {
             ShieldViolation::JointStep { .. } => 6,
             ShieldViolation::LinkSpeed { .. } => 7,
             ShieldViolation::NoScene => 8,
+            ShieldViolation::SelfCollision { .. } => 9,
         }
     }
 }
@@ -170,8 +190,8 @@ impl<M: ShieldModel> Shield<M> {
         &mut self.model
     }
 
-    /// Checks a static pose: finiteness, joint limits, workspace, clearance. Returns the
-    /// clearance, m.
+    /// Checks a static pose: finiteness, joint limits, workspace, self-collision, clearance.
+    /// Returns the clearance, m.
     ///
     /// # Errors
     /// The first [`ShieldViolation`] found.
@@ -189,6 +209,9 @@ impl<M: ShieldModel> Shield<M> {
             if *p < self.limits.workspace_min_m[k] || *p > self.limits.workspace_max_m[k] {
                 return Err(ShieldViolation::Workspace);
             }
+        }
+        if let Some((links, distance_m)) = self.model.self_collision(q_rad) {
+            return Err(ShieldViolation::SelfCollision { links, distance_m });
         }
         let d = self.model.min_distance_m(q_rad, scene);
         if d < self.limits.min_distance_m {

@@ -59,3 +59,67 @@ fn the_counter_does_count() {
     assert_eq!(v.len(), 64);
     assert!(n >= 1);
 }
+
+/// A full scene (`MAX_OBSTACLES` = 16 boxes), a tool on the flange and the self-collision
+/// check: the distance queries and the task step still allocate nothing.
+#[test]
+fn sixteen_boxes_a_tool_and_self_collision_do_not_allocate() {
+    use twin::{BoxObstacle, MAX_OBSTACLES, ToolConfig, TwinEnv};
+
+    let mut task = crate::twin_fixtures::task();
+    task.tool = Some(ToolConfig {
+        from_m: [0.0, 0.0, 0.0],
+        to_m: [0.0, 0.0, 0.08],
+        radius_m: 0.03,
+    });
+    task.validate().unwrap();
+    let m = model().with_tool(task.tool.map(|t| t.capsule()));
+    let g = RobotGeometry::new(&m);
+    assert!(g.has_tool());
+    let mut full = scene("small_box.toml");
+    full.obstacles.clear();
+    for k in 0..MAX_OBSTACLES {
+        let angle = k as f64 * std::f64::consts::TAU / MAX_OBSTACLES as f64;
+        full.obstacles
+            .push(BoxObstacle {
+                center_m: [0.45 * angle.cos(), 0.45 * angle.sin(), 0.03],
+                size_m: [0.04, 0.04, 0.06],
+            })
+            .unwrap();
+    }
+    assert_eq!(full.obstacles.len(), MAX_OBSTACLES);
+    let mut e = TwinEnv::new(model(), task);
+    assert!(e.geometry().has_tool());
+    let policy = e.straight_line_policy();
+    e.reset(&full);
+    e.step(&[0.1, 0.2, 0.3]);
+    let (checksum, allocations) = count_allocations(|| {
+        let mut acc = 0.0;
+        for i in 0..500 {
+            let q = [
+                0.01 * f64::from(i),
+                0.2,
+                -0.6 - 0.004 * f64::from(i),
+                0.5,
+                0.0,
+            ];
+            let p = m.fk(&q);
+            let all = g.all_distances(&p, &full);
+            acc += all.table.distance_m + all.own.distance_m;
+            acc += all.boxes.map_or(0.0, |b| b.distance_m);
+            acc += g.distance(&p, &full).distance_m;
+            acc += f64::from(u8::from(g.in_contact(&p, &full, 0.02)));
+            acc += f64::from(u8::from(g.self_collision(&p).is_some()));
+        }
+        for _ in 0..5 {
+            let sum = rollout(&mut e, &full, |o| policy.act(o), None);
+            acc += sum.return_;
+        }
+        acc
+    });
+    assert!(checksum.is_finite());
+    assert_eq!(
+        allocations, 0,
+        "16 boxes + tool + self-collision allocated {allocations} times"
+    );
+}

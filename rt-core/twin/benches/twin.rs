@@ -1,5 +1,6 @@
 //! Criterion benchmarks of the digital twin's per-step work: FK, IK, robot-vs-box
-//! distance (all links), one task step and one 200-step episode.
+//! distance (all links), the self-collision check, every distance with 16 boxes and a
+//! tool, one task step and one 200-step episode.
 //!
 //! Run: `scripts/cargo.sh bench -p rt-core --bench twin`. Targets on the 2-core dev
 //! machine: IK ≤ 10 µs, distance ≤ 5 µs, step ≤ 20 µs, episode ≤ 4 ms.
@@ -57,6 +58,31 @@ fn benches(c: &mut Criterion) {
     });
     c.bench_function("twin/distance_all_links_box_and_table", |b| {
         b.iter(|| geometry.distance(black_box(&start_poses), black_box(&tall)))
+    });
+
+    // The worst case the contract allows: 16 boxes (`MAX_OBSTACLES`) around the arm, a
+    // tool on the flange, the table and the self-collision pairs, in one pass.
+    let armed = model.clone().with_tool(Some(twin::LinkCapsule {
+        frame: 5,
+        a_m: [0.0, 0.0, 0.0],
+        b_m: [0.0, 0.0, 0.08],
+        radius_m: 0.03,
+    }));
+    let armed_geometry = RobotGeometry::new(&armed);
+    let mut full = small;
+    full.obstacles.clear();
+    for k in 0..twin::MAX_OBSTACLES {
+        let angle = k as f64 * std::f64::consts::TAU / twin::MAX_OBSTACLES as f64;
+        let _ = full.obstacles.push(twin::BoxObstacle {
+            center_m: [0.35 * angle.cos(), 0.35 * angle.sin(), 0.03],
+            size_m: [0.04, 0.04, 0.06],
+        });
+    }
+    c.bench_function("twin/self_distance_with_tool", |b| {
+        b.iter(|| armed_geometry.self_distance(black_box(&start_poses)))
+    });
+    c.bench_function("twin/all_distances_16_boxes_tool_self", |b| {
+        b.iter(|| armed_geometry.all_distances(black_box(&start_poses), black_box(&full)))
     });
 
     // One task step (IK + FK + distances + reward + observation), cycling through an

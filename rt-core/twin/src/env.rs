@@ -50,8 +50,11 @@ pub struct StepOutcome {
     pub terms: RewardTerms,
     /// The TCP is within tolerance of the goal target point.
     pub task_done: bool,
-    /// No contact with a box or the table.
+    /// No contact with a box or the table, and no self-collision.
     pub safe: bool,
+    /// A checked pair of the robot's own links (or the tool) came closer than
+    /// [`super::SELF_COLLISION_MIN_DISTANCE_M`] (then `safe` is false).
+    pub self_collision: bool,
     /// `task_done || !safe`.
     pub terminated: bool,
     /// The step budget is used up (and the episode did not terminate).
@@ -133,6 +136,8 @@ impl TwinEnv {
     pub fn new(model: RobotModel, cfg: TaskConfig) -> Self {
         let mut model = model;
         model.set_home(cfg.start.joints_rad);
+        // The task's tool, or none: whatever tool `model` carried is replaced.
+        model.set_tool(cfg.tool.map(|t| t.capsule()));
         let geometry = RobotGeometry::new(&model);
         let ik = IkSolver::new(&model, cfg.ik);
         let s = &cfg.sampling;
@@ -172,7 +177,7 @@ impl TwinEnv {
         &self.cfg
     }
 
-    /// The robot model (its home is the task's start posture).
+    /// The robot model (its home is the task's start posture, its tool the task's).
     pub fn model(&self) -> &RobotModel {
         &self.model
     }
@@ -297,11 +302,15 @@ impl TwinEnv {
         self.tcp_vel_m_s = (tcp - tcp_prev) / dt;
         self.step_index += 1;
 
-        let (boxes, table) = self.geometry.distances(&self.poses, &self.scene);
+        let all = self.geometry.all_distances(&self.poses, &self.scene);
+        let (boxes, table) = (all.boxes, all.table);
         let clearance_m = self.cfg.success.min_box_clearance_m;
-        // Closer than the clearance to a box or (links 2–5) to the table is contact: the
-        // runtime's shield keeps `shield.min_distance_m` from both.
-        let contact = table.colliding
+        // Closer than the clearance to a box or (links 2–5, the tool) to the table is
+        // contact: the runtime's shield keeps `shield.min_distance_m` from both. A
+        // self-collision is contact too (the shield refuses it as well).
+        let self_collision = all.own.colliding();
+        let contact = self_collision
+            || table.colliding
             || table.distance_m < clearance_m
             || boxes.is_some_and(|b| b.colliding || b.distance_m < clearance_m);
         self.last_distance = boxes.unwrap_or(table);
@@ -338,6 +347,7 @@ impl TwinEnv {
             },
             task_done,
             safe,
+            self_collision,
             terminated,
             truncated,
             distance: self.last_distance,
@@ -391,6 +401,10 @@ impl TwinEnv {
                 continue;
             }
             let goal_poses = self.model.fk(&at_goal.joints);
+            if self.geometry.self_collision(&goal_poses).is_some() {
+                // A goal the arm cannot reach without folding into itself.
+                continue;
+            }
             let (ux, uy) = (dir[0] / len, dir[1] / len);
             for _ in 0..BOX_TRIES {
                 let f = uniform(rng, s.obstacle_fraction);

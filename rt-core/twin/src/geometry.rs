@@ -1,12 +1,23 @@
-//! Robot–scene geometry: collision capsules per link (from the URDF), minimum distance and
-//! closest points to the obstacle boxes (parry3d) and to the table plane (analytic), and a
-//! contact test.
+//! Robot–scene geometry: collision capsules per link (from the URDF) plus the optional tool
+//! capsule, minimum distance and closest points to the obstacle boxes (parry3d) and to the
+//! table plane (analytic), a contact test, and the self-collision check.
 //!
-//! **The table** counts for links 2–5 only: `link_base` and link1 stand on the table (the
-//! base capsule reaches into it by construction), so they are never tested against it.
-//! Every link is tested against every box. The goal cube is not an obstacle, and links are
-//! not tested against each other (no self-collision check: the task's workspace and joint
-//! limits keep the arm clear of itself).
+//! **The table** counts for links 2–5 and the tool: `link_base` and link1 stand on the
+//! table (the base capsule reaches into it by construction), so they are never tested
+//! against it. Every link and the tool are tested against every box. The goal cube is not
+//! an obstacle.
+//!
+//! **Self-collision** ([`RobotGeometry::self_distance`], analytic segment–segment distances
+//! in `f64`) is checked between the capsules of these frame pairs only ([`SELF_PAIRS`]):
+//! base–link3, base–link4, base–link5, link1–link3, link1–link4, link1–link5, link2–link4,
+//! link2–link5, and the tool against the base, link1, link2 and link3. Left out: adjacent
+//! links (they share a joint and overlap by construction); base–link2 (the base's padded
+//! cap reaches above the shoulder: −33 mm in every posture); link3–link5 (joined through
+//! the 0.12 m wrist link, their padded capsules touch at the wrist in every posture, and
+//! joint 4's range keeps them within −42 mm); the tool against link4 and link5, which hold
+//! it. A checked pair is a self-collision when its padded capsules come closer than
+//! [`SELF_COLLISION_MIN_DISTANCE_M`]; see that constant for the margin and the postures
+//! it was measured on.
 //!
 //! parry3d 0.31 works in `f32` (glam); capsule axes are expressed relative to each box's
 //! centre before the query, so the `f32` error stays ~1e-5 m. A capsule whose axis enters a
@@ -19,14 +30,93 @@ use parry3d::query::{ClosestPoints, closest_points};
 use parry3d::shape::{Cuboid, Segment};
 
 use super::kinematics::LinkPoses;
-use super::model::{LinkCapsule, MAX_CAPSULES, RobotModel};
+use super::model::{
+    COLLISION_MARGIN_M, LinkCapsule, MAX_CAPSULES, N_FRAMES, RobotModel, TOOL_FRAME,
+};
 use super::scene::{BoxObstacle, Scene};
 
 /// Links below this frame index are not tested against the table.
 const FIRST_TABLE_FRAME: usize = 2;
 
+/// Most capsules of a geometry: the model's plus the tool.
+const MAX_GEOMETRY_CAPSULES: usize = MAX_CAPSULES + 1;
+
+/// Most capsule pairs of the self-collision check.
+const MAX_SELF_PAIRS: usize = MAX_GEOMETRY_CAPSULES * (MAX_GEOMETRY_CAPSULES - 1) / 2;
+
+/// The frame pairs checked for self-collision (`0` = base, `1..=5` = link1..link5,
+/// [`TOOL_FRAME`] = the tool); see the module docs for why these and no others.
+pub const SELF_PAIRS: [(usize, usize); 12] = [
+    (0, 3),
+    (0, 4),
+    (0, 5),
+    (1, 3),
+    (1, 4),
+    (1, 5),
+    (2, 4),
+    (2, 5),
+    (0, TOOL_FRAME),
+    (1, TOOL_FRAME),
+    (2, TOOL_FRAME),
+    (3, TOOL_FRAME),
+];
+
+/// Distance between the padded capsules of a checked pair ([`SELF_PAIRS`]) below which the
+/// posture is a self-collision (m): −10 mm. Every link capsule is padded by
+/// [`COLLISION_MARGIN_M`] (10 mm) beyond the nominal link radius, so −10 mm between padded
+/// capsules leaves 10 mm between the nominal surfaces.
+///
+/// Measured on the bundled model (capsule distances, smallest checked pair):
+/// - the home posture: +88 mm (link1–link3); with a 9 cm, r 4.5 cm tool +28 mm (link3–tool);
+/// - the zero posture (the arm folded in its standard rest pose): 0 mm (link1–link3);
+/// - IK reaches to every goal of the task's sampling ranges (x 0.20–0.45 m, y ±0.35 m, TCP
+///   0.08–0.38 m above the table, 2 cm grid): ≥ +23 mm (link1–link3), tool–base ≥ +29 mm;
+///   straight-line episodes to 200 sampled scenes: ≥ +79 mm;
+/// - refused: the wrist driven into the base (`[0, 0.5, 0, 1.0, 0]`: base–link4 −125 mm),
+///   the forearm folded onto the shoulder (joint 3 at its upper limit, 0.19 rad:
+///   link1–link3 −52 mm), reaches right against the base (goals at x = 0.15 m, outside the
+///   sampling ranges: down to −12 mm, the tool into the base −27 mm).
+///
+/// The capsules are conservative (round caps past each joint), so the check refuses
+/// joint 3 above about 0.04 rad (the forearm within 10 mm of the shoulder's capsule), short
+/// of the controller's limit of 0.19 rad.
+pub const SELF_COLLISION_MIN_DISTANCE_M: f64 = -COLLISION_MARGIN_M;
+
+/// The closest checked pair of the robot's own capsules.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SelfDistance {
+    /// Distance between the padded capsules (m): negative when they overlap.
+    pub distance_m: f64,
+    /// The two frames (`0` = base … `5` = link5, [`TOOL_FRAME`] = the tool), lower first.
+    pub links: [usize; 2],
+}
+
+impl SelfDistance {
+    /// No checked pair (infinite distance).
+    pub const FAR: SelfDistance = SelfDistance {
+        distance_m: f64::INFINITY,
+        links: [0, 0],
+    };
+
+    /// Whether this is a self-collision (closer than [`SELF_COLLISION_MIN_DISTANCE_M`]).
+    pub fn colliding(&self) -> bool {
+        self.distance_m < SELF_COLLISION_MIN_DISTANCE_M
+    }
+}
+
 /// Search radius of parry's closest-points query (m): beyond it boxes are "far".
 const FAR_M: f32 = 10.0;
+
+/// Every distance of one posture: [`RobotGeometry::all_distances`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Distances {
+    /// The nearest box; `None` without boxes.
+    pub boxes: Option<DistanceReport>,
+    /// Links 2–5 and the tool to the table.
+    pub table: DistanceReport,
+    /// The closest checked pair of the robot's own capsules.
+    pub own: SelfDistance,
+}
 
 /// Minimum distance between the robot and (part of) the scene, with the closest points.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -73,10 +163,62 @@ struct WorldCapsule {
     frame: usize,
 }
 
-/// The robot's collision geometry (fixed capacity, cheap to clone).
+type World = heapless::Vec<WorldCapsule, MAX_GEOMETRY_CAPSULES>;
+
+/// The robot's collision geometry (fixed capacity, cheap to clone): the model's capsules,
+/// the tool's (last, if any) and the capsule pairs of the self-collision check.
 #[derive(Debug, Clone)]
 pub struct RobotGeometry {
-    capsules: heapless::Vec<LinkCapsule, MAX_CAPSULES>,
+    capsules: heapless::Vec<LinkCapsule, MAX_GEOMETRY_CAPSULES>,
+    /// Whether the last capsule is the tool.
+    has_tool: bool,
+    /// Index pairs into `capsules` checked for self-collision.
+    self_pairs: heapless::Vec<(u8, u8), MAX_SELF_PAIRS>,
+}
+
+/// Closest points of segments `p1 q1` and `p2 q2` (Ericson, *Real-Time Collision
+/// Detection* §5.1.9); the distance between them.
+fn segment_segment(
+    p1: &Vector3<f64>,
+    q1: &Vector3<f64>,
+    p2: &Vector3<f64>,
+    q2: &Vector3<f64>,
+) -> f64 {
+    const EPS: f64 = 1e-12;
+    let d1 = q1 - p1;
+    let d2 = q2 - p2;
+    let r = p1 - p2;
+    let a = d1.norm_squared();
+    let e = d2.norm_squared();
+    let f = d2.dot(&r);
+    let (s, t) = if a <= EPS && e <= EPS {
+        (0.0, 0.0)
+    } else if a <= EPS {
+        (0.0, (f / e).clamp(0.0, 1.0))
+    } else {
+        let c = d1.dot(&r);
+        if e <= EPS {
+            ((-c / a).clamp(0.0, 1.0), 0.0)
+        } else {
+            let b = d1.dot(&d2);
+            let denom = a * e - b * b;
+            let mut s = if denom > EPS {
+                ((b * f - c * e) / denom).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let mut t = (b * s + f) / e;
+            if t < 0.0 {
+                t = 0.0;
+                s = (-c / a).clamp(0.0, 1.0);
+            } else if t > 1.0 {
+                t = 1.0;
+                s = ((b - c) / a).clamp(0.0, 1.0);
+            }
+            (s, t)
+        }
+    };
+    ((p1 + d1 * s) - (p2 + d2 * t)).norm()
 }
 
 fn v32(v: &Vector3<f64>) -> Vector {
@@ -176,25 +318,59 @@ fn capsule_table(c: &WorldCapsule, table_height_m: f64) -> DistanceReport {
 }
 
 impl RobotGeometry {
-    /// The geometry of `model` (its URDF collision shapes).
+    /// The geometry of `model`: its URDF collision shapes and its tool
+    /// ([`RobotModel::tool`]), with the self-collision pairs of [`SELF_PAIRS`].
     pub fn new(model: &RobotModel) -> Self {
         let mut capsules = heapless::Vec::new();
         for c in model.capsules() {
-            // Capacity is the same as the model's.
+            // The capacity is the model's plus one for the tool.
             let _ = capsules.push(*c);
         }
-        Self { capsules }
+        let has_tool = model.tool().is_some_and(|t| capsules.push(*t).is_ok());
+        let tool_index = if has_tool {
+            capsules.len() - 1
+        } else {
+            usize::MAX
+        };
+        let pair_frame = |i: usize| {
+            if i == tool_index {
+                TOOL_FRAME
+            } else {
+                capsules[i].frame
+            }
+        };
+        let mut self_pairs = heapless::Vec::new();
+        for i in 0..capsules.len() {
+            for j in i + 1..capsules.len() {
+                let (fi, fj) = (pair_frame(i), pair_frame(j));
+                let key = (fi.min(fj), fi.max(fj));
+                if SELF_PAIRS.contains(&key) {
+                    // i, j < MAX_GEOMETRY_CAPSULES; the capacity holds every pair.
+                    let _ = self_pairs.push((i as u8, j as u8));
+                }
+            }
+        }
+        Self {
+            capsules,
+            has_tool,
+            self_pairs,
+        }
     }
 
-    /// The capsules, in their link frames.
+    /// The capsules, in their link frames (the tool's last, in link5's frame).
     pub fn capsules(&self) -> &[LinkCapsule] {
         &self.capsules
     }
 
-    fn world(&self, poses: &LinkPoses) -> heapless::Vec<WorldCapsule, MAX_CAPSULES> {
+    /// Whether a tool capsule is part of the geometry.
+    pub fn has_tool(&self) -> bool {
+        self.has_tool
+    }
+
+    fn world(&self, poses: &LinkPoses) -> World {
         let mut out = heapless::Vec::new();
         for c in &self.capsules {
-            let frame = c.frame.min(poses.links.len() - 1);
+            let frame = c.frame.min(N_FRAMES - 1);
             let iso = &poses.links[frame];
             let a = iso * nalgebra::Point3::from(c.a_m);
             let b = iso * nalgebra::Point3::from(c.b_m);
@@ -206,6 +382,46 @@ impl RobotGeometry {
             });
         }
         out
+    }
+
+    fn pair_frame(&self, i: usize) -> usize {
+        if self.has_tool && i == self.capsules.len() - 1 {
+            TOOL_FRAME
+        } else {
+            self.capsules[i].frame
+        }
+    }
+
+    fn self_from(&self, world: &[WorldCapsule]) -> SelfDistance {
+        let mut best = SelfDistance::FAR;
+        for &(i, j) in &self.self_pairs {
+            let (i, j) = (usize::from(i), usize::from(j));
+            let (ci, cj) = (&world[i], &world[j]);
+            let d = segment_segment(&ci.a, &ci.b, &cj.a, &cj.b) - ci.r - cj.r;
+            if d < best.distance_m {
+                let (fi, fj) = (self.pair_frame(i), self.pair_frame(j));
+                best = SelfDistance {
+                    distance_m: d,
+                    links: [fi.min(fj), fi.max(fj)],
+                };
+            }
+        }
+        best
+    }
+
+    /// The closest checked pair of the robot's own capsules ([`SELF_PAIRS`]).
+    ///
+    /// # Performance
+    /// One segment–segment distance per checked capsule pair (12 on the bundled model
+    /// with a tool); no allocation.
+    pub fn self_distance(&self, poses: &LinkPoses) -> SelfDistance {
+        self.self_from(&self.world(poses))
+    }
+
+    /// The self-collision at `poses`, if any (a checked pair closer than
+    /// [`SELF_COLLISION_MIN_DISTANCE_M`]).
+    pub fn self_collision(&self, poses: &LinkPoses) -> Option<SelfDistance> {
+        Some(self.self_distance(poses)).filter(SelfDistance::colliding)
     }
 
     /// Minimum distance between the robot and the whole scene (boxes and table).
@@ -224,7 +440,7 @@ impl RobotGeometry {
         Some(Self::boxes_from(&self.world(poses), scene))
     }
 
-    /// Minimum distance between links 2–5 and the table plane.
+    /// Minimum distance between links 2–5 (and the tool) and the table plane.
     pub fn distance_to_table(&self, poses: &LinkPoses, scene: &Scene) -> DistanceReport {
         self.table_from(&self.world(poses), scene)
     }
@@ -235,13 +451,24 @@ impl RobotGeometry {
         poses: &LinkPoses,
         scene: &Scene,
     ) -> (Option<DistanceReport>, DistanceReport) {
+        let all = self.all_distances(poses, scene);
+        (all.boxes, all.table)
+    }
+
+    /// The box report (if any boxes), the table report and the self-distance, in one pass
+    /// (one set of world capsules): what a task step needs.
+    pub fn all_distances(&self, poses: &LinkPoses, scene: &Scene) -> Distances {
         let world = self.world(poses);
         let boxes = if scene.obstacles.is_empty() {
             None
         } else {
             Some(Self::boxes_from(&world, scene))
         };
-        (boxes, self.table_from(&world, scene))
+        Distances {
+            boxes,
+            table: self.table_from(&world, scene),
+            own: self.self_from(&world),
+        }
     }
 
     fn table_from(&self, world: &[WorldCapsule], scene: &Scene) -> DistanceReport {
@@ -265,8 +492,9 @@ impl RobotGeometry {
         best
     }
 
-    /// Whether any link is within `margin_m` of a box, or links 2–5 within `margin_m` of
-    /// the table (`margin_m = 0` is the contact test).
+    /// Whether any link or the tool is within `margin_m` of a box, or links 2–5 or the tool
+    /// within `margin_m` of the table (`margin_m = 0` is the contact test). Self-collision
+    /// is separate: [`RobotGeometry::self_collision`].
     pub fn in_contact(&self, poses: &LinkPoses, scene: &Scene, margin_m: f64) -> bool {
         let world = self.world(poses);
         for c in &world {

@@ -11,16 +11,20 @@
 //! `Scene::table_height_m`), joint angles radians, times seconds.
 //!
 //! # API in brief
-//! - [`RobotModel`]: `RobotModel::load(path)` / `from_urdf_str`, [`JointLimits`], `home()`,
-//!   `fk(&q) -> LinkPoses` (frames `link_base, link1..link5`, plus the TCP), `link_name(i)`.
+//! - [`RobotModel`]: `RobotModel::load(path)` / `from_urdf_str` (refused when a moving link
+//!   has no collision shape), [`JointLimits`], `home()`, `fk(&q) -> LinkPoses` (frames
+//!   `link_base, link1..link5`, plus the TCP), `link_name(i)`, `set_tool` (the task's
+//!   `[tool]` capsule on the flange).
 //! - [`IkSolver`]: damped least squares on the TCP position, joint limits, null-space pull
 //!   toward home: `IkSolver::new(&model, IkConfig).solve(&model, &target_m, &q_start)`.
 //! - [`Scene`]: table height, goal cube, up to [`MAX_OBSTACLES`] axis-aligned boxes;
 //!   `Scene::from_file(&SceneFile)` / `to_file()`.
-//! - [`RobotGeometry`]: one or two capsules per link (from the URDF collision cylinders);
-//!   `distance(&poses, &scene) -> DistanceReport`, `distance_to_boxes`, `in_contact`.
-//!   **The table** counts for links 2–5 only: the base and link 1 stand on it. The goal
-//!   cube is not an obstacle; there is no self-collision check.
+//! - [`RobotGeometry`]: one or two capsules per link (from the URDF collision cylinders)
+//!   plus the tool's; `distance(&poses, &scene) -> DistanceReport`, `distance_to_boxes`,
+//!   `in_contact`, `self_distance` / `self_collision` (non-adjacent link pairs,
+//!   [`SELF_PAIRS`], below [`SELF_COLLISION_MIN_DISTANCE_M`]), `all_distances`.
+//!   **The table** counts for links 2–5 and the tool only: the base and link 1 stand on
+//!   it. The goal cube is not an obstacle.
 //! - [`TaskConfig`] (`assets/task.toml`) and [`TwinEnv`]: the reaching MDP, `reset`, `step`,
 //!   `sample_scene`, and [`rollout`] (a whole episode with a policy closure).
 //!
@@ -49,12 +53,15 @@
 //! target point, m), `r_a = −‖a‖` (clipped action), `r_o = −1` when the robot–box distance
 //! is below `d_thre_m`. The goal target point is `goal_hover_m` above the goal cube's top.
 //! `terminal` (an addition to the paper's three terms, set both weights to 0 to drop it) is
-//! `+success_bonus` on success and `−collision_penalty` on contact.
+//! `+success_bonus` on success and `−collision_penalty` on contact (a self-collision is a
+//! contact: the same penalty).
 //!
 //! # Termination
 //! `task_done` (TCP within `tolerance_m` of the target point) terminates; contact (any link
-//! closer to a box than `min_box_clearance_m`, or links 2–5 touching the table) terminates
-//! with `safe = false`;
+//! or the tool closer to a box than `min_box_clearance_m`, links 2–5 or the tool closer
+//! than that to the table, or a self-collision: a checked pair of links closer than
+//! [`SELF_COLLISION_MIN_DISTANCE_M`], `StepOutcome::self_collision`) terminates with
+//! `safe = false` and the collision penalty, as a too-close obstacle does;
 //! `truncated` after `max_steps` steps. `StepOutcome::distance` (and
 //! `EpisodeSummary::min_distance_m`) is the robot–box report of the nearest box, or the
 //! robot–table report in a scene without boxes.
@@ -87,16 +94,22 @@ mod task;
 pub use env::{
     EpisodeSummary, RewardTerms, StepOutcome, StraightLinePolicy, TwinEnv, rollout, rollout_until,
 };
-pub use geometry::{DistanceReport, RobotGeometry};
+pub use geometry::{
+    DistanceReport, Distances, RobotGeometry, SELF_COLLISION_MIN_DISTANCE_M, SELF_PAIRS,
+    SelfDistance,
+};
 pub use ik::{IkConfig, IkResult, IkSolver};
 pub use kinematics::LinkPoses;
 pub use model::{
     ACCELERATION_LIMIT_RAD_S2, COLLISION_MARGIN_M, JERK_LIMIT_RAD_S3, JointLimits, LinkCapsule,
-    MAX_CAPSULES, N_FRAMES, RobotModel, UrdfLoadError,
+    LinkName, MAX_CAPSULES, N_FRAMES, RobotModel, TOOL_FRAME, UrdfLoadError,
 };
 pub use scene::{BoxObstacle, Goal, Obstacles, Scene, SceneError};
 pub use shm_schemas::scene_file::MAX_OBSTACLES;
-pub use task::{MAX_EPISODE_STEPS, ObstacleClass, TaskConfig, TaskConfigError};
+pub use task::{
+    MAX_EPISODE_STEPS, MAX_TOOL_RADIUS_M, MAX_TOOL_REACH_M, ObstacleClass, TaskConfig,
+    TaskConfigError, ToolConfig,
+};
 
 /// Number of actuated joints of the xArm5.
 pub const DOF: usize = 5;

@@ -4,6 +4,17 @@
 //! Loading checks the file strictly: exactly five revolute joints named `joint1`…`joint5`
 //! forming a chain from the root link, finite limits, and supported collision shapes
 //! (cylinder, capsule, sphere; a cylinder becomes the capsule around it).
+//!
+//! The model is trusted only after its collision checks: **every moving link** (the child
+//! of `joint1`…`joint5`) must carry at least one `<collision>` shape, or the file is refused
+//! with [`UrdfLoadError::MissingCollision`] naming the link; a file without any collision
+//! shape is refused with [`UrdfLoadError::NoCollisionShapes`]. Either gap would make the
+//! clearance of that link (or of the whole arm) infinite, i.e. the shield silently off.
+//! Shapes of links hung on a moving link (or on the base) by fixed joints, such as a
+//! gripper link, are folded into that link's frame rather than ignored.
+//!
+//! An optional tool capsule (the gripper, from `assets/task.toml`'s `[tool]`) is fixed to
+//! link5's frame with [`RobotModel::set_tool`]; [`super::TwinEnv::new`] installs the task's.
 
 use std::path::Path;
 
@@ -47,6 +58,54 @@ pub const DEFAULT_HOME_RAD: Joints = [0.0, -0.383, -0.371, 0.855, 0.0];
 /// Longest link name kept (bytes).
 const NAME_CAPACITY: usize = 32;
 
+/// Pseudo frame index of the tool capsule in reports ([`RobotModel::link_name`] gives
+/// `"tool"`); the tool itself moves with link5.
+pub const TOOL_FRAME: usize = N_FRAMES + 1;
+
+/// Most links reached from one frame through fixed joints (the link itself included).
+const MAX_FIXED_LINKS: usize = 8;
+
+/// A link name in fixed capacity (`Copy`, for error values).
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct LinkName {
+    bytes: [u8; NAME_CAPACITY],
+    len: u8,
+}
+
+impl LinkName {
+    fn new(s: &str) -> Self {
+        let mut bytes = [0; NAME_CAPACITY];
+        // Names are checked against the capacity before any error names them; cut at a
+        // character boundary all the same.
+        let mut len = s.len().min(NAME_CAPACITY);
+        while !s.is_char_boundary(len) {
+            len -= 1;
+        }
+        bytes[..len].copy_from_slice(&s.as_bytes()[..len]);
+        Self {
+            bytes,
+            len: len as u8,
+        }
+    }
+
+    /// The name.
+    pub fn as_str(&self) -> &str {
+        std::str::from_utf8(&self.bytes[..usize::from(self.len)]).unwrap_or("?")
+    }
+}
+
+impl std::fmt::Debug for LinkName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:?}", self.as_str())
+    }
+}
+
+impl std::fmt::Display for LinkName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// Why a URDF was rejected. Indices are 1-based joint numbers (`joint3` → 3).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum UrdfLoadError {
@@ -84,6 +143,13 @@ pub enum UrdfLoadError {
     /// A link name is longer than the fixed capacity.
     #[error("a link name is longer than 32 bytes")]
     NameTooLong,
+    /// A moving link (the child of `joint1`…`joint5`) has no `<collision>` shape: its
+    /// clearance would be infinite.
+    #[error("moving link `{0}` has no <collision> shape (its clearance would be unchecked)")]
+    MissingCollision(LinkName),
+    /// The file has no collision shape at all: the clearance would be infinite.
+    #[error("the URDF has no <collision> shapes (the clearance would be unchecked)")]
+    NoCollisionShapes,
 }
 
 /// Joint limits (rad, rad/s, rad/s², rad/s³), joint 1 first.
@@ -131,6 +197,7 @@ pub struct RobotModel {
     home: Joints,
     names: [heapless::String<NAME_CAPACITY>; N_FRAMES],
     pub(crate) capsules: heapless::Vec<LinkCapsule, MAX_CAPSULES>,
+    tool: Option<LinkCapsule>,
 }
 
 fn iso(pose: &urdf_rs::Pose) -> Option<Isometry3<f64>> {
@@ -143,6 +210,65 @@ fn iso(pose: &urdf_rs::Pose) -> Option<Isometry3<f64>> {
         Translation3::new(x, y, z),
         UnitQuaternion::from_euler_angles(r, p, yaw),
     ))
+}
+
+/// The collision capsule of one URDF shape, `origin` mapping the shape into `frame`.
+fn capsule(
+    frame: usize,
+    origin: &Isometry3<f64>,
+    geometry: &urdf_rs::Geometry,
+) -> Result<LinkCapsule, UrdfLoadError> {
+    let (half_len, radius) = match *geometry {
+        urdf_rs::Geometry::Cylinder { radius, length }
+        | urdf_rs::Geometry::Capsule { radius, length } => (length / 2.0, radius),
+        urdf_rs::Geometry::Sphere { radius } => (0.0, radius),
+        _ => return Err(UrdfLoadError::BadCollision(frame)),
+    };
+    if !(half_len.is_finite() && half_len >= 0.0 && radius.is_finite() && radius > 0.0) {
+        return Err(UrdfLoadError::BadCollision(frame));
+    }
+    let a = origin * Point3::new(0.0, 0.0, -half_len);
+    let b = origin * Point3::new(0.0, 0.0, half_len);
+    Ok(LinkCapsule {
+        frame,
+        a_m: a.coords.into(),
+        b_m: b.coords.into(),
+        radius_m: radius,
+    })
+}
+
+/// The link `root` and every link hung on it through fixed joints (a gripper, a TCP
+/// link), each with its pose in `root`'s frame. `frame` names the link in errors.
+fn fixed_group<'a>(
+    robot: &'a urdf_rs::Robot,
+    root: &str,
+    frame: usize,
+) -> Result<Vec<(&'a urdf_rs::Link, Isometry3<f64>)>, UrdfLoadError> {
+    let mut out: Vec<(&urdf_rs::Link, Isometry3<f64>)> = Vec::new();
+    if let Some(link) = robot.links.iter().find(|l| l.name == root) {
+        out.push((link, Isometry3::identity()));
+    }
+    let mut i = 0;
+    while i < out.len() {
+        let (link, pose): (&'a urdf_rs::Link, _) = out[i];
+        let parent = link.name.as_str();
+        for j in robot
+            .joints
+            .iter()
+            .filter(|j| j.joint_type == urdf_rs::JointType::Fixed && j.parent.link == parent)
+        {
+            let Some(child) = robot.links.iter().find(|l| l.name == j.child.link) else {
+                continue;
+            };
+            if out.len() >= MAX_FIXED_LINKS || out.iter().any(|(l, _)| l.name == child.name) {
+                return Err(UrdfLoadError::BadCollision(frame));
+            }
+            let origin = iso(&j.origin).ok_or(UrdfLoadError::BadCollision(frame))?;
+            out.push((child, pose * origin));
+        }
+        i += 1;
+    }
+    Ok(out)
 }
 
 fn name(s: &str) -> Result<heapless::String<NAME_CAPACITY>, UrdfLoadError> {
@@ -243,35 +369,30 @@ impl RobotModel {
             &joints[4].child.link,
         ];
         let mut names: [heapless::String<NAME_CAPACITY>; N_FRAMES] = Default::default();
-        let mut capsules = heapless::Vec::new();
         for (frame, link_name) in link_names.iter().enumerate() {
             names[frame] = name(link_name)?;
-            let Some(link) = robot.links.iter().find(|l| &l.name == link_name) else {
-                continue;
-            };
-            for c in &link.collision {
-                let origin = iso(&c.origin).ok_or(UrdfLoadError::BadCollision(frame))?;
-                let (half_len, radius) = match c.geometry {
-                    urdf_rs::Geometry::Cylinder { radius, length }
-                    | urdf_rs::Geometry::Capsule { radius, length } => (length / 2.0, radius),
-                    urdf_rs::Geometry::Sphere { radius } => (0.0, radius),
-                    _ => return Err(UrdfLoadError::BadCollision(frame)),
-                };
-                if !(half_len.is_finite() && half_len >= 0.0 && radius.is_finite() && radius > 0.0)
-                {
-                    return Err(UrdfLoadError::BadCollision(frame));
+        }
+        let mut capsules = heapless::Vec::new();
+        let mut missing = None;
+        for (frame, link_name) in link_names.iter().enumerate() {
+            let before = capsules.len();
+            for (link, to_frame) in fixed_group(&robot, link_name, frame)? {
+                for c in &link.collision {
+                    let origin = iso(&c.origin).ok_or(UrdfLoadError::BadCollision(frame))?;
+                    capsules
+                        .push(capsule(frame, &(to_frame * origin), &c.geometry)?)
+                        .map_err(|_| UrdfLoadError::TooManyShapes)?;
                 }
-                let a = origin * Point3::new(0.0, 0.0, -half_len);
-                let b = origin * Point3::new(0.0, 0.0, half_len);
-                capsules
-                    .push(LinkCapsule {
-                        frame,
-                        a_m: a.coords.into(),
-                        b_m: b.coords.into(),
-                        radius_m: radius,
-                    })
-                    .map_err(|_| UrdfLoadError::TooManyShapes)?;
             }
+            if frame > 0 && capsules.len() == before && missing.is_none() {
+                missing = Some(LinkName::new(link_name));
+            }
+        }
+        if capsules.is_empty() {
+            return Err(UrdfLoadError::NoCollisionShapes);
+        }
+        if let Some(link) = missing {
+            return Err(UrdfLoadError::MissingCollision(link));
         }
         let mut model = Self {
             joint_origin,
@@ -281,6 +402,7 @@ impl RobotModel {
             home: DEFAULT_HOME_RAD,
             names,
             capsules,
+            tool: None,
         };
         let mut home = DEFAULT_HOME_RAD;
         model.limits.clamp(&mut home);
@@ -305,17 +427,38 @@ impl RobotModel {
     }
 
     /// Name of link frame `i` (`0` = base, `1..=5` = link1..link5); `"tcp"` for `N_FRAMES`,
-    /// `"?"` beyond.
+    /// `"tool"` for [`TOOL_FRAME`], `"?"` beyond.
     pub fn link_name(&self, i: usize) -> &str {
         match self.names.get(i) {
             Some(n) => n.as_str(),
             None if i == N_FRAMES => "tcp",
+            None if i == TOOL_FRAME => "tool",
             None => "?",
         }
     }
 
-    /// The collision capsules, in their link frames.
+    /// The collision capsules, in their link frames (the tool's not among them).
     pub fn capsules(&self) -> &[LinkCapsule] {
         &self.capsules
+    }
+
+    /// The tool capsule fixed to link5, if any (its `frame` is 5).
+    pub fn tool(&self) -> Option<&LinkCapsule> {
+        self.tool.as_ref()
+    }
+
+    /// Fixes a tool (gripper) to link5's frame, or removes it with `None`: from then on
+    /// every distance query of a [`super::RobotGeometry`] built on this model includes it
+    /// (boxes, table, self-collision). The task's `[tool]` ([`super::TaskConfig::tool`])
+    /// gives it: `model.set_tool(task.tool.map(|t| t.capsule()))`.
+    pub fn set_tool(&mut self, tool: Option<LinkCapsule>) {
+        self.tool = tool.map(|t| LinkCapsule { frame: DOF, ..t });
+    }
+
+    /// [`RobotModel::set_tool`] by value.
+    #[must_use]
+    pub fn with_tool(mut self, tool: Option<LinkCapsule>) -> Self {
+        self.set_tool(tool);
+        self
     }
 }

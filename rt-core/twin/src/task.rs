@@ -1,7 +1,13 @@
 //! The task's configuration (`assets/task.toml`): episode length, step period, action
 //! scale, reward weights, success tolerance, sampling ranges, obstacle size classes, the
-//! start posture and the per-step IK settings. Loaded and validated once; its
-//! [`TaskConfig::hash`] travels with every policy trained on it.
+//! start posture, the per-step IK settings and the optional tool. Loaded and validated
+//! once; its [`TaskConfig::hash`] travels with every policy trained on it.
+//!
+//! The tool (`[tool]`, a gripper on the flange) belongs to the task because it changes
+//! what the policy is trained on: with a `[tool]` section the canonical TOML, and so the
+//! hash, changes (policies trained without the tool are refused); without one the
+//! canonical TOML is byte for byte what it was before the section existed, so the
+//! bundled policies still load.
 
 use std::path::Path;
 
@@ -9,6 +15,13 @@ use serde::{Deserialize, Serialize};
 
 use super::Joints;
 use super::ik::IkConfig;
+use super::model::LinkCapsule;
+
+/// Largest tool capsule radius (m).
+pub const MAX_TOOL_RADIUS_M: f64 = 0.15;
+
+/// Largest distance of a tool capsule end from the flange (m).
+pub const MAX_TOOL_REACH_M: f64 = 0.30;
 
 /// Capacity of a waypoint buffer: the longest episode a task file may configure.
 pub const MAX_EPISODE_STEPS: usize = 256;
@@ -138,6 +151,64 @@ pub enum ObstacleClass {
     Large,
 }
 
+/// `[tool]` (optional): a capsule fixed to the flange, in link5's frame (origin on the
+/// flange face, z out of the flange). Every distance query includes it: the boxes, the
+/// table and the self-collision check (against the base, link1, link2 and link3), in the
+/// task, the lookahead and the shield ([`super::RobotModel::set_tool`]). The TCP stays
+/// the flange: raise `success.goal_hover_m` by the tool's length, or reaching the goal
+/// point puts the tool into the goal's table.
+///
+/// ```toml
+/// [tool]                     # a 12 cm parallel gripper, enclosed
+/// from_m = [0.0, 0.0, 0.0]   # capsule axis, first end (m, flange frame)
+/// to_m = [0.0, 0.0, 0.09]    # second end: the gripper's length along the flange axis
+/// radius_m = 0.045
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ToolConfig {
+    /// First end of the capsule axis in the flange (link5) frame (m).
+    pub from_m: [f64; 3],
+    /// Second end of the capsule axis in the flange frame (m).
+    pub to_m: [f64; 3],
+    /// Capsule radius (m), padding included.
+    pub radius_m: f64,
+}
+
+impl ToolConfig {
+    /// The tool as a capsule in link5's frame.
+    pub fn capsule(&self) -> LinkCapsule {
+        LinkCapsule {
+            frame: super::DOF,
+            a_m: self.from_m,
+            b_m: self.to_m,
+            radius_m: self.radius_m,
+        }
+    }
+
+    /// Checks the bounds: finite ends within [`MAX_TOOL_REACH_M`] of the flange, a radius
+    /// in `(0, MAX_TOOL_RADIUS_M]`.
+    ///
+    /// # Errors
+    /// The name of the first bad field.
+    pub fn validate(&self) -> Result<(), &'static str> {
+        let within = |p: &[f64; 3]| {
+            p.iter().all(|v| v.is_finite())
+                && (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() <= MAX_TOOL_REACH_M
+        };
+        if !within(&self.from_m) {
+            return Err("tool.from_m must be finite and within 0.3 m of the flange");
+        }
+        if !within(&self.to_m) {
+            return Err("tool.to_m must be finite and within 0.3 m of the flange");
+        }
+        if !(pos(self.radius_m) && self.radius_m <= MAX_TOOL_RADIUS_M) {
+            return Err("tool.radius_m must be in (0, 0.15] m");
+        }
+        Ok(())
+    }
+}
+
 /// The whole task configuration.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -158,6 +229,10 @@ pub struct TaskConfig {
     pub obstacles: ObstacleClasses,
     /// Per-step IK settings.
     pub ik: IkConfig,
+    /// The tool on the flange, if any. Absent, it is left out of the canonical TOML (the
+    /// hash of a task without a tool is unchanged by this field's existence).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tool: Option<ToolConfig>,
 }
 
 fn range_ok(r: &[f64; 2]) -> bool {
@@ -270,7 +345,11 @@ impl TaskConfig {
                 return Err("obstacles.small/large ranges must be positive [low, high] below 1 m");
             }
         }
-        self.ik.validate()
+        self.ik.validate()?;
+        match &self.tool {
+            Some(t) => t.validate(),
+            None => Ok(()),
+        }
     }
 
     /// The canonical TOML of this configuration (what [`TaskConfig::hash`] hashes).

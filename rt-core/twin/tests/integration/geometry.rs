@@ -5,7 +5,9 @@ use twin::{BoxObstacle, Goal, RobotGeometry, RobotModel, Scene};
 
 use super::common::{assets, model};
 
-/// The bundled URDF with every collision shape removed and `shape` put on link5.
+/// The bundled URDF with every collision shape removed, `shape` put on link5, and a 1 mm
+/// sphere at the origin of each of link1–link4 (a moving link must have a shape; these are
+/// far from every box below).
 fn model_with_link5_shape(shape: &str) -> RobotModel {
     let text = std::fs::read_to_string(assets().join("xarm5.urdf")).unwrap();
     let mut out = String::new();
@@ -20,8 +22,15 @@ fn model_with_link5_shape(shape: &str) -> RobotModel {
         "<link name=\"link5\">",
         &format!("<link name=\"link5\"><collision><origin xyz=\"0 0 0\" rpy=\"0 0 0\"/><geometry>{shape}</geometry></collision>"),
     );
+    let mut out = out;
+    for link in ["link1", "link2", "link3", "link4"] {
+        out = out.replace(
+            &format!("<link name=\"{link}\">"),
+            &format!("<link name=\"{link}\"><collision><origin xyz=\"0 0 0\" rpy=\"0 0 0\"/><geometry><sphere radius=\"0.001\"/></geometry></collision>"),
+        );
+    }
     let m = RobotModel::from_urdf_str(&out).unwrap();
-    assert_eq!(m.capsules().len(), 1);
+    assert_eq!(m.capsules().len(), 5);
     m
 }
 

@@ -8,6 +8,7 @@ mod determinism;
 mod geometry;
 mod ik;
 mod kinematics;
+mod robot_checks;
 mod scenes;
 mod task;
 mod urdf;

@@ -134,3 +134,31 @@ fn sampled_scenes_follow_the_curriculum() {
     assert!(small_ok >= 30, "{small_ok}/40");
     assert!(large_hit >= 30, "{large_hit}/40");
 }
+
+#[test]
+fn a_scene_holds_max_obstacles_boxes_and_refuses_one_more() {
+    use shm_schemas::scene_file::BoxSpec;
+    use twin::{MAX_OBSTACLES, SceneError};
+
+    assert_eq!(MAX_OBSTACLES, 16);
+    let mut file = scene("small_box.toml").to_file();
+    file.obstacles = (0..MAX_OBSTACLES)
+        .map(|k| BoxSpec {
+            center_m: [0.2 + 0.02 * k as f64, -0.3, 0.03],
+            size_m: [0.01, 0.04, 0.06],
+        })
+        .collect();
+    let full = Scene::from_file(&file).unwrap();
+    assert_eq!(full.obstacles.len(), MAX_OBSTACLES);
+    assert_eq!(Scene::from_file(&full.to_file()).unwrap(), full);
+    // Every box counts in the distance: the last one, moved under the TCP, is the nearest.
+    let e = env();
+    let mut near = full;
+    let tcp = e.tcp_m();
+    near.obstacles[MAX_OBSTACLES - 1].center_m = [tcp.x, tcp.y, 0.03];
+    let d = e.geometry().distance_to_boxes(e.poses(), &near).unwrap();
+    assert_eq!(d.obstacle, Some(MAX_OBSTACLES - 1), "{d:?}");
+    let first = file.obstacles[0];
+    file.obstacles.push(first);
+    assert_eq!(Scene::from_file(&file), Err(SceneError::TooManyObstacles));
+}

@@ -321,3 +321,95 @@ fn table_clearance_is_contact() {
     }
     panic!("driving down must end at the table");
 }
+
+const TOOL: &str = "\n[tool]\nfrom_m = [0.0, 0.0, 0.0]\nto_m = [0.0, 0.0, 0.10]\nradius_m = 0.03\n";
+
+#[test]
+fn an_absent_tool_keeps_the_hash_of_the_bundled_policies() {
+    // The hash the bundled policy was trained under (assets/policy/README.md) and the one
+    // written into its blob: a task file without `[tool]` must still produce it.
+    let t = task();
+    assert!(t.tool.is_none());
+    assert_eq!(t.hash(), 0x11a1_2011_5a22_998d);
+    let bytes = std::fs::read(assets().join("policy/policy.blob")).unwrap();
+    let blob = shm_schemas::PolicyBlob::from_bytes(&bytes).unwrap();
+    assert_eq!(blob.task_config_hash, t.hash());
+    assert!(!t.to_toml_string().contains("tool"));
+}
+
+#[test]
+fn a_tool_section_loads_round_trips_and_changes_the_hash() {
+    let with = TaskConfig::from_toml_str(&(text() + TOOL)).unwrap();
+    let tool = with.tool.unwrap();
+    assert_eq!(tool.to_m, [0.0, 0.0, 0.10]);
+    assert_eq!(tool.radius_m, 0.03);
+    assert_ne!(with.hash(), task().hash());
+    assert_eq!(
+        TaskConfig::from_toml_str(&with.to_toml_string()).unwrap(),
+        with
+    );
+    let mut wider = with;
+    wider.tool = Some(twin::ToolConfig {
+        radius_m: 0.031,
+        ..tool
+    });
+    assert_ne!(wider.hash(), with.hash());
+}
+
+#[test]
+fn a_malformed_tool_section_is_refused_naming_the_field() {
+    let base = text();
+    let invalid = [
+        (
+            TOOL.replace("radius_m = 0.03", "radius_m = 0.0"),
+            "tool.radius_m",
+        ),
+        (
+            TOOL.replace("radius_m = 0.03", "radius_m = -0.03"),
+            "tool.radius_m",
+        ),
+        (
+            TOOL.replace("radius_m = 0.03", "radius_m = nan"),
+            "tool.radius_m",
+        ),
+        (
+            TOOL.replace("radius_m = 0.03", "radius_m = 0.5"),
+            "tool.radius_m",
+        ),
+        (
+            TOOL.replace("to_m = [0.0, 0.0, 0.10]", "to_m = [0.0, 0.0, 0.9]"),
+            "tool.to_m",
+        ),
+        (
+            TOOL.replace("to_m = [0.0, 0.0, 0.10]", "to_m = [0.0, inf, 0.1]"),
+            "tool.to_m",
+        ),
+        (
+            TOOL.replace("from_m = [0.0, 0.0, 0.0]", "from_m = [nan, 0.0, 0.0]"),
+            "tool.from_m",
+        ),
+    ];
+    for (tool, field) in invalid {
+        match TaskConfig::from_toml_str(&(base.clone() + &tool)) {
+            Err(TaskConfigError::Invalid(msg)) => {
+                assert!(msg.contains(field), "{msg} should name {field}")
+            }
+            other => panic!("expected Invalid naming {field}, got {other:?}"),
+        }
+    }
+    // Missing, unknown or mistyped fields: a parse error (the parser's message, which
+    // names the field, is logged).
+    let parse = [
+        TOOL.replace("radius_m = 0.03\n", ""),
+        TOOL.replace("radius_m", "radius"),
+        TOOL.replace("to_m = [0.0, 0.0, 0.10]", "to_m = [0.0, 0.10]"),
+        TOOL.replace("radius_m = 0.03", "radius_m = 0.03\nshape = \"box\""),
+    ];
+    for tool in parse {
+        assert_eq!(
+            TaskConfig::from_toml_str(&(base.clone() + &tool)),
+            Err(TaskConfigError::Parse),
+            "{tool}"
+        );
+    }
+}

@@ -62,20 +62,43 @@ fn home_posture_is_above_the_table_in_front() {
 
 #[test]
 fn collision_capsules_cover_each_link_between_its_joints() {
-    // Each arm link's capsule axis runs from its joint to the next joint (within 1 mm).
+    // Each arm link's capsule axes run from its joint to the next joint (within 1 mm): one
+    // straight capsule for the upper arm and the forearm, two for the wrist's L (out along
+    // its x axis, then along y to the flange axis), sharing the corner.
     let m = model();
     let p = m.fk(&[0.4, 0.3, -0.8, 0.6, 0.2]);
-    for (frame, from, to) in [(2, 2, 3), (3, 3, 4), (4, 4, 5)] {
+    let point = |frame: usize, v: [f64; 3]| (p.links[frame] * nalgebra::Point3::from(v)).coords;
+    for (frame, from, to) in [(2, 2, 3), (3, 3, 4)] {
         let c = m.capsules().iter().find(|c| c.frame == frame).unwrap();
-        let a = p.links[frame] * nalgebra::Point3::from(c.a_m);
-        let b = p.links[frame] * nalgebra::Point3::from(c.b_m);
         let j0 = p.links[from].translation.vector;
         let j1 = p.links[to].translation.vector;
-        assert!((a.coords - j0).norm() < 1e-3, "link{frame} start");
-        assert!((b.coords - j1).norm() < 1e-3, "link{frame} end");
+        assert!(
+            (point(frame, c.a_m) - j0).norm() < 1e-3,
+            "link{frame} start"
+        );
+        assert!((point(frame, c.b_m) - j1).norm() < 1e-3, "link{frame} end");
         assert!(c.radius_m >= 0.045, "link{frame} radius {}", c.radius_m);
     }
-    assert_eq!(m.capsules().len(), 6);
+    let wrist: Vec<_> = m.capsules().iter().filter(|c| c.frame == 4).collect();
+    assert_eq!(wrist.len(), 2, "the wrist is an L of two capsules");
+    let ends = |c: &twin::LinkCapsule| [point(4, c.a_m), point(4, c.b_m)];
+    let (first, second) = (ends(wrist[0]), ends(wrist[1]));
+    let j4 = p.links[4].translation.vector;
+    let j5 = p.links[5].translation.vector;
+    let corner = point(4, [0.076, 0.0, 0.0]);
+    let has = |e: &[nalgebra::Vector3<f64>; 2], v: &nalgebra::Vector3<f64>| {
+        e.iter().any(|x| (x - v).norm() < 1e-3)
+    };
+    assert!(
+        has(&first, &j4) && has(&first, &corner),
+        "wrist axis -> corner"
+    );
+    assert!(
+        has(&second, &corner) && has(&second, &j5),
+        "corner -> flange axis"
+    );
+    assert!(wrist.iter().all(|c| c.radius_m >= 0.045));
+    assert_eq!(m.capsules().len(), 7);
 }
 
 #[test]
@@ -147,4 +170,68 @@ fn error_messages_name_the_joint() {
             .contains("joint2")
     );
     assert!(UrdfLoadError::WrongJointCount(6).to_string().contains('6'));
+}
+
+/// The bundled file with the `<collision>` elements of link `name` removed.
+fn without_collision_of(text: &str, name: &str) -> String {
+    let start = text.find(&format!("<link name=\"{name}\">")).unwrap();
+    let end = start + text[start..].find("</link>").unwrap();
+    let mut link = text[start..end].to_string();
+    while let Some(s) = link.find("<collision>") {
+        let e = s + link[s..].find("</collision>").unwrap() + "</collision>".len();
+        link.replace_range(s..e, "");
+    }
+    format!("{}{}{}", &text[..start], link, &text[end..])
+}
+
+#[test]
+fn a_moving_link_without_collision_geometry_is_refused_by_name() {
+    let ok = bundled();
+    for link in ["link1", "link2", "link3", "link4", "link5"] {
+        let text = without_collision_of(&ok, link);
+        let err = RobotModel::from_urdf_str(&text).err();
+        match err {
+            Some(UrdfLoadError::MissingCollision(name)) => assert_eq!(name.as_str(), link),
+            other => panic!("{link} without collision: expected MissingCollision, got {other:?}"),
+        }
+        let message = err.unwrap().to_string();
+        assert!(message.contains(link), "{message}");
+    }
+    // The base stands still: it may go without (the table is not tested against it).
+    assert!(RobotModel::from_urdf_str(&without_collision_of(&ok, "link_base")).is_ok());
+}
+
+#[test]
+fn a_urdf_without_any_collision_shape_is_refused() {
+    let ok = bundled();
+    let mut text = ok.clone();
+    for link in ["link_base", "link1", "link2", "link3", "link4", "link5"] {
+        text = without_collision_of(&text, link);
+    }
+    assert!(!text.contains("<collision>"));
+    assert_eq!(
+        RobotModel::from_urdf_str(&text).err(),
+        Some(UrdfLoadError::NoCollisionShapes)
+    );
+}
+
+#[test]
+fn shapes_of_fixed_child_links_count_for_their_moving_parent() {
+    // A gripper link hung on link5 by a fixed joint carries link5's only shape: link5 is
+    // covered, and the shape sits where the fixed joint puts it.
+    let ok = bundled();
+    let text = without_collision_of(&ok, "link5").replace(
+        "<link name=\"link_tcp\"/>",
+        "<link name=\"link_tcp\"><collision><origin xyz=\"0 0 0.05\" rpy=\"0 0 0\"/>\
+         <geometry><sphere radius=\"0.03\"/></geometry></collision></link>",
+    );
+    let text = text.replace(
+        "<joint name=\"joint_tcp\" type=\"fixed\">\n    <parent link=\"link5\"/>\n    <child link=\"link_tcp\"/>\n    <origin xyz=\"0 0 0\" rpy=\"0 0 0\"/>",
+        "<joint name=\"joint_tcp\" type=\"fixed\">\n    <parent link=\"link5\"/>\n    <child link=\"link_tcp\"/>\n    <origin xyz=\"0 0 0.02\" rpy=\"0 0 0\"/>",
+    );
+    let m = RobotModel::from_urdf_str(&text).unwrap();
+    let c = m.capsules().iter().find(|c| c.frame == 5).unwrap();
+    assert_eq!(c.a_m, c.b_m);
+    assert!((c.a_m[2] - 0.07).abs() < 1e-12, "{c:?}");
+    assert_eq!(c.radius_m, 0.03);
 }
