@@ -175,12 +175,19 @@ fn run_scenario(
     };
     watch.direct(&mut director, &observer, stop)?;
     let notes = std::mem::take(&mut watch.notes);
-    let summary = finish(args, &setup, started, &mut sup, &director, notes)?;
-    write_report(&setup.run, args, &world, &director, &summary)?;
-    println!(
-        "\n{}",
-        serde_json::to_string_pretty(&summary).unwrap_or_default()
-    );
+    let (summary, referee) = finish(args, &setup, started, &mut sup, &director, notes)?;
+    write_report(
+        &setup.run,
+        args,
+        &world,
+        &director,
+        &summary,
+        referee.as_ref(),
+    )?;
+    println!("\n{}", report::summary_json(&summary, referee.as_ref()));
+    if let Some(r) = &referee {
+        println!("referee: {}", r.describe());
+    }
     println!("report: {}", setup.run.path.join("report.md").display());
     Ok(summary)
 }
@@ -327,7 +334,8 @@ impl Watch<'_> {
     }
 }
 
-/// Ground truth from the arm, then an orderly stop (rt-core first), then the summary.
+/// Ground truth from the arm, then an orderly stop (rt-core first), then the summary and
+/// the simulated arm's referee figures (`None` on a real arm or when it did not answer).
 fn finish(
     args: &LaunchArgs,
     setup: &RunSetup,
@@ -335,7 +343,7 @@ fn finish(
     sup: &mut Supervisor,
     director: &Director,
     mut notes: Vec<String>,
-) -> Result<report::Summary> {
+) -> Result<(report::Summary, Option<report::RefereeFigures>)> {
     // rt-core first: it stops the arm under control and puts the controller in its stop
     // state; the simulated arm's status is read after that.
     let rt_status = sup.stop_one("rt-core", crate::processes::RT_CORE_STOP_GRACE);
@@ -356,6 +364,9 @@ fn finish(
     let arm_rejected_commands = sim_status
         .as_ref()
         .and_then(|v| v["counters"]["servo_rejected"].as_u64());
+    let referee = sim_status
+        .as_ref()
+        .and_then(report::RefereeFigures::from_sim_status);
     sup.stop_all(Duration::from_secs(5));
     let (p99, p999) = read_cycle_stats(&setup.run.path.join("logs/rt-core.log"));
     let restarts = ["perception", "learner"]
@@ -366,7 +377,7 @@ fn finish(
     summary.arm_rejected_commands = arm_rejected_commands;
     summary.cycle_p99_us = p99.or(summary.cycle_p99_us);
     summary.notes.extend(notes);
-    Ok(summary)
+    Ok((summary, referee))
 }
 
 /// The last `ERROR` line of a process log (why it exited, when it says so), trimmed.
@@ -404,8 +415,9 @@ fn write_report(
     world: &[(f64, SceneFile)],
     director: &Director,
     summary: &report::Summary,
+    referee: Option<&report::RefereeFigures>,
 ) -> Result<()> {
-    report::write_summary(&run.path.join("summary.json"), summary)?;
+    report::write_summary(&run.path.join("summary.json"), summary, referee)?;
     report::plot_path(
         &run.path.join("tcp_path_top.png"),
         View::Top,
@@ -450,6 +462,7 @@ fn write_report(
     report::write_markdown(
         &run.path.join("report.md"),
         summary,
+        referee,
         &timeline,
         &images,
         &[

@@ -51,6 +51,51 @@ pub struct Summary {
     pub notes: Vec<String>,
 }
 
+/// What `xarm-sim`'s independent referee saw in the run: its `referee` object in the
+/// simulator's status/summary JSON (its own kinematics and link shapes, not the twin's).
+/// `None` in a run report on a real arm.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+#[serde(default)]
+pub struct RefereeFigures {
+    /// Contacts the referee called (each raised the controller's collision error).
+    pub contacts: u64,
+    /// Motion steps it judged.
+    pub steps: u64,
+    /// The smallest clearance it saw (m); ≤ 0 is contact.
+    pub min_clearance_m: Option<f64>,
+    /// The link of that clearance ("link4").
+    pub min_link: Option<String>,
+    /// What the link was nearest to ("obstacle 2", "table", or a link name).
+    pub min_other: Option<String>,
+    /// The scene in force then.
+    pub min_scene: Option<String>,
+}
+
+impl RefereeFigures {
+    /// The figures in `xarm-sim`'s status JSON, if it has them.
+    pub fn from_sim_status(status: &serde_json::Value) -> Option<Self> {
+        status
+            .get("referee")
+            .and_then(|v| serde_json::from_value(v.clone()).ok())
+    }
+
+    /// One line: "0 collisions, minimum clearance 23.4 mm (link4–obstacle 2)".
+    pub fn describe(&self) -> String {
+        let plural = if self.contacts == 1 { "" } else { "s" };
+        let mut line = format!("{} collision{plural}", self.contacts);
+        match self.min_clearance_m {
+            Some(m) if m.is_finite() => {
+                let _ = write!(line, ", minimum clearance {:.1} mm", m * 1e3);
+                if let (Some(a), Some(b)) = (&self.min_link, &self.min_other) {
+                    let _ = write!(line, " ({a}–{b})");
+                }
+            }
+            _ => line.push_str(", no clearance measured"),
+        }
+        line
+    }
+}
+
 /// One sample of the executed TCP path.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
 pub struct PathSample {
@@ -73,12 +118,31 @@ pub enum ReportError {
     Plot(PathBuf, String),
 }
 
-/// Writes `summary.json` atomically.
+/// `summary.json`: the summary's fields, plus `referee` when the arm was simulated.
+#[derive(Serialize)]
+struct SummaryFile<'a> {
+    #[serde(flatten)]
+    summary: &'a Summary,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    referee: Option<&'a RefereeFigures>,
+}
+
+/// The text of `summary.json`: the summary's fields, plus `referee` (the simulator's
+/// independent referee) when given.
+pub fn summary_json(summary: &Summary, referee: Option<&RefereeFigures>) -> String {
+    serde_json::to_string_pretty(&SummaryFile { summary, referee }).unwrap_or_default()
+}
+
+/// Writes `summary.json` atomically ([`summary_json`]).
 ///
 /// # Errors
 /// [`ReportError::Io`].
-pub fn write_summary(path: &Path, summary: &Summary) -> Result<(), ReportError> {
-    let text = serde_json::to_string_pretty(summary).unwrap_or_default();
+pub fn write_summary(
+    path: &Path,
+    summary: &Summary,
+    referee: Option<&RefereeFigures>,
+) -> Result<(), ReportError> {
+    let text = summary_json(summary, referee);
     write_atomic(path, text.as_bytes()).map_err(|e| ReportError::Io(path.to_path_buf(), e))
 }
 
@@ -323,13 +387,15 @@ fn fmt_opt(v: Option<f64>, unit: &str) -> String {
     v.map_or_else(|| "—".to_owned(), |x| format!("{x:.3} {unit}"))
 }
 
-/// Writes `report.md`: the summary table, the timeline and links to every artefact.
+/// Writes `report.md`: the summary table (with the simulator's referee line when given),
+/// the timeline and links to every artefact.
 ///
 /// # Errors
 /// [`ReportError::Io`].
 pub fn write_markdown(
     out: &Path,
     summary: &Summary,
+    referee: Option<&RefereeFigures>,
     timeline: &[String],
     images: &[(&str, &str)],
     files: &[(&str, &str)],
@@ -375,6 +441,9 @@ pub fn write_markdown(
     ];
     for (k, v) in rows {
         let _ = writeln!(md, "| {k} | {v} |");
+    }
+    if let Some(r) = referee {
+        let _ = writeln!(md, "| referee (xarm-sim ground truth) | {} |", r.describe());
     }
     for note in &summary.notes {
         let _ = writeln!(md, "\n> {note}");
@@ -455,7 +524,7 @@ mod tests {
             world_change_to_detection_s: Some(0.05),
             ..Summary::default()
         };
-        write_summary(&dir.join("summary.json"), &summary).unwrap();
+        write_summary(&dir.join("summary.json"), &summary, None).unwrap();
         let back: Summary =
             serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap())
                 .unwrap();
@@ -463,6 +532,7 @@ mod tests {
         write_markdown(
             &dir.join("report.md"),
             &summary,
+            None,
             &["0.0 s start".into()],
             &[("Top view", "top.png")],
             &[("summary", "summary.json")],
@@ -472,9 +542,79 @@ mod tests {
         assert!(
             md.contains("goal reached with no collision") && md.contains("![Top view](top.png)")
         );
+        assert!(
+            !md.contains("referee"),
+            "no referee line without a simulator"
+        );
         assert!(read_reward_curve(&dir.join("missing.csv")).is_err());
         if std::env::var_os("FORESIGHT_KEEP_TEST_OUTPUT").is_none() {
             std::fs::remove_dir_all(&dir).ok();
         }
+    }
+
+    #[test]
+    fn the_referee_figures_reach_summary_json_and_report_md() {
+        let status = serde_json::json!({
+            "collisions": 0,
+            "referee": {
+                "steps": 1500,
+                "evaluations": 3100,
+                "contacts": 0,
+                "unjudged": 0,
+                "min_clearance_m": 0.0234,
+                "min_link": "link4",
+                "min_other": "obstacle 2",
+                "min_scene": "tall_box",
+                "min_q_rad": [0.0, 0.1, 0.2, 0.3, 0.4],
+                "contact_margin_m": 0.0
+            }
+        });
+        let r = RefereeFigures::from_sim_status(&status).unwrap();
+        assert_eq!(
+            r.describe(),
+            "0 collisions, minimum clearance 23.4 mm (link4–obstacle 2)"
+        );
+        assert_eq!(
+            RefereeFigures::from_sim_status(&serde_json::json!({})),
+            None
+        );
+        let one = RefereeFigures {
+            contacts: 1,
+            min_clearance_m: Some(-0.003),
+            min_link: Some("link1".into()),
+            min_other: Some("link4".into()),
+            ..RefereeFigures::default()
+        };
+        assert_eq!(
+            one.describe(),
+            "1 collision, minimum clearance -3.0 mm (link1–link4)"
+        );
+
+        let summary = Summary {
+            goal_reached: true,
+            ..Summary::default()
+        };
+        let json: serde_json::Value =
+            serde_json::from_str(&summary_json(&summary, Some(&r))).unwrap();
+        assert_eq!(json["referee"]["min_link"], "link4");
+        assert_eq!(json["referee"]["min_clearance_m"], 0.0234);
+        assert_eq!(
+            json["goal_reached"], true,
+            "the summary's own fields stay flat"
+        );
+        let back: Summary = serde_json::from_value(json).unwrap();
+        assert_eq!(back, summary);
+        let plain: serde_json::Value = serde_json::from_str(&summary_json(&summary, None)).unwrap();
+        assert!(plain.get("referee").is_none());
+
+        let dir = std::env::temp_dir().join(format!("foresight-referee-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        write_markdown(&dir.join("report.md"), &summary, Some(&r), &[], &[], &[]).unwrap();
+        let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+        assert!(
+            md.contains("| referee (xarm-sim ground truth) | 0 collisions, minimum clearance 23.4 mm (link4–obstacle 2) |"),
+            "{md}"
+        );
+        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -1,15 +1,19 @@
 //! `xarm-sim`'s library side: a simulated xArm5 control box that speaks the controller
 //! protocol on the command and report ports, integrates servo targets within the joint
-//! limits and 180°/s, and checks the arm against a ground-truth scene with the twin's
-//! geometry (a contact raises error 31 and stops the arm, like the real controller). In
+//! limits and 180°/s, and checks the arm against a ground-truth scene with an independent
+//! referee (its own kinematics, link shapes and distance code, not the twin's: a contact
+//! with a box, the table or itself raises error 31 and stops the arm, like the real
+//! controller; the smallest clearance of the run goes into the summary). In
 //! servo mode it raises the controller's protective faults: a `servo_j` target that would
 //! move a joint or the TCP too fast in one servo period is refused with error 24 (joint
 //! speed) or 60 (linear speed) and stops the arm ([`controller::ProtectiveLimits`]).
 //!
 //! [`controller::Controller`] is the pure state machine; [`server::SimServer`] binds the
-//! sockets and runs the threads; [`world::World`] is the ground truth.
+//! sockets and runs the threads; [`world::World`] is the ground truth, judged by
+//! [`referee::Referee`].
 
 pub mod controller;
+pub mod referee;
 pub mod server;
 pub mod world;
 

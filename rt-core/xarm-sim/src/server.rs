@@ -20,7 +20,7 @@ use shm_schemas::scene_file::SceneFile;
 use super::controller::{
     Controller, ControllerCounters, ProtectiveFault, ProtectiveLimits, ProtectiveLimitsError,
 };
-use super::world::{World, WorldError};
+use super::world::{RefereeSummary, World, WorldError, tcp_pose_report};
 use xarm::codec::{self, MAX_FRAME_LEN};
 use xarm::codes::ControllerError;
 use xarm::report::{self, ReportKind, RichExtras};
@@ -194,6 +194,9 @@ pub struct SimSummary {
     pub stop_requests: u64,
     /// The protective limits in force.
     pub protective_limits: ProtectiveLimits,
+    /// The independent referee's figures: contacts and the smallest clearance seen, with
+    /// the link and what it was near ([`crate::referee`]).
+    pub referee: RefereeSummary,
 }
 
 struct Shared {
@@ -270,7 +273,7 @@ impl SimServer {
         let mut controller = Controller::new(opts.q0_rad);
         controller.set_model(world.model().clone());
         controller.set_protective_limits(opts.protective);
-        controller.set_tcp_pose(world.check(&opts.q0_rad).tcp_pose);
+        controller.set_tcp_pose(tcp_pose_report(&opts.q0_rad));
         let shared = Arc::new(Shared {
             controller: Mutex::new(controller),
             world: Mutex::new(world),
@@ -372,6 +375,12 @@ impl SimServer {
 }
 
 fn summary(s: &Shared) -> SimSummary {
+    // One world lock, taken and released before the controller's (a second guard on the
+    // same mutex inside the struct expression below would deadlock).
+    let (scene, referee) = {
+        let w = lock(&s.world);
+        (w.scene_name().to_string(), w.referee_summary().clone())
+    };
     let c = lock(&s.controller);
     let counters = c.counters();
     let stream = c.servo_stream();
@@ -381,7 +390,7 @@ fn summary(s: &Shared) -> SimSummary {
         counters,
         reports_sent: [0, 1, 2, 3].map(|i| s.reports_sent[i].load(Ordering::Relaxed)),
         scene_swaps: s.scene_swaps.load(Ordering::Relaxed),
-        scene: lock(&s.world).scene_name().to_string(),
+        scene,
         connections: s.connections.load(Ordering::Relaxed),
         q_rad: c.q_rad(),
         error_code: u8::from(c.error()),
@@ -396,6 +405,7 @@ fn summary(s: &Shared) -> SimSummary {
         clean_error_requests: counters.clean_error_requests,
         stop_requests: counters.stop_requests,
         protective_limits: c.protective_limits(),
+        referee,
     }
 }
 
@@ -412,7 +422,6 @@ fn apply_scene(s: &Shared, scene: &SceneFile) {
 fn physics_loop(s: &Shared, mut schedule: Vec<(f64, SceneFile)>) {
     let period = Duration::from_secs_f64(1.0 / PHYSICS_HZ);
     let mut next = Instant::now();
-    let mut was_in_contact = false;
     while !s.shutdown.load(Ordering::Relaxed) {
         let now_s = s.now_s();
         while schedule.first().is_some_and(|(at, _)| *at <= now_s) {
@@ -431,12 +440,11 @@ fn physics_loop(s: &Shared, mut schedule: Vec<(f64, SceneFile)>) {
         {
             let mut c = lock(&s.controller);
             c.set_tcp_pose(check.tcp_pose);
-            if check.contact && !was_in_contact {
-                tracing::warn!(?q, "collision");
+            if check.new_contact {
+                tracing::warn!(?q, clearance = ?check.clearance, "collision (referee)");
                 c.raise_error(ControllerError::Collision);
             }
         }
-        was_in_contact = check.contact;
         next += period;
         let now = Instant::now();
         if next > now {

@@ -443,3 +443,111 @@ fn control_port_injects_errors_and_status_shows_the_fault_figures() {
     assert_eq!(control(ctl, "shutdown"), "ok");
     assert!(child.0.wait().expect("exit").success());
 }
+
+// ---- the independent referee -----------------------------------------------------------------
+
+fn scene_file(boxes: &[([f64; 3], [f64; 3])]) -> shm_schemas::scene_file::SceneFile {
+    use shm_schemas::scene_file::{BoxSpec, GoalSpec, SceneFile, TableSpec};
+    SceneFile {
+        name: "referee-test".into(),
+        table: TableSpec { height_m: 0.0 },
+        goal: GoalSpec {
+            center_m: [0.3, 0.25, 0.025],
+            size_m: 0.05,
+        },
+        obstacles: boxes
+            .iter()
+            .map(|(center_m, size_m)| BoxSpec {
+                center_m: *center_m,
+                size_m: *size_m,
+            })
+            .collect(),
+    }
+}
+
+/// Polls the summary until `done` holds or 3 s pass; returns the last one.
+fn summary_when(
+    sim: &SimServer,
+    done: impl Fn(&xarm_sim::SimSummary) -> bool,
+) -> xarm_sim::SimSummary {
+    let deadline = Instant::now() + Duration::from_secs(3);
+    loop {
+        let s = sim.summary();
+        if done(&s) || Instant::now() > deadline {
+            return s;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+#[test]
+fn a_box_only_the_referee_sees_raises_error_31_and_the_summary_names_it() {
+    // Zero pose with a small box just beyond the wrist's corner: the twin's straight wrist
+    // capsule misses it, the referee's L-shaped wrist touches it.
+    let sim = SimServer::start(SimOptions {
+        ports: SimPorts::ephemeral(),
+        urdf: asset("xarm5.urdf"),
+        q0_rad: [0.0; 5],
+        scenes: vec![(0.0, scene_file(&[([0.235, 0.0, 0.235], [0.04; 3])]))],
+        ..SimOptions::default()
+    })
+    .expect("sim starts");
+    let s = summary_when(&sim, |s| s.collisions > 0);
+    assert_eq!((s.collisions, s.error_code), (1, 31), "{s:?}");
+    let r = &s.referee;
+    assert_eq!(r.contacts, 1, "{r:?}");
+    assert!(r.steps > 0 && r.evaluations >= 2 * r.steps, "{r:?}");
+    assert_eq!(
+        (r.min_link.as_deref(), r.min_other.as_deref()),
+        (Some("link4"), Some("obstacle 0")),
+        "{r:?}"
+    );
+    let min = r.min_clearance_m.expect("a minimum");
+    assert!((min - (0.01 - 0.04)).abs() < 1e-5, "{min}");
+    assert_eq!(r.min_scene.as_deref(), Some("referee-test"));
+    // The status JSON carries it too.
+    let v = serde_json::to_value(&s).expect("json");
+    assert_eq!(v["referee"]["contacts"], 1);
+    assert_eq!(v["referee"]["min_link"], "link4");
+    sim.shutdown();
+}
+
+#[test]
+fn folding_the_elbow_into_the_shoulder_is_a_collision_and_the_arm_stops() {
+    // From the zero pose, J3 is streamed towards its upper limit (0.19 rad) at 0.5 rad/s:
+    // the forearm folds down along the upper arm and the wrist runs into the shoulder
+    // housing, a self-collision the twin does not model.
+    let sim = SimServer::start(SimOptions {
+        ports: SimPorts::ephemeral(),
+        urdf: asset("xarm5.urdf"),
+        q0_rad: [0.0; 5],
+        ..SimOptions::default()
+    })
+    .expect("sim starts");
+    let mut c = Client::connect(sim.ports().command);
+    c.start_servo_mode();
+    let start = sim.summary().referee.min_clearance_m.expect("judged");
+    assert!(start > 0.0, "the zero pose is clear: {start}");
+    let mut q = [0.0; 5];
+    let mut refused = false;
+    for _ in 0..95 {
+        q[2] += 0.002;
+        if c.servo_j(&q) & STATUS_ERROR != 0 {
+            refused = true;
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(4));
+    }
+    assert!(refused, "a target was refused with the error bit");
+    let s = summary_when(&sim, |s| s.collisions > 0);
+    assert_eq!((s.collisions, s.error_code, s.state), (1, 31, 4), "{s:?}");
+    let r = &s.referee;
+    assert_eq!(r.contacts, 1, "{r:?}");
+    assert!(r.min_clearance_m.is_some_and(|m| m <= 0.0), "{r:?}");
+    let other = r.min_other.as_deref().unwrap_or("");
+    assert!(other.starts_with("link"), "a self-collision: {r:?}");
+    // The arm stopped where the referee called it, short of the limit.
+    let at = c.joints();
+    assert!(f64::from(at[2]) < 0.19, "{at:?}");
+    sim.shutdown();
+}
