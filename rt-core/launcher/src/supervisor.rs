@@ -1,8 +1,18 @@
 //! Starts and supervises Foresight's processes: each child's output goes to its own log file
 //! in the run folder; a child marked restartable (learner, perception) is started again with
 //! back-off when it dies; everything is stopped with SIGINT, then SIGKILL after a grace time.
+//!
+//! Children are tied to the launcher, so none outlives it whatever the way out (`kill -9`
+//! included): each gets `PR_SET_PDEATHSIG(SIGTERM)` before it runs (rt-core's SIGTERM is its
+//! controlled stop: the arm brakes to rest, then the process exits; the others exit), and
+//! each runs in a process group of its own, which the launcher signals as a whole when it
+//! stops the child (its own children included). Own groups also keep a terminal's Ctrl-C
+//! from reaching the children at once: the launcher gets it and stops rt-core first.
+//! prctl(2) ties the signal to the *thread* that started the child: the supervisor lives on
+//! the launcher's main thread, whose end is the launcher's.
 
 use std::fs::File;
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
@@ -96,7 +106,57 @@ fn spawn(spec: &ProcessSpec, log_dir: &Path) -> Result<Child, SuperviseError> {
     for (k, v) in &spec.env {
         cmd.env(k, v);
     }
+    let launcher_pid = std::process::id();
+    // SAFETY: the closure runs in the child between fork and exec, where only
+    // async-signal-safe calls are allowed: `tie_to_launcher` makes only setpgid, prctl and
+    // getppid calls and allocates nothing (its errors are raw OS errors).
+    unsafe {
+        cmd.pre_exec(move || tie_to_launcher(launcher_pid));
+    }
     cmd.spawn().map_err(err)
+}
+
+/// In the child, before exec: its own process group, and SIGTERM when the launcher dies.
+/// Fails (the child never runs) when the launcher died before the request took effect.
+fn tie_to_launcher(launcher_pid: u32) -> std::io::Result<()> {
+    // SAFETY: setpgid(0, 0) makes the calling process the leader of a new group; it takes
+    // plain integers and touches no memory.
+    if unsafe { libc::setpgid(0, 0) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    // SAFETY: PR_SET_PDEATHSIG takes one integer argument (a signal number) and touches no
+    // memory of ours; the unused arguments are zero as prctl(2) asks.
+    let rc = unsafe {
+        libc::prctl(
+            libc::PR_SET_PDEATHSIG,
+            libc::SIGTERM as libc::c_ulong,
+            0 as libc::c_ulong,
+            0 as libc::c_ulong,
+            0 as libc::c_ulong,
+        )
+    };
+    if rc != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    // The launcher may have died between the fork and the prctl: the child was then
+    // re-parented and would never get the signal.
+    if std::os::unix::process::parent_id() != launcher_pid {
+        return Err(std::io::Error::from_raw_os_error(libc::ESRCH));
+    }
+    Ok(())
+}
+
+/// Sends `signal` to the process group `pgid` (a child and whatever it started).
+fn signal_group(pgid: u32, signal: libc::c_int) -> bool {
+    let Ok(pgid) = libc::pid_t::try_from(pgid) else {
+        return false;
+    };
+    if pgid <= 1 {
+        return false;
+    }
+    // SAFETY: kill(2) with a negative pid signals that process group; it takes plain
+    // integers and touches no memory.
+    unsafe { libc::kill(-pgid, signal) == 0 }
 }
 
 impl Supervisor {
@@ -248,17 +308,25 @@ pub fn send_signal(pid: u32, signal: &str) -> bool {
 }
 
 fn stop_child(child: &mut Child, grace: Duration) -> Option<ExitStatus> {
+    // The child leads its own group (see `tie_to_launcher`): the group is signalled, so
+    // what the child started goes too.
+    let pgid = child.id();
     if let Ok(Some(s)) = child.try_wait() {
+        signal_group(pgid, libc::SIGKILL);
         return Some(s);
     }
-    send_signal(child.id(), "INT");
+    if !signal_group(pgid, libc::SIGINT) {
+        send_signal(child.id(), "INT");
+    }
     let deadline = Instant::now() + grace;
     while Instant::now() < deadline {
         if let Ok(Some(s)) = child.try_wait() {
+            signal_group(pgid, libc::SIGKILL);
             return Some(s);
         }
         std::thread::sleep(Duration::from_millis(20));
     }
+    signal_group(pgid, libc::SIGKILL);
     let _ = child.kill();
     child.wait().ok()
 }
@@ -300,6 +368,123 @@ mod tests {
         let log = std::fs::read_to_string(dir.join("crashy.log")).unwrap();
         assert!(log.matches("hello").count() >= 1);
         sup.stop_all(Duration::from_secs(1));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// The process group of `pid` (field 5 of /proc/PID/stat).
+    fn pgrp(pid: u32) -> Option<u32> {
+        let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+        let after_name = &stat[stat.rfind(')')? + 2..];
+        after_name.split(' ').nth(2)?.parse().ok()
+    }
+
+    fn wait_for(what: &str, mut f: impl FnMut() -> bool) {
+        // Generous: this is a hang guard, not a latency bound.
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while !f() {
+            assert!(Instant::now() < deadline, "timed out waiting for {what}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    #[test]
+    fn children_lead_their_own_group_and_stopping_one_takes_its_children_too() {
+        let dir = std::env::temp_dir().join(format!("foresight-sup-grp-{}", std::process::id()));
+        let pid_file = dir.join("grandchild.pid");
+        let mut sup = Supervisor::new(&dir);
+        // sh ignores SIGINT for its background job; the group's SIGKILL takes it.
+        let script = format!("sleep 300 & echo $! > {}; wait", pid_file.display());
+        sup.start(sh("parent", &script, false)).unwrap();
+        let pid = sup.pid("parent").unwrap();
+        assert_eq!(pgrp(pid), Some(pid), "the child leads its own group");
+        assert_ne!(pgrp(std::process::id()), Some(pid));
+        wait_for("the grandchild's pid", || {
+            std::fs::read_to_string(&pid_file).is_ok_and(|s| s.trim().parse::<u32>().is_ok())
+        });
+        let grandchild: u32 = std::fs::read_to_string(&pid_file)
+            .unwrap()
+            .trim()
+            .parse()
+            .unwrap();
+        assert_eq!(pgrp(grandchild), Some(pid));
+        sup.stop_one("parent", Duration::from_secs(5));
+        // Gone or a zombie awaiting its (new) parent.
+        wait_for("the grandchild to die with its group", || {
+            pgrp(grandchild).is_none()
+                || std::fs::read_to_string(format!("/proc/{grandchild}/stat"))
+                    .is_ok_and(|s| s.contains(") Z "))
+        });
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// Set for the re-executed test binary that stands in for the launcher.
+    const STAND_IN_ENV: &str = "FORESIGHT_SUPERVISOR_STAND_IN_DIR";
+
+    fn orphan_script(dir: &Path) -> String {
+        format!(
+            "trap 'echo term > {}; exit 0' TERM; echo ready > {}; while :; do sleep 0.05; done",
+            dir.join("got-sigterm").display(),
+            dir.join("ready").display()
+        )
+    }
+
+    /// Not a test: the launcher stand-in that the next test runs in a process of its own
+    /// (this test binary, re-executed). It starts one child, says its pid, and waits to be
+    /// killed.
+    #[test]
+    #[ignore = "a helper process of children_get_sigterm_when_the_launcher_is_killed"]
+    fn launcher_stand_in() {
+        let dir = PathBuf::from(std::env::var_os(STAND_IN_ENV).expect("run by the test"));
+        let mut sup = Supervisor::new(&dir);
+        sup.start(sh("orphan", &orphan_script(&dir), false))
+            .unwrap();
+        println!("\nstand-in child pid={}", sup.pid("orphan").unwrap());
+        std::thread::sleep(Duration::from_secs(120));
+    }
+
+    #[test]
+    fn children_get_sigterm_when_the_launcher_is_killed() {
+        use std::io::BufRead;
+        let dir = std::env::temp_dir().join(format!("foresight-sup-death-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut launcher = Command::new(std::env::current_exe().unwrap())
+            .args([
+                "supervisor::tests::launcher_stand_in",
+                "--exact",
+                "--ignored",
+                "--nocapture",
+                "--test-threads",
+                "1",
+            ])
+            .env(STAND_IN_ENV, &dir)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let out = std::io::BufReader::new(launcher.stdout.take().unwrap());
+        let pid: u32 = out
+            .lines()
+            .map_while(Result::ok)
+            // The harness may print "test … ..." on the same line.
+            .find_map(|l| {
+                l.split_once("stand-in child pid=")
+                    .and_then(|(_, p)| p.trim().parse().ok())
+            })
+            .expect("the stand-in names its child");
+        // Its trap is set (a signal before that would end it unseen).
+        wait_for("the child's trap", || dir.join("ready").is_file());
+        // kill -9: the launcher gets no chance to stop anything.
+        launcher.kill().unwrap();
+        let _ = launcher.wait();
+        wait_for("the child to get SIGTERM", || {
+            dir.join("got-sigterm").is_file()
+        });
+        wait_for("the child to exit", || {
+            pgrp(pid).is_none()
+                || std::fs::read_to_string(format!("/proc/{pid}/stat"))
+                    .is_ok_and(|s| s.contains(") Z "))
+        });
         std::fs::remove_dir_all(&dir).ok();
     }
 }

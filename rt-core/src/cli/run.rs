@@ -4,6 +4,14 @@
 //! computes and logs every command and sends none; `--no-lookahead` runs the policy blind,
 //! and only on a loopback robot address (`xarm-sim` on this machine): it is refused, before
 //! any connection, for any other (`check_blind_mode_target`).
+//!
+//! rt-core is tied to its parent, whoever started it: it asks the kernel for SIGTERM when
+//! the parent dies (`PR_SET_PDEATHSIG`), and SIGTERM is the runtime's controlled stop (the
+//! arm brakes to rest, the controller is put in its stop state, then the process exits).
+//! Before the runtime's handler is installed nothing moves, and the default action (exit)
+//! stands. With `--link xarm` the arm's lock is taken before connecting
+//! ([`rt_core::cycle::xarm_link::open_xarm`]): a second rt-core on the same controller is
+//! refused with the holder named.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -13,7 +21,9 @@ use clap::{Args, ValueEnum};
 use rt_core::config::RuntimeConfig;
 use rt_core::cycle::link::{InProcessArm, RobotLink};
 use rt_core::cycle::shield::ShieldLimits;
-use rt_core::cycle::xarm_link::{XArmOpenOptions, check_blind_mode_target, open_xarm};
+use rt_core::cycle::xarm_link::{
+    XArmOpenError, XArmOpenOptions, check_blind_mode_target, open_xarm,
+};
 use rt_core::twin_thread::serve::{InjectedFault, ServeOptions, serve_on};
 use twin::{RobotModel, TaskConfig};
 
@@ -110,7 +120,39 @@ pub fn run(args: RunArgs) -> ExitCode {
     }
 }
 
+/// Asks the kernel to send this process SIGTERM when its parent dies, then checks that the
+/// parent did not die before the request took effect (we would be re-parented and never
+/// get the signal).
+fn stop_with_parent() -> anyhow::Result<()> {
+    let parent = std::os::unix::process::parent_id();
+    // SAFETY: PR_SET_PDEATHSIG takes one integer argument (a signal number) and touches no
+    // memory of ours; the unused arguments are zero as prctl(2) asks.
+    let rc = unsafe {
+        libc::prctl(
+            libc::PR_SET_PDEATHSIG,
+            libc::SIGTERM as libc::c_ulong,
+            0 as libc::c_ulong,
+            0 as libc::c_ulong,
+            0 as libc::c_ulong,
+        )
+    };
+    if rc != 0 {
+        anyhow::bail!(
+            "prctl(PR_SET_PDEATHSIG): {}",
+            std::io::Error::last_os_error()
+        );
+    }
+    let now = std::os::unix::process::parent_id();
+    if now != parent {
+        anyhow::bail!(
+            "the parent process (pid {parent}) ended while rt-core was starting; not starting"
+        );
+    }
+    Ok(())
+}
+
 fn runtime(args: &RunArgs) -> anyhow::Result<()> {
+    stop_with_parent()?;
     // Blind mode never reaches a real arm: decided from the address alone, first.
     if args.no_lookahead
         && args.link == LinkKind::Xarm
@@ -148,6 +190,8 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
                 .robot
                 .as_deref()
                 .context("--link xarm needs --robot HOST")?;
+            cfg.check_for_xarm_link()
+                .with_context(|| format!("{}", args.config.display()))?;
             let open = XArmOpenOptions {
                 report_port: args.report_port,
                 dry_run: args.dry_run,
@@ -156,10 +200,14 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
                     .max_step_rad(1.0 / cfg.rate_hz),
                 resume_after_reconnect: args.auto_resume,
             };
-            let driver = open_xarm(host, &open).map_err(|e| {
+            let link = open_xarm(host, &open, &model).map_err(|e| {
                 anyhow::anyhow!(
                     "xArm at {host}: {e}{}",
-                    if matches!(e, xarm::driver::XArmError::Controller(_)) && !args.clear_errors {
+                    if matches!(
+                        e,
+                        XArmOpenError::Driver(xarm::driver::XArmError::Controller(_))
+                    ) && !args.clear_errors
+                    {
                         " (rt-core never clears a controller error on its own: check the arm, \
                          then clear it on the pendant or start with --clear-errors)"
                     } else {
@@ -167,7 +215,7 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
                     }
                 )
             })?;
-            run_on(&opts, &cfg, model, task, driver)
+            run_on(&opts, &cfg, model, task, link)
         }
     }
 }

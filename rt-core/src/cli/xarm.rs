@@ -3,6 +3,11 @@
 //! `--servo-test` it also streams a small, safe J1-only motion (a few degrees, 100 Hz, smooth
 //! start and stop) and reports round-trip timing. It refuses to move when the controller has
 //! an error or is paused/resetting.
+//!
+//! One owner per arm: `--servo-test` moves the arm, so it takes the arm's lock
+//! ([`xarm::owner::ArmLock`]) before connecting and is refused while `rt-core run` (or another
+//! servo test) drives the same controller. The plain probe only reads (`GET_*` requests) and
+//! takes no lock, so it can look at an arm another process drives.
 
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -12,6 +17,7 @@ use clap::{Args, Subcommand};
 use serde_json::json;
 use xarm::codes::ControllerError;
 use xarm::driver::{XArmConfig, XArmDriver};
+use xarm::owner::ArmLock;
 
 /// xArm driver tools.
 #[derive(Debug, Subcommand)]
@@ -66,6 +72,13 @@ fn percentile_us(sorted_ns: &[u64], q: f64) -> f64 {
 fn probe(a: &ProbeArgs) -> Result<serde_json::Value> {
     let mut cfg = XArmConfig::from_addr(&a.addr);
     cfg.report_port = a.report_port;
+    // Moving needs the arm to ourselves: the lock is taken before connecting, and held to
+    // the end of the probe.
+    let _owner = if a.servo_test {
+        Some(ArmLock::acquire(&cfg).with_context(|| format!("--servo-test on {}", a.addr))?)
+    } else {
+        None
+    };
     let mut d = XArmDriver::connect(cfg).with_context(|| format!("connecting to {}", a.addr))?;
     let version = d
         .version()

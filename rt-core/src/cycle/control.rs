@@ -27,7 +27,9 @@
 //! [`CycleConfig::auto_resume_after_link_loss`], a lost link latch the cycle: it sends
 //! nothing and takes no plan until an operator acknowledges ([`CycleControl::acknowledge`]),
 //! which clears the controller's error and re-enables motion through the link. The cycle
-//! never clears an error on its own. When the link returns while stopping, the cycle snaps
+//! never clears an error on its own. A model mismatch ([`StopReason::ModelMismatch`]: the
+//! twin's TCP and the controller's disagree) stops under control first, then latches the
+//! same way once the arm is at rest. When the link returns while stopping, the cycle snaps
 //! to the measured joints and finishes the stop there (the arm got no command meanwhile).
 
 use std::sync::Arc;
@@ -119,6 +121,11 @@ pub enum CycleEvent {
         /// The controller's error code.
         code: u16,
     },
+    /// The twin's TCP and the controller's differ: a controlled stop, latched at rest.
+    ModelMismatch {
+        /// The distance between the two TCPs, m.
+        gap_m: f64,
+    },
     /// The link returned while stopping: the stop ends at the measured joints.
     SnappedToMeasured,
     /// An operator acknowledged the protective stop; motion was re-enabled.
@@ -152,6 +159,14 @@ pub enum StopReason {
     ArmError(u16),
     /// The process is shutting down (signal, time limit, error, panic).
     Shutdown,
+    /// The twin refused the latest detection frame (it does not fit, its stamp is not
+    /// fresh, an object lies outside the calibrated workspace, a second publisher): the
+    /// scene cannot be trusted until a good frame arrives.
+    DetectionRefused,
+    /// The twin's TCP of the measured joints and the TCP the controller reports differ by
+    /// more than the link's tolerance (a wrong model or base calibration): latched, like an
+    /// arm error, once the arm is at rest, until an operator acknowledges.
+    ModelMismatch,
 }
 
 impl StopReason {
@@ -166,6 +181,8 @@ impl StopReason {
             StopReason::Revoked => 5,
             StopReason::ArmError(_) => 6,
             StopReason::Shutdown => 7,
+            StopReason::DetectionRefused => 8,
+            StopReason::ModelMismatch => 9,
         }
     }
 }
@@ -177,6 +194,9 @@ pub struct SceneUpdate<S> {
     pub scene: S,
     /// Capture time of the detection, on the cycle's clock, ns.
     pub stamp_ns: u64,
+    /// The latest frame was refused: `scene` is the last trusted one (kept for the
+    /// shield's clearance while stopping), but it is not fresh — the cycle stops.
+    pub refused: bool,
 }
 
 /// What the cycle reports after each call (to the twin and telemetry).
@@ -429,6 +449,8 @@ pub struct Cycle<M: ShieldModel, L: RobotLink> {
     started: bool,
     acks_seen: u64,
     ack_failures: u32,
+    /// A model-mismatch stop is under way: latched once the arm is at rest.
+    mismatch_latch_pending: bool,
 }
 
 impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
@@ -463,6 +485,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             started: false,
             acks_seen: 0,
             ack_failures: 0,
+            mismatch_latch_pending: false,
         }
     }
 
@@ -581,6 +604,18 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         self.snap_to(now_ns, measured_q_rad);
     }
 
+    /// The twin's TCP and the controller's disagree: a controlled stop along the plan (the
+    /// arm is still commanded to rest), latched once at rest. Ignored while a latch stands.
+    fn on_model_mismatch(&mut self, now_ns: u64, gap_m: f64) {
+        if self.report.awaiting_ack || self.mismatch_latch_pending {
+            return;
+        }
+        self.io.log.log(now_ns, CycleEvent::ModelMismatch { gap_m });
+        self.begin_stop(now_ns, StopReason::ModelMismatch, StopMotion::AlongPlan);
+        self.report.stop_reason = StopReason::ModelMismatch;
+        self.mismatch_latch_pending = true;
+    }
+
     fn refuse(&mut self, now_ns: u64, p: Box<Plan>) {
         self.report.last_refused_plan_id = p.id;
         self.io
@@ -673,6 +708,10 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                     // acknowledged here.
                     self.report.arm_error_code = 0;
                 }
+                if let Some(gap_m) = st.model_mismatch_m {
+                    inputs_ok = false;
+                    self.on_model_mismatch(now_ns, gap_m);
+                }
                 if now_ns.saturating_sub(st.stamp_ns) > self.cfg.max_robot_state_age_ns {
                     inputs_ok = false;
                     self.begin_stop(now_ns, StopReason::StaleRobotState, StopMotion::AlongPlan);
@@ -755,13 +794,19 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         }
         // Inputs.
         let mut inputs_ok = self.read_inputs(now_ns);
-        let scene_fresh = self
-            .scene
-            .is_some_and(|s| now_ns.saturating_sub(s.stamp_ns) <= self.cfg.max_detection_age_ns);
+        let refused = self.scene.is_some_and(|s| s.refused);
+        let scene_fresh = self.scene.is_some_and(|s| {
+            !s.refused && now_ns.saturating_sub(s.stamp_ns) <= self.cfg.max_detection_age_ns
+        });
         if !scene_fresh {
             inputs_ok = false;
             if self.mode == Mode::Following {
-                self.begin_stop(now_ns, StopReason::StaleDetection, StopMotion::AlongPlan);
+                let reason = if refused {
+                    StopReason::DetectionRefused
+                } else {
+                    StopReason::StaleDetection
+                };
+                self.begin_stop(now_ns, reason, StopMotion::AlongPlan);
             }
         }
         if self.io.control.shutdown_requested() {
@@ -816,6 +861,10 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                     }
                 }
             }
+        }
+        if self.mismatch_latch_pending && matches!(self.mode, Mode::Idle | Mode::Stopped) {
+            self.mismatch_latch_pending = false;
+            self.report.awaiting_ack = true;
         }
         self.report.shutdown_complete =
             self.io.control.shutdown_requested() && matches!(self.mode, Mode::Idle | Mode::Stopped);

@@ -24,6 +24,10 @@ pub struct LinkState {
     /// Controller state (0 ready, 1 moving, 2 paused, 3 stopped, 4 stop requested; 0 for
     /// arms without one).
     pub state: u8,
+    /// `Some(distance)`, m, when the twin's TCP of `q_rad` lies farther than the link's
+    /// tolerance from the TCP the controller reports (a wrong model or base calibration);
+    /// `None` when they agree or the arm reports no TCP. The cycle stops and latches.
+    pub model_mismatch_m: Option<f64>,
 }
 
 /// Why the link failed (small and `Copy`: it travels through the cycle).
@@ -153,6 +157,7 @@ impl RobotLink for InProcessArm {
             error_code: 0,
             mode: 1,
             state: if self.controller_stops > 0 { 4 } else { 0 },
+            model_mismatch_m: None,
         })
     }
 

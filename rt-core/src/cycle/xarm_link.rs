@@ -1,4 +1,19 @@
-//! [`RobotLink`] for [`XArmDriver`]: the cycle's view of the real (or simulated) arm.
+//! [`RobotLink`] for [`XArmDriver`]: the cycle's view of the real (or simulated) arm, and
+//! [`XArmLink`], the production link: the driver, the arm's lock ([`ArmLock`]: one owner per
+//! arm) and the twin-vs-controller TCP check ([`TcpCheck`]).
+//!
+//! [`open_xarm`] takes the arm's lock before it connects (a second owner is refused with the
+//! holder named), refuses a controller that is not an xArm5 (the driver's handshake), and
+//! compares the twin's TCP of the measured joints with the TCP the controller reports
+//! *before* servo mode: more than [`MAX_TCP_GAP_M`] apart, nothing is moved. While running,
+//! [`XArmLink`] repeats the comparison on every new report (allocation-free FK) and passes
+//! a mismatch to the cycle (`LinkState::model_mismatch_m`), which stops under control and
+//! latches ([`crate::cycle::StopReason::ModelMismatch`]).
+//!
+//! Read-only uses do not take the lock: `rt-core xarm probe` without `--servo-test` and
+//! `rt-core run --dry-run` send nothing that changes the controller (the dry run withholds
+//! every command and leaves the mode as it is), so they may watch an arm another process
+//! drives.
 //!
 //! Error mapping (the cycle's `LinkError` is deliberately small): a controller error code
 //! → `ControllerError(code)`; a target refused before it reached the arm (outside the SDK's
@@ -7,11 +22,202 @@
 //! cycle holds and stops on staleness); everything else (lost connection, malformed bytes)
 //! → `Disconnected`.
 
-use crate::cycle::link::{LinkError, LinkState, RobotLink};
+use std::fmt;
 use std::net::IpAddr;
-use twin::Joints;
+use std::ops::Deref;
+
+use crate::cycle::link::{LinkError, LinkState, RobotLink};
+use twin::{Joints, LinkPoses, RobotModel};
 use xarm::config::LoopbackCheckError;
 use xarm::driver::{DriverState, XArmConfig, XArmDriver, XArmError};
+use xarm::owner::{ArmLock, ArmLockError};
+
+/// The largest distance allowed between the twin's TCP of the measured joints and the TCP
+/// the controller reports, m. Beyond it rt-core refuses to start, or stops and latches.
+/// (A constant for now; a candidate for `assets/runtime.toml`.)
+pub const MAX_TCP_GAP_M: f64 = 0.005;
+
+/// The twin's forward kinematics against the TCP the controller reports (its position;
+/// the orientation is reported in the errors only). Allocation-free after [`TcpCheck::new`].
+#[derive(Debug, Clone)]
+pub struct TcpCheck {
+    model: RobotModel,
+    poses: LinkPoses,
+    max_gap_m: f64,
+}
+
+impl TcpCheck {
+    /// Over the twin's model, with a tolerance of `max_gap_m`.
+    pub fn new(model: RobotModel, max_gap_m: f64) -> Self {
+        Self {
+            model,
+            poses: LinkPoses::default(),
+            max_gap_m,
+        }
+    }
+
+    /// The tolerance, m.
+    pub fn max_gap_m(&self) -> f64 {
+        self.max_gap_m
+    }
+
+    /// The twin's TCP position for `q_rad`, mm (the controller's unit), base frame.
+    pub fn twin_tcp_mm(&mut self, q_rad: &Joints) -> [f64; 3] {
+        self.model.fk_into(q_rad, &mut self.poses);
+        let t = self.poses.tcp_m();
+        [t.x * 1e3, t.y * 1e3, t.z * 1e3]
+    }
+
+    /// Distance between the twin's TCP for `q_rad` and the position of the reported pose
+    /// (`x, y, z` mm, `roll, pitch, yaw` rad), m.
+    pub fn gap_m(&mut self, q_rad: &Joints, reported: &[f32; 6]) -> f64 {
+        let twin = self.twin_tcp_mm(q_rad);
+        let d2: f64 = twin
+            .iter()
+            .zip(reported)
+            .map(|(a, b)| (a - f64::from(*b)).powi(2))
+            .sum();
+        d2.sqrt() * 1e-3
+    }
+
+    /// `Some(distance)`, m, when the two TCPs lie farther apart than the tolerance (or the
+    /// distance is not a number).
+    pub fn mismatch_m(&mut self, q_rad: &Joints, reported: &[f32; 6]) -> Option<f64> {
+        let gap = self.gap_m(q_rad, reported);
+        // A NaN gap is a mismatch too.
+        (gap.is_nan() || gap > self.max_gap_m).then_some(gap)
+    }
+
+    /// The start check: `Ok(distance)` within the tolerance, else the refusal naming both
+    /// poses.
+    ///
+    /// # Errors
+    /// [`TcpMismatchError`].
+    pub fn check(&mut self, q_rad: &Joints, reported: &[f32; 6]) -> Result<f64, TcpMismatchError> {
+        match self.mismatch_m(q_rad, reported) {
+            None => Ok(self.gap_m(q_rad, reported)),
+            Some(gap_m) => Err(TcpMismatchError {
+                q_rad: *q_rad,
+                twin_tcp_mm: self.twin_tcp_mm(q_rad),
+                reported_tcp_pose: *reported,
+                gap_mm: gap_m * 1e3,
+                tolerance_mm: self.max_gap_m * 1e3,
+            }),
+        }
+    }
+}
+
+/// The twin's TCP and the controller's disagree at start: nothing was moved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TcpMismatchError {
+    /// The measured joints, rad.
+    pub q_rad: Joints,
+    /// The twin's TCP for them (x, y, z), mm.
+    pub twin_tcp_mm: [f64; 3],
+    /// The TCP pose the controller reports: x, y, z (mm), roll, pitch, yaw (rad).
+    pub reported_tcp_pose: [f32; 6],
+    /// The distance between the two positions, mm.
+    pub gap_mm: f64,
+    /// The tolerance, mm.
+    pub tolerance_mm: f64,
+}
+
+impl std::error::Error for TcpMismatchError {}
+
+impl fmt::Display for TcpMismatchError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let [tx, ty, tz] = self.twin_tcp_mm;
+        let [x, y, z, roll, pitch, yaw] = self.reported_tcp_pose;
+        write!(
+            f,
+            "TCP mismatch: at the measured joints {:?} rad the twin's TCP is \
+             ({tx:.1}, {ty:.1}, {tz:.1}) mm, the controller reports ({x:.1}, {y:.1}, {z:.1}) mm \
+             (roll {roll:.3}, pitch {pitch:.3}, yaw {yaw:.3} rad): {:.1} mm apart, more than \
+             {:.1} mm. The twin's model (URDF, TCP offset) or the base calibration does not \
+             match this arm; refusing to start (nothing was moved)",
+            self.q_rad, self.gap_mm, self.tolerance_mm
+        )
+    }
+}
+
+/// Why [`open_xarm`] refused.
+#[derive(Debug, thiserror::Error)]
+pub enum XArmOpenError {
+    /// Another process owns the arm.
+    #[error(transparent)]
+    Owned(#[from] ArmLockError),
+    /// The driver failed or refused the controller (not an xArm5, an error, unreachable).
+    #[error(transparent)]
+    Driver(#[from] XArmError),
+    /// The twin's TCP and the controller's disagree.
+    #[error(transparent)]
+    TcpMismatch(#[from] TcpMismatchError),
+}
+
+/// The production link: the driver, the arm's lock (held as long as the link) and the TCP
+/// check on every new report. Reads as the driver through `Deref`.
+#[derive(Debug)]
+pub struct XArmLink {
+    driver: XArmDriver,
+    tcp: TcpCheck,
+    owner: Option<ArmLock>,
+    /// Stamp of the report last checked, and its verdict.
+    checked: Option<(u64, Option<f64>)>,
+}
+
+impl XArmLink {
+    /// Over a connected driver; `owner` is the arm's lock (none for read-only uses).
+    pub fn new(driver: XArmDriver, tcp: TcpCheck, owner: Option<ArmLock>) -> Self {
+        Self {
+            driver,
+            tcp,
+            owner,
+            checked: None,
+        }
+    }
+
+    /// The arm's lock, when this link owns the arm.
+    pub fn owner(&self) -> Option<&ArmLock> {
+        self.owner.as_ref()
+    }
+
+    /// The driver, mutably.
+    pub fn driver_mut(&mut self) -> &mut XArmDriver {
+        &mut self.driver
+    }
+
+    /// Compares the last report's TCP with the twin's (the start check).
+    ///
+    /// # Errors
+    /// [`XArmOpenError::Driver`] without a report, [`XArmOpenError::TcpMismatch`].
+    pub fn check_tcp(&mut self) -> Result<f64, XArmOpenError> {
+        let s = self.driver.last_state().ok_or(XArmError::NoState)?;
+        Ok(self
+            .tcp
+            .check(&s.report.joints5_rad(), &s.report.tcp_pose)?)
+    }
+
+    /// The running check of `s` (once per report).
+    fn mismatch_m(&mut self, s: &DriverState) -> Option<f64> {
+        match self.checked {
+            Some((stamp, verdict)) if stamp == s.stamp_ns => verdict,
+            _ => {
+                let verdict = self
+                    .tcp
+                    .mismatch_m(&s.report.joints5_rad(), &s.report.tcp_pose);
+                self.checked = Some((s.stamp_ns, verdict));
+                verdict
+            }
+        }
+    }
+}
+
+impl Deref for XArmLink {
+    type Target = XArmDriver;
+    fn deref(&self) -> &XArmDriver {
+        &self.driver
+    }
+}
 
 /// `--no-lookahead` (blind mode) asked for a robot address that is not known to be this
 /// machine's loopback: blind mode is a demonstration on the simulated arm only.
@@ -82,19 +288,41 @@ pub struct XArmOpenOptions {
 
 /// Connects to the controller at `addr` (`HOST[:PORT]`) and, unless `dry_run` (the arm's
 /// mode is then left as it is), enters servo mode from the joints where the arm stands.
-/// The controller's error is cleared only with `clear_errors` (an operator's action).
+/// In order: the arm's lock (not for a dry run, which sends nothing), the connection (the
+/// handshake refuses anything but an xArm5), the TCP check against `model` (tolerance
+/// [`MAX_TCP_GAP_M`]), then servo mode. The controller's error is cleared only with
+/// `clear_errors` (an operator's action).
 ///
 /// # Errors
-/// [`XArmError`] from the connection or the servo-mode entry
-/// ([`XArmError::Controller`] when the controller reports an error and `clear_errors` is off).
-pub fn open_xarm(addr: &str, opts: &XArmOpenOptions) -> Result<XArmDriver, XArmError> {
+/// [`XArmOpenError::Owned`] when another process owns the arm (nothing was sent);
+/// [`XArmOpenError::TcpMismatch`] (nothing was moved); [`XArmOpenError::Driver`] from the
+/// connection or the servo-mode entry ([`XArmError::NotXArm5`]; [`XArmError::Controller`]
+/// when the controller reports an error and `clear_errors` is off).
+pub fn open_xarm(
+    addr: &str,
+    opts: &XArmOpenOptions,
+    model: &RobotModel,
+) -> Result<XArmLink, XArmOpenError> {
     let mut cfg = XArmConfig::from_addr(addr);
     if let Some(port) = opts.report_port {
         cfg.report_port = port;
     }
     cfg.max_resume_step_rad = opts.max_resume_step_rad;
     cfg.resume_after_reconnect = opts.resume_after_reconnect;
-    let mut driver = XArmDriver::connect(cfg)?;
+    let owner = if opts.dry_run {
+        None
+    } else {
+        Some(ArmLock::acquire(&cfg)?)
+    };
+    let driver = XArmDriver::connect(cfg)?;
+    let mut link = XArmLink::new(driver, TcpCheck::new(model.clone(), MAX_TCP_GAP_M), owner);
+    let gap_m = link.check_tcp()?;
+    tracing::info!(
+        addr,
+        gap_mm = gap_m * 1e3,
+        "the twin's TCP matches the controller's"
+    );
+    let driver = link.driver_mut();
     if opts.dry_run {
         tracing::warn!(
             addr,
@@ -112,7 +340,7 @@ pub fn open_xarm(addr: &str, opts: &XArmOpenOptions) -> Result<XArmDriver, XArmE
         };
         tracing::info!(addr, joints_rad = ?q, "xArm in servo mode");
     }
-    Ok(driver)
+    Ok(link)
 }
 
 /// Maps a driver error to the cycle's link error.
@@ -127,7 +355,8 @@ pub fn link_error(e: XArmError) -> LinkError {
         | XArmError::Timeout
         | XArmError::Disconnected
         | XArmError::Frame(_)
-        | XArmError::Report(_) => LinkError::Disconnected,
+        | XArmError::Report(_)
+        | XArmError::NotXArm5 { .. } => LinkError::Disconnected,
     }
 }
 
@@ -152,6 +381,7 @@ impl RobotLink for XArmDriver {
             error_code: u16::from(u8::from(s.error)),
             mode: s.report.mode,
             state: s.report.state,
+            model_mismatch_m: None,
         })
     }
 
@@ -170,6 +400,28 @@ impl RobotLink for XArmDriver {
         } else {
             tracing::info!("controller in its stop state (SET_STATE 4)");
         }
+    }
+}
+
+impl RobotLink for XArmLink {
+    fn read_state(&mut self, now_ns: u64) -> Result<LinkState, LinkError> {
+        let mut st = RobotLink::read_state(&mut self.driver, now_ns)?;
+        if let Some(s) = self.driver.last_state() {
+            st.model_mismatch_m = self.mismatch_m(&s);
+        }
+        Ok(st)
+    }
+
+    fn send_servo(&mut self, now_ns: u64, q_rad: &Joints) -> Result<(), LinkError> {
+        RobotLink::send_servo(&mut self.driver, now_ns, q_rad)
+    }
+
+    fn acknowledge(&mut self, now_ns: u64) -> Result<(), LinkError> {
+        RobotLink::acknowledge(&mut self.driver, now_ns)
+    }
+
+    fn stop_controller(&mut self, now_ns: u64) {
+        RobotLink::stop_controller(&mut self.driver, now_ns);
     }
 }
 
@@ -237,6 +489,51 @@ mod tests {
             ),
             "{unresolved:?}"
         );
+    }
+
+    fn model() -> RobotModel {
+        let urdf = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .ancestors()
+            .map(|d| d.join("assets/xarm5.urdf"))
+            .find(|p| p.is_file())
+            .expect("assets/xarm5.urdf above the crate");
+        RobotModel::load(&urdf).expect("urdf")
+    }
+
+    #[test]
+    fn the_tcp_check_refuses_a_reported_tcp_beyond_5_mm_naming_both_poses() {
+        let mut check = TcpCheck::new(model(), MAX_TCP_GAP_M);
+        let q = [0.3, -0.4, -0.5, 0.9, 0.2];
+        let t = check.twin_tcp_mm(&q);
+        let pose = |dx_mm: f64| {
+            [
+                (t[0] + dx_mm) as f32,
+                t[1] as f32,
+                t[2] as f32,
+                3.1,
+                0.0,
+                0.3,
+            ]
+        };
+        assert!(check.gap_m(&q, &pose(0.0)) < 1e-6);
+        assert_eq!(check.mismatch_m(&q, &pose(4.0)), None);
+        assert!(check.check(&q, &pose(4.0)).is_ok());
+        let gap = check
+            .mismatch_m(&q, &pose(10.0))
+            .expect("10 mm is a mismatch");
+        assert!((gap - 0.010).abs() < 1e-6, "{gap}");
+        let e = check.check(&q, &pose(10.0)).expect_err("refused");
+        assert!((e.gap_mm - 10.0).abs() < 1e-3, "{e:?}");
+        let msg = e.to_string();
+        let twin_x = format!("{:.1}", t[0]);
+        let reported_x = format!("{:.1}", t[0] + 10.0);
+        assert!(
+            msg.contains(&twin_x) && msg.contains(&reported_x) && msg.contains("10.0 mm apart"),
+            "{msg}"
+        );
+        let mut nan = pose(0.0);
+        nan[0] = f32::NAN;
+        assert!(check.mismatch_m(&q, &nan).is_some());
     }
 
     #[test]

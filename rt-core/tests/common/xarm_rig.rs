@@ -1,7 +1,8 @@
 //! A cycle over the production parts on the real protocol (included with `#[path]`): the
-//! twin's shield model ([`TwinModel`]), the xArm driver, and `xarm-sim` in this process,
-//! reached through a TCP proxy that can cut the link; stepped on this thread at the real
-//! period (4 ms), with a fresh scene every cycle and plans handed over directly.
+//! twin's shield model ([`TwinModel`]), the xArm link (driver and TCP check), and `xarm-sim`
+//! in this process, reached through a TCP proxy that can cut the link and rewrite what the
+//! controller says (its version string, the TCP pose in its reports); stepped on this thread
+//! at the real period (4 ms), with a fresh scene every cycle and plans handed over directly.
 
 #![allow(dead_code, missing_docs)]
 
@@ -16,6 +17,7 @@ use rt_core::cycle::brake::Brake;
 use rt_core::cycle::plan::Plan;
 use rt_core::cycle::shield::{Shield, ShieldLimits};
 use rt_core::cycle::twin_model::TwinModel;
+use rt_core::cycle::xarm_link::{MAX_TCP_GAP_M, TcpCheck, XArmLink};
 use rt_core::cycle::{self, Cycle, CycleConfig, CycleEvent, SceneUpdate, TwinIo};
 use rt_core::rt::clock::{Clock, MonotonicClock};
 use rt_core::rt::rt_log::RtLogDrain;
@@ -24,8 +26,89 @@ use xarm::driver::{XArmConfig, XArmDriver};
 use xarm::report::ReportKind;
 use xarm_sim::{SimOptions, SimPorts, SimServer, SimSummary};
 
+/// What a proxy changes in the controller's bytes (controller → client).
+#[derive(Debug, Clone, Default)]
+pub enum Rewrite {
+    /// Nothing.
+    #[default]
+    None,
+    /// The command port: every `GET_VERSION` reply carries this version string instead.
+    Version(String),
+    /// A report port: the reported TCP's x is moved by this many mm (an `f64` in the bits
+    /// of the atomic; 0 = unchanged), switchable while connected.
+    TcpOffsetMm(Arc<AtomicU64>),
+}
+
+impl Rewrite {
+    /// A switchable TCP offset, starting at `mm`.
+    pub fn tcp_offset(mm: f64) -> (Self, Arc<AtomicU64>) {
+        let a = Arc::new(AtomicU64::new(mm.to_bits()));
+        (Self::TcpOffsetMm(a.clone()), a)
+    }
+
+    /// The length of the first whole frame/packet in `buf`, if there is one.
+    fn frame_len(&self, buf: &[u8]) -> Option<usize> {
+        let n = match self {
+            Self::None => buf.len(),
+            Self::Version(_) => 6 + usize::from(u16::from_be_bytes([*buf.get(4)?, *buf.get(5)?])),
+            Self::TcpOffsetMm(_) => {
+                u32::from_be_bytes([*buf.first()?, *buf.get(1)?, *buf.get(2)?, *buf.get(3)?])
+                    as usize
+            }
+        };
+        (n > 0 && n <= buf.len()).then_some(n)
+    }
+
+    /// Changes one whole frame/packet in place.
+    fn apply(&self, frame: &mut [u8]) {
+        match self {
+            Self::None => {}
+            Self::Version(v) => {
+                // Register 0x01 (GET_VERSION): 40 bytes of text from offset 8.
+                if frame.len() >= 48 && frame[6] == 0x01 {
+                    let mut text = [0u8; 40];
+                    let n = v.len().min(40);
+                    text[..n].copy_from_slice(&v.as_bytes()[..n]);
+                    frame[8..48].copy_from_slice(&text);
+                }
+            }
+            Self::TcpOffsetMm(mm) => {
+                let mm = f64::from_bits(mm.load(Ordering::Acquire));
+                // Reported TCP x at [35..39), f32 LE, in every report stream but 30000's.
+                if mm != 0.0 && frame.len() >= 39 {
+                    let x = f32::from_le_bytes([frame[35], frame[36], frame[37], frame[38]]);
+                    frame[35..39].copy_from_slice(&((f64::from(x) + mm) as f32).to_le_bytes());
+                }
+            }
+        }
+    }
+}
+
+/// Copies `from` to `to`, rewriting each whole frame/packet with `rule`.
+fn pump(mut from: TcpStream, mut to: TcpStream, rule: Rewrite) {
+    let mut buf = [0_u8; 4096];
+    let mut pending: Vec<u8> = Vec::new();
+    while let Ok(n) = from.read(&mut buf) {
+        if n == 0 {
+            break;
+        }
+        pending.extend_from_slice(&buf[..n]);
+        let mut out = Vec::new();
+        while let Some(len) = rule.frame_len(&pending) {
+            let mut frame: Vec<u8> = pending.drain(..len).collect();
+            rule.apply(&mut frame);
+            out.extend_from_slice(&frame);
+        }
+        if to.write_all(&out).is_err() {
+            break;
+        }
+    }
+    let _ = to.shutdown(Shutdown::Both);
+    let _ = from.shutdown(Shutdown::Both);
+}
+
 /// A TCP proxy in front of one port that can cut every connection and refuse new ones
-/// for a while (a pulled cable, a switch reboot).
+/// for a while (a pulled cable, a switch reboot), and rewrite what the controller sends.
 pub struct Proxy {
     pub port: u16,
     conns: Arc<Mutex<Vec<TcpStream>>>,
@@ -36,6 +119,11 @@ pub struct Proxy {
 
 impl Proxy {
     pub fn start(upstream: u16) -> Self {
+        Self::rewriting(upstream, Rewrite::None)
+    }
+
+    /// A proxy that rewrites the controller's bytes with `rule`.
+    pub fn rewriting(upstream: u16, rule: Rewrite) -> Self {
         let listener = TcpListener::bind(("127.0.0.1", 0)).expect("proxy bind");
         let port = listener.local_addr().expect("addr").port();
         listener.set_nonblocking(true).expect("nonblocking");
@@ -59,26 +147,19 @@ impl Proxy {
                             continue;
                         };
                         let _ = server.set_nodelay(true);
-                        for (mut from, mut to) in [
+                        for (from, to, rule) in [
                             (
                                 client.try_clone().expect("clone"),
                                 server.try_clone().expect("clone"),
+                                Rewrite::None,
                             ),
                             (
                                 server.try_clone().expect("clone"),
                                 client.try_clone().expect("clone"),
+                                rule.clone(),
                             ),
                         ] {
-                            std::thread::spawn(move || {
-                                let mut buf = [0_u8; 4096];
-                                while let Ok(n) = from.read(&mut buf) {
-                                    if n == 0 || to.write_all(&buf[..n]).is_err() {
-                                        break;
-                                    }
-                                }
-                                let _ = to.shutdown(Shutdown::Both);
-                                let _ = from.shutdown(Shutdown::Both);
-                            });
+                            std::thread::spawn(move || pump(from, to, rule));
                         }
                         if let Ok(mut v) = c.lock() {
                             v.push(client);
@@ -123,7 +204,7 @@ pub struct XRig {
     pub sim: Option<SimServer>,
     pub command_proxy: Proxy,
     pub report_proxy: Proxy,
-    pub cycle: Cycle<TwinModel, XArmDriver>,
+    pub cycle: Cycle<TwinModel, XArmLink>,
     pub twin_io: TwinIo<Scene>,
     pub log: RtLogDrain<CycleEvent>,
     pub clock: MonotonicClock,
@@ -132,7 +213,7 @@ pub struct XRig {
     deadline_ns: u64,
 }
 
-fn urdf() -> std::path::PathBuf {
+pub fn urdf() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .ancestors()
         .map(|d| d.join("assets/xarm5.urdf"))
@@ -144,18 +225,14 @@ impl XRig {
     /// A cycle in servo mode on a fresh `xarm-sim` at the arm's home pose. `auto_resume`:
     /// the link's return needs no acknowledgement (and the driver re-enters servo mode).
     pub fn start(auto_resume: bool) -> Self {
+        Self::start_rewriting(auto_resume, Rewrite::None)
+    }
+
+    /// [`XRig::start`] with the reports rewritten by `report_rule`.
+    pub fn start_rewriting(auto_resume: bool, report_rule: Rewrite) -> Self {
         let cfg = RuntimeConfig::xarm5_default();
         let model = RobotModel::load(&urdf()).expect("urdf");
-        let sim = SimServer::start(SimOptions {
-            ports: SimPorts::ephemeral(),
-            urdf: urdf(),
-            q0_rad: model.home(),
-            ..SimOptions::default()
-        })
-        .expect("sim starts");
-        let ports = sim.ports();
-        let command_proxy = Proxy::start(ports.command);
-        let report_proxy = Proxy::start(ports.report(ReportKind::Real));
+        let (sim, command_proxy, report_proxy) = sim_behind_proxies(Rewrite::None, report_rule);
         let mut xcfg = XArmConfig::new("127.0.0.1");
         xcfg.command_port = command_proxy.port;
         xcfg.report_port = report_proxy.port;
@@ -166,6 +243,7 @@ impl XRig {
         xcfg.max_resume_step_rad = max_step_rad(&cfg);
         let mut driver = XArmDriver::connect(xcfg).expect("connect");
         driver.enter_servo_mode().expect("servo mode");
+        let link = XArmLink::new(driver, TcpCheck::new(model.clone(), MAX_TCP_GAP_M), None);
         let (twin_io, cycle_io, log) = cycle::wire::<Scene>();
         let mut cycle_cfg = CycleConfig::from_runtime(&cfg);
         cycle_cfg.auto_resume_after_link_loss = auto_resume;
@@ -176,7 +254,7 @@ impl XRig {
                 ShieldLimits::from_config(&cfg.limits, &cfg.shield),
             ),
             Brake::new(&cfg.limits),
-            driver,
+            link,
             cycle_io,
         );
         let clock = MonotonicClock::new();
@@ -224,6 +302,7 @@ impl XRig {
         self.twin_io.scenes.send(SceneUpdate {
             scene: self.scene,
             stamp_ns: now,
+            refused: false,
         });
         self.cycle.process(now);
         self.twin_io.plans.collect_returned();
@@ -281,6 +360,27 @@ impl XRig {
     pub fn sim_summary(&self) -> SimSummary {
         self.sim.as_ref().expect("sim").summary()
     }
+}
+
+/// A fresh `xarm-sim` (in this process) at the arm's home pose, reached through a proxy on
+/// its command port (rewriting with `command_rule`) and one on its "real" report port
+/// (`report_rule`).
+pub fn sim_behind_proxies(
+    command_rule: Rewrite,
+    report_rule: Rewrite,
+) -> (SimServer, Proxy, Proxy) {
+    let model = RobotModel::load(&urdf()).expect("urdf");
+    let sim = SimServer::start(SimOptions {
+        ports: SimPorts::ephemeral(),
+        urdf: urdf(),
+        q0_rad: model.home(),
+        ..SimOptions::default()
+    })
+    .expect("sim starts");
+    let ports = sim.ports();
+    let command_proxy = Proxy::rewriting(ports.command, command_rule);
+    let report_proxy = Proxy::rewriting(ports.report(ReportKind::Real), report_rule);
+    (sim, command_proxy, report_proxy)
 }
 
 /// The most one joint may move between two targets: one period at its velocity limit.

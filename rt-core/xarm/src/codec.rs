@@ -540,6 +540,9 @@ fn floats<const N: usize>(d: &[u8]) -> Result<[f32; N], FrameError> {
     Ok(out)
 }
 
+/// Robot type of an xArm5 in the `GET_VERSION` string (the SDK's `XARM5_X4`).
+pub const XARM5_ROBOT_TYPE: u8 = 5;
+
 /// What a `GET_VERSION` reply says, parsed without allocation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct VersionInfo {
@@ -592,6 +595,13 @@ impl VersionInfo {
             raw,
             raw_len: text.len() as u8,
         })
+    }
+
+    /// Whether the controller says it is an xArm5: robot type [`XARM5_ROBOT_TYPE`]
+    /// (the SDK's `XARM5_X4`, its only xArm5 type) with [`XARM5_AXES`] axes. Any other arm
+    /// (an xArm6/7 would get J6/J7 = 0 from us) is refused at the handshake.
+    pub fn is_xarm5(&self) -> bool {
+        usize::from(self.axis) == XARM5_AXES && self.robot_type == XARM5_ROBOT_TYPE
     }
 
     /// The version string as text.
@@ -943,6 +953,17 @@ mod tests {
         let v = VersionInfo::parse(&data).unwrap();
         assert_eq!((v.axis, v.robot_type, v.firmware), (5, 5, [2, 6, 0]));
         assert_eq!(v.as_str(), "5,5,XF1302,AC1302,v2.6.0");
+        assert!(v.is_xarm5());
+        for other in [
+            "6,6,XI1202,AC1302,v1.12.10",
+            "7,7,X,A,v2.0.0",
+            "5,6,X,A,v2.0.0",
+        ] {
+            assert!(
+                !VersionInfo::parse(other.as_bytes()).unwrap().is_xarm5(),
+                "{other}"
+            );
+        }
         assert_eq!(VersionInfo::parse(b"5,5,x"), Err(FrameError::BadVersion));
         assert_eq!(VersionInfo::parse(b""), Err(FrameError::BadVersion));
     }

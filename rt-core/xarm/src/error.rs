@@ -14,6 +14,17 @@ pub enum XArmError {
     /// A socket operation failed.
     #[error("socket error: {0:?}")]
     Io(ErrorKind),
+    /// `GET_VERSION` names another arm than an xArm5 (type 5, 5 axes): nothing is driven.
+    #[error(
+        "the controller reports robot type {robot_type} with {axis} axes, not an xArm5 \
+         (type 5, 5 axes): refusing to drive it with the xArm5 model"
+    )]
+    NotXArm5 {
+        /// Axis count the controller reports.
+        axis: u8,
+        /// Robot type the controller reports.
+        robot_type: u8,
+    },
     /// No reply within the timeout.
     #[error("no reply within the timeout")]
     Timeout,

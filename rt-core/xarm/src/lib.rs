@@ -16,6 +16,7 @@ pub mod config;
 pub mod driver;
 pub mod error;
 pub mod limits;
+pub mod owner;
 pub mod reconnect;
 pub mod report;
 pub mod session;

@@ -229,14 +229,26 @@ impl Session {
 
     /// Opens a session like the SDK (blocking): TCP to the command and report ports,
     /// `GET_VERSION` with protocol id 2 (transaction id 1), then protocol id 3, and
-    /// `GET_ERROR`. Clears nothing and moves nothing.
+    /// `GET_ERROR`. Clears nothing and moves nothing. A controller whose version string does
+    /// not name an xArm5 (type 5, 5 axes) is refused before anything else is sent.
     ///
     /// # Errors
-    /// [`XArmError`] for unreachable ports, timeouts and malformed replies.
+    /// [`XArmError::NotXArm5`] for another arm; [`XArmError`] for unreachable ports,
+    /// timeouts and malformed replies.
     pub fn open(cfg: &XArmConfig) -> Result<Self, XArmError> {
         let mut s = Self::connect(cfg)?;
         let r = s.call(&Request::GetVersion, cfg.reply_timeout)?;
         let v = VersionInfo::parse(&r.data[..r.len]).map_err(XArmError::Frame)?;
+        if !v.is_xarm5() {
+            tracing::error!(
+                version = v.as_str(),
+                "not an xArm5: refusing the controller"
+            );
+            return Err(XArmError::NotXArm5 {
+                axis: v.axis,
+                robot_type: v.robot_type,
+            });
+        }
         tracing::info!(version = v.as_str(), "xArm connected");
         s.version = Some(v);
         s.protocol = PROTOCOL_PRIVATE;

@@ -313,6 +313,37 @@ fn good_report() -> Vec<u8> {
     buf.to_vec()
 }
 
+fn version_reply_of(version: &str) -> Vec<u8> {
+    let mut v = version_reply();
+    v.truncate(8);
+    let mut s = version.as_bytes().to_vec();
+    s.resize(40, 0);
+    v.extend(s);
+    v
+}
+
+#[test]
+fn a_controller_that_is_not_an_xarm5_is_refused_at_the_handshake() {
+    // The xArm5 itself connects through the same fake controller.
+    assert!(XArmDriver::connect(fake_controller(version_reply(), good_report())).is_ok());
+    for (version, axis, robot_type) in [
+        ("6,6,XI1202,AC1302,v1.12.10", 6, 6),
+        ("7,7,XI1303,AC1302,v2.0.0", 7, 7),
+        ("5,6,XF1302,AC1302,v2.6.0", 5, 6),
+        ("6,5,XF1302,AC1302,v2.6.0", 6, 5),
+    ] {
+        let e = XArmDriver::connect(fake_controller(version_reply_of(version), good_report()))
+            .expect_err(version);
+        assert_eq!(e, XArmError::NotXArm5 { axis, robot_type }, "{version}");
+        let msg = e.to_string();
+        assert!(
+            msg.contains(&format!("robot type {robot_type} with {axis} axes"))
+                && msg.contains("not an xArm5"),
+            "{msg}"
+        );
+    }
+}
+
 #[test]
 fn bad_controller_bytes_are_typed_errors() {
     let cases: Vec<(&str, Vec<u8>, Vec<u8>)> = vec![
