@@ -21,12 +21,13 @@ export LIBTORCH_BYPASS_VERSION_CHECK := 1
 CARGO ?= cargo
 BIN := $(CARGO_TARGET_DIR)/release
 
-.PHONY: setup build demo test lint fmt bench bench-loop clean help
+.PHONY: setup build demo test lint fmt bench bench-loop sweep clean help
 
 help:
 	@echo "make demo   - run the main job on the simulated arm (installs what it needs)"
 	@echo "make test   - run every check and test (installs what it needs)"
 	@echo "make bench  - criterion benchmarks (medians in README)"
+	@echo "make sweep  - the adversarial safety sweep, 10 000 episodes (ARGS to override)"
 
 setup:
 	@bash scripts/setup.sh
@@ -60,6 +61,13 @@ fmt:
 
 bench: setup
 	$(CARGO) bench -p twin -p policy -p xarm
+
+# The adversarial sweep's long run (issue 14): the real twin worker and cycle through
+# randomised, adversarial scenes; exits non-zero on any unsafe command. `rt-core sweep` is
+# built with the `testing` feature only (it is not part of the production binary).
+SWEEP_ARGS ?= --episodes 10000 --seed 1 --out runs/sweep
+sweep: setup
+	$(CARGO) run --release -p rt-core --features testing -- sweep $(or $(ARGS),$(SWEEP_ARGS))
 
 clean:
 	$(CARGO) clean

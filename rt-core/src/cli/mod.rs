@@ -8,6 +8,8 @@ use rt_core::rt::rt_setup::RtRequest;
 
 mod bench_loop;
 mod run;
+#[cfg(feature = "testing")]
+mod sweep;
 mod twin;
 mod xarm;
 
@@ -31,6 +33,9 @@ enum Command {
     /// xArm driver tools (`probe`).
     #[command(subcommand)]
     Xarm(xarm::XarmCommand),
+    /// The adversarial sweep of the twin worker and the cycle (feature `testing`).
+    #[cfg(feature = "testing")]
+    Sweep(sweep::SweepArgs),
 }
 
 /// Parses the command line and runs the chosen subcommand.
@@ -41,6 +46,8 @@ pub fn main() -> ExitCode {
         Command::BenchLoop(args) => bench_loop::run(args),
         Command::Run(args) => run::run(args),
         Command::Xarm(cmd) => xarm::run(cmd),
+        #[cfg(feature = "testing")]
+        Command::Sweep(args) => sweep::run(args),
     }
 }
 

@@ -2,4 +2,6 @@
 //! arm, scene, policy and lookahead that exercise the cycle and the twin worker without the
 //! real twin.
 
+pub mod oracle;
+pub mod sweep;
 pub mod toy;

@@ -1,6 +1,6 @@
 //! Integration tests of the runtime: the cycle and the twin worker together on the toy rig
 //! (`cycle`), its safety paths (`safety`), the shield on the real twin model (`shield_twin`) and the `rt-core twin` CLI
-//! (`twin_cli`).
+//! (`twin_cli`), and who may drive the arm and whether the twin matches it (`arm_owner`).
 
 #![allow(missing_docs, clippy::unwrap_used)]
 
@@ -11,9 +11,11 @@ mod twin_common;
 #[path = "../common/xarm_rig.rs"]
 mod xarm_rig;
 
+mod arm_owner;
 mod cycle;
 mod limits;
 mod safety;
 mod shield_twin;
+mod sweep;
 mod twin_cli;
 mod xarm_paths;
