@@ -1,5 +1,6 @@
 //! `validate()` rejects NaN, counts beyond capacity and bad enum bytes.
 
+use shm_schemas::scene_file::MAX_OBSTACLES;
 use shm_schemas::*;
 
 use crate::roundtrip::{detection_frame, retrain_progress, retrain_request, robot_state, verdict};
@@ -65,13 +66,33 @@ fn detection_frame_rejects_bad_input() {
     f.objects[5].class = 200;
     assert_eq!(f.validate(), Ok(()));
 
-    // A full frame refuses another object.
+    // A full frame (one goal, obstacles) validates; another object does not fit: it is
+    // counted in `dropped_count` and the frame is refused (a hidden obstacle must stop the
+    // arm, not vanish).
     let mut f = DetectionFrame::default();
-    for i in 0..MAX_DETECTIONS {
-        assert!(f.push(detection_frame().objects[i % 2]));
+    assert!(f.push(detection_frame().objects[0]));
+    for _ in 1..MAX_DETECTIONS {
+        assert!(f.push(detection_frame().objects[1]));
     }
-    assert!(!f.push(detection_frame().objects[0]));
     assert_eq!(f.validate(), Ok(()));
+    assert!(!f.push(detection_frame().objects[1]));
+    assert_eq!(f.dropped_count, 1);
+    assert_eq!(
+        f.validate(),
+        Err(SchemaError::CountOverCapacity {
+            field: "dropped_count",
+            count: MAX_DETECTIONS as u32 + 1,
+            capacity: MAX_DETECTIONS as u32
+        })
+    );
+
+    // At most one goal.
+    let mut f = detection_frame();
+    assert!(f.push(detection_frame().objects[0]));
+    assert_eq!(
+        f.validate(),
+        Err(SchemaError::OutOfRange { field: "class" })
+    );
 }
 
 #[test]
@@ -115,13 +136,13 @@ fn verdict_rejects_bad_input() {
 #[test]
 fn retrain_request_rejects_bad_input() {
     let mut r = retrain_request();
-    r.obstacle_count = 9;
+    r.obstacle_count = MAX_OBSTACLES as u32 + 1;
     assert_eq!(
         r.validate(),
         Err(SchemaError::CountOverCapacity {
             field: "obstacle_count",
-            count: 9,
-            capacity: 8
+            count: MAX_OBSTACLES as u32 + 1,
+            capacity: MAX_OBSTACLES as u32
         })
     );
     let mut r = retrain_request();
