@@ -65,6 +65,15 @@ pub struct ShieldConfig {
     pub min_distance_m: f64,
     /// Margin kept from the joint limits, rad.
     pub joint_margin_rad: f64,
+    /// Largest distance between the twin's TCP (FK of the measured joints) and the TCP the
+    /// controller reports, m: more refuses the start, or stops the arm while running
+    /// (`ModelMismatch`, latched until acknowledged).
+    #[serde(default = "default_max_tcp_gap_m")]
+    pub max_tcp_gap_m: f64,
+}
+
+fn default_max_tcp_gap_m() -> f64 {
+    0.005
 }
 
 /// Ages beyond which an input counts as stale.
@@ -157,6 +166,9 @@ pub mod bounds {
     pub const MAX_CLEARANCE_M: f64 = 0.2;
     /// Largest joint margin, rad.
     pub const MAX_JOINT_MARGIN_RAD: f64 = 0.5;
+    /// Allowed range of the twin-vs-controller TCP tolerance, m: below 1 mm the controller's
+    /// own rounding trips it; above 20 mm a wrong model goes unnoticed.
+    pub const TCP_GAP_RANGE_M: (f64, f64) = (0.001, 0.02);
     /// The xArm5's reach (0.7 m) plus room for a tool, m: the TCP workspace and the
     /// calibrated workspace lie within this of the base axis in x and y.
     pub const REACH_BOUND_M: f64 = 0.8;
@@ -369,6 +381,10 @@ impl RuntimeConfig {
         {
             return bad("shield.joint_margin_rad", "must be within 0..=0.5 rad");
         }
+        let (lo, hi) = bounds::TCP_GAP_RANGE_M;
+        if !(s.max_tcp_gap_m.is_finite() && (lo..=hi).contains(&s.max_tcp_gap_m)) {
+            return bad("shield.max_tcp_gap_m", "must be within 0.001..=0.02 m");
+        }
         Ok(())
     }
 
@@ -563,6 +579,7 @@ mod tests {
                 "intake.calibrated_min_m",
             ),
             ("goal_max_radius_m", "3.0", "intake.goal_max_radius_m"),
+            ("max_tcp_gap_m", "0.5", "shield.max_tcp_gap_m"),
         ];
         for (key, value, field) in cases {
             match RuntimeConfig::from_toml(&with_value(key, value)) {

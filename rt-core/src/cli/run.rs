@@ -199,6 +199,7 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
                 max_resume_step_rad: ShieldLimits::from_config(&cfg.limits, &cfg.shield)
                     .max_step_rad(1.0 / cfg.rate_hz),
                 resume_after_reconnect: args.auto_resume,
+                max_tcp_gap_m: cfg.shield.max_tcp_gap_m,
             };
             let link = open_xarm(host, &open, &model).map_err(|e| {
                 anyhow::anyhow!(

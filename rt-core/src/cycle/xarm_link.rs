@@ -284,13 +284,16 @@ pub struct XArmOpenOptions {
     pub max_resume_step_rad: f64,
     /// Re-enter servo mode after a reconnect without an operator (simulated arms only).
     pub resume_after_reconnect: bool,
+    /// Largest distance between the twin's TCP and the controller's reported TCP, m
+    /// (`shield.max_tcp_gap_m`; [`MAX_TCP_GAP_M`] by default).
+    pub max_tcp_gap_m: f64,
 }
 
 /// Connects to the controller at `addr` (`HOST[:PORT]`) and, unless `dry_run` (the arm's
 /// mode is then left as it is), enters servo mode from the joints where the arm stands.
 /// In order: the arm's lock (not for a dry run, which sends nothing), the connection (the
 /// handshake refuses anything but an xArm5), the TCP check against `model` (tolerance
-/// [`MAX_TCP_GAP_M`]), then servo mode. The controller's error is cleared only with
+/// `opts.max_tcp_gap_m`), then servo mode. The controller's error is cleared only with
 /// `clear_errors` (an operator's action).
 ///
 /// # Errors
@@ -315,7 +318,11 @@ pub fn open_xarm(
         Some(ArmLock::acquire(&cfg)?)
     };
     let driver = XArmDriver::connect(cfg)?;
-    let mut link = XArmLink::new(driver, TcpCheck::new(model.clone(), MAX_TCP_GAP_M), owner);
+    let mut link = XArmLink::new(
+        driver,
+        TcpCheck::new(model.clone(), opts.max_tcp_gap_m),
+        owner,
+    );
     let gap_m = link.check_tcp()?;
     tracing::info!(
         addr,
