@@ -73,7 +73,7 @@ pub struct ShieldConfig {
 }
 
 fn default_max_tcp_gap_m() -> f64 {
-    0.005
+    crate::cycle::xarm_link::MAX_TCP_GAP_M
 }
 
 /// Ages beyond which an input counts as stale.

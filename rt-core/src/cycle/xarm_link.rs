@@ -32,9 +32,9 @@ use xarm::config::LoopbackCheckError;
 use xarm::driver::{DriverState, XArmConfig, XArmDriver, XArmError};
 use xarm::owner::{ArmLock, ArmLockError};
 
-/// The largest distance allowed between the twin's TCP of the measured joints and the TCP
-/// the controller reports, m. Beyond it rt-core refuses to start, or stops and latches.
-/// (A constant for now; a candidate for `assets/runtime.toml`.)
+/// The default largest distance between the twin's TCP of the measured joints and the TCP
+/// the controller reports, m (`shield.max_tcp_gap_m` in `assets/runtime.toml`). Beyond it
+/// rt-core refuses to start, or stops and latches.
 pub const MAX_TCP_GAP_M: f64 = 0.005;
 
 /// The twin's forward kinematics against the TCP the controller reports (its position;
@@ -83,9 +83,13 @@ impl TcpCheck {
     /// `Some(distance)`, m, when the two TCPs lie farther apart than the tolerance (or the
     /// distance is not a number).
     pub fn mismatch_m(&mut self, q_rad: &Joints, reported: &[f32; 6]) -> Option<f64> {
-        let gap = self.gap_m(q_rad, reported);
-        // A NaN gap is a mismatch too.
-        (gap.is_nan() || gap > self.max_gap_m).then_some(gap)
+        let gap_m = self.gap_m(q_rad, reported);
+        self.beyond_tolerance(gap_m).then_some(gap_m)
+    }
+
+    /// A NaN gap is a mismatch too.
+    fn beyond_tolerance(&self, gap_m: f64) -> bool {
+        gap_m.is_nan() || gap_m > self.max_gap_m
     }
 
     /// The start check: `Ok(distance)` within the tolerance, else the refusal naming both
@@ -94,16 +98,17 @@ impl TcpCheck {
     /// # Errors
     /// [`TcpMismatchError`].
     pub fn check(&mut self, q_rad: &Joints, reported: &[f32; 6]) -> Result<f64, TcpMismatchError> {
-        match self.mismatch_m(q_rad, reported) {
-            None => Ok(self.gap_m(q_rad, reported)),
-            Some(gap_m) => Err(TcpMismatchError {
-                q_rad: *q_rad,
-                twin_tcp_mm: self.twin_tcp_mm(q_rad),
-                reported_tcp_pose: *reported,
-                gap_mm: gap_m * 1e3,
-                tolerance_mm: self.max_gap_m * 1e3,
-            }),
+        let gap_m = self.gap_m(q_rad, reported);
+        if !self.beyond_tolerance(gap_m) {
+            return Ok(gap_m);
         }
+        Err(TcpMismatchError {
+            q_rad: *q_rad,
+            twin_tcp_mm: self.twin_tcp_mm(q_rad),
+            reported_tcp_pose: *reported,
+            gap_mm: gap_m * 1e3,
+            tolerance_mm: self.max_gap_m * 1e3,
+        })
     }
 }
 

@@ -24,7 +24,7 @@
 //! - a policy swapped in mid-episode.
 //!
 //! Frames go through the production intake ([`SceneIntake::accept`]) and then to the worker
-//! exactly as `TwinNode::receive` hands them on (`on_detection` / `on_refused_detection`).
+//! through the same hand-off as `TwinNode::receive` (`SceneIntake::deliver`).
 //!
 //! # What is counted
 //! Hard counts (must be zero): commanded poses that penetrate (nominal geometry, see the
@@ -1325,19 +1325,15 @@ impl<'a> Episode<'a> {
                 self.world[i].known_cycle = Some(c);
             }
         }
-        match self.intake.accept(&frame, mono_now, 1) {
-            Ok(a) => {
-                self.report.bump("frames_accepted");
-                self.worker
-                    .on_detection(a.scene, a.stamp_ns, a.goal_seen, &mut self.events);
-            }
-            Err(refusal) => {
-                self.report.bump(&format!(
-                    "frames_refused_{}",
-                    FrameRefusal::NAMES[refusal.index()]
-                ));
-                self.worker.on_refused_detection();
-            }
+        match self
+            .intake
+            .deliver(&frame, mono_now, 1, &mut self.worker, &mut self.events)
+        {
+            Ok(_) => self.report.bump("frames_accepted"),
+            Err(refusal) => self.report.bump(&format!(
+                "frames_refused_{}",
+                FrameRefusal::NAMES[refusal.index()]
+            )),
         }
     }
 

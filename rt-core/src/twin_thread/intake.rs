@@ -20,6 +20,8 @@ use shm_schemas::{DetectionFrame, ObjectClass, SchemaError};
 use twin::{BoxObstacle, Goal, Scene};
 
 use crate::config::IntakeConfig;
+use crate::cycle::shield::ShieldModel;
+use crate::twin_thread::{Lookahead, TwinEvent, TwinWorker};
 
 /// Grid every detected position and size is snapped to, m: sensor noise below it does not
 /// count as a scene change (a change re-runs the lookahead).
@@ -244,6 +246,33 @@ impl SceneIntake {
             Err(r) => self.counters.refused[r.index()] += 1,
         }
         result
+    }
+
+    /// Checks one frame (as [`SceneIntake::accept`]) and hands the outcome to the twin
+    /// worker: an accepted frame's scene ([`TwinWorker::on_detection`]), or the refusal
+    /// ([`TwinWorker::on_refused_detection`]: the cycle stops). The one hand-off of the
+    /// running process and of the adversarial sweep.
+    ///
+    /// # Errors
+    /// The [`FrameRefusal`] (already counted and handed on).
+    pub fn deliver<L, M>(
+        &mut self,
+        frame: &DetectionFrame,
+        mono_now_ns: u64,
+        publishers: usize,
+        twin: &mut TwinWorker<L, M>,
+        events: &mut Vec<TwinEvent<Scene>>,
+    ) -> Result<AcceptedFrame, FrameRefusal>
+    where
+        L: Lookahead<Scene = Scene>,
+        M: ShieldModel<Scene = Scene>,
+    {
+        let outcome = self.accept(frame, mono_now_ns, publishers);
+        match &outcome {
+            Ok(a) => twin.on_detection(a.scene, a.stamp_ns, a.goal_seen, events),
+            Err(_) => twin.on_refused_detection(),
+        }
+        outcome
     }
 
     fn check(

@@ -245,18 +245,15 @@ impl TwinNode {
             drop(sample);
             let publishers = self.det_service.dynamic_config().number_of_publishers();
             let mono_now_ns = rt_setup::monotonic_now_ns();
-            match self.intake.accept(&frame, mono_now_ns, publishers) {
-                Ok(accepted) => {
+            match self
+                .intake
+                .deliver(&frame, mono_now_ns, publishers, twin, events)
+            {
+                Ok(_) => {
                     self.refusals_in_a_row = 0;
                     self.scene_seq = frame.sequence;
                     self.detection_age
                         .record_ns(mono_now_ns.saturating_sub(frame.capture_time_ns));
-                    twin.on_detection(
-                        accepted.scene,
-                        accepted.stamp_ns,
-                        accepted.goal_seen,
-                        events,
-                    );
                 }
                 Err(refusal) => {
                     if self.refusals_in_a_row.is_multiple_of(100) {
@@ -268,7 +265,6 @@ impl TwinNode {
                         );
                     }
                     self.refusals_in_a_row += 1;
-                    twin.on_refused_detection();
                 }
             }
         }
