@@ -12,9 +12,10 @@ CHECKOUT_KEY := $(shell printf '%s' '$(CURDIR)' | sha1sum | cut -c1-12)
 CARGO_TARGET_DIR ?= $(FORESIGHT_CACHE)/target-$(CHECKOUT_KEY)
 export CARGO_TARGET_DIR FORESIGHT_CACHE
 
-# build/env.mk is written by scripts/setup.sh (LIBTORCH and the rpath for its libraries).
+# build/env.mk is written by scripts/setup.sh (LIBTORCH and the rpath for its libraries; the
+# ONNX Runtime library perception loads by default).
 -include build/env.mk
-export LIBTORCH FORESIGHT_TORCH_RPATH FORESIGHT_TORCH_CUDA
+export LIBTORCH FORESIGHT_TORCH_RPATH FORESIGHT_TORCH_CUDA FORESIGHT_ORT_DYLIB
 # torch-sys' own check reads torch's version through Python; setup.sh checks it instead.
 export LIBTORCH_BYPASS_VERSION_CHECK := 1
 

@@ -11,8 +11,12 @@
 #      TORCH_VARIANT=cpu (default): torch without its CUDA dependency wheels, plus the two
 #      small CUDA runtime wheels libtorch_cpu.so still needs (≈1.2 GB instead of ≈4.7 GB).
 #      TORCH_VARIANT=cuda: the full wheel with its CUDA libraries, for GPU training.
-#   3. build/env.mk: the LIBTORCH path that the Makefile exports to every cargo call, so
-#      that torch-sys is never rebuilt because a variable changed.
+#   3. ONNX Runtime for perception's YOLO detector: the PyPI `onnxruntime` wheel (its
+#      libonnxruntime.so, loaded at run time by the `ort` crate's load-dynamic; ort 2.0.0-rc.15
+#      needs ONNX Runtime >= 1.17), installed without dependencies into the same venv.
+#   4. build/env.mk: the LIBTORCH path and the ONNX Runtime library path that the Makefile
+#      exports to every cargo call (perception bakes the latter in as its default), so that
+#      nothing is rebuilt because a variable changed.
 #
 # Caches live outside the clone (FORESIGHT_CACHE, default ~/.cache/foresight) so that
 # repeated CI runs reuse them; nothing depends on them existing.
@@ -75,13 +79,31 @@ got=$(sed -n "s/^__version__ = '\(.*\)'/\1/p" "$torch_dir/version.py")
 # Directories holding the CUDA runtime libraries that libtorch_cpu.so needs at load time.
 nvidia_libs=$(find "$venv"/lib/python3*/site-packages/nvidia -maxdepth 3 -type d -name lib 2>/dev/null | sort | tr '\n' ':' | sed 's/:$//')
 
-# ---- 3. build/env.mk ---------------------------------------------------------------------------
+# ---- 3. ONNX Runtime ----------------------------------------------------------------------
+ort_version=1.31.1
+have_ort=$("$venv/bin/python" - <<'PY' 2>/dev/null || true
+import importlib.metadata as m
+try: print(m.version("onnxruntime"))
+except Exception: pass
+PY
+)
+if [ "$have_ort" != "$ort_version" ]; then
+  say "installing onnxruntime==$ort_version (its shared library, for perception's YOLO detector)"
+  "$venv/bin/python" -m pip install -q --no-deps "onnxruntime==$ort_version"
+else
+  say "onnxruntime $have_ort present"
+fi
+ort_lib=$(ls "$venv"/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.so.* 2>/dev/null | head -n1)
+[ -f "$ort_lib" ] || { echo "setup: the onnxruntime wheel has no capi/libonnxruntime.so.*" >&2; exit 1; }
+
+# ---- 4. build/env.mk ---------------------------------------------------------------------------
 mkdir -p "$here/build"
 cat > "$here/build/env.mk.tmp" <<MK
 # Written by scripts/setup.sh; do not edit.
 FORESIGHT_VENV := $venv
 LIBTORCH := $torch_dir
 FORESIGHT_TORCH_RPATH := $torch_dir/lib:$nvidia_libs
+FORESIGHT_ORT_DYLIB := $ort_lib
 MK
 mv "$here/build/env.mk.tmp" "$here/build/env.mk"
-say "ready (LIBTORCH=$torch_dir)"
+say "ready (LIBTORCH=$torch_dir, ONNX Runtime $ort_lib)"

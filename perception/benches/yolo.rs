@@ -1,8 +1,13 @@
-//! YOLOv8n 640×640 through OpenCV DNN (CPU, OpenCV's default threads — this machine has
-//! two cores): letterbox, inference, decoding and NMS of a 1280×720 frame. The model is a
-//! stock ultralytics export with random weights made by tests/python/make_onnx_yolov8n_stock.py
-//! (set FORESIGHT_YOLO_MODEL to use another one; the bench provisions the Python tools with
-//! scripts/perception-pyenv.sh --ultralytics when it has to build the model).
+//! YOLOv8n on this machine's CPU: letterbox, inference, decoding and NMS of a 1280×720
+//! synthetic frame, through ONNX Runtime (at 640 and 320) and OpenCV DNN (at 640), each with
+//! the threads the process may use; and the full frame → published `DetectionFrame` path
+//! (detector + 3D measurement from depth + tracker + iceoryx2 publish) with YOLO at 640.
+//!
+//! The models are stock Ultralytics exports with random weights made by
+//! tests/python/make_onnx_ultralytics.py (inference time does not depend on the weights);
+//! set FORESIGHT_YOLO_MODEL (640) / FORESIGHT_YOLO_MODEL_320 to use others. The bench
+//! provisions the Python tools with scripts/perception-pyenv.sh --ultralytics when it has to
+//! build a model.
 //!
 //! `scripts/cargo.sh bench -p perception --bench yolo`
 
@@ -10,20 +15,24 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use perception::calibration::{Calibration, CalibrationFile};
 use perception::frame::Frame;
+use perception::pipeline::{Detector, Pipeline};
+use perception::publisher::DetectionPublisher;
 use perception::synthetic::SyntheticCamera;
-use perception::yolo::{YoloConfig, YoloDetector};
+use perception::tracker::{Tracker, TrackerConfig};
+use perception::yolo::{BackendChoice, YoloConfig, YoloDetector, default_threads};
 use shm_schemas::scene_file::SceneFile;
 
-fn model() -> PathBuf {
-    if let Ok(p) = std::env::var("FORESIGHT_YOLO_MODEL") {
+fn model(imgsz: u32, env: &str) -> PathBuf {
+    if let Ok(p) = std::env::var(env) {
         return p.into();
     }
     let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let cache = std::env::var("FORESIGHT_CACHE")
         .map(PathBuf::from)
         .unwrap_or_else(|_| std::env::temp_dir());
-    let out = cache.join("yolov8n-random-2cls.onnx");
+    let out = cache.join(format!("yolov8n-random-2cls-{imgsz}.onnx"));
     if !out.is_file() {
         let py = Command::new("bash")
             .arg(repo.join("scripts/perception-pyenv.sh"))
@@ -43,8 +52,10 @@ fn model() -> PathBuf {
             .to_string();
         let st = Command::new(python)
             .env("YOLO_OFFLINE", "1")
-            .arg(repo.join("tests/python/make_onnx_yolov8n_stock.py"))
+            .env("YOLO_CONFIG_DIR", std::env::temp_dir())
+            .arg(repo.join("tests/python/make_onnx_ultralytics.py"))
             .arg(&out)
+            .args(["--arch", "yolov8n", "--imgsz", &imgsz.to_string()])
             .status()
             .unwrap();
         assert!(st.success());
@@ -52,13 +63,21 @@ fn model() -> PathBuf {
     out
 }
 
+fn load(model: &Path, backend: BackendChoice) -> YoloDetector {
+    YoloDetector::load(
+        model,
+        None,
+        YoloConfig {
+            backend,
+            ..YoloConfig::default()
+        },
+    )
+    .unwrap()
+}
+
 fn bench(c: &mut Criterion) {
-    let model = model();
-    let dir = std::env::temp_dir().join(format!("foresight-yolo-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("labels.txt"), "goal\nobstacle\n").unwrap();
-    let mut det =
-        YoloDetector::load(&model, &dir.join("labels.txt"), YoloConfig::default()).unwrap();
+    let m640 = model(640, "FORESIGHT_YOLO_MODEL");
+    let m320 = model(320, "FORESIGHT_YOLO_MODEL_320");
     let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/perception");
     let cam = SyntheticCamera::load(&assets.join("synthetic_camera.toml")).unwrap();
     let scene = SceneFile::from_toml_str(
@@ -67,21 +86,50 @@ fn bench(c: &mut Criterion) {
     )
     .unwrap();
     let frame = Frame::from_rendered(&cam.render(&scene), 1, 0).unwrap();
-    let mut g = c.benchmark_group("yolov8n_640");
-    g.sample_size(20);
+    let threads = default_threads();
+    let mut g = c.benchmark_group("yolov8n_1280x720");
+    g.sample_size(30);
+    let mut ort640 = load(&m640, BackendChoice::Ort);
+    g.bench_function(format!("ort_640_{threads}_threads"), |b| {
+        b.iter(|| ort640.detect(std::hint::black_box(&frame), None).unwrap())
+    });
+    let mut ort320 = load(&m320, BackendChoice::Ort);
+    g.bench_function(format!("ort_320_{threads}_threads"), |b| {
+        b.iter(|| ort320.detect(std::hint::black_box(&frame), None).unwrap())
+    });
+    g.sample_size(10);
+    let mut cv640 = load(&m640, BackendChoice::OpenCv);
     g.bench_function(
         format!(
-            "opencv_dnn_{}_threads",
+            "opencv_dnn_640_{}_threads",
             opencv::core::get_num_threads().unwrap()
         ),
-        |b| b.iter(|| det.detect(std::hint::black_box(&frame), None).unwrap()),
+        |b| b.iter(|| cv640.detect(std::hint::black_box(&frame), None).unwrap()),
     );
-    opencv::core::set_num_threads(1).unwrap();
-    g.bench_function("opencv_dnn_1_thread", |b| {
-        b.iter(|| det.detect(std::hint::black_box(&frame), None).unwrap())
+    g.finish();
+
+    // Frame → published DetectionFrame with YOLO (ONNX Runtime, 640) as the detector.
+    let calibration = Calibration::new(CalibrationFile {
+        intrinsics: cam.config.intrinsics,
+        workspace: cam.workspace_for(&scene),
+        corners_px: cam.workspace_corners_px(&scene).unwrap(),
+        rectified_px_per_m: 1000.0,
+    })
+    .unwrap();
+    let prefix = format!("benchyolo{}", std::process::id());
+    let mut pipeline = Pipeline {
+        detector: Detector::Yolo(Box::new(ort640)),
+        calibration,
+        selection: perception::selection::SelectionConfig::default(),
+        tracker: Tracker::new(TrackerConfig::default()).unwrap(),
+        publisher: DetectionPublisher::open(&prefix, 0).unwrap(),
+    };
+    let mut g = c.benchmark_group("yolo_path_1280x720");
+    g.sample_size(30);
+    g.bench_function("ort_640_frame_to_published_detection_frame", |b| {
+        b.iter(|| pipeline.process(std::hint::black_box(&frame)).unwrap())
     });
     g.finish();
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 criterion_group!(benches, bench);

@@ -5,8 +5,9 @@
 //! source → Frame (BGR + depth m) → detector (colour | YOLOv8) → measure → tracker → publisher
 //! ```
 //!
-//! Where to start reading: [`pipeline`] (one frame end to end, and the paced loop of
-//! `perception run`), then [`color_detector`] and [`calibration`]. The binary
+//! Where to start reading: [`pipeline`] (one frame end to end, and the loop of
+//! `perception run`: a capture thread paced at the frame rate, [`handoff`] to the detector),
+//! then [`color_detector`] and [`calibration`]. The binary
 //! (`src/main.rs`, one file per subcommand under `src/cli/`) only parses arguments and wires
 //! these modules together.
 //!
@@ -19,7 +20,8 @@
 //!   camera pose, TOML save/load).
 //! - Detection: [`color_detector`] (per-class HSV thresholds + depth); [`runs`] (run-based
 //!   connected components); [`measure`] (a blob with depth → position, footprint, height);
-//!   [`yolo`] and [`onnx_patch`] (YOLOv8 ONNX through OpenCV 4.6 DNN); [`detection`] (the
+//!   [`yolo`] (YOLOv8 / YOLO11 / NMS-free ONNX exports on ONNX Runtime or OpenCV DNN) and
+//!   [`onnx_patch`] (model metadata; the OpenCV 4.6 patch); [`detection`] (the
 //!   [`detection::Detection`] every detector returns).
 //! - Out: [`selection`] (confidence floors, the one goal, nearest obstacles first);
 //!   [`tracker`] (stable ids, debouncing); [`publisher`] (`DetectionFrame`s over iceoryx2,
@@ -51,6 +53,7 @@ pub mod color_detector;
 pub mod detection;
 pub mod frame;
 pub mod geometry;
+pub mod handoff;
 pub mod log_limit;
 pub mod measure;
 pub mod onnx_patch;

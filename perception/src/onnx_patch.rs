@@ -507,6 +507,108 @@ pub fn patch_for_opencv(model: &[u8]) -> Result<PatchedModel, OnnxPatchError> {
     })
 }
 
+/// What a loader needs to know about a model before running it, read from the protobuf
+/// (the same for every backend): the first graph input's shape and the free-form metadata
+/// (`metadata_props`; Ultralytics writes `names`, `imgsz`, `stride`, `task`, `args`, …).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ModelInfo {
+    /// Name of the first graph input that is not an initializer.
+    pub input_name: String,
+    /// Its dimensions; `None` for a symbolic (dynamic) dimension.
+    pub input_dims: Vec<Option<i64>>,
+    /// `metadata_props` as (key, value) pairs, in file order.
+    pub metadata: Vec<(String, String)>,
+}
+
+impl ModelInfo {
+    /// The metadata value of `key`.
+    pub fn metadata(&self, key: &str) -> Option<&str> {
+        self.metadata
+            .iter()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v.as_str())
+    }
+
+    /// The square input size of an NCHW image input `[1, 3, S, S]` with static H = W.
+    pub fn square_input_px(&self) -> Option<i64> {
+        match self.input_dims.as_slice() {
+            [_, Some(3), Some(h), Some(w)] if h == w && *h > 0 => Some(*h),
+            _ => None,
+        }
+    }
+}
+
+/// Reads [`ModelInfo`] from ONNX bytes.
+///
+/// # Errors
+/// [`OnnxPatchError`] for bytes that are not an ONNX model.
+pub fn model_info(model: &[u8]) -> Result<ModelInfo, OnnxPatchError> {
+    let fields = parse(model)?;
+    let mut info = ModelInfo::default();
+    for f in &fields {
+        // ModelProto.metadata_props = 14: StringStringEntryProto { key = 1, value = 2 }
+        if f.num == 14
+            && let Some(b) = bytes_of(f)
+        {
+            let kv = parse(b)?;
+            let get = |n: u32| kv.iter().find(|x| x.num == n).map(string_of);
+            if let Some(k) = get(1) {
+                info.metadata.push((k, get(2).unwrap_or_default()));
+            }
+        }
+    }
+    let graph = fields
+        .iter()
+        .find(|f| f.num == 7)
+        .and_then(bytes_of)
+        .ok_or(OnnxPatchError::NoGraph)?;
+    let gf = parse(graph)?;
+    let initializers: Vec<String> = gf
+        .iter()
+        .filter(|f| f.num == 5)
+        .filter_map(bytes_of)
+        .filter_map(|b| parse(b).ok()?.iter().find(|x| x.num == 8).map(string_of))
+        .collect();
+    // GraphProto.input = 11: ValueInfoProto { name = 1, type = 2 }
+    for f in gf.iter().filter(|f| f.num == 11) {
+        let Some(vi) = bytes_of(f) else { continue };
+        let vf = parse(vi)?;
+        let name = vf
+            .iter()
+            .find(|x| x.num == 1)
+            .map(string_of)
+            .unwrap_or_default();
+        if initializers.contains(&name) {
+            continue;
+        }
+        info.input_name = name;
+        // TypeProto.tensor_type = 1 → Tensor { elem_type = 1, shape = 2 }
+        // → TensorShapeProto { dim = 1 } → Dimension { dim_value = 1, dim_param = 2 }
+        let shape = vf
+            .iter()
+            .find(|x| x.num == 2)
+            .and_then(bytes_of)
+            .map(parse)
+            .transpose()?
+            .and_then(|t| t.iter().find(|x| x.num == 1).and_then(bytes_of))
+            .map(parse)
+            .transpose()?
+            .and_then(|t| t.iter().find(|x| x.num == 2).and_then(bytes_of));
+        if let Some(shape) = shape {
+            for d in parse(shape)?.iter().filter(|x| x.num == 1) {
+                let dim = bytes_of(d).map(parse).transpose()?.unwrap_or_default();
+                info.input_dims
+                    .push(dim.iter().find_map(|x| match (x.num, x.value) {
+                        (1, Value::Varint(v)) => Some(v as i64),
+                        _ => None,
+                    }));
+            }
+        }
+        break;
+    }
+    Ok(info)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -21,7 +21,7 @@ use perception::selection::SelectionConfig;
 use perception::source::{FileSource, FrameSource, SourceSpec, SyntheticSource};
 use perception::tracker::{Tracker, TrackerConfig};
 
-use super::shared::{asset, load_detector, synthetic_calibration};
+use super::shared::{YoloArgs, asset, load_detector, synthetic_calibration};
 
 /// `perception run`
 #[derive(Debug, Args)]
@@ -51,12 +51,9 @@ pub struct RunArgs {
     /// Colour detector configuration.
     #[arg(long)]
     detector: Option<PathBuf>,
-    /// YOLOv8 ONNX model (else the colour detector).
-    #[arg(long, requires = "labels")]
-    model: Option<PathBuf>,
-    /// Labels file of the model.
-    #[arg(long)]
-    labels: Option<PathBuf>,
+    /// The YOLO model and engine (else the colour detector).
+    #[command(flatten)]
+    yolo: YoloArgs,
     /// Frames a change must persist before it is published.
     #[arg(long, default_value_t = 3)]
     persist_frames: u32,
@@ -98,11 +95,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         bail!("--rate {rate}: must be in (0, 1000] Hz");
     }
     let selection = selection(&args)?;
-    let detector = load_detector(
-        args.detector.as_deref(),
-        args.model.as_deref(),
-        args.labels.as_deref(),
-    )?;
+    let detector = load_detector(args.detector.as_deref(), &args.yolo)?;
     let (mut src, default_cal) = open_source(&args)?;
     let calibration = calibration(&args, default_cal)?;
     tracing::info!(

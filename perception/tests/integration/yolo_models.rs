@@ -13,7 +13,7 @@ use opencv::core::{Mat, Scalar};
 use opencv::prelude::*;
 use perception::detection::ObjectKind;
 use perception::frame::Frame;
-use perception::yolo::{YoloConfig, YoloDetector, YoloLoadError};
+use perception::yolo::{BackendChoice, OutputLayout, YoloConfig, YoloDetector, YoloLoadError};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -41,6 +41,17 @@ fn tmpdir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("foresight-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
     d
+}
+
+fn on(backend: BackendChoice) -> YoloConfig {
+    YoloConfig {
+        backend,
+        ..YoloConfig::default()
+    }
+}
+
+fn opencv() -> YoloConfig {
+    on(BackendChoice::OpenCv)
 }
 
 fn labels(dir: &Path) -> PathBuf {
@@ -139,7 +150,7 @@ fn toy_model_decodes_to_the_expected_boxes() {
         }
     );
 
-    let mut det = YoloDetector::load(&model, &labels(&dir), YoloConfig::default()).unwrap();
+    let mut det = YoloDetector::load(&model, Some(&labels(&dir)), opencv()).unwrap();
     assert_eq!(det.rewritten_nodes, vec!["/model.22/Mul_2".to_string()]);
     let frame = Frame {
         sequence: 1,
@@ -176,7 +187,7 @@ fn toy_model_decodes_to_the_expected_boxes() {
     }
 
     // A missing model file and a labels file that disagrees with the model are clear errors.
-    let missing = YoloDetector::load(&dir.join("nope.onnx"), &labels(&dir), YoloConfig::default())
+    let missing = YoloDetector::load(&dir.join("nope.onnx"), Some(&labels(&dir)), opencv())
         .err()
         .unwrap();
     assert!(
@@ -184,12 +195,12 @@ fn toy_model_decodes_to_the_expected_boxes() {
         "{missing}"
     );
     std::fs::write(dir.join("three.txt"), "goal\nobstacle\nhand: ignore\n").unwrap();
-    let mismatch = YoloDetector::load(&model, &dir.join("three.txt"), YoloConfig::default())
+    let mismatch = YoloDetector::load(&model, Some(&dir.join("three.txt")), opencv())
         .err()
         .unwrap();
     assert!(mismatch.to_string().contains("3 classes"), "{mismatch}");
     std::fs::write(dir.join("bad.onnx"), b"\x0a\xff\xff\xff").unwrap();
-    let bad = YoloDetector::load(&dir.join("bad.onnx"), &labels(&dir), YoloConfig::default())
+    let bad = YoloDetector::load(&dir.join("bad.onnx"), Some(&labels(&dir)), opencv())
         .err()
         .unwrap();
     assert!(bad.to_string().contains("bad.onnx"), "{bad}");
@@ -216,10 +227,11 @@ fn stock_yolov8n_export_runs_and_matches_pytorch() {
     let out = Command::new(&py)
         .env("YOLO_OFFLINE", "1")
         .env("YOLO_CONFIG_DIR", &dir)
-        .arg(repo().join("tests/python/make_onnx_yolov8n_stock.py"))
+        .arg(repo().join("tests/python/make_onnx_ultralytics.py"))
         .arg(&model)
-        .arg("640")
+        .args(["--arch", "yolov8n", "--imgsz", "640", "--input"])
         .arg(dir.join("input.f32"))
+        .arg("--output")
         .arg(dir.join("torch.f32"))
         .output()
         .unwrap();
@@ -252,14 +264,15 @@ fn stock_yolov8n_export_runs_and_matches_pytorch() {
         }
     );
 
-    let mut det = YoloDetector::load(&model, &labels(&dir), YoloConfig::default()).unwrap();
+    let mut det = YoloDetector::load(&model, Some(&labels(&dir)), opencv()).unwrap();
     assert_eq!(
         det.rewritten_nodes.len(),
         1,
         "the strides Mul should have been rewritten"
     );
-    let (c, anchors, got) = det.forward_blob(&blob).unwrap();
-    assert_eq!((c, anchors), (6, 8400));
+    let (dims, got) = det.forward_blob(&blob).unwrap();
+    assert_eq!(dims, [1, 6, 8400]);
+    let anchors = 8400;
     let want: Vec<f32> = std::fs::read(dir.join("torch.f32"))
         .unwrap()
         .chunks_exact(4)
@@ -282,5 +295,257 @@ fn stock_yolov8n_export_runs_and_matches_pytorch() {
     let frame = Frame::from_rendered(&cam.render(&scene), 1, 0).unwrap();
     let cal = crate::common::exact_calibration(&cam, &scene);
     det.detect(&frame, Some(&cal)).unwrap();
+
+    // ONNX Runtime runs the same stock file unpatched, with its class names from the
+    // model's metadata (no labels file), and agrees with PyTorch too.
+    let mut ort = YoloDetector::load(&model, None, on(BackendChoice::Ort)).unwrap();
+    assert_eq!(ort.backend_name(), "ort");
+    assert!(ort.rewritten_nodes.is_empty());
+    assert_eq!(ort.input_px(), 640);
+    let (dims, got) = ort.forward_blob(&blob).unwrap();
+    assert_eq!(dims, [1, 6, 8400]);
+    let (max_box, max_cls) = max_diff(&got, &want, 4 * anchors);
+    eprintln!("ONNX Runtime vs PyTorch: max |Δ| boxes {max_box:.2e} px, scores {max_cls:.2e}");
+    assert!(max_box < 0.05, "boxes differ by up to {max_box} px");
+    assert!(max_cls < 1e-3, "scores differ by up to {max_cls}");
+    ort.detect(&frame, Some(&cal)).unwrap();
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Max |Δ| over the first `split` values (boxes) and the rest (scores).
+fn max_diff(got: &[f32], want: &[f32], split: usize) -> (f32, f32) {
+    assert_eq!(got.len(), want.len());
+    let m = |r: std::ops::Range<usize>| r.map(|i| (got[i] - want[i]).abs()).fold(0.0f32, f32::max);
+    (m(0..split), m(split..got.len()))
+}
+
+/// A deterministic pseudo-random `[1, 3, s, s]` input blob, and its raw bytes.
+fn random_blob(s: i32) -> (Mat, Vec<u8>) {
+    let n = (3 * s * s) as usize;
+    let mut state = 777u32;
+    let input: Vec<f32> = (0..n)
+        .map(|_| {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (state >> 8) as f32 / (1u32 << 24) as f32
+        })
+        .collect();
+    let bytes = input.iter().flat_map(|v| v.to_le_bytes()).collect();
+    let blob = Mat::new_nd_with_data::<f32>(&[1, 3, s, s], &input)
+        .unwrap()
+        .try_clone()
+        .unwrap();
+    (blob, bytes)
+}
+
+/// Exports `arch` at `imgsz` (random weights, 2 classes) and PyTorch's output for a random
+/// blob; returns (model, blob, PyTorch's output).
+fn export(
+    py: &Path,
+    dir: &Path,
+    arch: &str,
+    imgsz: i32,
+    extra: &[&str],
+) -> (PathBuf, Mat, Vec<f32>) {
+    let (blob, bytes) = random_blob(imgsz);
+    std::fs::write(dir.join("input.f32"), bytes).unwrap();
+    let model = dir.join(format!("{arch}-{imgsz}{}.onnx", extra.join("")));
+    let out = Command::new(py)
+        .env("YOLO_OFFLINE", "1")
+        .env("YOLO_CONFIG_DIR", dir)
+        .arg(repo().join("tests/python/make_onnx_ultralytics.py"))
+        .arg(&model)
+        .args(["--arch", arch, "--imgsz", &imgsz.to_string()])
+        .args(extra)
+        .arg("--input")
+        .arg(dir.join("input.f32"))
+        .arg("--output")
+        .arg(dir.join("torch.f32"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "export of {arch} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let want = std::fs::read(dir.join("torch.f32"))
+        .unwrap()
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    (model, blob, want)
+}
+
+/// Stock YOLO11n (320) and the NMS-free exports (YOLOv10n's end-to-end head, and YOLOv8n
+/// exported with `nms=True`) load on ONNX Runtime without patching or labels file: the input
+/// size comes from the model, the layout is identified from the output shape, the output
+/// equals PyTorch's, and the detector runs on a camera frame.
+#[test]
+fn yolo11_and_nms_free_exports_load_on_onnx_runtime() {
+    let dir = tmpdir("yolo-exports");
+    let py = python(true);
+    let cam = crate::common::camera();
+    let scene = crate::common::random_scene(&cam, &mut crate::common::rng(5));
+    let frame = Frame::from_rendered(&cam.render(&scene), 1, 0).unwrap();
+    let cal = crate::common::exact_calibration(&cam, &scene);
+    for (arch, extra, layout) in [
+        (
+            "yolo11n",
+            &[][..],
+            OutputLayout::Anchors {
+                channels: 6,
+                anchors: 2100,
+            },
+        ),
+        ("yolov10n", &[][..], OutputLayout::EndToEnd { rows: 300 }),
+        (
+            "yolov8n",
+            &["--nms"][..],
+            OutputLayout::EndToEnd { rows: 300 },
+        ),
+    ] {
+        let (model, blob, want) = export(&py, &dir, arch, 320, extra);
+        let mut det = YoloDetector::load(&model, None, on(BackendChoice::Ort))
+            .unwrap_or_else(|e| panic!("{arch} {extra:?}: {e}"));
+        assert_eq!(det.input_px(), 320, "{arch}");
+        assert_eq!(det.layout(), layout, "{arch} {extra:?}");
+        assert_eq!(det.classes().len(), 2);
+        let (dims, got) = det.forward_blob(&blob).unwrap();
+        assert_eq!(dims.iter().product::<i64>() as usize, layout.len());
+        match layout {
+            OutputLayout::Anchors { anchors, .. } => {
+                let (b, c) = max_diff(&got, &want, 4 * anchors);
+                eprintln!(
+                    "{arch}: ONNX Runtime vs PyTorch max |Δ| boxes {b:.2e} px, scores {c:.2e}"
+                );
+                assert!(b < 0.05 && c < 1e-3, "{arch}: {b} {c}");
+            }
+            OutputLayout::EndToEnd { .. } => {
+                if want.len() != got.len() {
+                    // `export(nms=True)` adds the NMS at export; PyTorch's forward has none.
+                    eprintln!("{arch} {extra:?}: NMS added at export, no PyTorch reference");
+                } else {
+                    // Random weights score every anchor almost alike, so the order of rows
+                    // (and which anchors make the top 300) differs at ties: compare as sets.
+                    let rows = |v: &[f32]| -> Vec<[f32; 6]> {
+                        v.chunks_exact(6)
+                            .map(|r| [r[0], r[1], r[2], r[3], r[4], r[5]])
+                            .collect()
+                    };
+                    let (g, w) = (rows(&got), rows(&want));
+                    let matched = g
+                        .iter()
+                        .filter(|a| {
+                            w.iter().any(|b| {
+                                (0..4).all(|k| (a[k] - b[k]).abs() < 0.05)
+                                    && (a[4] - b[4]).abs() < 1e-4
+                                    && a[5] == b[5]
+                            })
+                        })
+                        .count();
+                    // Only a diagnostic: the exact comparison of an end-to-end export is the
+                    // trained model's (`trained_model_boxes_match_ultralytics`).
+                    eprintln!("{arch}: {matched} of {} rows equal PyTorch's", g.len());
+                }
+                // Either way: well-formed rows, best first.
+                for r in got.chunks_exact(6) {
+                    assert!(r.iter().all(|v| v.is_finite()), "{arch}: {r:?}");
+                    assert!((0.0..=1.0).contains(&r[4]), "{arch}: score {r:?}");
+                    assert!(r[5] == 0.0 || r[5] == 1.0, "{arch}: class {r:?}");
+                }
+                assert!(
+                    got.chunks_exact(6)
+                        .zip(got.chunks_exact(6).skip(1))
+                        .all(|(a, b)| a[4] >= b[4]),
+                    "{arch}: rows not sorted by score"
+                );
+            }
+        }
+        det.detect(&frame, Some(&cal)).unwrap();
+        // OpenCV 4.6 either runs it with the same layout or refuses it with its reason.
+        match YoloDetector::load(&model, None, opencv()) {
+            Ok(cv) => assert_eq!(cv.layout(), layout),
+            Err(e) => {
+                eprintln!("{arch} {extra:?} on OpenCV 4.6: {e}");
+                assert!(e.to_string().contains("OpenCV DNN"), "{e}");
+            }
+        }
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Our letterbox, decode, NMS and mapping back to image pixels against Ultralytics' own
+/// prediction (its letterbox, ONNX Runtime run, decode and NMS) of the project's trained
+/// models — the stock `[1, 6, N]` export and the end-to-end `[1, N, 6]` one — on synthetic
+/// 1280×720 frames: the same objects, classes, scores within 1e-3 and boxes within 1 px.
+#[test]
+fn trained_model_boxes_match_ultralytics() {
+    let dir = tmpdir("yolo-reference");
+    let py = python(true);
+    let cam = crate::common::camera();
+    let models = crate::common::assets().join("models");
+    for name in ["foresight-tiny-320.onnx", "foresight-tiny-320-e2e.onnx"] {
+        let model = models.join(name);
+        if name.contains("e2e") && !model.is_file() {
+            eprintln!("{name}: not bundled, skipped");
+            continue;
+        }
+        let mut det = YoloDetector::load(&model, None, on(BackendChoice::Ort)).unwrap();
+        let mut compared = 0;
+        for seed in 0..5 {
+            let scene = crate::common::random_scene(&cam, &mut crate::common::rng(100 + seed));
+            let frame = Frame::from_rendered(&cam.render(&scene), 1, 0).unwrap();
+            let image = dir.join(format!("frame{seed}.png"));
+            opencv::imgcodecs::imwrite(
+                image.to_str().unwrap(),
+                &frame.bgr,
+                &opencv::core::Vector::new(),
+            )
+            .unwrap();
+            let json = dir.join("reference.json");
+            let out = Command::new(&py)
+                .env("YOLO_CONFIG_DIR", &dir)
+                .arg(repo().join("tests/python/ultralytics_predict.py"))
+                .arg(&model)
+                .arg(&image)
+                .arg(&json)
+                .output()
+                .unwrap();
+            assert!(
+                out.status.success(),
+                "reference prediction failed: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let reference: Vec<serde_json::Value> =
+                serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+            let mut ours = det.boxes(&frame.bgr).unwrap();
+            ours.sort_by(|a, b| b.score.total_cmp(&a.score));
+            assert_eq!(
+                ours.len(),
+                reference.len(),
+                "{name}, scene {seed}: ours {ours:?} vs Ultralytics {reference:?}"
+            );
+            for (o, r) in ours.iter().zip(&reference) {
+                assert_eq!(
+                    o.class as u64,
+                    r["class"].as_u64().unwrap(),
+                    "{name}: {o:?} vs {r}"
+                );
+                assert!(
+                    (f64::from(o.score) - r["score"].as_f64().unwrap()).abs() < 1e-3,
+                    "{name}: {o:?} vs {r}"
+                );
+                for k in 0..4 {
+                    let want = r["xyxy"][k].as_f64().unwrap();
+                    assert!(
+                        (f64::from(o.xyxy[k]) - want).abs() <= 1.0,
+                        "{name}, scene {seed}: {o:?} vs {r}"
+                    );
+                }
+                compared += 1;
+            }
+        }
+        eprintln!("{name}: {compared} boxes equal Ultralytics' within 1 px");
+        assert!(compared >= 10, "{name}: only {compared} boxes compared");
+    }
     std::fs::remove_dir_all(&dir).ok();
 }
