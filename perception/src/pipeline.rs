@@ -1,13 +1,26 @@
 //! The perception pipeline: frame → detector → confidence floors → tracker → published
-//! `DetectionFrame`, and the paced loop `perception run` drives. A bad frame is logged and
-//! skipped; the loop keeps serving the next ones.
+//! `DetectionFrame`, and the loop `perception run` drives ([`run`]). A bad frame is logged
+//! and skipped; the loop keeps serving the next ones.
+//!
+//! The detector is off the capture path: a capture thread takes frames from the source at
+//! the frame rate and hands them to the detector through a one-frame hand-off
+//! ([`crate::handoff`]). A YOLO detector (30–120 ms a frame) is slower than a 60 Hz camera;
+//! for a live source the oldest waiting frame is then dropped, so the detector always works
+//! on the newest frame and the published scene lags the world by one detection, not by a
+//! growing backlog. A finite source (files, `--fixed-step`) is played losslessly: its capture
+//! waits for the detector ([`crate::source::WhenBusy`]).
 //!
 //! What the loop counts ([`RunStats`], printed as JSON by `perception run` at the end):
-//! frames published with objects left out (`truncated_frames`, `dropped_objects`: the frame
-//! carries `dropped_count`, so rt-core refuses it and stops), images refused for their stamp
-//! (`bad_stamps`), detections below the confidence floors (`goals_demoted`,
-//! `low_confidence_dropped`) and goal tracks beyond the one goal (`extra_goals`). Repeated
-//! warnings (truncation, refused stamps) are rate-limited ([`crate::log_limit`]).
+//! frames taken from the source (`frames`) and published (`published`), frames the source
+//! could not deliver (`bad_frames`) or the detector/publisher failed on (`failed`), images
+//! refused for their stamp (`bad_stamps`), frames published with objects left out
+//! (`truncated_frames`, `dropped_objects`: the frame carries `dropped_count`, so rt-core
+//! refuses it and stops), detections below the confidence floors (`goals_demoted`,
+//! `low_confidence_dropped`), goal tracks beyond the one goal (`extra_goals`) and good
+//! frames dropped unseen because a newer one arrived while the detector was busy
+//! (`frames_dropped_behind_detector`, live sources only). Repeated warnings (truncation,
+//! refused stamps) are rate-limited ([`crate::log_limit`]); dropped frames are reported in an
+//! info line at most every 10 s.
 
 use std::time::{Duration, Instant};
 
@@ -18,6 +31,7 @@ use crate::calibration::Calibration;
 use crate::color_detector::{ColourDetector, DetectError};
 use crate::detection::Detection;
 use crate::frame::Frame;
+use crate::handoff::{ConsumerGuard, Handoff, Popped, ProducerGuard};
 use crate::log_limit::LogLimiter;
 use crate::publisher::{DetectionPublisher, PublishError};
 use crate::selection::{FloorTally, SelectionConfig, apply_confidence_floors};
@@ -111,7 +125,9 @@ impl Pipeline {
 /// Counters of a run.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
 pub struct RunStats {
-    /// Frames taken from the source (good or bad).
+    /// Frames taken from the source (good or bad; the call that finds a finite source's
+    /// end included). Every good frame is published, failed or dropped behind the
+    /// detector; only a `stop()` may leave one waiting frame unprocessed.
     pub frames: u64,
     /// Frames published.
     pub published: u64,
@@ -132,6 +148,10 @@ pub struct RunStats {
     pub low_confidence_dropped: u64,
     /// Goal tracks beyond the one goal a frame carries, per frame, summed.
     pub extra_goals: u64,
+    /// Good frames never detected because a newer one arrived while they waited for the
+    /// busy detector (live sources only: the oldest waiting frame is dropped, the detector
+    /// works on the newest). 0 for finite sources, whose capture waits instead.
+    pub frames_dropped_behind_detector: u64,
 }
 
 impl RunStats {
@@ -151,34 +171,124 @@ impl RunStats {
 /// How often a repeated warning is logged.
 const WARN_INTERVAL: Duration = Duration::from_secs(5);
 
-/// Runs the pipeline at `rate_hz` until the source ends, `max_frames` frames were taken,
-/// or `stop()` returns true.
+/// How often the frames dropped behind the detector are reported (an info line: a detector
+/// slower than the camera drops frames all the time, by design).
+const DROP_LOG_INTERVAL: Duration = Duration::from_secs(10);
+
+/// Frames the hand-off holds: one, the newest (or, for a finite source, the next).
+const HANDOFF_CAPACITY: usize = 1;
+
+/// How long the detector side waits for a frame before it looks at `stop()` again.
+const POLL: Duration = Duration::from_millis(20);
+
+/// Failures of the source in a row that end the run.
+const MAX_FAILURES_IN_ROW: u32 = 10;
+
+/// What the capture thread counts.
+#[derive(Debug, Default)]
+struct CaptureCounts {
+    frames: u64,
+    bad_frames: u64,
+    bad_stamps: u64,
+}
+
+/// Runs the pipeline until the source ends, `max_frames` frames were taken, or `stop()`
+/// returns true.
+///
+/// Frames are taken from `source` by a capture thread of their own, paced at `rate_hz`, and
+/// handed to the detector (this thread) through a one-frame hand-off ([`crate::handoff`]);
+/// the source's [`when_busy`](FrameSource::when_busy) decides what a full hand-off does:
+/// - a live source (`DropOldest`: ROS 2, the synthetic camera on wall-clock time) never
+///   waits for the detector: a frame arriving while the previous one still waits replaces
+///   it, the replaced one is counted in [`RunStats::frames_dropped_behind_detector`], and
+///   the detector always starts on the newest frame there is;
+/// - a finite source (`Wait`: files, a folder, a video, `--fixed-step`) makes the capture
+///   wait instead, so every frame is processed (a slow detector makes the run longer, as a
+///   single loop would). Dropping there would lose frames of a recording or of a
+///   deterministic replay for nothing: nobody waits on them in real time.
+///
+/// The published frame carries the capture stamp of the frame that was detected. The
+/// publisher, tracker and detector stay on the calling thread (iceoryx2's `ipc` publishers
+/// are not `Send`); only the source moves. When this side stops (`max_frames`, `stop()`,
+/// the source's end or failure) the capture thread is told, ends and is joined before
+/// `run` returns (a source blocked in `next_frame` ends at its own time-out).
 ///
 /// # Errors
-/// Only when the source fails for good ([`SourceError::Failed`] ten times in a row).
+/// Only when the source fails for good ([`SourceError::Failed`] ten times in a row); the
+/// frames captured before are still processed.
 pub fn run(
     source: &mut dyn FrameSource,
     pipeline: &mut Pipeline,
     rate_hz: f64,
     max_frames: Option<u64>,
-    stop: &dyn Fn() -> bool,
+    stop: &(dyn Fn() -> bool + Sync),
 ) -> Result<RunStats, SourceError> {
-    let period = Duration::from_secs_f64(1.0 / rate_hz.max(0.01));
+    run_with(
+        source,
+        &mut |f| pipeline.process(f),
+        rate_hz,
+        max_frames,
+        stop,
+    )
+}
+
+/// [`run`] with the processing of one frame given as a closure (tests slow it down).
+fn run_with(
+    source: &mut dyn FrameSource,
+    process: &mut dyn FnMut(&Frame) -> Result<Processed, PipelineError>,
+    rate_hz: f64,
+    max_frames: Option<u64>,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Result<RunStats, SourceError> {
+    let handoff = Handoff::new(HANDOFF_CAPACITY, source.when_busy());
     let mut stats = RunStats::default();
+    let captured = std::thread::scope(|scope| {
+        let capture = std::thread::Builder::new()
+            .name("perception-capture".into())
+            .spawn_scoped(scope, || {
+                let _closes = ProducerGuard(&handoff);
+                capture_loop(source, &handoff, rate_hz, max_frames, stop)
+            })
+            .map_err(|e| SourceError::Failed(format!("cannot start the capture thread: {e}")))?;
+        {
+            let _closes = ConsumerGuard(&handoff);
+            detect_loop(&handoff, process, &mut stats, stop);
+        }
+        capture
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+    })?;
+    stats.frames = captured.frames;
+    stats.bad_frames = captured.bad_frames;
+    stats.bad_stamps = captured.bad_stamps;
+    stats.frames_dropped_behind_detector = handoff.dropped();
+    Ok(stats)
+}
+
+/// The capture thread: takes frames from the source at `rate_hz` and hands them over until
+/// the source ends, `max_frames` were taken, `stop()`, or the detector side has gone.
+fn capture_loop(
+    source: &mut dyn FrameSource,
+    handoff: &Handoff<Frame>,
+    rate_hz: f64,
+    max_frames: Option<u64>,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Result<CaptureCounts, SourceError> {
+    let period = Duration::from_secs_f64(1.0 / rate_hz.max(0.01));
+    let mut counts = CaptureCounts::default();
     let mut next = Instant::now();
     let mut failures_in_row = 0;
-    let mut truncation_log = LogLimiter::new(WARN_INTERVAL);
     let mut stamp_log = LogLimiter::new(WARN_INTERVAL);
-    while !stop() && max_frames.is_none_or(|m| stats.frames < m) {
-        let now = Instant::now();
-        if next > now {
-            std::thread::sleep(next - now);
+    let mut drop_log = LogLimiter::new(DROP_LOG_INTERVAL);
+    while !stop() && max_frames.is_none_or(|m| counts.frames < m) {
+        if !handoff.sleep_until(next) {
+            break; // the detector side has stopped
         }
         next += period;
         if Instant::now() > next + period * 4 {
-            next = Instant::now(); // fell far behind: do not burst
+            next = Instant::now(); // fell far behind (or waited for the detector): do not burst
         }
-        stats.frames += 1;
+        counts.frames += 1;
         let frame = match source.next_frame() {
             Ok(Some(f)) => {
                 failures_in_row = 0;
@@ -186,33 +296,64 @@ pub fn run(
             }
             Ok(None) => break,
             Err(SourceError::Failed(m)) => {
-                stats.bad_frames += 1;
+                counts.bad_frames += 1;
                 failures_in_row += 1;
                 tracing::warn!("source failed: {m}");
-                if failures_in_row >= 10 {
+                if failures_in_row >= MAX_FAILURES_IN_ROW {
                     return Err(SourceError::Failed(m));
                 }
                 continue;
             }
             Err(SourceError::Stamp(e)) => {
                 failures_in_row = 0;
-                stats.bad_frames += 1;
-                stats.bad_stamps += 1;
+                counts.bad_frames += 1;
+                counts.bad_stamps += 1;
                 if let Some(held_back) = stamp_log.allow(Instant::now()) {
                     tracing::warn!(
-                        bad_stamps = stats.bad_stamps,
+                        bad_stamps = counts.bad_stamps,
                         "image refused: {e} ({held_back} more refused since the last warning)"
                     );
                 }
                 continue;
             }
             Err(e) => {
-                stats.bad_frames += 1;
+                counts.bad_frames += 1;
                 tracing::warn!("skipping a bad frame: {e}");
                 continue;
             }
         };
-        match pipeline.process(&frame) {
+        match handoff.push(frame) {
+            Ok(0) => {}
+            Ok(_) => {
+                if let Some(held_back) = drop_log.allow(Instant::now()) {
+                    tracing::info!(
+                        frames_dropped_behind_detector = handoff.dropped(),
+                        "the detector is slower than the camera: the oldest waiting frame is dropped, the newest detected ({held_back} more since the last report)"
+                    );
+                }
+            }
+            Err(_) => break, // the detector side has stopped
+        }
+    }
+    Ok(counts)
+}
+
+/// The detector side: processes and publishes the frames handed over until the capture
+/// has ended and nothing is left, or `stop()`.
+fn detect_loop(
+    handoff: &Handoff<Frame>,
+    process: &mut dyn FnMut(&Frame) -> Result<Processed, PipelineError>,
+    stats: &mut RunStats,
+    stop: &(dyn Fn() -> bool + Sync),
+) {
+    let mut truncation_log = LogLimiter::new(WARN_INTERVAL);
+    while !stop() {
+        let frame = match handoff.pop(POLL) {
+            Popped::Item(f) => f,
+            Popped::Empty => continue,
+            Popped::Ended => break,
+        };
+        match process(&frame) {
             Ok(p) => {
                 stats.count(&p);
                 let sent = p.sent;
@@ -256,7 +397,6 @@ pub fn run(
             }
         }
     }
-    Ok(stats)
 }
 
 #[cfg(test)]
@@ -264,12 +404,16 @@ mod tests {
     use super::*;
     use crate::calibration::CalibrationFile;
     use crate::color_detector::ColourDetectorConfig;
+    use crate::source::WhenBusy;
     use crate::stamp::StampError;
     use crate::synthetic::SyntheticCamera;
     use crate::tracker::TrackerConfig;
+    use iceoryx2::prelude::ipc;
     use shm_schemas::scene_file::SceneFile;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
-    /// Hands out the given results in order, then ends.
+    /// Hands out the given results in order, then ends. Finite: played losslessly.
     struct Scripted(Vec<Result<Option<Frame>, SourceError>>);
 
     impl FrameSource for Scripted {
@@ -278,6 +422,234 @@ mod tests {
                 return Ok(None);
             }
             self.0.remove(0)
+        }
+
+        fn when_busy(&self) -> WhenBusy {
+            WhenBusy::Wait
+        }
+    }
+
+    /// A camera far faster than the detector: frames 1..=`n` of one rendered scene, frame
+    /// `k` stamped `stamp(k)`; then the end (`ended` is set at that call, after frame `n`
+    /// was handed over).
+    struct FastCamera {
+        rendered: crate::synthetic::RenderedFrame,
+        n: u64,
+        next: u64,
+        when_busy: WhenBusy,
+        ended: Arc<AtomicBool>,
+    }
+
+    fn stamp(k: u64) -> u64 {
+        1_000_000_000 + 1_000 * k
+    }
+
+    impl FrameSource for FastCamera {
+        fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
+            if self.next >= self.n {
+                self.ended.store(true, Ordering::SeqCst);
+                return Ok(None);
+            }
+            self.next += 1;
+            Ok(Some(Frame::from_rendered(
+                &self.rendered,
+                self.next,
+                stamp(self.next),
+            )?))
+        }
+
+        fn when_busy(&self) -> WhenBusy {
+            self.when_busy
+        }
+    }
+
+    /// The synthetic camera, a goal and a box, the exact calibration and a colour pipeline
+    /// publishing under `prefix`.
+    fn small_scene_pipeline(prefix: &str) -> (crate::synthetic::RenderedFrame, Pipeline) {
+        let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
+        let cam = SyntheticCamera::load(&assets.join("perception/synthetic_camera.toml")).unwrap();
+        let scene = SceneFile::load(&assets.join("scenes/small_box.toml")).unwrap();
+        let calibration = Calibration::new(CalibrationFile {
+            intrinsics: cam.config.intrinsics,
+            workspace: cam.workspace_for(&scene),
+            corners_px: cam.workspace_corners_px(&scene).unwrap(),
+            rectified_px_per_m: 1000.0,
+        })
+        .unwrap();
+        let detector = ColourDetector::new(
+            ColourDetectorConfig::load(&assets.join("perception/colour_detector.toml")).unwrap(),
+        )
+        .unwrap();
+        let pipeline = Pipeline {
+            detector: Detector::Colour(Box::new(detector)),
+            calibration,
+            selection: SelectionConfig::default(),
+            tracker: Tracker::new(TrackerConfig {
+                persist_frames: 1,
+                ..TrackerConfig::default()
+            })
+            .unwrap(),
+            publisher: DetectionPublisher::open(prefix, 0).unwrap(),
+        };
+        (cam.render(&scene), pipeline)
+    }
+
+    #[test]
+    fn a_slow_detector_gets_the_newest_frame_and_older_waiting_frames_are_dropped() {
+        let prefix = format!("percslowdet{}", std::process::id());
+        let (rendered, mut pipeline) = small_scene_pipeline(&prefix);
+        let (node, _) =
+            shm_schemas::services::create_node::<ipc::Service>("pipeline-test").unwrap();
+        let sub =
+            shm_schemas::services::open_subscriber::<DetectionFrame, _>(&node, &prefix).unwrap();
+        let n = 30;
+        let ended = Arc::new(AtomicBool::new(false));
+        let mut camera = FastCamera {
+            rendered,
+            n,
+            next: 0,
+            when_busy: WhenBusy::DropOldest,
+            ended: ended.clone(),
+        };
+        // (frame sequence, frame capture stamp, published capture stamp) per detection.
+        let mut detected: Vec<(u64, u64, u64)> = Vec::new();
+        let stats = run_with(
+            &mut camera,
+            &mut |f| {
+                if detected.is_empty() {
+                    // A detector busy on its first frame until the camera has delivered
+                    // every frame and found its end: all but the newest must be dropped.
+                    let t = Instant::now();
+                    while !ended.load(Ordering::SeqCst) && t.elapsed() < Duration::from_secs(20) {
+                        std::thread::sleep(Duration::from_millis(1));
+                    }
+                }
+                let p = pipeline.process(f)?;
+                detected.push((f.sequence, f.capture_time_ns, p.sent.capture_time_ns));
+                Ok(p)
+            },
+            1000.0,
+            None,
+            &|| false,
+        )
+        .unwrap();
+        assert!(ended.load(Ordering::SeqCst));
+        assert_eq!(detected.len(), 2, "{detected:?}");
+        let (first, last) = (detected[0], detected[1]);
+        assert!(first.0 < n, "{detected:?}");
+        assert_eq!(last.0, n, "the newest frame is detected last: {detected:?}");
+        for (seq, captured, published) in &detected {
+            assert_eq!(*captured, stamp(*seq));
+            assert_eq!(
+                published, captured,
+                "frame {seq}: the published stamp is the detected frame's"
+            );
+        }
+        assert_eq!(
+            stats,
+            RunStats {
+                frames: n + 1,
+                published: 2,
+                frames_dropped_behind_detector: n - 2,
+                ..RunStats::default()
+            }
+        );
+        // What a subscriber receives: the two detections, in order, with those stamps.
+        let mut received = Vec::new();
+        while let Ok(Some(s)) = sub.receive() {
+            received.push(*s.payload());
+        }
+        assert_eq!(
+            received
+                .iter()
+                .map(|f| (f.sequence, f.capture_time_ns, f.count))
+                .collect::<Vec<_>>(),
+            vec![(1, stamp(first.0), 2), (2, stamp(n), 2)]
+        );
+    }
+
+    #[test]
+    fn a_finite_source_waits_for_a_slow_detector_and_loses_nothing() {
+        let prefix = format!("percslowfile{}", std::process::id());
+        let (rendered, mut pipeline) = small_scene_pipeline(&prefix);
+        let n = 8;
+        let mut camera = FastCamera {
+            rendered,
+            n,
+            next: 0,
+            when_busy: WhenBusy::Wait,
+            ended: Arc::new(AtomicBool::new(false)),
+        };
+        let mut detected = Vec::new();
+        let stats = run_with(
+            &mut camera,
+            &mut |f| {
+                std::thread::sleep(Duration::from_millis(15));
+                detected.push(f.sequence);
+                pipeline.process(f)
+            },
+            1000.0,
+            None,
+            &|| false,
+        )
+        .unwrap();
+        assert_eq!(detected, (1..=n).collect::<Vec<_>>());
+        assert_eq!(
+            (
+                stats.frames,
+                stats.published,
+                stats.frames_dropped_behind_detector
+            ),
+            (n + 1, n, 0)
+        );
+    }
+
+    #[test]
+    fn stop_and_the_frame_limit_end_the_capture_thread() {
+        let prefix = format!("percslowstop{}", std::process::id());
+        let (rendered, mut pipeline) = small_scene_pipeline(&prefix);
+        for when_busy in [WhenBusy::DropOldest, WhenBusy::Wait] {
+            // An endless camera, stopped by `stop()` after three detections; the capture
+            // may be waiting for room (Wait) or pacing when the detector side stops.
+            let mut camera = FastCamera {
+                rendered: rendered.clone(),
+                n: u64::MAX,
+                next: 0,
+                when_busy,
+                ended: Arc::new(AtomicBool::new(false)),
+            };
+            let done = AtomicU64::new(0);
+            let t = Instant::now();
+            let stats = run_with(
+                &mut camera,
+                &mut |f| {
+                    std::thread::sleep(Duration::from_millis(5));
+                    let p = pipeline.process(f);
+                    done.fetch_add(1, Ordering::SeqCst);
+                    p
+                },
+                500.0,
+                None,
+                &|| done.load(Ordering::SeqCst) >= 3,
+            )
+            .unwrap();
+            assert_eq!(stats.published, 3, "{when_busy:?}: {stats:?}");
+            assert!(t.elapsed() < Duration::from_secs(20), "{when_busy:?}");
+            // The frame limit counts frames taken from the source.
+            let stats = run_with(
+                &mut camera,
+                &mut |f| pipeline.process(f),
+                500.0,
+                Some(4),
+                &|| false,
+            )
+            .unwrap();
+            assert_eq!(stats.frames, 4, "{when_busy:?}: {stats:?}");
+            assert_eq!(
+                stats.published + stats.frames_dropped_behind_detector,
+                4,
+                "{when_busy:?}: {stats:?}"
+            );
         }
     }
 
@@ -347,6 +719,7 @@ mod tests {
                 goals_demoted: 0,
                 low_confidence_dropped: 0,
                 extra_goals: 0,
+                frames_dropped_behind_detector: 0,
             }
         );
     }

@@ -59,14 +59,35 @@ pub enum SourceError {
     Failed(String),
 }
 
-/// Anything that yields frames.
-pub trait FrameSource {
+/// What the capture does with a new frame while the detector is still busy and the
+/// hand-off to it is full ([`crate::handoff`], [`crate::pipeline::run`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WhenBusy {
+    /// A live camera (ROS 2, the synthetic camera on wall-clock time): the oldest waiting
+    /// frame is dropped and counted (`frames_dropped_behind_detector`), so the detector
+    /// always works on the newest frame and the published scene is never stale by a backlog.
+    DropOldest,
+    /// A finite, replayable source (image files, a folder, a video, the synthetic camera
+    /// with `--fixed-step`): the capture waits for the detector, every frame is processed
+    /// (the run takes longer when the detector is slower than `--rate`).
+    Wait,
+}
+
+/// Anything that yields frames. `perception run` takes frames on a capture thread of their
+/// own, so a source must be `Send` (it is moved there, not shared).
+pub trait FrameSource: Send {
     /// The next frame, `Ok(None)` at the end of a finite source, or an error for this
     /// frame only.
     ///
     /// # Errors
     /// [`SourceError`].
     fn next_frame(&mut self) -> Result<Option<Frame>, SourceError>;
+
+    /// Drop the oldest frame or wait when the detector falls behind; a live camera by
+    /// default.
+    fn when_busy(&self) -> WhenBusy {
+        WhenBusy::DropOldest
+    }
 }
 
 /// The synthetic camera following a world script in real time (or frame-count time).
@@ -152,6 +173,17 @@ impl SyntheticSource {
 }
 
 impl FrameSource for SyntheticSource {
+    /// With `fixed_step_s` script time is the frame index, so the frames form a fixed
+    /// sequence: none is dropped ([`WhenBusy::Wait`]). On wall-clock time it is a live
+    /// camera ([`WhenBusy::DropOldest`]).
+    fn when_busy(&self) -> WhenBusy {
+        if self.fixed_step_s.is_some() {
+            WhenBusy::Wait
+        } else {
+            WhenBusy::DropOldest
+        }
+    }
+
     fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
         let start = *self.start.get_or_insert_with(Instant::now);
         let t_s = match self.fixed_step_s {
@@ -275,6 +307,11 @@ impl FileSource {
 }
 
 impl FrameSource for FileSource {
+    /// Files and videos are finite: every frame is processed ([`WhenBusy::Wait`]).
+    fn when_busy(&self) -> WhenBusy {
+        WhenBusy::Wait
+    }
+
     fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
         match self {
             Self::Images {

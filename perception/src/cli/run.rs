@@ -4,7 +4,12 @@
 //! At the end (`--frames`, or a finite source) prints its counters as one JSON object
 //! ([`perception::pipeline::RunStats`]: `frames`, `published`, `bad_frames`, `failed`,
 //! `bad_stamps`, `truncated_frames`, `dropped_objects`, `goals_demoted`,
-//! `low_confidence_dropped`, `extra_goals`).
+//! `low_confidence_dropped`, `extra_goals`, `frames_dropped_behind_detector`).
+//!
+//! Frames are taken by a capture thread at `--rate`; the detector works on the newest one
+//! (a live source drops the oldest waiting frame when the detector is slower than the
+//! camera; files and `--fixed-step` are played without loss, the capture waiting for the
+//! detector): see [`perception::pipeline::run`].
 //!
 //! The ROS 2 source listens on loopback only unless `--ros2-open-network` is given (see
 //! [`perception::ros2_source`]).
