@@ -40,6 +40,12 @@ pub struct LaunchArgs {
     /// Calibration file for a real camera.
     #[arg(long)]
     pub calibration: Option<PathBuf>,
+    /// Perception's detector: `colour` (HSV thresholds, ≈ 5 ms a frame) or `yolo` (the
+    /// project's YOLO model as `<assets>/perception/yolo.toml` describes it, where
+    /// `<assets>` is the folder of `--task`; 30–120 ms a frame on the CPU, the camera's
+    /// frames it cannot keep up with are dropped oldest first).
+    #[arg(long, value_enum, default_value_t = DetectorChoice::Colour)]
+    pub detector: DetectorChoice,
     /// Blind run, a simulation-only demonstration of why Foresight exists: execute the
     /// policy without the lookahead gate and without the shield's clearance to the boxes
     /// (the table clearance and every limit still hold). Refused, before any process
@@ -80,6 +86,27 @@ pub struct LaunchArgs {
     pub out: PathBuf,
 }
 
+/// Which detector `perception run` uses (`--detector`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum DetectorChoice {
+    /// Per-class HSV thresholds (perception's default).
+    #[default]
+    #[value(alias = "color")]
+    Colour,
+    /// The YOLO model of `<assets>/perception/yolo.toml`.
+    Yolo,
+}
+
+impl DetectorChoice {
+    /// The name on the command line and in the run summary.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Colour => "colour",
+            Self::Yolo => "yolo",
+        }
+    }
+}
+
 /// `--no-lookahead` with a `--robot` that is not known to be this machine's loopback.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error(
@@ -94,6 +121,14 @@ pub struct BlindModeRefused {
 }
 
 impl LaunchArgs {
+    /// The assets folder: the folder of `--task` (rt-core gets it as `--assets` too).
+    pub fn assets_dir(&self) -> PathBuf {
+        self.task
+            .parent()
+            .map(std::path::Path::to_path_buf)
+            .unwrap_or_default()
+    }
+
     /// Blind mode never reaches a real arm: with `--no-lookahead`, a `--robot` address must
     /// be, or resolve only to, loopback addresses (decided from the address alone, nothing
     /// is sent to it). Without `--robot` the launcher's own `xarm-sim` on 127.0.0.1 is used.
@@ -122,6 +157,21 @@ mod tests {
 
     fn args(extra: &[&str]) -> LaunchArgs {
         LaunchArgs::parse_from(std::iter::once("foresight").chain(extra.iter().copied()))
+    }
+
+    #[test]
+    fn the_detector_is_colour_unless_yolo_is_asked_for() {
+        assert_eq!(args(&[]).detector, DetectorChoice::Colour);
+        assert_eq!(args(&["--detector", "yolo"]).detector, DetectorChoice::Yolo);
+        assert_eq!(
+            args(&["--detector", "color"]).detector,
+            DetectorChoice::Colour
+        );
+        assert!(LaunchArgs::try_parse_from(["foresight", "--detector", "sift"]).is_err());
+        assert_eq!(
+            args(&["--task", "/x/assets/task.toml"]).assets_dir(),
+            PathBuf::from("/x/assets")
+        );
     }
 
     #[test]

@@ -375,6 +375,7 @@ fn finish(
         .sum();
     let mut summary = director.summary(collisions, p999, restarts, args.seed);
     summary.arm_rejected_commands = arm_rejected_commands;
+    summary.detector = args.detector.name().to_owned();
     summary.cycle_p99_us = p99.or(summary.cycle_p99_us);
     summary.notes.extend(notes);
     Ok((summary, referee))

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use crate::args::LaunchArgs;
+use crate::args::{DetectorChoice, LaunchArgs};
 use crate::run_dir::RunDir;
 use crate::sim_link::{SimPortsSeen, read_sim_ports, sim_status};
 use crate::supervisor::{ProcessSpec, Supervisor};
@@ -47,6 +47,9 @@ pub fn start_all(
     live: &Path,
 ) -> Result<Started> {
     args.check_blind_mode()?;
+    // Before anything starts: a `--detector yolo` without its model is refused here, not
+    // discovered as a perception process that keeps failing.
+    let perception = perception_args(args, prefix, live)?;
     let bins = bin_dir()?;
     let (robot_addr, sim) = match &args.robot {
         Some(host) => (host.clone(), None),
@@ -55,7 +58,13 @@ pub fn start_all(
             (format!("127.0.0.1:{}", ports.command), Some(ports))
         }
     };
-    start_perception(sup, &bins, args, prefix, live)?;
+    sup.start(ProcessSpec {
+        name: "perception".into(),
+        program: bins.join("perception"),
+        args: perception,
+        env: vec![],
+        restart: true,
+    })?;
     start_learner(sup, &bins, args, run, prefix)?;
     start_rt_core(sup, &bins, args, run, prefix, robot_addr, sim)?;
     if args.ros {
@@ -119,13 +128,14 @@ fn start_sim(
     }
 }
 
-fn start_perception(
-    sup: &mut Supervisor,
-    bins: &Path,
-    args: &LaunchArgs,
-    prefix: &str,
-    live: &Path,
-) -> Result<()> {
+/// The arguments of `perception run` for this run: the camera (the live scene file for the
+/// synthetic one), the service prefix, the frame rate, a real camera's calibration and, with
+/// `--detector yolo`, `--yolo-config <assets>/perception/yolo.toml` (the assets folder is
+/// the one of `--task`, as for rt-core's `--assets`).
+///
+/// # Errors
+/// `--detector yolo` when that settings file or the model it names is missing.
+pub fn perception_args(args: &LaunchArgs, prefix: &str, live: &Path) -> Result<Vec<String>> {
     let source = if args.camera == "synthetic" {
         format!("synthetic:{}", s(live))
     } else {
@@ -143,13 +153,38 @@ fn start_perception(
     if let Some(c) = &args.calibration {
         perception_args.extend(["--calibration".into(), s(c)]);
     }
-    sup.start(ProcessSpec {
-        name: "perception".into(),
-        program: bins.join("perception"),
-        args: perception_args,
-        env: vec![],
-        restart: true,
+    match args.detector {
+        DetectorChoice::Colour => {}
+        DetectorChoice::Yolo => {
+            let config = args.assets_dir().join("perception/yolo.toml");
+            check_yolo_config(&config)?;
+            perception_args.extend(["--yolo-config".into(), s(&config)]);
+        }
+    }
+    Ok(perception_args)
+}
+
+/// The YOLO settings file exists and the model it names (`model`, relative to the file's
+/// folder) is there; the rest is perception's to check.
+fn check_yolo_config(config: &Path) -> Result<()> {
+    let text = std::fs::read_to_string(config).with_context(|| {
+        format!(
+            "--detector yolo needs the YOLO settings file {}",
+            config.display()
+        )
     })?;
+    let table: toml::Table = toml::from_str(&text)
+        .with_context(|| format!("--detector yolo: {} is not valid TOML", config.display()))?;
+    if let Some(model) = table.get("model").and_then(toml::Value::as_str) {
+        let path = config.parent().unwrap_or(Path::new(".")).join(model);
+        if !path.is_file() {
+            bail!(
+                "--detector yolo: the model {} named in {} is missing (scripts/train-yolo.sh makes it)",
+                path.display(),
+                config.display()
+            );
+        }
+    }
     Ok(())
 }
 
@@ -249,4 +284,70 @@ fn start_rt_core(
     // first and given the time of its controlled stop (rt-core's own limit is 3 s).
     sup.stop_first("rt-core", RT_CORE_STOP_GRACE);
     Ok(())
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    fn launch_args(extra: &[&str]) -> LaunchArgs {
+        LaunchArgs::parse_from(std::iter::once("foresight").chain(extra.iter().copied()))
+    }
+
+    fn value_after<'a>(args: &'a [String], flag: &str) -> Option<&'a str> {
+        args.iter()
+            .position(|a| a == flag)
+            .and_then(|i| args.get(i + 1))
+            .map(String::as_str)
+    }
+
+    #[test]
+    fn perception_gets_the_yolo_settings_of_the_assets_folder_only_with_detector_yolo() {
+        let dir = std::env::temp_dir().join(format!("foresight-perc-args-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("perception/models")).unwrap();
+        let task = dir.join("task.toml");
+        let live = Path::new("/run/world/live.toml");
+        let config = dir.join("perception/yolo.toml");
+
+        let colour = perception_args(
+            &launch_args(&["--task", task.to_str().unwrap()]),
+            "p1",
+            live,
+        )
+        .unwrap();
+        assert_eq!(
+            colour,
+            [
+                "run",
+                "--source",
+                "synthetic:/run/world/live.toml",
+                "--prefix",
+                "p1",
+                "--rate",
+                "60"
+            ]
+        );
+
+        let yolo = launch_args(&["--task", task.to_str().unwrap(), "--detector", "yolo"]);
+        // No settings file, then a file naming a model that is not there: refused, named.
+        let e = perception_args(&yolo, "p1", live).unwrap_err();
+        assert!(format!("{e:#}").contains("yolo.toml"), "{e:#}");
+        std::fs::write(&config, "model = \"models/m.onnx\"\n").unwrap();
+        let e = perception_args(&yolo, "p1", live).unwrap_err();
+        assert!(format!("{e:#}").contains("m.onnx"), "{e:#}");
+        std::fs::write(dir.join("perception/models/m.onnx"), b"onnx").unwrap();
+        let a = perception_args(&yolo, "p1", live).unwrap();
+        assert_eq!(
+            value_after(&a, "--yolo-config"),
+            Some(config.to_str().unwrap())
+        );
+        assert_eq!(
+            value_after(&a, "--source"),
+            Some("synthetic:/run/world/live.toml")
+        );
+        assert_eq!(a.iter().filter(|x| *x == "--yolo-config").count(), 1);
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

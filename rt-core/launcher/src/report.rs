@@ -38,6 +38,10 @@ pub struct Summary {
     pub cycle_p999_us: Option<f64>,
     /// Whether the lookahead gate was on (`--no-lookahead` turns it off).
     pub lookahead: bool,
+    /// Perception's detector (`--detector`: `colour` or `yolo`); empty in summaries written
+    /// before the option existed.
+    #[serde(default)]
+    pub detector: String,
     /// Seed of the scenario.
     pub seed: u64,
     /// Processes restarted by the supervisor.
@@ -438,6 +442,7 @@ pub fn write_markdown(
         ("cycle compute p99", fmt_opt(summary.cycle_p99_us, "µs")),
         ("cycle compute p99.9", fmt_opt(summary.cycle_p999_us, "µs")),
         ("process restarts", summary.restarts.to_string()),
+        ("detector (perception)", summary.detector.clone()),
     ];
     for (k, v) in rows {
         let _ = writeln!(md, "| {k} | {v} |");
@@ -522,6 +527,7 @@ mod tests {
         let summary = Summary {
             goal_reached: true,
             world_change_to_detection_s: Some(0.05),
+            detector: "yolo".into(),
             ..Summary::default()
         };
         write_summary(&dir.join("summary.json"), &summary, None).unwrap();
@@ -542,6 +548,7 @@ mod tests {
         assert!(
             md.contains("goal reached with no collision") && md.contains("![Top view](top.png)")
         );
+        assert!(md.contains("| detector (perception) | yolo |"), "{md}");
         assert!(
             !md.contains("referee"),
             "no referee line without a simulator"

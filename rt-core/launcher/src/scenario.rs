@@ -490,6 +490,7 @@ impl Director {
             cycle_p99_us: self.p99_us,
             cycle_p999_us,
             lookahead: self.cfg.lookahead,
+            detector: String::new(),
             seed,
             restarts,
             arm_rejected_commands: None,
