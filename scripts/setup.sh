@@ -13,7 +13,7 @@
 #      TORCH_VARIANT=cuda: the full wheel with its CUDA libraries, for GPU training.
 #   3. ONNX Runtime for perception's YOLO detector: the PyPI `onnxruntime` wheel (its
 #      libonnxruntime.so, loaded at run time by the `ort` crate's load-dynamic; ort 2.0.0-rc.15
-#      needs ONNX Runtime >= 1.17), installed without dependencies into the same venv.
+#      with api-22 needs ONNX Runtime >= 1.22), installed without dependencies into the same venv.
 #   4. build/env.mk: the LIBTORCH path and the ONNX Runtime library path that the Makefile
 #      exports to every cargo call (perception bakes the latter in as its default), so that
 #      nothing is rebuilt because a variable changed.

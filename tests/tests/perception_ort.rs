@@ -3,7 +3,7 @@
 //! - `detect --backend ort --repeat N` finds the goal and the box and prints the per-frame
 //!   timing (median, p95) of the ONNX Runtime engine at the model's own input size;
 //! - a missing library, a library that is not ONNX Runtime, and an ONNX Runtime older than
-//!   this build supports (1.16.3, from PyPI) are refused with a message naming the library
+//!   this build supports (1.20.1, from PyPI) are refused with a message naming the library
 //!   and the reason — never a panic; `--backend auto` falls back to OpenCV with a warning;
 //! - bad settings are refused naming the field.
 //!
@@ -70,13 +70,13 @@ fn detect(frame: &Path, extra: &[&str]) -> (bool, String, String) {
 }
 
 /// libonnxruntime.so of an ONNX Runtime release older than ort 2.0.0-rc.15 supports
-/// (1.16.3), taken from its PyPI wheel once into the cache.
+/// (1.20.1), taken from its PyPI wheel once into the cache.
 fn old_onnxruntime() -> PathBuf {
     let cache = std::env::var_os("FORESIGHT_CACHE")
         .map(PathBuf::from)
         .unwrap_or_else(|| std::env::temp_dir().join("foresight-cache"));
-    let dir = cache.join("onnxruntime-1.16.3");
-    let lib = dir.join("onnxruntime/capi/libonnxruntime.so.1.16.3");
+    let dir = cache.join("onnxruntime-1.20.1");
+    let lib = dir.join("onnxruntime/capi/libonnxruntime.so.1.20.1");
     if !lib.is_file() {
         std::fs::create_dir_all(&dir).unwrap();
         let st = Command::new("python3")
@@ -90,14 +90,16 @@ fn old_onnxruntime() -> PathBuf {
                 "--python-version",
                 "3.11",
                 "--platform",
-                "manylinux2014_x86_64",
-                "onnxruntime==1.16.3",
+                "manylinux_2_28_x86_64",
+                "--platform",
+                "manylinux_2_27_x86_64",
+                "onnxruntime==1.20.1",
                 "-d",
             ])
             .arg(&dir)
             .status()
             .unwrap();
-        assert!(st.success(), "pip download onnxruntime==1.16.3 failed");
+        assert!(st.success(), "pip download onnxruntime==1.20.1 failed");
         let wheel = std::fs::read_dir(&dir)
             .unwrap()
             .filter_map(Result::ok)
@@ -186,7 +188,7 @@ fn onnx_runtime_detects_with_timing_and_bad_libraries_are_clear_errors() {
     assert!(stderr.contains("OrtGetApiBase"), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
 
-    // ONNX Runtime 1.16.3: too old for this build (it needs >= 1.17).
+    // ONNX Runtime 1.20.1: too old for this build (it needs >= 1.22).
     let old = old_onnxruntime();
     let (ok, _, stderr) = detect(
         &frame,
@@ -194,7 +196,7 @@ fn onnx_runtime_detects_with_timing_and_bad_libraries_are_clear_errors() {
     );
     assert!(!ok);
     assert!(
-        stderr.contains("1.16.3") && stderr.contains("expected version >= '1.17"),
+        stderr.contains("1.20.1") && stderr.contains("expected version >= '1.22"),
         "{stderr}"
     );
     assert!(!stderr.contains("panicked"), "{stderr}");

@@ -5,7 +5,7 @@
 //!   loaded at run time (`load-dynamic`) from, in order, the `ort_library` setting /
 //!   `--ort-library`, `ORT_DYLIB_PATH`, and the path `make setup` baked in at build time
 //!   (`FORESIGHT_ORT_DYLIB`: the PyPI `onnxruntime` wheel's `libonnxruntime.so`). A missing
-//!   or too-old library (older than 1.17, the API this build asks for) is a clear error, never
+//!   or too-old library (older than 1.22, the C API this build asks for) is a clear error, never
 //!   a panic. One library per process: a second, different path is refused.
 //! - **OpenCV DNN** (4.6 on Debian 12): the model is patched at load by
 //!   [`crate::onnx_patch`] so stock exports run; the removed strides are applied again here,

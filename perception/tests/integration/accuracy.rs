@@ -162,3 +162,58 @@ fn colour_detector_meets_1cm_on_100_random_scenes() {
         quantiles(found.footprint, 1000.0, "mm")
     );
 }
+
+/// The same 100-scene accuracy check through the YOLO path (issue 17): the project's own
+/// small detector (assets/perception/models/foresight-tiny-320.onnx, trained on synthetic
+/// renders by scripts/train-yolo.sh) on ONNX Runtime, boxes measured from depth as the colour
+/// path does. Every object found with the right class; position p95 ≤ 5 mm (and each ≤ 1 cm).
+/// The scenes come from another seed than the training set's renders.
+#[test]
+fn yolo_detector_finds_every_object_on_100_random_scenes() {
+    use perception::yolo::{BackendChoice, YoloConfig, YoloDetector};
+    let cam = camera();
+    let mut r = rng(11);
+    let model = crate::common::assets().join("models/foresight-tiny-320.onnx");
+    let mut det = YoloDetector::load(
+        &model,
+        None,
+        YoloConfig {
+            backend: BackendChoice::Ort,
+            ..YoloConfig::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(det.backend_name(), "ort");
+    let mut errs = Errors::default();
+    for i in 0..100 {
+        let scene = random_scene(&cam, &mut r);
+        let truth = truths(&scene);
+        let frame = Frame::from_rendered(&cam.render(&scene), i as u64, 0).unwrap();
+        let cal = exact_calibration(&cam, &scene);
+        let dets = det.detect(&frame, Some(&cal)).unwrap();
+        score(&dets, &truth, &mut errs, i);
+    }
+    let mut pos = errs.position.clone();
+    pos.sort_by(f64::total_cmp);
+    let p95 = pos[((pos.len() - 1) as f64 * 0.95).round() as usize];
+    println!(
+        "YOLO (ONNX Runtime, {} px): position error {}",
+        det.input_px(),
+        quantiles(errs.position, 1000.0, "mm")
+    );
+    println!(
+        "YOLO (ONNX Runtime, {} px): height error   {}",
+        det.input_px(),
+        quantiles(errs.height, 1000.0, "mm")
+    );
+    println!(
+        "YOLO (ONNX Runtime, {} px): footprint err  {}",
+        det.input_px(),
+        quantiles(errs.footprint, 1000.0, "mm")
+    );
+    assert!(
+        p95 <= 0.005,
+        "position error p95 {:.2} mm > 5 mm",
+        p95 * 1e3
+    );
+}
