@@ -85,7 +85,12 @@ fn bench(c: &mut Criterion) {
         Path::new("<bench>"),
     )
     .unwrap();
-    let frame = Frame::from_rendered(&cam.render(&scene), 1, 0).unwrap();
+    let frame = Frame::from_rendered(
+        &cam.render(&scene),
+        1,
+        perception::frame::monotonic_now_ns(),
+    )
+    .unwrap();
     let threads = default_threads();
     let mut g = c.benchmark_group("yolov8n_1280x720");
     g.sample_size(30);
@@ -127,6 +132,24 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("yolo_path_1280x720");
     g.sample_size(30);
     g.bench_function("ort_640_frame_to_published_detection_frame", |b| {
+        b.iter(|| pipeline.process(std::hint::black_box(&frame)).unwrap())
+    });
+    // The same path with the project's trained model and settings (real detections, each
+    // measured from depth).
+    let bundled = perception::yolo::YoloFile::load(&assets.join("yolo.toml")).unwrap();
+    pipeline.detector = Detector::Yolo(Box::new(
+        YoloDetector::load(&bundled.model, bundled.labels.as_deref(), bundled.detector).unwrap(),
+    ));
+    // New objects are published once they persisted a few frames (the tracker).
+    let found = (0..5)
+        .map(|_| pipeline.process(&frame).unwrap().sent.count)
+        .last()
+        .unwrap();
+    assert_eq!(
+        found, 2,
+        "the bundled model should see the goal and the box"
+    );
+    g.bench_function("bundled_model_frame_to_published_detection_frame", |b| {
         b.iter(|| pipeline.process(std::hint::black_box(&frame)).unwrap())
     });
     g.finish();
