@@ -128,96 +128,11 @@ fn random_scene(cam: &SyntheticCamera, rng: &mut ChaCha8Rng) -> SceneFile {
     }
 }
 
-/// A scene as perception's accuracy test draws them (tests/integration/common.rs).
-fn accuracy_test_scene(cam: &SyntheticCamera, rng: &mut ChaCha8Rng) -> SceneFile {
-    let ws = cam.config.workspace;
-    let margin = 0.05;
-    loop {
-        let place = |sx: f64, sy: f64, rng: &mut ChaCha8Rng| {
-            [
-                rng.random_range(
-                    ws.min_xy_m[0] + margin + sx / 2.0
-                        ..ws.min_xy_m[0] + ws.size_m[0] - margin - sx / 2.0,
-                ),
-                rng.random_range(
-                    ws.min_xy_m[1] + margin + sy / 2.0
-                        ..ws.min_xy_m[1] + ws.size_m[1] - margin - sy / 2.0,
-                ),
-            ]
-        };
-        let gs = rng.random_range(0.04..0.06);
-        let gp = place(gs, gs, rng);
-        let mut scene = SceneFile {
-            name: "accuracy-test".into(),
-            table: TableSpec { height_m: 0.0 },
-            goal: GoalSpec {
-                center_m: [gp[0], gp[1], gs / 2.0],
-                size_m: gs,
-            },
-            obstacles: Vec::new(),
-        };
-        for _ in 0..rng.random_range(1..=3) {
-            let size = [
-                rng.random_range(0.04..0.10),
-                rng.random_range(0.04..0.10),
-                rng.random_range(0.05..0.30),
-            ];
-            let p = place(size[0], size[1], rng);
-            scene.obstacles.push(BoxSpec {
-                center_m: [p[0], p[1], size[2] / 2.0],
-                size_m: size,
-            });
-        }
-        let g = &scene.goal;
-        let mut fp = vec![[
-            g.center_m[0] - g.size_m / 2.0,
-            g.center_m[1] - g.size_m / 2.0,
-            g.center_m[0] + g.size_m / 2.0,
-            g.center_m[1] + g.size_m / 2.0,
-        ]];
-        fp.extend(scene.obstacles.iter().map(|b| {
-            [
-                b.center_m[0] - b.size_m[0] / 2.0,
-                b.center_m[1] - b.size_m[1] / 2.0,
-                b.center_m[0] + b.size_m[0] / 2.0,
-                b.center_m[1] + b.size_m[1] / 2.0,
-            ]
-        }));
-        let apart = (0..fp.len()).all(|i| {
-            (i + 1..fp.len()).all(|j| {
-                let (a, b) = (fp[i], fp[j]);
-                a[2] + 0.03 < b[0] || b[2] + 0.03 < a[0] || a[3] + 0.03 < b[1] || b[3] + 0.03 < a[1]
-            })
-        });
-        if apart && scene.validate().is_ok() && visible_enough(cam, &scene) {
-            return scene;
-        }
-    }
-}
-
-/// No object is more than 3 % hidden by another.
-fn visible_enough(cam: &SyntheticCamera, scene: &SceneFile) -> bool {
-    let full = cam.render(scene);
-    let alone_goal = SceneFile {
-        obstacles: Vec::new(),
-        ..scene.clone()
-    };
-    if (full.count(LABEL_GOAL) as f64) < 0.97 * cam.render(&alone_goal).count(LABEL_GOAL) as f64 {
-        return false;
-    }
-    scene.obstacles.iter().enumerate().all(|(i, b)| {
-        let alone = SceneFile {
-            goal: GoalSpec {
-                center_m: [-2.5, 2.5, 0.01],
-                size_m: 0.01,
-            },
-            obstacles: vec![*b],
-            ..scene.clone()
-        };
-        let n_alone = cam.render(&alone).count(LABEL_OBSTACLE0) as f64;
-        full.count(LABEL_OBSTACLE0 + i as u8) as f64 >= 0.97 * n_alone
-    })
-}
+/// The accuracy test's own scene sampler (`random_scene`, no object more than 3 % hidden),
+/// shared rather than copied so that `--scenes accuracy-test` draws exactly what the test does.
+#[path = "../tests/integration/common.rs"]
+#[allow(dead_code)]
+mod common;
 
 /// Tight pixel boxes `[umin, vmin, umax, vmax]` (inclusive) and pixel counts per label.
 fn label_boxes(f: &RenderedFrame, labels: usize) -> Vec<Option<([usize; 4], usize)>> {
@@ -259,7 +174,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let scene = if args.scenes == "train" {
             random_scene(&cam, &mut rng)
         } else {
-            accuracy_test_scene(&cam, &mut rng)
+            common::random_scene(&cam, &mut rng)
         };
         let frame = cam.render(&scene);
         let (w, h) = (frame.width_px as f64, frame.height_px as f64);

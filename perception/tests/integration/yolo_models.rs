@@ -211,44 +211,12 @@ fn toy_model_decodes_to_the_expected_boxes() {
 fn stock_yolov8n_export_runs_and_matches_pytorch() {
     let dir = tmpdir("yolo-stock");
     let py = python(true);
-    // A deterministic pseudo-random input blob.
-    let n = 3 * 640 * 640;
-    let mut state = 12345u32;
-    let input: Vec<f32> = (0..n)
-        .map(|_| {
-            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            (state >> 8) as f32 / (1u32 << 24) as f32
-        })
-        .collect();
-    let bytes: Vec<u8> = input.iter().flat_map(|v| v.to_le_bytes()).collect();
-    std::fs::write(dir.join("input.f32"), bytes).unwrap();
-    let model = dir.join("yolov8n.onnx");
     let t = std::time::Instant::now();
-    let out = Command::new(&py)
-        .env("YOLO_OFFLINE", "1")
-        .env("YOLO_CONFIG_DIR", &dir)
-        .arg(repo().join("tests/python/make_onnx_ultralytics.py"))
-        .arg(&model)
-        .args(["--arch", "yolov8n", "--imgsz", "640", "--input"])
-        .arg(dir.join("input.f32"))
-        .arg("--output")
-        .arg(dir.join("torch.f32"))
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "export failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (model, blob, want) = export(&py, &dir, "yolov8n", 640, &[]);
     eprintln!(
         "stock export + PyTorch reference in {:.1} s",
         t.elapsed().as_secs_f64()
     );
-
-    let blob = Mat::new_nd_with_data::<f32>(&[1, 3, 640, 640], &input)
-        .unwrap()
-        .try_clone()
-        .unwrap();
     // The known fact: Debian's OpenCV 4.6 cannot run the stock export as it is.
     let raw = std::fs::read(&model).unwrap();
     let unpatched = opencv::dnn::read_net_from_onnx_buffer(&opencv::core::Vector::from_slice(&raw))
@@ -273,18 +241,7 @@ fn stock_yolov8n_export_runs_and_matches_pytorch() {
     let (dims, got) = det.forward_blob(&blob).unwrap();
     assert_eq!(dims, [1, 6, 8400]);
     let anchors = 8400;
-    let want: Vec<f32> = std::fs::read(dir.join("torch.f32"))
-        .unwrap()
-        .chunks_exact(4)
-        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-        .collect();
-    assert_eq!(want.len(), got.len());
-    let max_box = (0..4 * anchors)
-        .map(|i| (got[i] - want[i]).abs())
-        .fold(0.0f32, f32::max);
-    let max_cls = (4 * anchors..got.len())
-        .map(|i| (got[i] - want[i]).abs())
-        .fold(0.0f32, f32::max);
+    let (max_box, max_cls) = max_diff(&got, &want, 4 * anchors);
     eprintln!("OpenCV vs PyTorch: max |Δ| boxes {max_box:.2e} px, scores {max_cls:.2e}");
     assert!(max_box < 0.05, "boxes differ by up to {max_box} px");
     assert!(max_cls < 1e-3, "scores differ by up to {max_cls}");
