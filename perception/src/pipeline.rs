@@ -467,12 +467,24 @@ mod tests {
     /// publishing under `prefix`.
     fn small_scene_pipeline(prefix: &str) -> (crate::synthetic::RenderedFrame, Pipeline) {
         let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
+        scene_pipeline(
+            &SceneFile::load(&assets.join("scenes/small_box.toml")).unwrap(),
+            prefix,
+        )
+    }
+
+    /// `scene` rendered by the synthetic camera, with its exact calibration and a colour
+    /// pipeline (new objects published after one frame) publishing under `prefix`.
+    fn scene_pipeline(
+        scene: &SceneFile,
+        prefix: &str,
+    ) -> (crate::synthetic::RenderedFrame, Pipeline) {
+        let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
         let cam = SyntheticCamera::load(&assets.join("perception/synthetic_camera.toml")).unwrap();
-        let scene = SceneFile::load(&assets.join("scenes/small_box.toml")).unwrap();
         let calibration = Calibration::new(CalibrationFile {
             intrinsics: cam.config.intrinsics,
-            workspace: cam.workspace_for(&scene),
-            corners_px: cam.workspace_corners_px(&scene).unwrap(),
+            workspace: cam.workspace_for(scene),
+            corners_px: cam.workspace_corners_px(scene).unwrap(),
             rectified_px_per_m: 1000.0,
         })
         .unwrap();
@@ -491,7 +503,7 @@ mod tests {
             .unwrap(),
             publisher: DetectionPublisher::open(prefix, 0).unwrap(),
         };
-        (cam.render(&scene), pipeline)
+        (cam.render(scene), pipeline)
     }
 
     #[test]
@@ -668,33 +680,8 @@ mod tests {
 
     #[test]
     fn refused_stamps_and_truncated_frames_are_counted() {
-        let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
-        let cam = SyntheticCamera::load(&assets.join("perception/synthetic_camera.toml")).unwrap();
-        let scene = crowded();
-        let calibration = Calibration::new(CalibrationFile {
-            intrinsics: cam.config.intrinsics,
-            workspace: cam.workspace_for(&scene),
-            corners_px: cam.workspace_corners_px(&scene).unwrap(),
-            rectified_px_per_m: 1000.0,
-        })
-        .unwrap();
-        let detector = ColourDetector::new(
-            ColourDetectorConfig::load(&assets.join("perception/colour_detector.toml")).unwrap(),
-        )
-        .unwrap();
         let prefix = format!("percpipetest{}", std::process::id());
-        let mut pipeline = Pipeline {
-            detector: Detector::Colour(Box::new(detector)),
-            calibration,
-            selection: SelectionConfig::default(),
-            tracker: Tracker::new(TrackerConfig {
-                persist_frames: 1,
-                ..TrackerConfig::default()
-            })
-            .unwrap(),
-            publisher: DetectionPublisher::open(&prefix, 0).unwrap(),
-        };
-        let rendered = cam.render(&scene);
+        let (rendered, mut pipeline) = scene_pipeline(&crowded(), &prefix);
         let frame = |seq| Frame::from_rendered(&rendered, seq, crate::frame::monotonic_now_ns());
         let mut source = Scripted(vec![
             Err(SourceError::Stamp(StampError::Zero)),

@@ -189,6 +189,8 @@ pub struct YoloDetector {
     config: YoloConfig,
     classes: ClassMap,
     layout: OutputLayout,
+    /// The output shape seen at load; every later run must give the same.
+    output_dims: Vec<i64>,
     input_px: i32,
     /// Nodes the OpenCV loader rewrote (empty on ONNX Runtime; for logs).
     pub rewritten_nodes: Vec<String>,
@@ -272,6 +274,7 @@ impl YoloDetector {
             config,
             classes,
             layout: OutputLayout::EndToEnd { rows: 0 },
+            output_dims: Vec::new(),
             input_px,
             rewritten_nodes,
             fallback_reason,
@@ -297,6 +300,7 @@ impl YoloDetector {
         )
         .map_err(|e| unrunnable(e.message))?;
         let (dims, _) = det.infer(&probe).map_err(|e| unrunnable(e.to_string()))?;
+        det.output_dims.clone_from(&dims);
         det.layout = OutputLayout::identify(&dims, det.classes.len(), end_to_end).map_err(|m| {
             unrunnable(format!(
                 "{m}; the class names give {} classes",
@@ -405,13 +409,10 @@ impl YoloDetector {
     /// [`DetectError`], also when the output's shape differs from the one seen at load.
     pub fn boxes(&mut self, bgr: &Mat) -> Result<Vec<RawBox>, DetectError> {
         let (dims, lb) = self.infer(bgr)?;
-        let layout = OutputLayout::identify(&dims, self.classes.len(), None)
-            .ok()
-            .filter(|l| l.len() == self.layout.len());
-        if layout.is_none() || self.output.len() < self.layout.len() {
+        if dims != self.output_dims || self.output.len() < self.layout.len() {
             return Err(DetectError::Model(format!(
                 "output shape {dims:?} differs from the one seen at load ({:?})",
-                self.layout
+                self.output_dims
             )));
         }
         let threshold = self.config.confidence_threshold;
