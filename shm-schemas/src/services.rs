@@ -77,9 +77,11 @@ pub struct QueueSettings {
 /// A payload type bound to its service: name, schema version, queue settings, validation.
 ///
 /// # Safety
-/// Implementors guarantee that the all-zero bit pattern is a valid value of the type
-/// (every field an integer, a float or an array/struct of them — no `bool`, no Rust enum,
-/// no reference), which [`loan_zeroed`] relies on.
+/// Implementors guarantee that every bit pattern, the all-zero one included, is a valid
+/// value of the type (every field an integer, a float or an array/struct of them — no
+/// `bool`, no Rust enum, no reference) and that the type has no padding bytes (each type's
+/// size is asserted against the sum of its fields). [`loan_zeroed`] relies on the first,
+/// [`message_bytes`] and [`message_from_bytes`] on both.
 pub unsafe trait ShmMessage: Debug + ZeroCopySend + Sized + 'static {
     /// Base service name (one of the constants of this module).
     const SERVICE: &'static str;
@@ -343,6 +345,70 @@ pub fn loan_zeroed<T: ShmMessage, S: Service>(
         core::ptr::write_bytes(sample.payload_mut().as_mut_ptr(), 0, 1);
         Ok(sample.assume_init())
     }
+}
+
+/// The bytes of a message, native-endian, exactly `size_of::<T>()` of them: what the
+/// host-to-host relay puts on the wire (with a header naming the service and schema version).
+pub fn message_bytes<T: ShmMessage>(message: &T) -> &[u8] {
+    // SAFETY: `ShmMessage` guarantees `T` has no padding, so all `size_of::<T>()` bytes of a
+    // live `T` are initialised; the slice borrows `message` for its lifetime.
+    unsafe {
+        core::slice::from_raw_parts((message as *const T).cast::<u8>(), size_of::<T>())
+    }
+}
+
+/// Why bytes from outside the process are not a message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum MessageBytesError {
+    /// The byte count is not the type's size.
+    #[error("{service}: {got} bytes where the payload has {expected}")]
+    Length {
+        /// Base service name of the type.
+        service: &'static str,
+        /// Bytes received.
+        got: usize,
+        /// `size_of` the type.
+        expected: usize,
+    },
+    /// The bytes are a well-formed value that fails the type's validation.
+    #[error("{service}: {error}")]
+    Invalid {
+        /// Base service name of the type.
+        service: &'static str,
+        /// The first field found wrong.
+        error: SchemaError,
+    },
+}
+
+/// A message read from untrusted bytes (e.g. from the network): the length must be the
+/// type's size and the value must pass its `validate()`. The value is built on the heap
+/// (a [`PolicyBlob`] is ~320 KB) without a stack copy.
+///
+/// # Errors
+/// [`MessageBytesError`] naming the service and the field.
+pub fn message_from_bytes<T: ShmMessage>(bytes: &[u8]) -> Result<Box<T>, MessageBytesError> {
+    if bytes.len() != size_of::<T>() {
+        return Err(MessageBytesError::Length {
+            service: T::SERVICE,
+            got: bytes.len(),
+            expected: size_of::<T>(),
+        });
+    }
+    let mut slot = Box::<T>::new_uninit();
+    // SAFETY: the destination is a fresh allocation of exactly `size_of::<T>()` bytes, the
+    // source has that many bytes (checked above) and they do not overlap; `ShmMessage`
+    // guarantees every bit pattern is a valid `T`, so the fully written slot is initialised.
+    let message = unsafe {
+        core::ptr::copy_nonoverlapping(bytes.as_ptr(), slot.as_mut_ptr().cast::<u8>(), bytes.len());
+        slot.assume_init()
+    };
+    message
+        .validate_message()
+        .map_err(|error| MessageBytesError::Invalid {
+            service: T::SERVICE,
+            error,
+        })?;
+    Ok(message)
 }
 
 /// Why a node could not be created.

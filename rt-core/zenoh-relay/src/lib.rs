@@ -1,0 +1,25 @@
+//! `zenoh-relay`: the learner's low-rate services between two hosts.
+//!
+//! iceoryx2 is shared memory and ends at the host. When the learner runs on another
+//! machine (a GPU box on the LAN), one relay beside rt-core and one beside `learner serve`
+//! carry [`shm_schemas::RetrainRequest`] (controller → learner host),
+//! [`shm_schemas::RetrainProgress`] and [`shm_schemas::PolicyBlob`] (back) over Zenoh, and
+//! nothing else: the real-time path never leaves the robot PC.
+//!
+//! - [`wire`]: the message format (header with schema version; payload validated again).
+//! - [`reliable`]: re-send until answered, drop repeats.
+//! - [`link`]: where a relay listens and connects.
+//! - [`relay`]: the loop.
+//! - [`status`]: the status file the launcher's report reads.
+//! - [`learner_host`]: `zenoh-relay learner-host`, the relay plus a supervised `learner serve`.
+//!
+//! iceoryx2's own Zenoh tunnel (`iceoryx2-tunnel-zenoh`) exists only up to 0.8.1 on
+//! crates.io while the workspace is on iceoryx2 0.10.0, so this small relay on the `zenoh`
+//! crate stands in its place.
+
+pub mod learner_host;
+pub mod link;
+pub mod relay;
+pub mod reliable;
+pub mod status;
+pub mod wire;

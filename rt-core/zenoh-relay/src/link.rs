@@ -1,0 +1,258 @@
+//! The Zenoh side of a relay: where it listens, whom it connects to, and the keys.
+//!
+//! A relay is a Zenoh *peer* that listens only on the endpoints it is given (`--listen`),
+//! connects to the ones it is given (`--peer`, retried in the background every 0.5–2 s, also
+//! after a lost connection) and scouts the LAN by multicast only with `--scout`. Zenoh's own
+//! default (listen on every interface at a random port, multicast scouting on) is never
+//! used. Only TCP links are built into this binary.
+//!
+//! Keys are `foresight/<link name>/<channel>`; two robots on one LAN use two link names.
+
+use std::str::FromStr;
+
+use zenoh::Wait;
+use zenoh::config::EndPoint;
+
+use crate::wire::Channel;
+
+/// Where a relay listens and connects (shared by `zenoh-relay` and `foresight`).
+#[derive(Debug, Clone, Default, PartialEq, Eq, clap::Args)]
+pub struct LinkArgs {
+    /// A peer relay to connect to, `tcp/ADDR:PORT` (repeatable). Retried until it answers.
+    #[arg(long = "peer", value_name = "tcp/ADDR:PORT")]
+    pub peers: Vec<String>,
+    /// Listen for the peer relay here, `tcp/ADDR:PORT` (repeatable; `tcp/0.0.0.0:7447` for
+    /// every interface). Nothing is listened on unless given.
+    #[arg(long = "listen", value_name = "tcp/ADDR:PORT")]
+    pub listen: Vec<String>,
+    /// Find the peer relay by Zenoh's UDP multicast scouting on the LAN (224.0.0.224:7446).
+    /// Off unless given.
+    #[arg(long)]
+    pub scout: bool,
+    /// The link's name: the middle of every Zenoh key (`foresight/<NAME>/…`). Relays only
+    /// talk to relays of the same name (one name per robot on a shared LAN).
+    #[arg(long, default_value = "foresight")]
+    pub link_name: String,
+}
+
+/// Why the link settings are refused or the session could not be opened.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum LinkError {
+    /// Neither `--peer`, `--listen` nor `--scout`: nothing could ever connect.
+    #[error(
+        "no way to reach the other host: give --peer tcp/ADDR:PORT (the other relay's \
+         address), --listen tcp/ADDR:PORT (where the other relay connects) or --scout"
+    )]
+    Nowhere,
+    /// An endpoint is not `tcp/ADDR:PORT`.
+    #[error("{flag} {value}: {reason}")]
+    Endpoint {
+        /// `--peer` or `--listen`.
+        flag: &'static str,
+        /// As given.
+        value: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The link name is not usable in a key.
+    #[error(
+        "--link-name {0:?}: use 1–64 characters of letters, digits, `-` and `_` (it becomes part of the Zenoh keys)"
+    )]
+    LinkName(String),
+    /// Zenoh refused the configuration or could not open (e.g. the listen port is taken).
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+}
+
+fn check_endpoint(flag: &'static str, value: &str) -> Result<(), LinkError> {
+    let err = |reason: &str| LinkError::Endpoint {
+        flag,
+        value: value.to_owned(),
+        reason: reason.to_owned(),
+    };
+    let Some(addr) = value.strip_prefix("tcp/") else {
+        return Err(err(
+            "only TCP endpoints are supported, written tcp/ADDR:PORT (e.g. tcp/192.168.1.20:7447)",
+        ));
+    };
+    let port = addr
+        .rsplit_once(':')
+        .map(|(_, p)| p)
+        .ok_or_else(|| err("missing the port (:PORT)"))?;
+    if port.parse::<u16>().is_err() {
+        return Err(err("the port is not a number in 0–65535"));
+    }
+    EndPoint::from_str(value).map_err(|e| err(&e.to_string()))?;
+    Ok(())
+}
+
+impl LinkArgs {
+    /// Checks the endpoints and the link name.
+    ///
+    /// # Errors
+    /// [`LinkError`] naming the flag and value.
+    pub fn validate(&self) -> Result<(), LinkError> {
+        if self.peers.is_empty() && self.listen.is_empty() && !self.scout {
+            return Err(LinkError::Nowhere);
+        }
+        for p in &self.peers {
+            check_endpoint("--peer", p)?;
+        }
+        for l in &self.listen {
+            check_endpoint("--listen", l)?;
+        }
+        let name_ok = !self.link_name.is_empty()
+            && self.link_name.len() <= 64
+            && self
+                .link_name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_');
+        if !name_ok {
+            return Err(LinkError::LinkName(self.link_name.clone()));
+        }
+        Ok(())
+    }
+
+    /// The flags as a command line (for the launcher to pass on).
+    pub fn to_args(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for p in &self.peers {
+            out.extend(["--peer".to_owned(), p.clone()]);
+        }
+        for l in &self.listen {
+            out.extend(["--listen".to_owned(), l.clone()]);
+        }
+        if self.scout {
+            out.push("--scout".to_owned());
+        }
+        out.extend(["--link-name".to_owned(), self.link_name.clone()]);
+        out
+    }
+
+    /// The Zenoh key of a channel on this link.
+    pub fn key(&self, channel: Channel) -> String {
+        format!("foresight/{}/{}", self.link_name, channel.key_suffix())
+    }
+
+    /// The Zenoh configuration: peer mode, exactly these endpoints, multicast scouting only
+    /// with `--scout`, and no shared memory transport.
+    ///
+    /// # Errors
+    /// [`LinkError`] (the settings are validated first).
+    pub fn zenoh_config(&self) -> Result<zenoh::Config, LinkError> {
+        self.validate()?;
+        let mut c = zenoh::Config::default();
+        let json = |v: &[String]| serde_json::to_string(v).unwrap_or_else(|_| "[]".into());
+        let set = |c: &mut zenoh::Config, k: &str, v: &str| {
+            c.insert_json5(k, v)
+                .map_err(|e| LinkError::Zenoh(format!("config {k} = {v}: {e}")))
+        };
+        set(&mut c, "mode", "\"peer\"")?;
+        set(&mut c, "listen/endpoints", &json(&self.listen))?;
+        set(&mut c, "connect/endpoints", &json(&self.peers))?;
+        set(
+            &mut c,
+            "scouting/multicast/enabled",
+            if self.scout { "true" } else { "false" },
+        )?;
+        // A peer found by gossip is connected to only through endpoints it listens on, which
+        // the user chose; keep gossip to the next hop.
+        set(&mut c, "scouting/gossip/multihop", "false")?;
+        // The lease (10 s by default) decides when a silent peer is dropped; a dropped link
+        // to a `--peer` is re-dialled every 0.5–2 s.
+        set(
+            &mut c,
+            "connect/retry",
+            "{period_init_ms: 500, period_max_ms: 2000, period_increase_factor: 2}",
+        )?;
+        Ok(c)
+    }
+
+    /// Opens the Zenoh session. Returns at once when the peer is not reachable yet (the
+    /// connection is retried in the background).
+    ///
+    /// # Errors
+    /// [`LinkError`]: bad settings, or Zenoh could not open (e.g. a listen port in use).
+    pub fn open(&self) -> Result<zenoh::Session, LinkError> {
+        let config = self.zenoh_config()?;
+        zenoh::open(config)
+            .wait()
+            .map_err(|e| LinkError::Zenoh(e.to_string()))
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    fn link(peers: &[&str], listen: &[&str]) -> LinkArgs {
+        LinkArgs {
+            peers: peers.iter().map(|s| (*s).to_owned()).collect(),
+            listen: listen.iter().map(|s| (*s).to_owned()).collect(),
+            scout: false,
+            link_name: "foresight".into(),
+        }
+    }
+
+    #[test]
+    fn endpoints_must_be_tcp_addr_port_and_something_must_be_given() {
+        assert_eq!(link(&[], &[]).validate(), Err(LinkError::Nowhere));
+        assert!(link(&["tcp/10.0.0.2:7447"], &[]).validate().is_ok());
+        assert!(link(&[], &["tcp/0.0.0.0:7447"]).validate().is_ok());
+        assert!(link(&["tcp/[::1]:7447"], &[]).validate().is_ok());
+        for (bad, why) in [
+            ("udp/10.0.0.2:7447", "only TCP"),
+            ("10.0.0.2:7447", "only TCP"),
+            ("tcp/10.0.0.2", "port"),
+            ("tcp/10.0.0.2:99999", "port"),
+        ] {
+            let e = link(&[bad], &[]).validate().unwrap_err().to_string();
+            assert!(e.contains("--peer") && e.contains(bad) && e.contains(why), "{e}");
+        }
+        let mut l = link(&["tcp/10.0.0.2:7447"], &[]);
+        l.link_name = "robot 1".into();
+        assert!(matches!(l.validate(), Err(LinkError::LinkName(_))));
+    }
+
+    #[test]
+    fn the_zenoh_config_listens_and_connects_only_where_told_and_does_not_scout() {
+        let c = link(&["tcp/10.0.0.2:7447"], &["tcp/10.0.0.1:7447"])
+            .zenoh_config()
+            .unwrap();
+        let get = |c: &zenoh::Config, k: &str| -> serde_json::Value {
+            serde_json::from_str(&c.get_json(k).unwrap()).unwrap()
+        };
+        assert_eq!(get(&c, "mode"), "peer");
+        assert_eq!(
+            get(&c, "listen/endpoints"),
+            serde_json::json!(["tcp/10.0.0.1:7447"])
+        );
+        assert_eq!(
+            get(&c, "connect/endpoints"),
+            serde_json::json!(["tcp/10.0.0.2:7447"])
+        );
+        assert_eq!(get(&c, "scouting/multicast/enabled"), false);
+        let mut scout = link(&[], &[]);
+        scout.scout = true;
+        let c = scout.zenoh_config().unwrap();
+        assert_eq!(get(&c, "scouting/multicast/enabled"), true);
+        assert_eq!(get(&c, "listen/endpoints"), serde_json::json!([]));
+    }
+
+    #[test]
+    fn flags_round_trip_through_the_command_line() {
+        use clap::Parser;
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            link: LinkArgs,
+        }
+        let mut l = link(&["tcp/10.0.0.2:7447", "tcp/10.0.0.3:7447"], &["tcp/0.0.0.0:7447"]);
+        l.scout = true;
+        l.link_name = "arm-2".into();
+        let argv = std::iter::once("x".to_owned()).chain(l.to_args());
+        assert_eq!(Cli::parse_from(argv).link, l);
+        assert_eq!(l.key(Channel::Policy), "foresight/arm-2/policy");
+    }
+}

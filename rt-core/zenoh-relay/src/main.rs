@@ -1,0 +1,147 @@
+//! `zenoh-relay`: carries retrain requests, retrain progress and policies between the robot
+//! PC and a learner host over Zenoh (see the library docs and README's "Two hosts").
+//!
+//! - `zenoh-relay controller --prefix P --peer tcp/GPU-BOX:7447` beside rt-core (the
+//!   launcher's `foresight --learner-host` starts it);
+//! - `zenoh-relay learner-host --listen tcp/0.0.0.0:7447` on the GPU box: `learner serve`
+//!   plus the learner side of the relay;
+//! - `zenoh-relay learner --prefix P …`: the learner side alone, beside a `learner serve`
+//!   started by hand with the same prefix.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use zenoh_relay::learner_host::{LearnerArgs, LearnerChild};
+use zenoh_relay::link::LinkArgs;
+use zenoh_relay::relay::{self, RelayConfig};
+use zenoh_relay::wire::Side;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "zenoh-relay",
+    version,
+    about = "Carry Foresight's retraining services between the robot PC and a learner host over Zenoh"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Debug, Subcommand)]
+enum Cmd {
+    /// The robot PC's side, beside rt-core.
+    Controller(SideArgs),
+    /// The learner host's side, beside a `learner serve` with the same `--prefix`.
+    Learner(SideArgs),
+    /// The learner host: `learner serve` (supervised) plus the learner side of the relay.
+    LearnerHost(LearnerHostArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct SideArgs {
+    /// iceoryx2 service prefix of this host's processes.
+    #[arg(long, default_value = "")]
+    prefix: String,
+    /// Keep a status file here (JSON, rewritten atomically).
+    #[arg(long)]
+    status: Option<PathBuf>,
+    #[command(flatten)]
+    link: LinkArgs,
+}
+
+#[derive(Debug, clap::Args)]
+struct LearnerHostArgs {
+    /// iceoryx2 service prefix of the learner here (default: private to this process).
+    #[arg(long)]
+    prefix: Option<String>,
+    /// Keep a status file here (JSON, rewritten atomically).
+    #[arg(long)]
+    status: Option<PathBuf>,
+    #[command(flatten)]
+    link: LinkArgs,
+    #[command(flatten)]
+    learner: LearnerArgs,
+}
+
+fn stop_flag() -> Result<Arc<AtomicBool>> {
+    let stop = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, Arc::clone(&stop)).context("installing signal handlers")?;
+    }
+    Ok(stop)
+}
+
+fn tie_to_parent() {
+    // SAFETY: prctl(PR_SET_PDEATHSIG) takes one integer argument and touches no memory.
+    let rc = unsafe { libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) };
+    if rc != 0 {
+        tracing::warn!("prctl(PR_SET_PDEATHSIG): {}", std::io::Error::last_os_error());
+    }
+}
+
+fn run_side(side: Side, a: SideArgs) -> Result<()> {
+    tie_to_parent();
+    let stop = stop_flag()?;
+    let cfg = RelayConfig {
+        side,
+        prefix: a.prefix,
+        link: a.link,
+        status_path: a.status,
+    };
+    relay::run(cfg, &stop).context("zenoh-relay")?;
+    Ok(())
+}
+
+fn run_learner_host(a: LearnerHostArgs) -> Result<()> {
+    a.link.validate().context("zenoh-relay learner-host")?;
+    let stop = stop_flag()?;
+    let prefix = a
+        .prefix
+        .unwrap_or_else(|| format!("fs-learner-host-{}", std::process::id()));
+    let program = a.learner.learner_bin().context("locating `learner`")?;
+    let mut learner = LearnerChild::start(program, a.learner.serve_args(&prefix))
+        .context("starting learner serve")?;
+    let cfg = RelayConfig {
+        side: Side::Learner,
+        prefix,
+        link: a.link,
+        status_path: a.status,
+    };
+    let relay_stop = Arc::clone(&stop);
+    let relay_thread = std::thread::Builder::new()
+        .name("relay".into())
+        .spawn(move || relay::run(cfg, &relay_stop))
+        .context("starting the relay thread")?;
+    while !stop.load(Ordering::Relaxed) && !relay_thread.is_finished() {
+        learner.poll();
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    stop.store(true, Ordering::Relaxed);
+    learner.stop();
+    match relay_thread.join() {
+        Ok(r) => {
+            r.context("zenoh-relay")?;
+        }
+        Err(_) => anyhow::bail!("the relay thread panicked"),
+    }
+    Ok(())
+}
+
+fn main() -> Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,zenoh=warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match Cli::parse().cmd {
+        Cmd::Controller(a) => run_side(Side::Controller, a),
+        Cmd::Learner(a) => run_side(Side::Learner, a),
+        Cmd::LearnerHost(a) => run_learner_host(a),
+    }
+}
