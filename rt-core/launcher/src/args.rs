@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use xarm::config::{LoopbackCheckError, XArmConfig};
+use zenoh_relay::link::{LinkArgs, LinkError};
 
 /// Command line of `foresight`.
 #[derive(Debug, Clone, clap::Parser)]
@@ -84,6 +85,26 @@ pub struct LaunchArgs {
     /// Where run folders go.
     #[arg(long, default_value = "runs")]
     pub out: PathBuf,
+    /// The learner runs on another host (a GPU box): start no learner here, but the
+    /// controller side of `zenoh-relay`, which carries retrain requests there and policies
+    /// back over Zenoh. The other host runs `zenoh-relay learner-host --listen
+    /// tcp/0.0.0.0:7447` (README, "Two hosts"). Needs `--peer`, `--listen` or `--scout`.
+    #[arg(long)]
+    pub learner_host: bool,
+    /// Where the relay connects / listens (with `--learner-host`).
+    #[command(flatten)]
+    pub link: LinkArgs,
+}
+
+/// The host-to-host flags are inconsistent.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum LearnerHostError {
+    /// `--peer`, `--listen` or `--scout` without `--learner-host`.
+    #[error("--peer, --listen and --scout only mean something with --learner-host")]
+    LinkWithoutLearnerHost,
+    /// The link settings are refused.
+    #[error("--learner-host: {0}")]
+    Link(#[from] LinkError),
 }
 
 /// Which detector `perception run` uses (`--detector`).
@@ -129,6 +150,19 @@ impl LaunchArgs {
             .unwrap_or_default()
     }
 
+    /// With `--learner-host`, the link flags are usable; without it, none is given.
+    ///
+    /// # Errors
+    /// [`LearnerHostError`] naming the flag.
+    pub fn check_learner_host(&self) -> Result<(), LearnerHostError> {
+        if self.learner_host {
+            self.link.validate()?;
+        } else if !self.link.peers.is_empty() || !self.link.listen.is_empty() || self.link.scout {
+            return Err(LearnerHostError::LinkWithoutLearnerHost);
+        }
+        Ok(())
+    }
+
     /// Blind mode never reaches a real arm: with `--no-lookahead`, a `--robot` address must
     /// be, or resolve only to, loopback addresses (decided from the address alone, nothing
     /// is sent to it). Without `--robot` the launcher's own `xarm-sim` on 127.0.0.1 is used.
@@ -171,6 +205,26 @@ mod tests {
         assert_eq!(
             args(&["--task", "/x/assets/task.toml"]).assets_dir(),
             PathBuf::from("/x/assets")
+        );
+    }
+
+    #[test]
+    fn learner_host_needs_a_way_to_the_other_host_and_link_flags_need_learner_host() {
+        assert_eq!(args(&[]).check_learner_host(), Ok(()));
+        assert!(matches!(
+            args(&["--learner-host"]).check_learner_host(),
+            Err(LearnerHostError::Link(LinkError::Nowhere))
+        ));
+        let ok = args(&["--learner-host", "--peer", "tcp/10.0.0.2:7447"]);
+        assert_eq!(ok.check_learner_host(), Ok(()));
+        assert_eq!(ok.link.peers, ["tcp/10.0.0.2:7447"]);
+        let e = args(&["--learner-host", "--peer", "10.0.0.2"])
+            .check_learner_host()
+            .unwrap_err();
+        assert!(e.to_string().contains("--peer 10.0.0.2"), "{e}");
+        assert_eq!(
+            args(&["--listen", "tcp/0.0.0.0:7447"]).check_learner_host(),
+            Err(LearnerHostError::LinkWithoutLearnerHost)
         );
     }
 

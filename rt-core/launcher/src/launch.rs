@@ -369,7 +369,7 @@ fn finish(
         .and_then(report::RefereeFigures::from_sim_status);
     sup.stop_all(Duration::from_secs(5));
     let (p99, p999) = read_cycle_stats(&setup.run.path.join("logs/rt-core.log"));
-    let restarts = ["perception", "learner"]
+    let restarts = ["perception", "learner", "zenoh-relay"]
         .iter()
         .map(|n| u64::from(sup.restarts(n)))
         .sum();
@@ -378,7 +378,52 @@ fn finish(
     summary.detector = args.detector.name().to_owned();
     summary.cycle_p99_us = p99.or(summary.cycle_p99_us);
     summary.notes.extend(notes);
+    if args.learner_host {
+        let path = setup.run.path.join(crate::processes::RELAY_STATUS);
+        match zenoh_relay::status::RelayStatus::read(&path) {
+            Ok(st) => {
+                let remote = report::RemoteLearner::from_status(&st);
+                summary.notes.extend(remote_learner_notes(&remote, &st));
+                summary.remote_learner = Some(remote);
+            }
+            Err(e) => summary
+                .notes
+                .push(format!("--learner-host: no relay status ({e})")),
+        }
+    }
     Ok((summary, referee))
+}
+
+/// What a person should know about the remote learner: never heard from, requests left
+/// unanswered, messages refused.
+fn remote_learner_notes(
+    remote: &report::RemoteLearner,
+    st: &zenoh_relay::status::RelayStatus,
+) -> Vec<String> {
+    let mut notes = Vec::new();
+    if remote.host.is_empty() {
+        let via: Vec<&str> = st.peers.iter().chain(&st.listen).map(String::as_str).collect();
+        notes.push(format!(
+            "the learner host was never heard from over {}: is `zenoh-relay learner-host` running \
+             there with the same --link-name ({}), and is its TCP port open?",
+            via.join(", "),
+            st.link_name
+        ));
+    }
+    for r in st.requests.iter().filter(|r| r.answered_unix_s.is_none() && !r.superseded) {
+        notes.push(format!(
+            "retrain request {} was sent {} time(s) to the learner host and not answered",
+            r.request_id, r.sends
+        ));
+    }
+    if remote.rejected > 0 {
+        notes.push(format!(
+            "{} message(s) from the learner host were refused; the last: {}",
+            remote.rejected,
+            remote.last_rejection.as_deref().unwrap_or("?")
+        ));
+    }
+    notes
 }
 
 /// The last `ERROR` line of a process log (why it exited, when it says so), trimmed.

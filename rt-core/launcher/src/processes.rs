@@ -47,6 +47,7 @@ pub fn start_all(
     live: &Path,
 ) -> Result<Started> {
     args.check_blind_mode()?;
+    args.check_learner_host()?;
     // Before anything starts: a `--detector yolo` without its model is refused here, not
     // discovered as a perception process that keeps failing.
     let perception = perception_args(args, prefix, live)?;
@@ -65,7 +66,11 @@ pub fn start_all(
         env: vec![],
         restart: true,
     })?;
-    start_learner(sup, &bins, args, run, prefix)?;
+    if args.learner_host {
+        start_relay(sup, &bins, args, run, prefix)?;
+    } else {
+        start_learner(sup, &bins, args, run, prefix)?;
+    }
     start_rt_core(sup, &bins, args, run, prefix, robot_addr, sim)?;
     if args.ros {
         sup.start(ProcessSpec {
@@ -213,6 +218,38 @@ fn start_learner(
             "--max-steps".into(),
             args.retrain_steps.to_string(),
         ],
+        env: vec![],
+        restart: true,
+    })?;
+    Ok(())
+}
+
+/// The relay's status file in the run folder (read into the report).
+pub const RELAY_STATUS: &str = "relay.json";
+
+/// `--learner-host`: the controller side of `zenoh-relay` instead of a local learner. It is
+/// restarted if it dies; rt-core keeps its running policy meanwhile, and the relay sends
+/// the last retrain request again when it is back (iceoryx2 keeps it in the service's
+/// history).
+fn start_relay(
+    sup: &mut Supervisor,
+    bins: &Path,
+    args: &LaunchArgs,
+    run: &RunDir,
+    prefix: &str,
+) -> Result<()> {
+    let mut relay_args = vec![
+        "controller".into(),
+        "--prefix".into(),
+        prefix.to_owned(),
+        "--status".into(),
+        s(&run.file(RELAY_STATUS)?),
+    ];
+    relay_args.extend(args.link.to_args());
+    sup.start(ProcessSpec {
+        name: "zenoh-relay".into(),
+        program: bins.join("zenoh-relay"),
+        args: relay_args,
         env: vec![],
         restart: true,
     })?;

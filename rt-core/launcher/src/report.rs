@@ -51,8 +51,102 @@ pub struct Summary {
     /// a collision.
     #[serde(default)]
     pub arm_rejected_commands: Option<u64>,
+    /// With `--learner-host`: where and how the remote retraining went.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub remote_learner: Option<RemoteLearner>,
     /// Free-form notes (e.g. what timed out).
     pub notes: Vec<String>,
+}
+
+/// The remote retraining of a `--learner-host` run, from the controller relay's status file.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+#[serde(default)]
+pub struct RemoteLearner {
+    /// The learner host's name (from its relay's hellos; empty if never heard from).
+    pub host: String,
+    /// `--peer` endpoints used.
+    pub peers: Vec<String>,
+    /// `--listen` endpoints used.
+    pub listen: Vec<String>,
+    /// Retrain requests carried there.
+    pub requests: u64,
+    /// Requests answered (a policy published or the budget exhausted).
+    pub answered: u64,
+    /// Per answered request: request reached the relay → answer back (s).
+    pub request_to_answer_s: Vec<f64>,
+    /// Per answered request: the learner's own training wall time (s).
+    pub remote_training_s: Vec<f64>,
+    /// Requests and policies sent again after silence.
+    pub resends: u64,
+    /// Times the learner host fell silent.
+    pub link_losses: u64,
+    /// Total silence (s).
+    pub link_down_s: f64,
+    /// Messages refused (schema mismatch, invalid, malformed).
+    pub rejected: u64,
+    /// The last refusal, in words.
+    pub last_rejection: Option<String>,
+}
+
+impl RemoteLearner {
+    /// From the controller relay's status file.
+    pub fn from_status(st: &zenoh_relay::status::RelayStatus) -> Self {
+        let answered: Vec<_> = st
+            .requests
+            .iter()
+            .filter_map(|r| r.answered_unix_s.map(|a| (a - r.submitted_unix_s, r)))
+            .collect();
+        Self {
+            host: st.peer.as_ref().map(|p| p.host.clone()).unwrap_or_default(),
+            peers: st.peers.clone(),
+            listen: st.listen.clone(),
+            requests: st.requests.len() as u64,
+            answered: answered.len() as u64,
+            request_to_answer_s: answered.iter().map(|(d, _)| *d).collect(),
+            remote_training_s: answered
+                .iter()
+                .filter_map(|(_, r)| r.remote_wall_time_s)
+                .collect(),
+            resends: st.resends,
+            link_losses: st.link_losses,
+            link_down_s: st.link_down_s,
+            rejected: st.rejected.values().sum(),
+            last_rejection: st.last_rejection.clone(),
+        }
+    }
+
+    /// One sentence for the report.
+    pub fn describe(&self) -> String {
+        let host = if self.host.is_empty() {
+            "a learner host that was never heard from".to_owned()
+        } else {
+            format!("`{}`", self.host)
+        };
+        let via: Vec<&str> = self
+            .peers
+            .iter()
+            .chain(&self.listen)
+            .map(String::as_str)
+            .collect();
+        let mut line = format!(
+            "retrained on {host} (link {}): {} request(s), {} answered",
+            via.join(", "),
+            self.requests,
+            self.answered
+        );
+        for (i, d) in self.request_to_answer_s.iter().enumerate() {
+            let _ = write!(line, "; request → answer {d:.2} s");
+            if let Some(t) = self.remote_training_s.get(i) {
+                let _ = write!(line, " ({t:.2} s training there)");
+            }
+        }
+        let _ = write!(
+            line,
+            "; {} re-send(s); link lost {} time(s), {:.1} s in all; {} message(s) refused",
+            self.resends, self.link_losses, self.link_down_s, self.rejected
+        );
+        line
+    }
 }
 
 /// What `xarm-sim`'s independent referee saw in the run: its `referee` object in the
@@ -449,6 +543,9 @@ pub fn write_markdown(
     }
     if let Some(r) = referee {
         let _ = writeln!(md, "| referee (xarm-sim ground truth) | {} |", r.describe());
+    }
+    if let Some(r) = &summary.remote_learner {
+        let _ = writeln!(md, "| remote learner | {} |", r.describe());
     }
     for note in &summary.notes {
         let _ = writeln!(md, "\n> {note}");

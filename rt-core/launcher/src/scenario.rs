@@ -494,6 +494,7 @@ impl Director {
             seed,
             restarts,
             arm_rejected_commands: None,
+            remote_learner: None,
             notes,
         }
     }
