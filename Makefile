@@ -22,12 +22,13 @@ export LIBTORCH_BYPASS_VERSION_CHECK := 1
 CARGO ?= cargo
 BIN := $(CARGO_TARGET_DIR)/release
 
-.PHONY: setup build demo test lint fmt bench bench-loop sweep clean help
+.PHONY: setup build demo test lint fmt bench bench-link bench-loop sweep clean help
 
 help:
 	@echo "make demo   - run the main job on the simulated arm (installs what it needs)"
 	@echo "make test   - run every check and test (installs what it needs)"
 	@echo "make bench  - criterion benchmarks (medians in README)"
+	@echo "make bench-link - policy/request latency across two network namespaces (root)"
 	@echo "make sweep  - the adversarial safety sweep, 10 000 episodes (ARGS to override)"
 
 setup:
@@ -62,6 +63,10 @@ fmt:
 
 bench: setup
 	$(CARGO) bench -p twin -p policy -p xarm
+
+# Host-to-host link latency (issue 16): two network namespaces joined by a veth pair (root).
+bench-link: setup
+	$(CARGO) bench -p zenoh-relay --bench link_latency
 
 # The adversarial sweep's long run (issue 14): the real twin worker and cycle through
 # randomised, adversarial scenes; exits non-zero on any unsafe command. `rt-core sweep` is

@@ -352,9 +352,7 @@ pub fn loan_zeroed<T: ShmMessage, S: Service>(
 pub fn message_bytes<T: ShmMessage>(message: &T) -> &[u8] {
     // SAFETY: `ShmMessage` guarantees `T` has no padding, so all `size_of::<T>()` bytes of a
     // live `T` are initialised; the slice borrows `message` for its lifetime.
-    unsafe {
-        core::slice::from_raw_parts((message as *const T).cast::<u8>(), size_of::<T>())
-    }
+    unsafe { core::slice::from_raw_parts((message as *const T).cast::<u8>(), size_of::<T>()) }
 }
 
 /// Why bytes from outside the process are not a message.

@@ -64,7 +64,16 @@ impl TwoHosts {
         ip(&["netns", "add", &h.robot_ns])?;
         // From here on, drop removes what was made.
         ip(&["netns", "add", &h.learner_ns])?;
-        ip(&["link", "add", &h.robot_if, "type", "veth", "peer", "name", &learner_if])?;
+        ip(&[
+            "link",
+            "add",
+            &h.robot_if,
+            "type",
+            "veth",
+            "peer",
+            "name",
+            &learner_if,
+        ])?;
         ip(&["link", "set", &h.robot_if, "netns", &h.robot_ns])?;
         ip(&["link", "set", &learner_if, "netns", &h.learner_ns])?;
         for (ns, dev, addr) in [
@@ -162,10 +171,7 @@ impl Drop for LogsOnFailure<'_> {
 
 /// The demo's fast world across two hosts; `during_retraining` runs once the learner
 /// host has started answering the first retrain request. Returns the summary.
-fn two_host_run(
-    tag: &str,
-    during_retraining: impl FnOnce(&TwoHosts),
-) -> Option<serde_json::Value> {
+fn two_host_run(tag: &str, during_retraining: impl FnOnce(&TwoHosts)) -> Option<serde_json::Value> {
     let hosts = match TwoHosts::make(tag) {
         Ok(h) => h,
         Err(why) => {
@@ -213,7 +219,10 @@ fn two_host_run(
         if let Some(status) = robot.child.try_wait().expect("waiting for foresight") {
             break status.code().unwrap_or(-1);
         }
-        assert!(Instant::now() < deadline, "foresight did not finish in time");
+        assert!(
+            Instant::now() < deadline,
+            "foresight did not finish in time"
+        );
         if hook.is_some()
             && let Some(st) = run_folder(&out).and_then(|r| json(&r.join("relay.json")))
             && st["requests"][0]["first_progress_unix_s"].is_number()

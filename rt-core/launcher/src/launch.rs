@@ -402,7 +402,12 @@ fn remote_learner_notes(
 ) -> Vec<String> {
     let mut notes = Vec::new();
     if remote.host.is_empty() {
-        let via: Vec<&str> = st.peers.iter().chain(&st.listen).map(String::as_str).collect();
+        let via: Vec<&str> = st
+            .peers
+            .iter()
+            .chain(&st.listen)
+            .map(String::as_str)
+            .collect();
         notes.push(format!(
             "the learner host was never heard from over {}: is `zenoh-relay learner-host` running \
              there with the same --link-name ({}), and is its TCP port open?",
@@ -410,7 +415,11 @@ fn remote_learner_notes(
             st.link_name
         ));
     }
-    for r in st.requests.iter().filter(|r| r.answered_unix_s.is_none() && !r.superseded) {
+    for r in st
+        .requests
+        .iter()
+        .filter(|r| r.answered_unix_s.is_none() && !r.superseded)
+    {
         notes.push(format!(
             "retrain request {} was sent {} time(s) to the learner host and not answered",
             r.request_id, r.sends

@@ -14,13 +14,14 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
 use shm_schemas::services::{self, loan_zeroed};
-use shm_schemas::{
-    EpisodeEnd, PolicyBlob, PolicyBlobBuilder, RetrainRequest, TwinVerdict,
-};
+use shm_schemas::{EpisodeEnd, PolicyBlob, PolicyBlobBuilder, RetrainRequest, TwinVerdict};
 use zenoh_relay::status::RelayStatus;
 
 fn ip(args: &[&str]) -> Result<(), String> {
-    let out = Command::new("ip").args(args).output().map_err(|e| e.to_string())?;
+    let out = Command::new("ip")
+        .args(args)
+        .output()
+        .map_err(|e| e.to_string())?;
     if out.status.success() {
         Ok(())
     } else {
@@ -59,7 +60,10 @@ fn percentiles(name: &str, mut v: Vec<f64>) {
 
 fn main() {
     // `cargo bench` passes `--bench`; a filter that is not ours means "not this bench".
-    if std::env::args().skip(1).any(|a| !a.starts_with('-') && !"link_latency".contains(&a)) {
+    if std::env::args()
+        .skip(1)
+        .any(|a| !a.starts_with('-') && !"link_latency".contains(&a))
+    {
         return;
     }
     let samples: usize = std::env::var("BENCH_SAMPLES")
@@ -100,8 +104,20 @@ fn main() {
                 .unwrap(),
         )
     };
-    let _ctl = relay(&a, "controller", &pc, ["--peer", "tcp/10.232.0.2:7447"], "c.json");
-    let _lrn = relay(&b, "learner", &pl, ["--listen", "tcp/10.232.0.2:7447"], "l.json");
+    let _ctl = relay(
+        &a,
+        "controller",
+        &pc,
+        ["--peer", "tcp/10.232.0.2:7447"],
+        "c.json",
+    );
+    let _lrn = relay(
+        &b,
+        "learner",
+        &pl,
+        ["--listen", "tcp/10.232.0.2:7447"],
+        "l.json",
+    );
 
     let (node, _) = services::create_node::<ipc::Service>("link-bench").unwrap();
     let pol_pub = services::open_publisher::<PolicyBlob, _>(&node, &pl).unwrap();
@@ -138,7 +154,8 @@ fn main() {
                 break;
             }
             assert!(t0.elapsed() < Duration::from_secs(10), "policy {i} lost");
-            std::hint::spin_loop();
+            // Not a spin: on two cores a spinning bench would take a core from the relays.
+            std::thread::sleep(Duration::from_micros(50));
         }
         if i >= 5 {
             policy_ms.push(t0.elapsed().as_secs_f64() * 1e3);
@@ -168,20 +185,29 @@ fn main() {
                 break;
             }
             assert!(t0.elapsed() < Duration::from_secs(10), "request {i} lost");
-            std::hint::spin_loop();
+            // Not a spin: on two cores a spinning bench would take a core from the relays.
+            std::thread::sleep(Duration::from_micros(50));
         }
         if i >= 5 {
             request_ms.push(t0.elapsed().as_secs_f64() * 1e3);
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-    println!("link_latency over a veth pair between two network namespaces (iceoryx2 → relay → Zenoh/TCP → relay → iceoryx2):");
+    println!(
+        "link_latency over a veth pair between two network namespaces (iceoryx2 → relay → Zenoh/TCP → relay → iceoryx2):"
+    );
     percentiles(
-        &format!("policy blob ({} KB), learner → controller", size_of::<PolicyBlob>() / 1024),
+        &format!(
+            "policy blob ({} KB), learner → controller",
+            size_of::<PolicyBlob>() / 1024
+        ),
         policy_ms,
     );
     percentiles(
-        &format!("retrain request ({} B), controller → learner", size_of::<RetrainRequest>()),
+        &format!(
+            "retrain request ({} B), controller → learner",
+            size_of::<RetrainRequest>()
+        ),
         request_ms,
     );
     std::fs::remove_dir_all(&dir).ok();

@@ -141,11 +141,7 @@ impl LearnerChild {
             self.child = None;
             self.exited_at = Some(Instant::now());
         }
-        if self.child.is_none()
-            && self
-                .exited_at
-                .is_some_and(|t| t.elapsed() >= RESTART_PAUSE)
-        {
+        if self.child.is_none() && self.exited_at.is_some_and(|t| t.elapsed() >= RESTART_PAUSE) {
             match self.spawn() {
                 Ok(()) => self.restarts += 1,
                 Err(e) => {
@@ -198,14 +194,7 @@ mod tests {
             #[command(flatten)]
             learner: LearnerArgs,
         }
-        let cli = Cli::parse_from([
-            "x",
-            "--time-budget-s",
-            "60",
-            "--",
-            "--workers",
-            "4",
-        ]);
+        let cli = Cli::parse_from(["x", "--time-budget-s", "60", "--", "--workers", "4"]);
         let a = cli.learner.serve_args("lh-1");
         let after = |flag: &str| a.iter().position(|x| x == flag).map(|i| a[i + 1].as_str());
         assert_eq!(a[0], "serve");

@@ -208,7 +208,10 @@ mod tests {
             ("tcp/10.0.0.2:99999", "port"),
         ] {
             let e = link(&[bad], &[]).validate().unwrap_err().to_string();
-            assert!(e.contains("--peer") && e.contains(bad) && e.contains(why), "{e}");
+            assert!(
+                e.contains("--peer") && e.contains(bad) && e.contains(why),
+                "{e}"
+            );
         }
         let mut l = link(&["tcp/10.0.0.2:7447"], &[]);
         l.link_name = "robot 1".into();
@@ -248,7 +251,10 @@ mod tests {
             #[command(flatten)]
             link: LinkArgs,
         }
-        let mut l = link(&["tcp/10.0.0.2:7447", "tcp/10.0.0.3:7447"], &["tcp/0.0.0.0:7447"]);
+        let mut l = link(
+            &["tcp/10.0.0.2:7447", "tcp/10.0.0.3:7447"],
+            &["tcp/0.0.0.0:7447"],
+        );
         l.scout = true;
         l.link_name = "arm-2".into();
         let argv = std::iter::once("x".to_owned()).chain(l.to_args());

@@ -70,7 +70,8 @@ struct LearnerHostArgs {
 fn stop_flag() -> Result<Arc<AtomicBool>> {
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(sig, Arc::clone(&stop)).context("installing signal handlers")?;
+        signal_hook::flag::register(sig, Arc::clone(&stop))
+            .context("installing signal handlers")?;
     }
     Ok(stop)
 }
@@ -79,7 +80,10 @@ fn tie_to_parent() {
     // SAFETY: prctl(PR_SET_PDEATHSIG) takes one integer argument and touches no memory.
     let rc = unsafe { libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) };
     if rc != 0 {
-        tracing::warn!("prctl(PR_SET_PDEATHSIG): {}", std::io::Error::last_os_error());
+        tracing::warn!(
+            "prctl(PR_SET_PDEATHSIG): {}",
+            std::io::Error::last_os_error()
+        );
     }
 }
 

@@ -27,8 +27,7 @@ use zenoh::Wait;
 
 use crate::link::{LinkArgs, LinkError};
 use crate::reliable::{
-    PolicyInbox, PolicyOutbox, ProgressAction, RequestAction, RequestInbox, RequestOutbox,
-    is_final,
+    PolicyInbox, PolicyOutbox, ProgressAction, RequestAction, RequestInbox, RequestOutbox, is_final,
 };
 use crate::status::{PeerStatus, RelayStatus, RequestStatus, host_name, unix_s};
 use crate::wire::{
@@ -98,7 +97,10 @@ fn publish_local<T: ShmMessage>(
     unsafe {
         core::ptr::copy_nonoverlapping(message as *const T, sample.payload_mut() as *mut T, 1);
     }
-    sample.send().map(|_| ()).map_err(|e| format!("send: {e:?}"))
+    sample
+        .send()
+        .map(|_| ())
+        .map_err(|e| format!("send: {e:?}"))
 }
 
 /// Rate limit for repeated warnings: one line per reason per second.
@@ -326,14 +328,18 @@ impl Relay {
             },
             Channel::RetrainRequest => decode_message::<RetrainRequest>(bytes, channel)
                 .map(|(h, r)| self.on_request(h.sender_instance, &r)),
-            Channel::RetrainProgress => decode_message::<RetrainProgress>(bytes, channel)
-                .map(|(_, p)| self.on_progress(&p)),
+            Channel::RetrainProgress => {
+                decode_message::<RetrainProgress>(bytes, channel).map(|(_, p)| self.on_progress(&p))
+            }
             Channel::Policy => {
                 decode_message::<PolicyBlob>(bytes, channel).map(|(_, b)| self.on_policy(&b))
             }
             Channel::PolicyAck => decode_control::<PolicyAck>(bytes, channel).map(|(_, a)| {
                 if self.policy_out.on_ack(a.policy_id, a.checksum) {
-                    tracing::info!(policy_id = a.policy_id, "policy acknowledged by the controller");
+                    tracing::info!(
+                        policy_id = a.policy_id,
+                        "policy acknowledged by the controller"
+                    );
                 }
             }),
         };
@@ -390,7 +396,10 @@ impl Relay {
     fn on_request(&mut self, instance: u64, r: &RetrainRequest) {
         match self.request_in.on_request(instance, r) {
             RequestAction::Forward => {
-                tracing::info!(request = r.request_id, "retrain request from the controller");
+                tracing::info!(
+                    request = r.request_id,
+                    "retrain request from the controller"
+                );
                 if let Ports::Learner { requests, .. } = &self.ports
                     && let Err(e) = publish_local(requests, r)
                 {
@@ -465,7 +474,10 @@ impl Relay {
             if let Ports::Controller { policies, .. } = &self.ports {
                 match publish_local(policies, blob) {
                     Ok(()) => {
-                        tracing::info!(policy_id = blob.policy_id, "policy from the learner host handed to rt-core");
+                        tracing::info!(
+                            policy_id = blob.policy_id,
+                            "policy from the learner host handed to rt-core"
+                        );
                         let t = unix_s();
                         for r in self.status.requests.iter_mut().rev() {
                             if r.policy_id == Some(blob.policy_id) || r.policy_id.is_none() {
@@ -512,10 +524,9 @@ impl Relay {
                     }
                 }
                 if let Some(r) = latest {
-                    let same = self
-                        .request_out
-                        .current()
-                        .is_some_and(|c| (c.request_id, c.request_time_ns) == (r.request_id, r.request_time_ns));
+                    let same = self.request_out.current().is_some_and(|c| {
+                        (c.request_id, c.request_time_ns) == (r.request_id, r.request_time_ns)
+                    });
                     if !same {
                         if let Some(prev) = self.status.requests.last_mut()
                             && prev.answered_unix_s.is_none()
@@ -528,7 +539,10 @@ impl Relay {
                             submitted_unix_s: unix_s(),
                             ..RequestStatus::default()
                         });
-                        tracing::info!(request = r.request_id, "retrain request sent to the learner host");
+                        tracing::info!(
+                            request = r.request_id,
+                            "retrain request sent to the learner host"
+                        );
                         self.send_request(&r);
                     }
                 }
@@ -568,7 +582,11 @@ impl Relay {
             let bytes = encode_message(Channel::RetrainProgress, self.instance, seq, &p);
             self.put(Channel::RetrainProgress, bytes);
             if is_final(&p) {
-                tracing::info!(request = p.request_id, wall_s = p.wall_time_s, "retraining answered");
+                tracing::info!(
+                    request = p.request_id,
+                    wall_s = p.wall_time_s,
+                    "retraining answered"
+                );
             }
         }
         if let Some(b) = newest {
@@ -614,7 +632,10 @@ impl Relay {
 
     fn resend_due(&mut self, now: Instant) {
         if let Some(r) = self.request_out.due(now) {
-            tracing::info!(request = r.request_id, "no answer yet: retrain request sent again");
+            tracing::info!(
+                request = r.request_id,
+                "no answer yet: retrain request sent again"
+            );
             self.status.resends += 1;
             self.send_request(&r);
         }

@@ -157,7 +157,8 @@ impl RequestInbox {
         match self.last {
             Some(last) if last == key => {
                 self.dropped += 1;
-                self.final_progress.map_or(RequestAction::Drop, RequestAction::Reanswer)
+                self.final_progress
+                    .map_or(RequestAction::Drop, RequestAction::Reanswer)
             }
             Some((inst, id, _)) if inst == sender_instance && r.request_id < id => {
                 self.dropped += 1;
@@ -313,11 +314,11 @@ mod tests {
             out.on_progress(&progress(1, RetrainPhase::Published), t0),
             ProgressAction::Stale
         );
-        assert!(!out.answered(), "an old request's answer does not answer the new one");
-        assert_eq!(
-            out.due(t0 + RESEND_INTERVAL).map(|r| r.request_id),
-            Some(2)
+        assert!(
+            !out.answered(),
+            "an old request's answer does not answer the new one"
         );
+        assert_eq!(out.due(t0 + RESEND_INTERVAL).map(|r| r.request_id), Some(2));
         assert_eq!(
             out.on_progress(&progress(3, RetrainPhase::Published), t0),
             ProgressAction::Stale
@@ -327,7 +328,10 @@ mod tests {
     #[test]
     fn the_learner_side_forwards_a_request_once_and_reanswers_repeats() {
         let mut inbox = RequestInbox::default();
-        assert_eq!(inbox.on_request(7, &request(1, 100)), RequestAction::Forward);
+        assert_eq!(
+            inbox.on_request(7, &request(1, 100)),
+            RequestAction::Forward
+        );
         // Repeats while training: dropped (the learner is on it).
         assert_eq!(inbox.on_request(7, &request(1, 100)), RequestAction::Drop);
         inbox.on_local_progress(&progress(1, RetrainPhase::Training));
@@ -340,10 +344,16 @@ mod tests {
             RequestAction::Reanswer(done)
         );
         // A newer request is forwarded; a late older one dropped.
-        assert_eq!(inbox.on_request(7, &request(2, 200)), RequestAction::Forward);
+        assert_eq!(
+            inbox.on_request(7, &request(2, 200)),
+            RequestAction::Forward
+        );
         assert_eq!(inbox.on_request(7, &request(1, 100)), RequestAction::Drop);
         // A restarted controller relay (another instance) starts its ids again.
-        assert_eq!(inbox.on_request(8, &request(1, 300)), RequestAction::Forward);
+        assert_eq!(
+            inbox.on_request(8, &request(1, 300)),
+            RequestAction::Forward
+        );
         assert_eq!(inbox.dropped, 4);
     }
 
@@ -354,7 +364,10 @@ mod tests {
         out.submit(10, 0xaa, t0);
         assert!(!out.due(t0 + Duration::from_millis(999)));
         assert!(out.due(t0 + RESEND_INTERVAL));
-        assert!(!out.on_ack(10, 0xbb), "an ack of another blob with the same id");
+        assert!(
+            !out.on_ack(10, 0xbb),
+            "an ack of another blob with the same id"
+        );
         assert!(!out.on_ack(9, 0xaa));
         assert!(out.on_ack(10, 0xaa));
         assert!(!out.waiting());

@@ -168,7 +168,10 @@ mod tests {
         assert!(!path.with_extension("json.tmp").exists());
         std::fs::write(&path, "{\"link_losses\": \"x\"}").unwrap();
         let e = RelayStatus::read(&path).unwrap_err();
-        assert!(e.contains("relay.json") && e.contains("invalid type"), "{e}");
+        assert!(
+            e.contains("relay.json") && e.contains("invalid type"),
+            "{e}"
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 }
