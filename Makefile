@@ -22,12 +22,13 @@ export LIBTORCH_BYPASS_VERSION_CHECK := 1
 CARGO ?= cargo
 BIN := $(CARGO_TARGET_DIR)/release
 
-.PHONY: setup build demo test lint fmt bench bench-link bench-loop sweep clean help
+.PHONY: setup build demo test lint fmt learner-host bench bench-link bench-loop sweep clean help
 
 help:
 	@echo "make demo   - run the main job on the simulated arm (installs what it needs)"
 	@echo "make test   - run every check and test (installs what it needs)"
 	@echo "make bench  - criterion benchmarks (medians in README)"
+	@echo "make learner-host - on a GPU box: learner serve + relay (LEARNER_HOST_ARGS)"
 	@echo "make bench-link - policy/request latency across two network namespaces (root)"
 	@echo "make sweep  - the adversarial safety sweep, 10 000 episodes (ARGS to override)"
 
@@ -63,6 +64,13 @@ fmt:
 
 bench: setup
 	$(CARGO) bench -p twin -p policy -p xarm
+
+# The GPU box of a two-host setup (README, "Two hosts"): `learner serve` plus the learner
+# side of the relay. LEARNER_HOST_ARGS says where to listen (and any learner flags).
+LEARNER_HOST_ARGS ?= --listen tcp/0.0.0.0:7447
+learner-host: setup
+	$(MAKE) --no-print-directory _build
+	$(BIN)/zenoh-relay learner-host $(LEARNER_HOST_ARGS)
 
 # Host-to-host link latency (issue 16): two network namespaces joined by a veth pair (root).
 bench-link: setup

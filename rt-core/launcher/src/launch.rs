@@ -425,6 +425,9 @@ fn remote_learner_notes(
             r.request_id, r.sends
         ));
     }
+    if let Some(m) = &st.task_mismatch {
+        notes.push(m.clone());
+    }
     if remote.rejected > 0 {
         notes.push(format!(
             "{} message(s) from the learner host were refused; the last: {}",

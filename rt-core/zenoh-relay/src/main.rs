@@ -49,8 +49,19 @@ struct SideArgs {
     /// Keep a status file here (JSON, rewritten atomically).
     #[arg(long)]
     status: Option<PathBuf>,
+    /// Learner side: the task configuration the local learner trains for; requests for
+    /// another task are refused.
+    #[arg(long)]
+    task: Option<PathBuf>,
     #[command(flatten)]
     link: LinkArgs,
+}
+
+/// The hash of a task configuration, as requests and policies carry it.
+fn task_hash(path: &std::path::Path) -> Result<u64> {
+    let task = twin::TaskConfig::load(path)
+        .with_context(|| format!("loading the task configuration {}", path.display()))?;
+    Ok(task.hash())
 }
 
 #[derive(Debug, clap::Args)]
@@ -95,6 +106,7 @@ fn run_side(side: Side, a: SideArgs) -> Result<()> {
         prefix: a.prefix,
         link: a.link,
         status_path: a.status,
+        task_hash: a.task.as_deref().map(task_hash).transpose()?,
     };
     relay::run(cfg, &stop).context("zenoh-relay")?;
     Ok(())
@@ -102,6 +114,7 @@ fn run_side(side: Side, a: SideArgs) -> Result<()> {
 
 fn run_learner_host(a: LearnerHostArgs) -> Result<()> {
     a.link.validate().context("zenoh-relay learner-host")?;
+    let hash = task_hash(&a.learner.task)?;
     let stop = stop_flag()?;
     let prefix = a
         .prefix
@@ -114,6 +127,7 @@ fn run_learner_host(a: LearnerHostArgs) -> Result<()> {
         prefix,
         link: a.link,
         status_path: a.status,
+        task_hash: Some(hash),
     };
     let relay_stop = Arc::clone(&stop);
     let relay_thread = std::thread::Builder::new()

@@ -53,6 +53,16 @@ pub struct RelayConfig {
     pub link: LinkArgs,
     /// Where to keep the status file, if anywhere.
     pub status_path: Option<PathBuf>,
+    /// Learner side: the hash of the task the local learner trains for (`--task`). Requests
+    /// for another task are refused (rt-core would refuse the policies that came back) and
+    /// the hash is announced in the hellos, so the robot side can say what is wrong.
+    pub task_hash: Option<u64>,
+}
+
+/// Whether a request for task `requested` (0: not stated) may be served by a learner of
+/// task `served` (`None`: not known here).
+pub fn task_matches(served: Option<u64>, requested: u64) -> bool {
+    requested == 0 || served.is_none_or(|h| h == requested)
 }
 
 /// Why the relay could not run.
@@ -139,6 +149,8 @@ struct Relay {
     latest_policy: Option<Box<PolicyBlob>>,
     /// The controller side's last forwarded progress (exact repeats are dropped).
     last_progress: Option<RetrainProgress>,
+    /// Controller side: the task hash the learner host announced.
+    peer_task_hash: Option<u64>,
     warn: WarnLimit,
 }
 
@@ -234,6 +246,7 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
         policy_in: PolicyInbox::default(),
         latest_policy: None,
         last_progress: None,
+        peer_task_hash: None,
         warn: WarnLimit::default(),
     };
     let mut next_hello = Instant::now();
@@ -382,6 +395,8 @@ impl Relay {
             tracing::info!(host = %hello.host, pid = hello.pid, version = %hello.relay_version, "other host connected");
         }
         self.peer_last_seen = Some(now);
+        self.peer_task_hash = hello.task_hash;
+        self.check_peer_task();
         self.status.peer = Some(PeerStatus {
             host: hello.host.clone(),
             pid: hello.pid,
@@ -394,6 +409,21 @@ impl Relay {
 
     /// Learner side: a request from the controller.
     fn on_request(&mut self, instance: u64, r: &RetrainRequest) {
+        if !task_matches(self.cfg.task_hash, r.task_config_hash) {
+            let text = format!(
+                "retrain request {} refused: it is for task hash {:#018x}, the learner here trains for {:#018x} (use the robot's assets/task.toml on both hosts)",
+                r.request_id,
+                r.task_config_hash,
+                self.cfg.task_hash.unwrap_or_default()
+            );
+            RelayStatus::count(&mut self.status.rejected, "task_mismatch");
+            if self.warn.allow("task_mismatch", Instant::now()) {
+                tracing::error!("{text}");
+            }
+            self.status.last_rejection = Some(text);
+            self.status_dirty = true;
+            return;
+        }
         match self.request_in.on_request(instance, r) {
             RequestAction::Forward => {
                 tracing::info!(
@@ -544,6 +574,7 @@ impl Relay {
                             "retrain request sent to the learner host"
                         );
                         self.send_request(&r);
+                        self.check_peer_task();
                     }
                 }
             }
@@ -600,6 +631,25 @@ impl Relay {
                 Err(e) => tracing::warn!("local policy refused: {e}"),
             }
         }
+    }
+
+    /// Controller side: notes (once) a learner host that trains for another task than the
+    /// requests'.
+    fn check_peer_task(&mut self) {
+        let Some(requested) = self.request_out.current().map(|r| r.task_config_hash) else {
+            return;
+        };
+        if task_matches(self.peer_task_hash, requested) || self.status.task_mismatch.is_some() {
+            return;
+        }
+        let text = format!(
+            "the learner host trains for task hash {:#018x}, this robot's task is {:#018x}: it refuses the requests (start it with the robot's assets/task.toml)",
+            self.peer_task_hash.unwrap_or_default(),
+            requested
+        );
+        tracing::error!("{text}");
+        self.status.task_mismatch = Some(text);
+        self.status_dirty = true;
     }
 
     fn send_request(&mut self, r: &RetrainRequest) {
@@ -673,6 +723,7 @@ impl Relay {
             pid: std::process::id(),
             relay_version: env!("CARGO_PKG_VERSION").to_owned(),
             schema_versions: wire::schema_versions(),
+            task_hash: self.cfg.task_hash,
         };
         let seq = self.next_seq();
         let bytes = encode_control(Channel::Hello, self.instance, seq, &hello);
@@ -705,5 +756,21 @@ impl Relay {
         {
             tracing::warn!("writing {}: {e}", path.display());
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_request_is_served_only_for_the_task_the_learner_trains_for() {
+        assert!(task_matches(Some(7), 7));
+        assert!(!task_matches(Some(7), 8));
+        assert!(
+            task_matches(None, 8),
+            "task unknown here: rt-core checks the policy"
+        );
+        assert!(task_matches(Some(7), 0), "a request that states no task");
     }
 }

@@ -98,6 +98,9 @@ pub struct RelayStatus {
     pub duplicates_dropped: u64,
     /// Retrain requests (controller side; newest last).
     pub requests: Vec<RequestStatus>,
+    /// The learner host trains for another task than the robot's (its policies would be
+    /// refused by rt-core, so it refuses the requests): what differs, in words.
+    pub task_mismatch: Option<String>,
 }
 
 impl RelayStatus {

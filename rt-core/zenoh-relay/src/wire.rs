@@ -297,6 +297,9 @@ pub struct Hello {
     pub relay_version: String,
     /// Schema versions the sender speaks: retrain request, retrain progress, policy blob.
     pub schema_versions: [u32; 3],
+    /// On the learner host: the hash of the task it trains for (requests carry the robot's).
+    #[serde(default)]
+    pub task_hash: Option<u64>,
 }
 
 /// "This policy arrived": stops the learner host's relay re-sending it.
@@ -520,6 +523,7 @@ mod tests {
             pid: 12,
             relay_version: "0.1.0".into(),
             schema_versions: schema_versions(),
+            task_hash: Some(0xfeed),
         };
         let bytes = encode_control(Channel::Hello, 5, 3, &hello);
         let (h, back): (Header, Hello) = decode_control(&bytes, Channel::Hello).unwrap();

@@ -48,12 +48,11 @@ fn relay(side: &str, prefix: &str, link: &[String], status: &Path, name: &str) -
     Proc(cmd.spawn().unwrap())
 }
 
+/// A name no other test of this process (tests run in parallel) or other process uses.
 fn unique(tag: &str) -> String {
-    format!(
-        "zrt-{tag}-{}-{}",
-        std::process::id(),
-        Instant::now().elapsed().as_nanos() % 1000
-    )
+    static NEXT: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    format!("zrt-{tag}-{}-{n}", std::process::id())
 }
 
 fn tmp_dir(tag: &str) -> PathBuf {
@@ -337,5 +336,75 @@ fn messages_of_another_schema_or_malformed_ones_are_refused_counted_and_not_forw
         "a refused policy was forwarded"
     );
     let _ = session.close().wait();
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_learner_host_of_another_task_refuses_the_request_and_the_robot_side_says_why() {
+    let dir = tmp_dir("task");
+    let port = free_port();
+    let name = unique("t");
+    let (pc, pl) = (unique("c"), unique("lh"));
+    let ctl_status = dir.join("controller.json");
+    let lrn_status = dir.join("learner.json");
+    let task = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/task.toml");
+    let served = twin::TaskConfig::load(&task).unwrap().hash();
+    let _ctl = relay(
+        "controller",
+        &pc,
+        &["--listen".into(), format!("tcp/127.0.0.1:{port}")],
+        &ctl_status,
+        &name,
+    );
+    let _lrn = relay(
+        "learner",
+        &pl,
+        &[
+            "--peer".into(),
+            format!("tcp/127.0.0.1:{port}"),
+            "--task".into(),
+            task.display().to_string(),
+        ],
+        &lrn_status,
+        &name,
+    );
+    let (node, _) = services::create_node::<ipc::Service>("relay-test-task").unwrap();
+    let req_pub = services::open_publisher::<RetrainRequest, _>(&node, &pc).unwrap();
+    let req_sub = services::open_subscriber::<RetrainRequest, _>(&node, &pl).unwrap();
+    wait_for(
+        "the two relays to see each other",
+        Duration::from_secs(20),
+        || status(&ctl_status).peer.filter(|p| p.connected).map(|_| ()),
+    );
+    let mut wrong = request(1);
+    wrong.task_config_hash = served ^ 1;
+    req_pub.send_copy(wrong).unwrap();
+    let st = wait_for(
+        "the refusal on the learner host",
+        Duration::from_secs(10),
+        || {
+            let st = status(&lrn_status);
+            st.rejected.contains_key("task_mismatch").then_some(st)
+        },
+    );
+    assert!(st.last_rejection.unwrap().contains("task hash"));
+    let ctl = wait_for("the robot side's note", Duration::from_secs(10), || {
+        status(&ctl_status).task_mismatch
+    });
+    assert!(ctl.contains(&format!("{served:#018x}")), "{ctl}");
+    assert!(
+        req_sub.receive().unwrap().is_none(),
+        "a request of another task was forwarded"
+    );
+    // The robot's own task is served.
+    let mut right = request(2);
+    right.task_config_hash = served;
+    req_pub.send_copy(right).unwrap();
+    let got = wait_for(
+        "the request of the served task",
+        Duration::from_secs(10),
+        || req_sub.receive().unwrap().map(|s| *s.payload()),
+    );
+    assert_eq!(got.request_id, 2);
     std::fs::remove_dir_all(&dir).ok();
 }
