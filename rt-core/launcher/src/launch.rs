@@ -555,3 +555,76 @@ fn find_csv(dir: &Path) -> Option<PathBuf> {
     walk(dir, 0, &mut best);
     best.map(|(_, p)| p)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use zenoh_relay::status::{PeerStatus, RelayStatus, RequestStatus};
+
+    #[test]
+    fn the_report_names_a_silent_learner_host_unanswered_requests_and_a_task_mismatch() {
+        let mut st = RelayStatus {
+            peers: vec!["tcp/10.0.0.2:7447".into()],
+            link_name: "arm-1".into(),
+            requests: vec![
+                RequestStatus {
+                    request_id: 1,
+                    sends: 2,
+                    superseded: true,
+                    ..RequestStatus::default()
+                },
+                RequestStatus {
+                    request_id: 2,
+                    sends: 5,
+                    ..RequestStatus::default()
+                },
+            ],
+            ..RelayStatus::default()
+        };
+        let remote = report::RemoteLearner::from_status(&st);
+        let notes = remote_learner_notes(&remote, &st).join("\n");
+        assert!(
+            notes.contains("never heard from over tcp/10.0.0.2:7447"),
+            "{notes}"
+        );
+        assert!(notes.contains("(arm-1)"), "{notes}");
+        assert!(notes.contains("request 2 was sent 5 time(s)"), "{notes}");
+        assert!(
+            !notes.contains("request 1 "),
+            "a superseded request is not a fault: {notes}"
+        );
+
+        // Heard from, answered, a task mismatch and refusals.
+        st.peer = Some(PeerStatus {
+            host: "gpu-box".into(),
+            connected: true,
+            ..PeerStatus::default()
+        });
+        st.requests[1].submitted_unix_s = 100.0;
+        st.requests[1].answered_unix_s = Some(104.5);
+        st.requests[1].remote_wall_time_s = Some(4.0);
+        st.task_mismatch = Some("the learner host trains for task hash 0x1".into());
+        st.rejected.insert("task_mismatch".into(), 3);
+        st.last_rejection = Some("retrain request 2 refused".into());
+        let remote = report::RemoteLearner::from_status(&st);
+        assert_eq!(remote.host, "gpu-box");
+        assert_eq!(
+            (remote.requests, remote.answered, remote.rejected),
+            (2, 1, 3)
+        );
+        assert_eq!(remote.request_to_answer_s, [4.5]);
+        let line = remote.describe();
+        assert!(
+            line.contains("`gpu-box`")
+                && line.contains("request → answer 4.50 s (4.00 s training there)"),
+            "{line}"
+        );
+        let notes = remote_learner_notes(&remote, &st).join("\n");
+        assert!(!notes.contains("never heard from"), "{notes}");
+        assert!(notes.contains("task hash 0x1"), "{notes}");
+        assert!(
+            notes.contains("3 message(s) from the learner host were refused"),
+            "{notes}"
+        );
+    }
+}
