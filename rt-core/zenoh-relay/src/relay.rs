@@ -21,7 +21,7 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::ipc;
-use shm_schemas::services::{self, loan_zeroed, message_bytes};
+use shm_schemas::services::{self, loan_zeroed};
 use shm_schemas::{PolicyBlob, RetrainPhase, RetrainProgress, RetrainRequest, ShmMessage};
 use zenoh::Wait;
 
@@ -494,39 +494,39 @@ impl Relay {
 
     /// Controller side: a policy from the learner host (already validated).
     fn on_policy(&mut self, blob: &PolicyBlob) {
-        let seq = self.next_seq();
-        let ack = PolicyAck {
-            policy_id: blob.policy_id,
-            checksum: blob.checksum,
-        };
-        let fresh = self.policy_in.on_policy(blob.policy_id, blob.checksum);
-        if fresh {
-            if let Ports::Controller { policies, .. } = &self.ports {
-                match publish_local(policies, blob) {
-                    Ok(()) => {
-                        tracing::info!(
-                            policy_id = blob.policy_id,
-                            "policy from the learner host handed to rt-core"
-                        );
-                        let t = unix_s();
-                        for r in self.status.requests.iter_mut().rev() {
-                            if r.policy_id == Some(blob.policy_id) || r.policy_id.is_none() {
-                                r.policy_received_unix_s.get_or_insert(t);
-                                break;
-                            }
-                        }
-                    }
-                    Err(e) => {
-                        // Not acknowledged: the learner host sends it again.
-                        tracing::error!("publishing the policy locally: {e}");
-                        self.policy_in = PolicyInbox::default();
-                        return;
-                    }
-                }
+        let (id, checksum) = (blob.policy_id, blob.checksum);
+        if self.policy_in.is_new(id, checksum) {
+            let Ports::Controller { policies, .. } = &self.ports else {
+                return;
+            };
+            if let Err(e) = publish_local(policies, blob) {
+                // Not acknowledged: the learner host sends it again.
+                tracing::error!("publishing the policy locally: {e}");
+                return;
+            }
+            self.policy_in.delivered(id, checksum);
+            tracing::info!(
+                policy_id = id,
+                "policy from the learner host handed to rt-core"
+            );
+            let t = unix_s();
+            if let Some(r) = self
+                .status
+                .requests
+                .iter_mut()
+                .rev()
+                .find(|r| r.policy_id == Some(id) || r.policy_id.is_none())
+            {
+                r.policy_received_unix_s.get_or_insert(t);
             }
         } else {
             self.status.duplicates_dropped += 1;
         }
+        let seq = self.next_seq();
+        let ack = PolicyAck {
+            policy_id: id,
+            checksum,
+        };
         let bytes = encode_control(Channel::PolicyAck, self.instance, seq, &ack);
         self.put(Channel::PolicyAck, bytes);
     }
@@ -668,15 +668,7 @@ impl Relay {
         let Some(b) = self.latest_policy.as_deref() else {
             return;
         };
-        let bytes = wire::encode(
-            &wire::Header {
-                channel: Channel::Policy,
-                schema_version: Channel::Policy.schema_version(),
-                sender_instance: self.instance,
-                sequence: seq,
-            },
-            message_bytes(b),
-        );
+        let bytes = encode_message(Channel::Policy, self.instance, seq, b);
         self.put(Channel::Policy, bytes);
     }
 

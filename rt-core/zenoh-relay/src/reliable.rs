@@ -13,7 +13,7 @@
 //! - [`PolicyOutbox`] (learner side): the latest policy is re-sent until the controller
 //!   acknowledges it (a newer policy replaces it).
 //! - [`PolicyInbox`] (controller side): a policy is handed to rt-core once; a repeat is only
-//!   acknowledged again.
+//!   acknowledged again (one that could not be published is not acknowledged, so it comes again).
 
 use std::time::{Duration, Instant};
 
@@ -225,25 +225,22 @@ impl PolicyOutbox {
     }
 }
 
-/// The controller side's record of policies handed to rt-core.
+/// The controller side's record of the policy last handed to rt-core.
 #[derive(Debug, Clone, Default)]
 pub struct PolicyInbox {
     last: Option<(u64, u64)>,
-    /// Repeats dropped (acknowledged again, not republished).
-    pub duplicates: u64,
 }
 
 impl PolicyInbox {
-    /// A valid policy arrived: true when it is new and must be published locally. Either
-    /// way it is acknowledged.
-    pub fn on_policy(&mut self, policy_id: u64, checksum: u64) -> bool {
-        if self.last == Some((policy_id, checksum)) {
-            self.duplicates += 1;
-            false
-        } else {
-            self.last = Some((policy_id, checksum));
-            true
-        }
+    /// Whether a valid policy that arrived is not the one last handed on (a repeat is only
+    /// acknowledged again).
+    pub fn is_new(&self, policy_id: u64, checksum: u64) -> bool {
+        self.last != Some((policy_id, checksum))
+    }
+
+    /// The policy was published to rt-core.
+    pub fn delivered(&mut self, policy_id: u64, checksum: u64) {
+        self.last = Some((policy_id, checksum));
     }
 }
 
@@ -374,9 +371,14 @@ mod tests {
         assert!(!out.due(t0 + Duration::from_secs(10)));
 
         let mut inbox = PolicyInbox::default();
-        assert!(inbox.on_policy(10, 0xaa));
-        assert!(!inbox.on_policy(10, 0xaa));
-        assert!(inbox.on_policy(11, 0xcc));
-        assert_eq!(inbox.duplicates, 1);
+        assert!(inbox.is_new(10, 0xaa));
+        assert!(
+            inbox.is_new(10, 0xaa),
+            "not delivered (publishing failed): still new"
+        );
+        inbox.delivered(10, 0xaa);
+        assert!(!inbox.is_new(10, 0xaa));
+        assert!(inbox.is_new(10, 0xbb), "same id, other blob");
+        assert!(inbox.is_new(11, 0xcc));
     }
 }

@@ -87,6 +87,18 @@ pub struct Header {
     pub sequence: u64,
 }
 
+impl Header {
+    /// A header of this build's schema version for `channel`.
+    pub fn new(channel: Channel, sender_instance: u64, sequence: u64) -> Self {
+        Self {
+            channel,
+            schema_version: channel.schema_version(),
+            sender_instance,
+            sequence,
+        }
+    }
+}
+
 /// Why received bytes are not a message of this build. Every variant names what was wrong.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum WireError {
@@ -252,13 +264,10 @@ pub fn encode_message<T: ShmMessage>(
     sequence: u64,
     message: &T,
 ) -> Vec<u8> {
-    let header = Header {
-        channel,
-        schema_version: channel.schema_version(),
-        sender_instance,
-        sequence,
-    };
-    encode(&header, message_bytes(message))
+    encode(
+        &Header::new(channel, sender_instance, sequence),
+        message_bytes(message),
+    )
 }
 
 /// A service message read from the network and validated.
@@ -328,14 +337,8 @@ pub fn encode_control<T: Serialize>(
     sequence: u64,
     message: &T,
 ) -> Vec<u8> {
-    let header = Header {
-        channel,
-        schema_version: channel.schema_version(),
-        sender_instance,
-        sequence,
-    };
     let json = serde_json::to_vec(message).unwrap_or_default();
-    encode(&header, &json)
+    encode(&Header::new(channel, sender_instance, sequence), &json)
 }
 
 /// A JSON control message read from the network.
@@ -502,15 +505,7 @@ mod tests {
         let e = decode_message::<RetrainProgress>(&good, Channel::RetrainRequest).unwrap_err();
         assert!(matches!(e, WireError::WrongChannel { .. }), "{e:?}");
         // A payload of the wrong size for its type (a schema change that kept the version).
-        let short = encode(
-            &Header {
-                channel: Channel::RetrainProgress,
-                schema_version: RetrainProgress::SCHEMA_VERSION,
-                sender_instance: 1,
-                sequence: 1,
-            },
-            &[0u8; 40],
-        );
+        let short = encode(&Header::new(Channel::RetrainProgress, 1, 1), &[0u8; 40]);
         let e = decode_message::<RetrainProgress>(&short, Channel::RetrainProgress).unwrap_err();
         assert!(e.to_string().contains("40 bytes"), "{e}");
     }
@@ -530,12 +525,7 @@ mod tests {
         assert_eq!((h.sender_instance, h.sequence), (5, 3));
         assert_eq!(back, hello);
         let bad = encode(
-            &Header {
-                channel: Channel::PolicyAck,
-                schema_version: CONTROL_VERSION,
-                sender_instance: 1,
-                sequence: 1,
-            },
+            &Header::new(Channel::PolicyAck, 1, 1),
             br#"{"policy_id": 1, "checksum": 2, "extra": 3}"#,
         );
         let e = decode_control::<PolicyAck>(&bad, Channel::PolicyAck).unwrap_err();

@@ -61,6 +61,72 @@ fn tmp_dir(tag: &str) -> PathBuf {
     d
 }
 
+/// One link under test: its name, port, both hosts' service prefixes and status files.
+struct Link {
+    dir: PathBuf,
+    port: u16,
+    name: String,
+    pc: String,
+    pl: String,
+    ctl_status: PathBuf,
+    lrn_status: PathBuf,
+}
+
+impl Link {
+    fn new(tag: &str) -> Self {
+        let dir = tmp_dir(tag);
+        Self {
+            port: free_port(),
+            name: unique(tag),
+            pc: unique("c"),
+            pl: unique("lh"),
+            ctl_status: dir.join("controller.json"),
+            lrn_status: dir.join("learner.json"),
+            dir,
+        }
+    }
+
+    /// The robot side's relay, listening on loopback.
+    fn controller(&self) -> Proc {
+        let listen = ["--listen".into(), format!("tcp/127.0.0.1:{}", self.port)];
+        relay(
+            "controller",
+            &self.pc,
+            &listen,
+            &self.ctl_status,
+            &self.name,
+        )
+    }
+
+    /// The learner side's relay, connecting to the controller's, with `extra` flags.
+    fn learner(&self, extra: &[String]) -> Proc {
+        let mut link = vec!["--peer".into(), format!("tcp/127.0.0.1:{}", self.port)];
+        link.extend_from_slice(extra);
+        relay("learner", &self.pl, &link, &self.lrn_status, &self.name)
+    }
+
+    fn wait_connected(&self) {
+        wait_for(
+            "the two relays to see each other",
+            Duration::from_secs(20),
+            || {
+                status(&self.ctl_status)
+                    .peer
+                    .filter(|p| p.connected)
+                    .map(|_| ())
+            },
+        );
+    }
+}
+
+impl Drop for Link {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            std::fs::remove_dir_all(&self.dir).ok();
+        }
+    }
+}
+
 fn wait_for<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
     let deadline = Instant::now() + timeout;
     loop {
@@ -103,42 +169,23 @@ fn blob(id: u64) -> Box<PolicyBlob> {
 
 #[test]
 fn requests_progress_and_policies_cross_and_a_restarted_learner_side_gets_the_request_again() {
-    let dir = tmp_dir("cross");
-    let port = free_port();
-    let name = unique("l");
-    let (pc, pl) = (unique("c"), unique("lh"));
-    let ctl_status = dir.join("controller.json");
-    let lrn_status = dir.join("learner.json");
-    let _ctl = relay(
-        "controller",
-        &pc,
-        &["--listen".into(), format!("tcp/127.0.0.1:{port}")],
-        &ctl_status,
-        &name,
-    );
-    let mut lrn = relay(
-        "learner",
-        &pl,
-        &["--peer".into(), format!("tcp/127.0.0.1:{port}")],
-        &lrn_status,
-        &name,
-    );
+    let link = Link::new("cross");
+    let (pc, pl) = (&link.pc, &link.pl);
+    let (ctl_status, lrn_status) = (&link.ctl_status, &link.lrn_status);
+    let _ctl = link.controller();
+    let mut lrn = link.learner(&[]);
 
     let (node, _) = services::create_node::<ipc::Service>("relay-test").unwrap();
     // Controller host: rt-core's side.
-    let req_pub = services::open_publisher::<RetrainRequest, _>(&node, &pc).unwrap();
-    let prog_sub = services::open_subscriber::<RetrainProgress, _>(&node, &pc).unwrap();
-    let pol_sub = services::open_subscriber::<PolicyBlob, _>(&node, &pc).unwrap();
+    let req_pub = services::open_publisher::<RetrainRequest, _>(&node, pc).unwrap();
+    let prog_sub = services::open_subscriber::<RetrainProgress, _>(&node, pc).unwrap();
+    let pol_sub = services::open_subscriber::<PolicyBlob, _>(&node, pc).unwrap();
     // Learner host: the learner's side.
-    let req_sub = services::open_subscriber::<RetrainRequest, _>(&node, &pl).unwrap();
-    let prog_pub = services::open_publisher::<RetrainProgress, _>(&node, &pl).unwrap();
-    let pol_pub = services::open_publisher::<PolicyBlob, _>(&node, &pl).unwrap();
+    let req_sub = services::open_subscriber::<RetrainRequest, _>(&node, pl).unwrap();
+    let prog_pub = services::open_publisher::<RetrainProgress, _>(&node, pl).unwrap();
+    let pol_pub = services::open_publisher::<PolicyBlob, _>(&node, pl).unwrap();
 
-    wait_for(
-        "the two relays to see each other",
-        Duration::from_secs(20),
-        || status(&ctl_status).peer.filter(|p| p.connected).map(|_| ()),
-    );
+    link.wait_connected();
 
     // A request crosses, once.
     req_pub.send_copy(request(1)).unwrap();
@@ -181,7 +228,7 @@ fn requests_progress_and_policies_cross_and_a_restarted_learner_side_gets_the_re
     wait_for(
         "the policy's acknowledgement",
         Duration::from_secs(10),
-        || (status(&lrn_status).received.get("policy_ack").copied() >= Some(1)).then_some(()),
+        || (status(lrn_status).received.get("policy_ack").copied() >= Some(1)).then_some(()),
     );
 
     // The learner host dies before answering request 2, and comes back: the controller
@@ -193,13 +240,7 @@ fn requests_progress_and_policies_cross_and_a_restarted_learner_side_gets_the_re
         req_sub.receive().unwrap().is_none(),
         "nobody to carry it yet"
     );
-    lrn = relay(
-        "learner",
-        &pl,
-        &["--peer".into(), format!("tcp/127.0.0.1:{port}")],
-        &lrn_status,
-        &name,
-    );
+    lrn = link.learner(&[]);
     let got = wait_for(
         "request 2 after the restart",
         Duration::from_secs(20),
@@ -223,7 +264,7 @@ fn requests_progress_and_policies_cross_and_a_restarted_learner_side_gets_the_re
     };
     prog_pub.send_copy(done).unwrap();
     let st = wait_for("request 2 answered", Duration::from_secs(10), || {
-        let st = status(&ctl_status);
+        let st = status(ctl_status);
         st.requests
             .iter()
             .any(|r| r.request_id == 2 && r.answered_unix_s.is_some())
@@ -236,7 +277,7 @@ fn requests_progress_and_policies_cross_and_a_restarted_learner_side_gets_the_re
     // No more re-sends after the answer.
     let sends = r2.sends;
     std::thread::sleep(Duration::from_millis(2500));
-    let r2 = status(&ctl_status)
+    let r2 = status(ctl_status)
         .requests
         .into_iter()
         .find(|r| r.request_id == 2)
@@ -247,26 +288,16 @@ fn requests_progress_and_policies_cross_and_a_restarted_learner_side_gets_the_re
         panic!("a repeat reached the learner: {:?}", s.payload().request_id);
     }
     drop(lrn);
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn messages_of_another_schema_or_malformed_ones_are_refused_counted_and_not_forwarded() {
-    let dir = tmp_dir("refuse");
-    let port = free_port();
-    let name = unique("r");
-    let pc = unique("c");
-    let ctl_status = dir.join("controller.json");
-    let _ctl = relay(
-        "controller",
-        &pc,
-        &["--listen".into(), format!("tcp/127.0.0.1:{port}")],
-        &ctl_status,
-        &name,
-    );
+    let link = Link::new("refuse");
+    let (pc, ctl_status, port, name) = (&link.pc, &link.ctl_status, link.port, &link.name);
+    let _ctl = link.controller();
     let (node, _) = services::create_node::<ipc::Service>("relay-test-refuse").unwrap();
-    let prog_sub = services::open_subscriber::<RetrainProgress, _>(&node, &pc).unwrap();
-    let pol_sub = services::open_subscriber::<PolicyBlob, _>(&node, &pc).unwrap();
+    let prog_sub = services::open_subscriber::<RetrainProgress, _>(&node, pc).unwrap();
+    let pol_sub = services::open_subscriber::<PolicyBlob, _>(&node, pc).unwrap();
     wait_for("the relay's status file", Duration::from_secs(20), || {
         ctl_status.exists().then_some(())
     });
@@ -309,7 +340,7 @@ fn messages_of_another_schema_or_malformed_ones_are_refused_counted_and_not_forw
             .wait()
             .unwrap();
         std::thread::sleep(Duration::from_millis(200));
-        let st = status(&ctl_status);
+        let st = status(ctl_status);
         if st.rejected.get("schema_mismatch") >= Some(&1)
             && st.rejected.get("invalid_payload") >= Some(&1)
             && st.rejected.get("malformed") >= Some(&1)
@@ -336,46 +367,21 @@ fn messages_of_another_schema_or_malformed_ones_are_refused_counted_and_not_forw
         "a refused policy was forwarded"
     );
     let _ = session.close().wait();
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn a_learner_host_of_another_task_refuses_the_request_and_the_robot_side_says_why() {
-    let dir = tmp_dir("task");
-    let port = free_port();
-    let name = unique("t");
-    let (pc, pl) = (unique("c"), unique("lh"));
-    let ctl_status = dir.join("controller.json");
-    let lrn_status = dir.join("learner.json");
+    let link = Link::new("task");
+    let (pc, pl) = (&link.pc, &link.pl);
+    let (ctl_status, lrn_status) = (&link.ctl_status, &link.lrn_status);
     let task = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/task.toml");
     let served = twin::TaskConfig::load(&task).unwrap().hash();
-    let _ctl = relay(
-        "controller",
-        &pc,
-        &["--listen".into(), format!("tcp/127.0.0.1:{port}")],
-        &ctl_status,
-        &name,
-    );
-    let _lrn = relay(
-        "learner",
-        &pl,
-        &[
-            "--peer".into(),
-            format!("tcp/127.0.0.1:{port}"),
-            "--task".into(),
-            task.display().to_string(),
-        ],
-        &lrn_status,
-        &name,
-    );
+    let _ctl = link.controller();
+    let _lrn = link.learner(&["--task".into(), task.display().to_string()]);
     let (node, _) = services::create_node::<ipc::Service>("relay-test-task").unwrap();
-    let req_pub = services::open_publisher::<RetrainRequest, _>(&node, &pc).unwrap();
-    let req_sub = services::open_subscriber::<RetrainRequest, _>(&node, &pl).unwrap();
-    wait_for(
-        "the two relays to see each other",
-        Duration::from_secs(20),
-        || status(&ctl_status).peer.filter(|p| p.connected).map(|_| ()),
-    );
+    let req_pub = services::open_publisher::<RetrainRequest, _>(&node, pc).unwrap();
+    let req_sub = services::open_subscriber::<RetrainRequest, _>(&node, pl).unwrap();
+    link.wait_connected();
     let mut wrong = request(1);
     wrong.task_config_hash = served ^ 1;
     req_pub.send_copy(wrong).unwrap();
@@ -383,13 +389,13 @@ fn a_learner_host_of_another_task_refuses_the_request_and_the_robot_side_says_wh
         "the refusal on the learner host",
         Duration::from_secs(10),
         || {
-            let st = status(&lrn_status);
+            let st = status(lrn_status);
             st.rejected.contains_key("task_mismatch").then_some(st)
         },
     );
     assert!(st.last_rejection.unwrap().contains("task hash"));
     let ctl = wait_for("the robot side's note", Duration::from_secs(10), || {
-        status(&ctl_status).task_mismatch
+        status(ctl_status).task_mismatch
     });
     assert!(ctl.contains(&format!("{served:#018x}")), "{ctl}");
     assert!(
@@ -406,5 +412,4 @@ fn a_learner_host_of_another_task_refuses_the_request_and_the_robot_side_says_wh
         || req_sub.receive().unwrap().map(|s| *s.payload()),
     );
     assert_eq!(got.request_id, 2);
-    std::fs::remove_dir_all(&dir).ok();
 }
