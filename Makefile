@@ -74,7 +74,8 @@ learner-host: setup
 
 # Host-to-host link latency (issue 16): two network namespaces joined by a veth pair (root).
 bench-link: setup
-	$(CARGO) bench -p zenoh-relay --bench link_latency
+	$(MAKE) --no-print-directory _build
+	$(CARGO) bench -p foresight-tests --bench link_latency
 
 # The adversarial sweep's long run (issue 14): the real twin worker and cycle through
 # randomised, adversarial scenes; exits non-zero on any unsafe command. `rt-core sweep` is

@@ -5,37 +5,19 @@
 //! - a retrain request (≈ 0.7 KB) from the controller side to the learner.
 //!
 //! Prints p50, p90, p99 and max over `BENCH_SAMPLES` (default 200) of each. Needs root
-//! (`ip netns`); says so and exits 0 otherwise. `cargo bench -p zenoh-relay` (or
-//! `make bench-link`).
+//! (`ip netns`) and the built `zenoh-relay`; says so and exits 0 without root.
+//! `make bench-link`.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::time::{Duration, Instant};
 
+use foresight_tests::bin_path;
+use foresight_tests::veth::TwoHosts;
 use iceoryx2::prelude::*;
 use shm_schemas::services::{self, loan_zeroed};
 use shm_schemas::{EpisodeEnd, PolicyBlob, PolicyBlobBuilder, RetrainRequest, TwinVerdict};
 use zenoh_relay::status::RelayStatus;
-
-fn ip(args: &[&str]) -> Result<(), String> {
-    let out = Command::new("ip")
-        .args(args)
-        .output()
-        .map_err(|e| e.to_string())?;
-    if out.status.success() {
-        Ok(())
-    } else {
-        Err(String::from_utf8_lossy(&out.stderr).trim().to_owned())
-    }
-}
-
-struct Namespaces(String, String);
-impl Drop for Namespaces {
-    fn drop(&mut self) {
-        let _ = ip(&["netns", "del", &self.0]);
-        let _ = ip(&["netns", "del", &self.1]);
-    }
-}
 
 struct Proc(Child);
 impl Drop for Proc {
@@ -70,30 +52,23 @@ fn main() {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(200);
-    let id = std::process::id() % 100_000;
-    let (a, b) = (format!("fsb-ctl-{id}"), format!("fsb-lrn-{id}"));
-    let (ia, ib) = (format!("fsbc{id}"), format!("fsbl{id}"));
-    if let Err(e) = ip(&["netns", "add", &a]) {
-        println!("link_latency: SKIPPED, cannot make network namespaces ({e}); needs root");
-        return;
-    }
-    let _ns = Namespaces(a.clone(), b.clone());
-    ip(&["netns", "add", &b]).unwrap();
-    ip(&["link", "add", &ia, "type", "veth", "peer", "name", &ib]).unwrap();
-    ip(&["link", "set", &ia, "netns", &a]).unwrap();
-    ip(&["link", "set", &ib, "netns", &b]).unwrap();
-    for (ns, dev, addr) in [(&a, &ia, "10.232.0.1/24"), (&b, &ib, "10.232.0.2/24")] {
-        ip(&["-n", ns, "addr", "add", addr, "dev", dev]).unwrap();
-        ip(&["-n", ns, "link", "set", dev, "up"]).unwrap();
-        ip(&["-n", ns, "link", "set", "lo", "up"]).unwrap();
-    }
+    let hosts = match TwoHosts::make("b") {
+        Ok(h) => h,
+        Err(e) => {
+            println!("link_latency: SKIPPED, cannot make network namespaces ({e}); needs root");
+            return;
+        }
+    };
+    let id = std::process::id();
     let dir = std::env::temp_dir().join(format!("fs-link-bench-{id}"));
     std::fs::create_dir_all(&dir).unwrap();
     let (pc, pl) = (format!("fsbc{id}"), format!("fsbl{id}"));
+    let endpoint = format!("tcp/{}:7447", hosts.learner_addr);
     let relay = |ns: &str, side: &str, prefix: &str, link: [&str; 2], status: &str| {
         Proc(
-            Command::new("ip")
-                .args(["netns", "exec", ns, env!("CARGO_BIN_EXE_zenoh-relay"), side])
+            hosts
+                .exec(ns, &bin_path("zenoh-relay"))
+                .arg(side)
                 .args(["--prefix", prefix, "--link-name", "bench"])
                 .args(link)
                 .arg("--status")
@@ -105,17 +80,17 @@ fn main() {
         )
     };
     let _ctl = relay(
-        &a,
+        &hosts.robot_ns,
         "controller",
         &pc,
-        ["--peer", "tcp/10.232.0.2:7447"],
+        ["--peer", &endpoint],
         "c.json",
     );
     let _lrn = relay(
-        &b,
+        &hosts.learner_ns,
         "learner",
         &pl,
-        ["--listen", "tcp/10.232.0.2:7447"],
+        ["--listen", &endpoint],
         "l.json",
     );
 

@@ -1,9 +1,12 @@
 //! Helpers shared by Foresight's system tests: finding the workspace's built binaries,
-//! unique iceoryx2 service prefixes, child processes that are killed when a test ends, and
-//! running a test body inside a private network namespace (for DDS and real xArm ports).
+//! unique iceoryx2 service prefixes, child processes that are killed when a test ends,
+//! running a test body inside a private network namespace (for DDS and real xArm ports), and
+//! the launcher's run folders ([`runs`]).
 
 pub mod rt_rig;
+pub mod runs;
 pub mod sim_proc;
+pub mod veth;
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};

@@ -13,20 +13,12 @@ use std::process::{Command, Stdio};
 use std::sync::{Mutex, MutexGuard, mpsc};
 use std::time::{Duration, Instant};
 
+use foresight_tests::runs::{LogsOnFailure, newest_run, scratch_dir};
 use foresight_tests::{ChildGuard, bin_path, repo_root};
 
 /// A scratch folder for one test's runs.
 fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!(
-        "foresight-demo-{test}-{}-{}",
-        std::process::id(),
-        std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_nanos())
-            .unwrap_or(0)
-    ));
-    std::fs::create_dir_all(&dir).expect("scratch dir");
-    dir
+    scratch_dir("demo", test)
 }
 
 /// One whole system at a time: four of them at once on two cores would measure the machine,
@@ -85,16 +77,9 @@ fn wait_exit(guard: &mut ChildGuard, limit: Duration) -> i32 {
     }
 }
 
-/// The one run folder under `out` (`runs/latest` is a symlink beside it).
+/// The run folder under `out`.
 fn run_folder(out: &Path) -> PathBuf {
-    let mut dirs: Vec<PathBuf> = std::fs::read_dir(out)
-        .expect("run output folder")
-        .filter_map(Result::ok)
-        .map(|e| e.path())
-        .filter(|p| p.is_dir() && !p.is_symlink())
-        .collect();
-    dirs.sort();
-    dirs.pop().expect("a run folder")
+    newest_run(out).expect("a run folder")
 }
 
 /// The run's `timeline.jsonl`, checked to hold no phase timeout (every world change came
@@ -108,34 +93,11 @@ fn timeline_without_timeouts(run: &Path) -> String {
     timeline
 }
 
-/// On a failing test, prints the tail of every process log of the newest run under `out`
-/// (the test output then says why a process stopped, not only that it did).
-struct LogsOnFailure<'a>(&'a Path);
-
-impl Drop for LogsOnFailure<'_> {
-    fn drop(&mut self) {
-        if !std::thread::panicking() {
-            return;
-        }
-        let Some(run) = std::fs::read_dir(self.0).ok().and_then(|dirs| {
-            dirs.filter_map(Result::ok)
-                .map(|e| e.path())
-                .filter(|p| p.is_dir() && !p.is_symlink())
-                .max()
-        }) else {
-            return;
-        };
-        let Ok(logs) = std::fs::read_dir(run.join("logs")) else {
-            return;
-        };
-        for log in logs.filter_map(Result::ok).map(|e| e.path()) {
-            let text = std::fs::read_to_string(&log).unwrap_or_default();
-            let lines: Vec<&str> = text.lines().collect();
-            println!("---- last lines of {}", log.display());
-            for line in &lines[lines.len().saturating_sub(25)..] {
-                println!("  {line}");
-            }
-        }
+/// Prints the run's process logs when a test fails.
+fn logs_on_failure(out: &Path) -> LogsOnFailure {
+    LogsOnFailure {
+        runs: out.to_path_buf(),
+        extra: Vec::new(),
     }
 }
 
@@ -198,7 +160,7 @@ fn wait_line(rx: &mpsc::Receiver<String>, needle: &str, limit: Duration) -> Stri
 fn the_self_improving_loop_predicts_retrains_and_reaches_the_goal_without_collision() {
     let _one = one_at_a_time();
     let out = scratch("loop");
-    let _logs = LogsOnFailure(&out);
+    let _logs = logs_on_failure(&out);
     let (mut guard, _rx) = launch(&out, 60, &[]);
     let code = wait_exit(&mut guard, Duration::from_secs(240));
     let run = run_folder(&out);
@@ -260,7 +222,7 @@ fn the_self_improving_loop_predicts_retrains_and_reaches_the_goal_without_collis
 fn without_the_lookahead_the_old_policy_collides() {
     let _one = one_at_a_time();
     let out = scratch("blind");
-    let _logs = LogsOnFailure(&out);
+    let _logs = logs_on_failure(&out);
     let (mut guard, _rx) = launch(&out, 60, &["--no-lookahead"]);
     let code = wait_exit(&mut guard, Duration::from_secs(240));
     let s = summary(&run_folder(&out));
@@ -278,7 +240,7 @@ fn without_the_lookahead_the_old_policy_collides() {
 fn the_launcher_survives_kill_9_of_perception_and_of_the_learner() {
     let _one = one_at_a_time();
     let out = scratch("kill9");
-    let _logs = LogsOnFailure(&out);
+    let _logs = logs_on_failure(&out);
     let (mut guard, rx) = launch(&out, 60, &[]);
     let pid = guard.child.id();
     // Perception dies while the arm works on the first goal: rt-core must hold the arm
@@ -312,7 +274,7 @@ fn the_launcher_survives_kill_9_of_perception_and_of_the_learner() {
 fn a_dry_run_computes_and_logs_commands_and_sends_none() {
     let _one = one_at_a_time();
     let out = scratch("dry");
-    let _logs = LogsOnFailure(&out);
+    let _logs = logs_on_failure(&out);
     let (mut guard, _rx) = launch(&out, 8, &["--dry-run"]);
     wait_exit(&mut guard, Duration::from_secs(120));
     let run = run_folder(&out);

@@ -9,12 +9,14 @@
 //! permission the tests say so and return (CI runs as root). Nothing leaves the machine:
 //! endpoints are the veth's private addresses and multicast scouting is off.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::path::Path;
+use std::process::Stdio;
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use foresight_tests::{ChildGuard, bin_path, repo_root};
+use foresight_tests::runs::{LogsOnFailure, newest_run, scratch_dir};
+use foresight_tests::veth::TwoHosts;
+use foresight_tests::{ChildGuard, bin_path};
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
@@ -24,149 +26,8 @@ fn one_at_a_time() -> MutexGuard<'static, ()> {
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
-fn ip(args: &[&str]) -> Result<(), String> {
-    let out = Command::new("ip")
-        .args(args)
-        .output()
-        .map_err(|e| format!("ip {}: {e}", args.join(" ")))?;
-    if out.status.success() {
-        Ok(())
-    } else {
-        Err(format!(
-            "ip {}: {}",
-            args.join(" "),
-            String::from_utf8_lossy(&out.stderr).trim()
-        ))
-    }
-}
-
-/// Two namespaces joined by a veth pair, removed on drop.
-struct TwoHosts {
-    robot_ns: String,
-    learner_ns: String,
-    robot_if: String,
-    learner_addr: String,
-}
-
-impl TwoHosts {
-    /// Makes them, or says why not (then the test is skipped).
-    fn make(tag: &str) -> Result<Self, String> {
-        let id = std::process::id() % 100_000;
-        let h = Self {
-            robot_ns: format!("fs-robot-{tag}-{id}"),
-            learner_ns: format!("fs-gpu-{tag}-{id}"),
-            robot_if: format!("fsr{tag}{id}"),
-            learner_addr: format!("10.231.{}.2", id % 250),
-        };
-        let learner_if = format!("fsl{tag}{id}");
-        let robot_addr = format!("10.231.{}.1/24", id % 250);
-        let learner_cidr = format!("{}/24", h.learner_addr);
-        ip(&["netns", "add", &h.robot_ns])?;
-        // From here on, drop removes what was made.
-        ip(&["netns", "add", &h.learner_ns])?;
-        ip(&[
-            "link",
-            "add",
-            &h.robot_if,
-            "type",
-            "veth",
-            "peer",
-            "name",
-            &learner_if,
-        ])?;
-        ip(&["link", "set", &h.robot_if, "netns", &h.robot_ns])?;
-        ip(&["link", "set", &learner_if, "netns", &h.learner_ns])?;
-        for (ns, dev, addr) in [
-            (&h.robot_ns, &h.robot_if, &robot_addr),
-            (&h.learner_ns, &learner_if, &learner_cidr),
-        ] {
-            ip(&["-n", ns, "addr", "add", addr, "dev", dev])?;
-            ip(&["-n", ns, "link", "set", dev, "up"])?;
-            ip(&["-n", ns, "link", "set", "lo", "up"])?;
-        }
-        Ok(h)
-    }
-
-    fn exec(&self, ns: &str, program: &Path) -> Command {
-        let mut c = Command::new("ip");
-        c.args(["netns", "exec", ns]).arg(program);
-        c.current_dir(repo_root());
-        c
-    }
-
-    /// Takes the robot side's link down (`up = false`) or up again.
-    fn link(&self, up: bool) {
-        ip(&[
-            "-n",
-            &self.robot_ns,
-            "link",
-            "set",
-            &self.robot_if,
-            if up { "up" } else { "down" },
-        ])
-        .expect("switching the veth link");
-    }
-}
-
-impl Drop for TwoHosts {
-    fn drop(&mut self) {
-        // Deleting a namespace deletes the veth pair with it.
-        let _ = ip(&["netns", "del", &self.robot_ns]);
-        let _ = ip(&["netns", "del", &self.learner_ns]);
-    }
-}
-
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!(
-        "foresight-two-hosts-{test}-{}-{}",
-        std::process::id(),
-        std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_nanos())
-            .unwrap_or(0)
-    ));
-    std::fs::create_dir_all(&dir).expect("scratch dir");
-    dir
-}
-
-fn run_folder(out: &Path) -> Option<PathBuf> {
-    let mut dirs: Vec<PathBuf> = std::fs::read_dir(out)
-        .ok()?
-        .filter_map(Result::ok)
-        .map(|e| e.path())
-        .filter(|p| p.is_dir() && !p.is_symlink())
-        .collect();
-    dirs.sort();
-    dirs.pop()
-}
-
 fn json(path: &Path) -> Option<serde_json::Value> {
     serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
-}
-
-/// Prints the tail of every log of the run and of the learner host when a test fails.
-struct LogsOnFailure<'a>(&'a Path);
-
-impl Drop for LogsOnFailure<'_> {
-    fn drop(&mut self) {
-        if !std::thread::panicking() {
-            return;
-        }
-        let mut logs: Vec<PathBuf> = vec![self.0.join("learner-host.log")];
-        if let Some(run) = run_folder(&self.0.join("runs"))
-            && let Ok(rd) = std::fs::read_dir(run.join("logs"))
-        {
-            logs.extend(rd.filter_map(Result::ok).map(|e| e.path()));
-        }
-        for log in logs {
-            let text = std::fs::read_to_string(&log).unwrap_or_default();
-            let lines: Vec<&str> = text.lines().collect();
-            println!("---- last lines of {}", log.display());
-            for line in &lines[lines.len().saturating_sub(30)..] {
-                println!("  {line}");
-            }
-        }
-    }
 }
 
 /// The demo's fast world across two hosts; `during_retraining` runs once the learner
@@ -182,8 +43,11 @@ fn two_host_run(tag: &str, during_retraining: impl FnOnce(&TwoHosts)) -> Option<
             return None;
         }
     };
-    let dir = scratch(tag);
-    let _logs = LogsOnFailure(&dir);
+    let dir = scratch_dir("two-hosts", tag);
+    let _logs = LogsOnFailure {
+        runs: dir.join("runs"),
+        extra: vec![dir.join("learner-host.log")],
+    };
     let port = "7447";
     let learner_log = std::fs::File::create(dir.join("learner-host.log")).expect("log file");
     let mut learner_cmd = hosts.exec(&hosts.learner_ns, &bin_path("zenoh-relay"));
@@ -224,7 +88,7 @@ fn two_host_run(tag: &str, during_retraining: impl FnOnce(&TwoHosts)) -> Option<
             "foresight did not finish in time"
         );
         if hook.is_some()
-            && let Some(st) = run_folder(&out).and_then(|r| json(&r.join("relay.json")))
+            && let Some(st) = newest_run(&out).and_then(|r| json(&r.join("relay.json")))
             && st["requests"][0]["first_progress_unix_s"].is_number()
             && let Some(f) = hook.take()
         {
@@ -233,7 +97,7 @@ fn two_host_run(tag: &str, during_retraining: impl FnOnce(&TwoHosts)) -> Option<
         std::thread::sleep(Duration::from_millis(50));
     };
     assert!(hook.is_none(), "the learner host never started retraining");
-    let run = run_folder(&out).expect("a run folder");
+    let run = newest_run(&out).expect("a run folder");
     let s = json(&run.join("summary.json")).expect("summary.json");
     assert_eq!(code, 0, "foresight exit code; summary: {s}");
     assert_eq!(s["goal_reached"], true, "{s}");
