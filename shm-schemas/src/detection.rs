@@ -131,9 +131,15 @@ impl DetectedObject {
 /// published, with the nearest objects kept and `dropped_count` saying how many were left
 /// out: [`DetectionFrame::validate`] refuses it, so a hidden obstacle stops the arm instead of
 /// being silently ignored.
+///
+/// `flags` says what the publisher knows about the frame as a whole; the one bit defined is
+/// [`DetectionFrame::FRAME_SETTLED`]: the object set is complete and stable (perception's
+/// tracker: every object confirmed, nothing appeared, disappeared or moved for a while). rt-core
+/// re-verifies the running plan against every frame, settled or not, but approves a new plan
+/// only on a settled one. Unknown bits are refused by [`DetectionFrame::validate`].
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("foresight::DetectionFrame.v2")]
+#[type_name("foresight::DetectionFrame.v3")]
 pub struct DetectionFrame {
     /// Increases by one per published frame of one camera.
     pub sequence: u64,
@@ -146,8 +152,9 @@ pub struct DetectionFrame {
     /// Objects seen in the camera frame but left out because the frame was full (0 in a
     /// frame rt-core accepts).
     pub dropped_count: u32,
-    /// Reserved, zero.
-    pub reserved: u32,
+    /// Bits of [`DetectionFrame::FRAME_FLAGS`] ([`DetectionFrame::FRAME_SETTLED`]); every
+    /// other bit zero.
+    pub flags: u32,
     /// The objects; entries at and beyond `count` are ignored.
     pub objects: [DetectedObject; MAX_DETECTIONS],
 }
@@ -155,8 +162,32 @@ pub struct DetectionFrame {
 const _: () = assert!(size_of::<DetectionFrame>() == 32 + 36 * MAX_DETECTIONS);
 
 impl DetectionFrame {
-    /// Schema version carried as a service attribute.
-    pub const SCHEMA_VERSION: u32 = 2;
+    /// Schema version carried as a service attribute (3: `flags` replaced `reserved`).
+    pub const SCHEMA_VERSION: u32 = 3;
+
+    /// Bit of `flags`: the object set is complete and stable — the publisher saw every object
+    /// confirmed and nothing appear, disappear or move for a while (perception's tracker
+    /// settings say how long). A frame without it is an intermediate view of a changing
+    /// world: rt-core re-verifies against it (and may stop) but approves no plan on it.
+    /// Producers that are not a camera (a fixed scene, a test rig) set it.
+    pub const FRAME_SETTLED: u32 = 1 << 0;
+
+    /// Every bit of `flags` this schema defines.
+    pub const FRAME_FLAGS: u32 = Self::FRAME_SETTLED;
+
+    /// Whether [`DetectionFrame::FRAME_SETTLED`] is set.
+    pub fn settled(&self) -> bool {
+        self.flags & Self::FRAME_SETTLED != 0
+    }
+
+    /// Sets or clears [`DetectionFrame::FRAME_SETTLED`].
+    pub fn set_settled(&mut self, settled: bool) {
+        if settled {
+            self.flags |= Self::FRAME_SETTLED;
+        } else {
+            self.flags &= !Self::FRAME_SETTLED;
+        }
+    }
 
     /// The valid objects (the first `count`, clamped to the capacity).
     pub fn objects(&self) -> &[DetectedObject] {
@@ -178,7 +209,7 @@ impl DetectionFrame {
     }
 
     /// Checks the count, that nothing was dropped (`dropped_count` = 0: every object seen
-    /// fits), at most one goal, and every valid object.
+    /// fits), that `flags` holds only defined bits, at most one goal, and every valid object.
     ///
     /// # Errors
     /// The first [`SchemaError`] found.
@@ -191,8 +222,12 @@ impl DetectionFrame {
                 capacity: MAX_DETECTIONS as u32,
             });
         }
-        if self.reserved != 0 {
-            return Err(SchemaError::OutOfRange { field: "reserved" });
+        let unknown = self.flags & !Self::FRAME_FLAGS;
+        if unknown != 0 {
+            return Err(SchemaError::BadEnum {
+                field: "flags",
+                value: unknown,
+            });
         }
         self.objects()
             .iter()

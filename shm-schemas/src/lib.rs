@@ -44,10 +44,13 @@ pub use detection::{DetectedObject, DetectionFrame, MAX_DETECTIONS, ObjectClass}
 pub use error::{SchemaError, flag_byte};
 pub use policy_blob::{
     ACT_DIM, Activation, LayerView, MAX_ACT, MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_OBS,
-    MAX_WEIGHTS, OBS_DIM, POLICY_FORMAT_VERSION, PolicyBlob, required_weights,
+    MAX_WEIGHTS, OBS_DIM, PAPER_OBS_DIM, POLICY_FORMAT_VERSION, PolicyBlob, required_weights,
 };
 pub use policy_builder::{PolicyBlobBuilder, PolicyBuildError};
-pub use retrain::{ObstacleBox, RetrainPhase, RetrainProgress, RetrainRequest};
+pub use retrain::{
+    BLOCKER_NONE, BLOCKER_SELF, BLOCKER_TABLE, InfeasibleKind, ObstacleBox, RetrainPhase,
+    RetrainProgress, RetrainRequest,
+};
 pub use robot_state::{N_JOINTS, RobotState, StopReason};
 pub use services::{ShmMessage, ShmOpenError, loan_zeroed, open_publisher, open_subscriber};
 pub use verdict::{EpisodeEnd, TwinVerdict};

@@ -39,10 +39,15 @@ use crate::error::{SchemaError, count_within, finite_f32};
 
 /// Largest observation dimension a blob can describe.
 pub const MAX_OBS: usize = 32;
-/// Observation length of the reaching task the policies are trained for (the twin's
-/// observation, see the `twin` crate): part of the contract between the learner, which
-/// exports blobs, and the controller, which evaluates them.
-pub const OBS_DIM: usize = 17;
+/// Length of the twin's observation vector: the largest observation a task can configure
+/// (`[observation] kind = "nearest_boxes"` with 3 boxes: 17 + 2 × 6 values, see the `twin`
+/// crate). A task's own observation is a prefix of it (`TaskConfig::obs_dim()`: 17 for the
+/// paper's observation); a policy blob's `obs_dim` is the task's, the rest is ignored. Part
+/// of the contract between the learner, which exports blobs, and the controller, which
+/// evaluates them.
+pub const OBS_DIM: usize = 29;
+/// Observation length of the research system's (the paper's) observation.
+pub const PAPER_OBS_DIM: usize = 17;
 /// Action length of the reaching task: a Cartesian TCP step `[dx, dy, dz]`.
 pub const ACT_DIM: usize = 3;
 const _: () = assert!(OBS_DIM <= MAX_OBS && ACT_DIM <= MAX_ACT);

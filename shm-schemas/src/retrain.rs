@@ -163,7 +163,58 @@ pub enum RetrainPhase {
     Published = 3,
     /// The step or time budget ran out without a passing policy.
     BudgetExhausted = 4,
+    /// The learner's feasibility check found no safe way to the goal (final): see
+    /// [`RetrainProgress::infeasible`] for the reason. Nothing is trained.
+    Infeasible = 5,
 }
+
+impl RetrainPhase {
+    /// The learner is done with the request (no more progress will follow).
+    pub fn is_final(self) -> bool {
+        matches!(
+            self,
+            Self::Published | Self::BudgetExhausted | Self::Infeasible
+        )
+    }
+}
+
+/// Why a world is infeasible ([`RetrainProgress::infeasible_kind`]). Stored as a `u8`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum InfeasibleKind {
+    /// Not infeasible (every phase but [`RetrainPhase::Infeasible`]).
+    None = 0,
+    /// The goal target point is out of the arm's reach at any posture.
+    OutOfReach = 1,
+    /// Every goal posture found collides: `blocker` blocks `link` by `deficit_m`.
+    NoGoalPosture = 2,
+    /// Safe goal postures exist but the planner found no collision-free path to any of
+    /// them within its budget.
+    NoPath = 3,
+}
+
+impl TryFrom<u8> for InfeasibleKind {
+    type Error = SchemaError;
+    fn try_from(value: u8) -> Result<Self, SchemaError> {
+        match value {
+            0 => Ok(Self::None),
+            1 => Ok(Self::OutOfReach),
+            2 => Ok(Self::NoGoalPosture),
+            3 => Ok(Self::NoPath),
+            _ => Err(SchemaError::BadEnum {
+                field: "infeasible_kind",
+                value: u32::from(value),
+            }),
+        }
+    }
+}
+
+/// `RetrainProgress::infeasible_blocker` for the table.
+pub const BLOCKER_TABLE: u8 = 0xFE;
+/// `RetrainProgress::infeasible_blocker` for the arm itself (self-collision).
+pub const BLOCKER_SELF: u8 = 0xFD;
+/// `RetrainProgress::infeasible_blocker` when nothing in particular blocks.
+pub const BLOCKER_NONE: u8 = 0xFF;
 
 impl TryFrom<u8> for RetrainPhase {
     type Error = SchemaError;
@@ -184,7 +235,7 @@ impl TryFrom<u8> for RetrainPhase {
 /// Progress of the learner on one [`RetrainRequest`].
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("foresight::RetrainProgress.v1")]
+#[type_name("foresight::RetrainProgress.v2")]
 pub struct RetrainProgress {
     /// The request being served (`RetrainRequest::request_id`; 0 = pre-training).
     pub request_id: u64,
@@ -200,15 +251,24 @@ pub struct RetrainProgress {
     pub wall_time_s: f64,
     /// [`RetrainPhase`] as a byte.
     pub phase: u8,
-    /// Reserved, zero.
-    pub reserved: [u8; 7],
+    /// [`InfeasibleKind`] as a byte (0 unless the phase is [`RetrainPhase::Infeasible`]).
+    pub infeasible_kind: u8,
+    /// With [`InfeasibleKind::NoGoalPosture`]: the obstacle index in the request's scene
+    /// that blocks, or [`BLOCKER_TABLE`], [`BLOCKER_SELF`], [`BLOCKER_NONE`].
+    pub infeasible_blocker: u8,
+    /// With [`InfeasibleKind::NoGoalPosture`]: the robot link blocked (1–5 for link1–link5,
+    /// 6 for the tool, 0 for none).
+    pub infeasible_link: u8,
+    /// How far the best goal posture found misses (m): the clearance deficit for
+    /// `NoGoalPosture`, the distance beyond reach for `OutOfReach`; 0 otherwise.
+    pub infeasible_by_m: f32,
 }
 
 const _: () = assert!(size_of::<RetrainProgress>() == 56);
 
 impl RetrainProgress {
     /// Schema version carried as a service attribute.
-    pub const SCHEMA_VERSION: u32 = 1;
+    pub const SCHEMA_VERSION: u32 = 2;
 
     /// The phase, checked.
     ///
@@ -218,12 +278,31 @@ impl RetrainProgress {
         RetrainPhase::try_from(self.phase)
     }
 
+    /// The infeasibility reason's kind, checked.
+    ///
+    /// # Errors
+    /// [`SchemaError::BadEnum`] for an unknown byte.
+    pub fn infeasible_kind(&self) -> Result<InfeasibleKind, SchemaError> {
+        InfeasibleKind::try_from(self.infeasible_kind)
+    }
+
     /// Checks the phase byte, finite numbers and ranges.
     ///
     /// # Errors
     /// The first [`SchemaError`] found.
     pub fn validate(&self) -> Result<(), SchemaError> {
-        self.phase()?;
+        let phase = self.phase()?;
+        let kind = self.infeasible_kind()?;
+        if (phase == RetrainPhase::Infeasible) != (kind != InfeasibleKind::None) {
+            return Err(SchemaError::OutOfRange {
+                field: "infeasible_kind",
+            });
+        }
+        if !self.infeasible_by_m.is_finite() || self.infeasible_by_m < 0.0 {
+            return Err(SchemaError::OutOfRange {
+                field: "infeasible_by_m",
+            });
+        }
         finite_f64("mean_return", &[self.mean_return])?;
         finite_f64("success_rate", &[self.success_rate])?;
         finite_f64("wall_time_s", &[self.wall_time_s])?;

@@ -24,10 +24,7 @@ pub const RESEND_INTERVAL: Duration = Duration::from_secs(1);
 
 /// Whether a progress message is a final answer to its request.
 pub fn is_final(p: &RetrainProgress) -> bool {
-    matches!(
-        p.phase(),
-        Ok(RetrainPhase::Published | RetrainPhase::BudgetExhausted)
-    )
+    p.phase().is_ok_and(RetrainPhase::is_final)
 }
 
 /// The controller side's retrain request in flight.

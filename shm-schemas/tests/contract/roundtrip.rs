@@ -33,6 +33,7 @@ pub fn detection_frame() -> DetectionFrame {
         sequence: 42,
         capture_time_ns: 123_456_789,
         camera_id: 3,
+        flags: DetectionFrame::FRAME_SETTLED,
         ..Default::default()
     };
     assert!(f.push(DetectedObject::new(

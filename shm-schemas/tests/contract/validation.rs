@@ -44,6 +44,22 @@ fn detection_frame_rejects_bad_input() {
         })
     );
 
+    // `flags`: the settled bit is known (either way valid); any other bit is refused, the
+    // field and the unknown bits named.
+    let mut f = detection_frame();
+    assert!(f.settled());
+    f.set_settled(false);
+    assert_eq!((f.flags, f.validate()), (0, Ok(())));
+    f.flags = DetectionFrame::FRAME_SETTLED | 0b110;
+    assert_eq!(
+        f.validate(),
+        Err(SchemaError::BadEnum {
+            field: "flags",
+            value: 0b110
+        })
+    );
+    assert!(f.validate().unwrap_err().to_string().contains("flags"));
+
     let mut f = detection_frame();
     f.objects[1].size_m[2] = -0.1;
     assert_eq!(
