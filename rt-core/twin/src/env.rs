@@ -13,8 +13,10 @@ use super::ik::IkSolver;
 use super::kinematics::LinkPoses;
 use super::model::RobotModel;
 use super::scene::{BoxObstacle, Goal, Scene};
-use super::task::{MAX_EPISODE_STEPS, ObstacleClass, TaskConfig};
-use super::{ACT_DIM, DOF, Joints, OBS_DIM};
+use super::task::{
+    EXTRA_BOX_VALUES, MAX_EPISODE_STEPS, ObservationKind, ObstacleClass, TaskConfig,
+};
+use super::{ACT_DIM, DOF, Joints, MAX_OBSTACLES, OBS_DIM, PAPER_OBS_DIM};
 
 /// Goals tried before scene sampling gives up on placing a box.
 const GOAL_TRIES: usize = 64;
@@ -123,6 +125,10 @@ pub struct TwinEnv {
     step_index: u32,
     obs: [f32; OBS_DIM],
     last_distance: DistanceReport,
+    /// Each box's own report (`nearest_boxes` observation only; index = box index).
+    box_reports: [DistanceReport; MAX_OBSTACLES],
+    /// How many boxes the observation describes (1 for the paper's).
+    observed_boxes: usize,
     start_tcp_m: Vector3<f64>,
 }
 
@@ -151,6 +157,11 @@ impl TwinEnv {
         };
         let scene = Scene::empty(s.table_height_m, goal);
         let start_tcp_m = model.tcp_m(&model.home());
+        let observation = cfg.observation();
+        let observed_boxes = match observation.kind {
+            ObservationKind::Paper => 1,
+            ObservationKind::NearestBoxes => observation.boxes as usize,
+        };
         let mut env = Self {
             model,
             geometry,
@@ -165,6 +176,8 @@ impl TwinEnv {
             step_index: 0,
             obs: [0.0; OBS_DIM],
             last_distance: DistanceReport::FAR,
+            box_reports: [DistanceReport::FAR; MAX_OBSTACLES],
+            observed_boxes,
             start_tcp_m,
         };
         let scene = env.scene;
@@ -245,10 +258,70 @@ impl TwinEnv {
         self.tcp_vel_m_s = Vector3::zeros();
         self.goal_dist_m = (self.target_m - self.poses.tcp_m()).norm();
         self.step_index = 0;
-        let (boxes, table) = self.geometry.distances(&self.poses, &self.scene);
-        self.last_distance = boxes.unwrap_or(table);
+        let all = self.distances_now();
+        self.last_distance = all.boxes.unwrap_or(all.table);
         self.write_obs();
         self.obs
+    }
+
+    /// The robot's distances at the current poses (and each box's report when the
+    /// observation describes more than one box).
+    fn distances_now(&mut self) -> super::geometry::Distances {
+        if self.observed_boxes > 1 {
+            self.geometry
+                .all_distances_per_box(&self.poses, &self.scene, &mut self.box_reports)
+        } else {
+            self.geometry.all_distances(&self.poses, &self.scene)
+        }
+    }
+
+    /// The 2nd … k-th nearest boxes (indices `17..obs_dim`): see the crate docs.
+    fn write_extra_boxes(&mut self) {
+        let n = self.scene.obstacles.len().min(MAX_OBSTACLES);
+        let nearest = self.last_distance.obstacle;
+        // Up to 2 picks by ascending distance, skipping the nearest (already in 9–16);
+        // ties go to the lower index. No allocation: k ≤ 3, n ≤ 16.
+        let mut picked: [Option<usize>; 2] = [None; 2];
+        for slot in 0..self.observed_boxes.saturating_sub(1).min(2) {
+            let mut best: Option<usize> = None;
+            for i in 0..n {
+                if Some(i) == nearest || picked.contains(&Some(i)) {
+                    continue;
+                }
+                let closer = best.is_none_or(|b| {
+                    self.box_reports[i].distance_m < self.box_reports[b].distance_m
+                });
+                if closer {
+                    best = Some(i);
+                }
+            }
+            picked[slot] = best;
+        }
+        for slot in 0..2 {
+            let base = PAPER_OBS_DIM + EXTRA_BOX_VALUES * slot;
+            let values = match picked[slot] {
+                Some(i) if slot + 1 < self.observed_boxes => {
+                    let b = &self.scene.obstacles[i];
+                    let r = &self.box_reports[i];
+                    [
+                        b.height_m(),
+                        b.width_m(),
+                        r.obstacle_point_m[0],
+                        r.obstacle_point_m[1],
+                        r.obstacle_point_m[2],
+                        r.distance_m.min(1.0),
+                    ]
+                }
+                _ => [0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+            };
+            if slot + 1 < self.observed_boxes {
+                for (k, v) in values.iter().enumerate() {
+                    self.obs[base + k] = *v as f32;
+                }
+            } else {
+                self.obs[base..base + EXTRA_BOX_VALUES].fill(0.0);
+            }
+        }
     }
 
     fn write_obs(&mut self) {
@@ -270,6 +343,7 @@ impl TwinEnv {
         }
         o[9] = h as f32;
         o[10] = w as f32;
+        self.write_extra_boxes();
     }
 
     /// Advances one step with `action` (clipped to `[-1, 1]`; NaN counts as 0).
@@ -302,7 +376,7 @@ impl TwinEnv {
         self.tcp_vel_m_s = (tcp - tcp_prev) / dt;
         self.step_index += 1;
 
-        let all = self.geometry.all_distances(&self.poses, &self.scene);
+        let all = self.distances_now();
         let (boxes, table) = (all.boxes, all.table);
         let clearance_m = self.cfg.success.min_box_clearance_m;
         // Closer than the clearance to a box or (links 2–5, the tool) to the table is
@@ -436,6 +510,140 @@ impl TwinEnv {
             scene.obstacles.clear();
         }
         scene
+    }
+}
+
+/// Where [`TwinEnv::sample_world`] put a box.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Placement {
+    OnPath,
+    NearGoal,
+    Wall,
+    Anywhere,
+}
+
+impl TwinEnv {
+    /// A random world of the task's broad distribution (`[world]`, see
+    /// [`super::WorldConfig`]): a goal as in [`TwinEnv::sample_scene`] and a box count drawn
+    /// from `world.boxes`, each box placed on the path, beside the goal, as a wall or
+    /// anywhere, redrawn (up to 8 times, then left out) when it would touch the arm at the
+    /// start or at the goal posture or crowd the goal cube. Without `[world]`, a
+    /// small-obstacle scene. Deterministic for a given RNG state; not every world drawn is
+    /// feasible (a planner decides that: `twin::feasibility`).
+    pub fn sample_world<R: Rng + ?Sized>(&self, rng: &mut R) -> Scene {
+        let Some(w) = self.cfg.world else {
+            return self.sample_scene(rng, ObstacleClass::Small);
+        };
+        let s = &self.cfg.sampling;
+        let start = self.start_tcp_m;
+        let start_poses = self.model.fk(&self.model.home());
+        let margin = self.cfg.reward.d_thre_m;
+        for _ in 0..GOAL_TRIES {
+            let goal_xy = [uniform(rng, s.goal_x_m), uniform(rng, s.goal_y_m)];
+            let dir = [goal_xy[0] - start.x, goal_xy[1] - start.y];
+            let len = (dir[0] * dir[0] + dir[1] * dir[1]).sqrt();
+            if len < s.min_goal_distance_m.max(1e-6) {
+                continue;
+            }
+            let goal = Goal {
+                center_m: [
+                    goal_xy[0],
+                    goal_xy[1],
+                    s.table_height_m + s.goal_size_m / 2.0,
+                ],
+                size_m: s.goal_size_m,
+            };
+            let mut scene = Scene::empty(s.table_height_m, goal);
+            let goal_target = scene.goal_target_m(self.cfg.success.goal_hover_m);
+            let at_goal = self.ik.solve_with(
+                &self.model,
+                &goal_target,
+                &self.model.home(),
+                GOAL_IK_ITERATIONS,
+            );
+            if !at_goal.reached {
+                continue;
+            }
+            let goal_poses = self.model.fk(&at_goal.joints);
+            if self.geometry.self_collision(&goal_poses).is_some() {
+                continue;
+            }
+            let (ux, uy) = (dir[0] / len, dir[1] / len);
+            let count = rng.random_range(w.boxes[0]..=w.boxes[1]) as usize;
+            for _ in 0..count.min(MAX_OBSTACLES) {
+                let pick = rng.random::<f64>();
+                let placement = if pick < w.on_path_share {
+                    Placement::OnPath
+                } else if pick < w.on_path_share + w.near_goal_share {
+                    Placement::NearGoal
+                } else if pick < w.on_path_share + w.near_goal_share + w.wall_share {
+                    Placement::Wall
+                } else {
+                    Placement::Anywhere
+                };
+                for _ in 0..BOX_TRIES {
+                    let mut sx = uniform(rng, w.footprint_m);
+                    let mut sy = uniform(rng, w.footprint_m);
+                    let h = uniform(rng, w.height_m);
+                    let (cx, cy) = match placement {
+                        Placement::OnPath | Placement::Wall => {
+                            let f = uniform(rng, s.obstacle_fraction);
+                            let lat = uniform(rng, s.obstacle_lateral_m);
+                            if placement == Placement::Wall {
+                                // Across the path: the long extent along the axis nearer
+                                // to perpendicular to it.
+                                let long = uniform(rng, w.wall_length_m);
+                                let thin = w.footprint_m[0];
+                                if ux.abs() > uy.abs() {
+                                    (sx, sy) = (thin, long);
+                                } else {
+                                    (sx, sy) = (long, thin);
+                                }
+                            }
+                            (
+                                start.x + f * dir[0] - uy * lat,
+                                start.y + f * dir[1] + ux * lat,
+                            )
+                        }
+                        Placement::NearGoal => {
+                            let angle = rng.random::<f64>() * std::f64::consts::TAU;
+                            let gap = s.goal_clearance_m
+                                + 0.005
+                                + rng.random::<f64>() * w.near_goal_gap_m;
+                            let reach = (s.goal_size_m + sx.max(sy)) / 2.0 + gap;
+                            // Chebyshev placement: a square ring around the goal cube.
+                            let (c, sn) = (angle.cos(), angle.sin());
+                            let k = reach / c.abs().max(sn.abs());
+                            (goal_xy[0] + k * c, goal_xy[1] + k * sn)
+                        }
+                        Placement::Anywhere => (uniform(rng, w.x_m), uniform(rng, w.y_m)),
+                    };
+                    let b = BoxObstacle {
+                        center_m: [cx, cy, s.table_height_m + h / 2.0],
+                        size_m: [sx, sy, h],
+                    };
+                    let gap_x = (cx - goal.center_m[0]).abs() - (sx + goal.size_m) / 2.0;
+                    let gap_y = (cy - goal.center_m[1]).abs() - (sy + goal.size_m) / 2.0;
+                    if gap_x.max(gap_y) < s.goal_clearance_m {
+                        continue;
+                    }
+                    if scene.obstacles.push(b).is_err() {
+                        break;
+                    }
+                    if self.geometry.in_contact(&start_poses, &scene, margin)
+                        || self.geometry.in_contact(&goal_poses, &scene, margin / 2.0)
+                    {
+                        let _ = scene.obstacles.pop();
+                        continue;
+                    }
+                    break;
+                }
+            }
+            if scene.obstacles.len() >= w.boxes[0] as usize {
+                return scene;
+            }
+        }
+        Scene::empty(s.table_height_m, self.scene.goal)
     }
 }
 

@@ -471,6 +471,41 @@ impl RobotGeometry {
         }
     }
 
+    /// [`RobotGeometry::all_distances`], and each box's own report in `per_box` (index `i`
+    /// for `scene.obstacles[i]`, as many as there are boxes and `per_box` holds): what a
+    /// task step with the `nearest_boxes` observation needs.
+    ///
+    /// # Performance
+    /// One set of world capsules; every capsule–box pair within the pruning bound of that
+    /// box's best so far; no allocation.
+    pub fn all_distances_per_box(
+        &self,
+        poses: &LinkPoses,
+        scene: &Scene,
+        per_box: &mut [DistanceReport],
+    ) -> Distances {
+        let world = self.world(poses);
+        let mut boxes: Option<DistanceReport> = None;
+        for (i, b) in scene.obstacles.iter().enumerate() {
+            let mut best = DistanceReport::FAR;
+            for c in &world {
+                if aabb_gap(c, b) - c.r >= best.distance_m {
+                    continue;
+                }
+                best = best.closer(capsule_box(c, b, i));
+            }
+            if let Some(slot) = per_box.get_mut(i) {
+                *slot = best;
+            }
+            boxes = Some(boxes.map_or(best, |all| all.closer(best)));
+        }
+        Distances {
+            boxes,
+            table: self.table_from(&world, scene),
+            own: self.self_from(&world),
+        }
+    }
+
     fn table_from(&self, world: &[WorldCapsule], scene: &Scene) -> DistanceReport {
         world
             .iter()

@@ -27,6 +27,10 @@
 //!   it. The goal cube is not an obstacle.
 //! - [`TaskConfig`] (`assets/task.toml`) and [`TwinEnv`]: the reaching MDP, `reset`, `step`,
 //!   `sample_scene`, and [`rollout`] (a whole episode with a policy closure).
+//! - Feasibility (planning code, allocates): [`check_goal_postures`] (safe IK postures at
+//!   the goal target from deterministic seeds), [`plan_path`] (RRT-Connect in joint space
+//!   under the task's contact rule, [`is_safe_posture`]) and [`check_feasibility`] (both;
+//!   [`Feasibility`] or an [`InfeasibleReason`] in words and as `RetrainProgress` bytes).
 //!
 //! # Observation (`[f32; OBS_DIM]`, raw SI units; the policy blob carries normalisation)
 //! | index | meaning | unit |
@@ -42,6 +46,19 @@
 //!
 //! "Nearest box" is the box with the smallest robot distance. In a scene without boxes
 //! indices 9–10 are 0 and the closest points are those between the robot and the table.
+//!
+//! That is the paper's observation (`TaskConfig::obs_dim()` = 17). With `[observation] kind
+//! = "nearest_boxes"` and `boxes = k` (the bundled task: k = 3), indices `17 + 6·(j−2)`
+//! onward describe the j-th nearest box for j = 2 … k:
+//!
+//! | offset | meaning | unit |
+//! |---|---|---|
+//! | +0 | its height | m |
+//! | +1 | its width | m |
+//! | +2–4 | the closest point on it to the robot | m |
+//! | +5 | the robot–box distance, capped at 1 | m |
+//!
+//! A missing box reads as zeros with distance 1. Values past the task's `obs_dim()` are 0.
 //!
 //! # Action (`[f32; ACT_DIM]`)
 //! `[dx, dy, dz]` in `[-1, 1]` (clipped), times `action.scale_m`: the TCP displacement
@@ -84,15 +101,21 @@
 //! ```
 
 mod env;
+mod feasibility;
 mod geometry;
 mod ik;
 mod kinematics;
 mod model;
+mod planner;
 mod scene;
 mod task;
 
 pub use env::{
     EpisodeSummary, RewardTerms, StepOutcome, StraightLinePolicy, TwinEnv, rollout, rollout_until,
+};
+pub use feasibility::{
+    Blocker, Feasibility, FeasibilityConfig, GOAL_IK_ITERATIONS, GoalPosture, GoalPostureCheck,
+    InfeasibleReason, LINK_TOOL, MAX_GOAL_POSTURES, check_feasibility, check_goal_postures,
 };
 pub use geometry::{
     DistanceReport, Distances, RobotGeometry, SELF_COLLISION_MIN_DISTANCE_M, SELF_PAIRS,
@@ -104,11 +127,13 @@ pub use model::{
     ACCELERATION_LIMIT_RAD_S2, COLLISION_MARGIN_M, JERK_LIMIT_RAD_S3, JointLimits, LinkCapsule,
     LinkName, MAX_CAPSULES, N_FRAMES, RobotModel, TOOL_FRAME, UrdfLoadError,
 };
+pub use planner::{PlanOutcome, PlannerBudget, densify_path, is_safe_posture, plan_path};
 pub use scene::{BoxObstacle, Goal, Obstacles, Scene, SceneError};
 pub use shm_schemas::scene_file::MAX_OBSTACLES;
 pub use task::{
-    MAX_EPISODE_STEPS, MAX_TOOL_RADIUS_M, MAX_TOOL_REACH_M, ObstacleClass, TaskConfig,
-    TaskConfigError, ToolConfig,
+    EXTRA_BOX_VALUES, MAX_EPISODE_STEPS, MAX_OBSERVED_BOXES, MAX_TOOL_RADIUS_M, MAX_TOOL_REACH_M,
+    MAX_WORLD_BOXES, ObservationConfig, ObservationKind, ObstacleClass, TaskConfig,
+    TaskConfigError, ToolConfig, WorldConfig,
 };
 
 /// Number of actuated joints of the xArm5.
@@ -118,7 +143,7 @@ pub const DOF: usize = 5;
 pub type Joints = [f64; DOF];
 
 /// Lengths of the observation and action vectors: the policy contract's (`shm-schemas`).
-pub use shm_schemas::{ACT_DIM, OBS_DIM};
+pub use shm_schemas::{ACT_DIM, OBS_DIM, PAPER_OBS_DIM};
 
 /// The largest per-joint difference between two joint vectors, rad (no allocation: the
 /// controller's cycle uses it too).

@@ -91,6 +91,12 @@ impl Obstacles {
         }
     }
 
+    /// Removes and returns the last box.
+    pub fn pop(&mut self) -> Option<BoxObstacle> {
+        self.len = self.len.checked_sub(1)?;
+        Some(self.boxes[self.len])
+    }
+
     /// Removes every box.
     pub fn clear(&mut self) {
         self.len = 0;

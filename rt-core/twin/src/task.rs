@@ -209,6 +209,112 @@ impl ToolConfig {
     }
 }
 
+/// Which observation the policy sees (`[observation] kind`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObservationKind {
+    /// The research system's 17 values: the nearest box only (the default when the task
+    /// file has no `[observation]`, so the paper's setting stays reproducible).
+    #[default]
+    Paper,
+    /// The paper's 17 values, then for the 2nd … k-th nearest boxes (by robot distance)
+    /// 6 values each: height, width, the closest point on that box to the robot (x, y, z)
+    /// and the robot–box distance (capped at 1 m). Missing boxes read as zeros with
+    /// distance 1 m.
+    NearestBoxes,
+}
+
+/// Most boxes the `nearest_boxes` observation describes (`[observation] boxes`).
+pub const MAX_OBSERVED_BOXES: u32 = 3;
+
+/// Values per extra box of the `nearest_boxes` observation.
+pub const EXTRA_BOX_VALUES: usize = 6;
+
+/// `[observation]` (optional; absent = the paper's observation).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObservationConfig {
+    /// The layout.
+    pub kind: ObservationKind,
+    /// Boxes described (`nearest_boxes`: 1..=3; the paper's: 1).
+    pub boxes: u32,
+}
+
+/// `[world]` (optional): the broad world distribution of the generalist policy's
+/// pre-training and of the unseen-worlds benchmark ([`super::TwinEnv::sample_world`]).
+///
+/// A world is a goal drawn as in `[sampling]` and `boxes` boxes; each box is, by the
+/// shares, on the straight start→goal path (`on_path_share`, at a fraction
+/// `sampling.obstacle_fraction` of the way with `sampling.obstacle_lateral_m` sideways),
+/// beside the goal (`near_goal_share`, `goal_clearance_m` to `goal_clearance_m +
+/// near_goal_gap_m` from the goal cube), a wall across the path (`wall_share`, one extent
+/// `wall_length_m`, the other the footprint's low end), or anywhere in `x_m` × `y_m`.
+/// Box footprints and heights are uniform in the ranges. A box is redrawn when it would
+/// touch the arm at its start posture (within `reward.d_thre_m`) or at the goal posture
+/// the IK finds from the start (within half of that), or come nearer the goal cube than
+/// `sampling.goal_clearance_m`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorldConfig {
+    /// Box count range (1..=3 … up to 8).
+    pub boxes: [u32; 2],
+    /// Horizontal extent range, each of x and y (m).
+    pub footprint_m: [f64; 2],
+    /// Height range (m).
+    pub height_m: [f64; 2],
+    /// Range of box centres' x for boxes placed anywhere (m).
+    pub x_m: [f64; 2],
+    /// Range of box centres' y for boxes placed anywhere (m).
+    pub y_m: [f64; 2],
+    /// Share of boxes on the straight path.
+    pub on_path_share: f64,
+    /// Share of boxes beside the goal.
+    pub near_goal_share: f64,
+    /// Share of boxes that are walls across the path.
+    pub wall_share: f64,
+    /// A wall's long extent (m).
+    pub wall_length_m: [f64; 2],
+    /// How far beyond `sampling.goal_clearance_m` a box beside the goal may be (m).
+    pub near_goal_gap_m: f64,
+}
+
+/// Most boxes a `[world]` may ask for.
+pub const MAX_WORLD_BOXES: u32 = 8;
+
+impl WorldConfig {
+    /// Checks the bounds.
+    ///
+    /// # Errors
+    /// The name of the first bad field.
+    pub fn validate(&self) -> Result<(), &'static str> {
+        if self.boxes[0] > self.boxes[1] || self.boxes[1] > MAX_WORLD_BOXES {
+            return Err("world.boxes must be a [low, high] range within 0..=8");
+        }
+        let sizes = [self.footprint_m, self.height_m, self.wall_length_m];
+        if !sizes.iter().all(|r| range_ok(r) && pos(r[0]) && r[1] < 1.0) {
+            return Err(
+                "world.footprint_m / height_m / wall_length_m must be positive [low, high] ranges below 1 m",
+            );
+        }
+        if !range_ok(&self.x_m)
+            || !range_ok(&self.y_m)
+            || self.x_m.iter().chain(&self.y_m).any(|v| v.abs() > 1.0)
+        {
+            return Err("world.x_m / y_m must be [low, high] ranges within ±1 m of the base");
+        }
+        let shares = [self.on_path_share, self.near_goal_share, self.wall_share];
+        if !shares.iter().all(|v| v.is_finite() && *v >= 0.0) || shares.iter().sum::<f64>() > 1.0 {
+            return Err(
+                "world.on_path_share, near_goal_share and wall_share must be ≥ 0 and sum to at most 1",
+            );
+        }
+        if !(self.near_goal_gap_m.is_finite() && (0.0..0.5).contains(&self.near_goal_gap_m)) {
+            return Err("world.near_goal_gap_m must be in [0, 0.5) m");
+        }
+        Ok(())
+    }
+}
+
 /// The whole task configuration.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -233,6 +339,13 @@ pub struct TaskConfig {
     /// hash of a task without a tool is unchanged by this field's existence).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tool: Option<ToolConfig>,
+    /// The observation; absent = the paper's (left out of the canonical TOML then, like
+    /// `tool`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub observation: Option<ObservationConfig>,
+    /// The broad world distribution, if the task has one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub world: Option<WorldConfig>,
 }
 
 fn range_ok(r: &[f64; 2]) -> bool {
@@ -346,9 +459,42 @@ impl TaskConfig {
             }
         }
         self.ik.validate()?;
+        if let Some(o) = &self.observation {
+            let ok = match o.kind {
+                ObservationKind::Paper => o.boxes == 1,
+                ObservationKind::NearestBoxes => (1..=MAX_OBSERVED_BOXES).contains(&o.boxes),
+            };
+            if !ok {
+                return Err(
+                    "observation.boxes must be 1 for kind = \"paper\" and 1..=3 for \"nearest_boxes\"",
+                );
+            }
+        }
+        if let Some(w) = &self.world {
+            w.validate()?;
+        }
         match &self.tool {
             Some(t) => t.validate(),
             None => Ok(()),
+        }
+    }
+
+    /// The observation's layout (the paper's when the file has no `[observation]`).
+    pub fn observation(&self) -> ObservationConfig {
+        self.observation.unwrap_or(ObservationConfig {
+            kind: ObservationKind::Paper,
+            boxes: 1,
+        })
+    }
+
+    /// Length of this task's observation: a prefix of the twin's `[f32; OBS_DIM]`.
+    pub fn obs_dim(&self) -> usize {
+        let o = self.observation();
+        match o.kind {
+            ObservationKind::Paper => shm_schemas::PAPER_OBS_DIM,
+            ObservationKind::NearestBoxes => {
+                shm_schemas::PAPER_OBS_DIM + EXTRA_BOX_VALUES * (o.boxes as usize - 1)
+            }
         }
     }
 

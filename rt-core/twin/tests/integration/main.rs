@@ -5,6 +5,7 @@
 
 mod common;
 mod determinism;
+mod feasibility;
 mod geometry;
 mod ik;
 mod kinematics;
