@@ -127,11 +127,18 @@ pub struct PolicyExpectation {
 }
 
 impl PolicyExpectation {
-    /// The twin's dimensions ([`OBS_DIM`], [`ACT_DIM`]) and the given task hash.
+    /// The given task hash with the twin's full observation ([`OBS_DIM`], the default
+    /// task's `nearest_boxes` observation with 3 boxes) and [`ACT_DIM`].
     pub const fn for_task(task_config_hash: u64) -> Self {
+        Self::for_task_obs(task_config_hash, OBS_DIM)
+    }
+
+    /// The given task hash and observation length (the task's `TaskConfig::obs_dim()`, ≤
+    /// [`OBS_DIM`]; 17 for the paper's observation), and [`ACT_DIM`].
+    pub const fn for_task_obs(task_config_hash: u64, obs_dim: usize) -> Self {
         Self {
             task_config_hash,
-            obs_dim: OBS_DIM,
+            obs_dim,
             act_dim: ACT_DIM,
         }
     }
@@ -152,24 +159,24 @@ impl PolicyExpectation {
 ///
 /// ```compile_fail,E0308
 /// use policy::{PolicyExpectation, PolicyLoader};
-/// use shm_schemas::{PolicyBlob, PolicyBlobBuilder};
+/// use shm_schemas::{OBS_DIM, PolicyBlob, PolicyBlobBuilder};
 ///
 /// let loader = PolicyLoader::new(PolicyExpectation::for_task(0xabc));
-/// let blob = PolicyBlobBuilder::random(1, 0xabc, 17, &[8], 3, 7).build().unwrap();
+/// let blob = PolicyBlobBuilder::random(1, 0xabc, OBS_DIM, &[8], 3, 7).build().unwrap();
 /// let shared: &PolicyBlob = &blob; // what `Sample::payload()` hands out
 /// let _ = loader.check(shared); // expected `&Box<PolicyBlob>`: copy it first
 /// ```
 ///
 /// ```
 /// use policy::{MlpPolicy, PolicyExpectation, PolicyLoader, PolicyRejectReason};
-/// use shm_schemas::PolicyBlobBuilder;
+/// use shm_schemas::{OBS_DIM, PolicyBlobBuilder};
 ///
 /// let loader = PolicyLoader::new(PolicyExpectation::for_task(0xabc));
-/// let blob = PolicyBlobBuilder::random(1, 0xabc, 17, &[64, 64], 3, 7).build().unwrap();
+/// let blob = PolicyBlobBuilder::random(1, 0xabc, OBS_DIM, &[64, 64], 3, 7).build().unwrap();
 /// let policy = loader.prepare(&blob).unwrap();
 /// assert_eq!(policy.policy_id(), 1);
 ///
-/// let other_task = PolicyBlobBuilder::random(2, 0xdef, 17, &[64, 64], 3, 7).build().unwrap();
+/// let other_task = PolicyBlobBuilder::random(2, 0xdef, OBS_DIM, &[64, 64], 3, 7).build().unwrap();
 /// let mut spare = MlpPolicy::with_capacity(); // allocate once, reuse for every swap
 /// assert_eq!(loader.prepare_into(&other_task, &mut spare), Err(PolicyRejectReason::TaskHashMismatch));
 /// assert_eq!(loader.counters().count(PolicyRejectReason::TaskHashMismatch), 1);

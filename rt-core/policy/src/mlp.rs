@@ -218,13 +218,16 @@ impl MlpPolicy {
 
     /// The deterministic mean action for a twin observation. No allocation, no panic.
     ///
-    /// For a policy prepared for the twin's dimensions ([`OBS_DIM`] → [`ACT_DIM`], which
-    /// [`super::PolicyLoader::prepare`] with [`super::PolicyExpectation::for_task`]
-    /// guarantees). Any other policy — or an empty one — yields the zero action (no
+    /// For a policy prepared for the task's dimensions (the first `obs_dim` of the twin's
+    /// [`OBS_DIM`] values → [`ACT_DIM`], which [`super::PolicyLoader::prepare`] with
+    /// [`super::PolicyExpectation::for_task`] guarantees). Any other policy — or an empty one — yields the zero action (no
     /// motion); use [`Self::evaluate`] to see the error.
     pub fn act(&self, obs: &[f32; OBS_DIM]) -> [f32; ACT_DIM] {
         let mut out = [0.0; ACT_DIM];
-        if self.evaluate(obs, &mut out).is_err() {
+        // The task's observation is a prefix of the twin's vector (`OBS_DIM` is the largest
+        // a task can configure); a policy longer than the vector is refused by `evaluate`.
+        let used = obs.get(..self.obs_dim).unwrap_or(obs.as_slice());
+        if self.evaluate(used, &mut out).is_err() {
             out = [0.0; ACT_DIM];
         }
         out

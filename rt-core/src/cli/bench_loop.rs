@@ -287,7 +287,8 @@ fn drive_twin(
     let mut last_swap: Option<Instant> = None;
     while !stop.load(Ordering::Acquire) {
         if last_det.elapsed() >= Duration::from_millis(33) {
-            twin.on_detection(scene, clock.now_ns(), true, &mut events);
+            // A fixed synthetic scene, not a camera's view: with a goal and settled.
+            twin.on_detection(scene, clock.now_ns(), true, true, &mut events);
             last_det = Instant::now();
         }
         let due = match last_swap {

@@ -1271,10 +1271,12 @@ impl<'a> Episode<'a> {
         } else {
             self.report.bump("twist_frames_sequence_regress");
         }
+        // Settled: the sweep's world is its ground truth, not a tracker's view of it.
         let mut frame = DetectionFrame {
             sequence: self.sequence,
             capture_time_ns: capture,
             camera_id: 1,
+            flags: DetectionFrame::FRAME_SETTLED,
             ..DetectionFrame::default()
         };
         let confidence = if Self::in_window(self.spec.goal_hidden, c) {
@@ -1361,6 +1363,7 @@ impl<'a> Episode<'a> {
                 TwinEvent::ReturnHomeRefused { .. } => "twin_returns_home_refused",
                 TwinEvent::PolicySwapped { .. } => "twin_policy_swaps",
                 TwinEvent::NoGoal { .. } => "twin_no_goal",
+                TwinEvent::AwaitingSettledScene { .. } => "twin_awaiting_settled_scene",
             };
             self.report.bump(key);
         }

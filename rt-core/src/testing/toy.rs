@@ -2,10 +2,11 @@
 //! until (and besides) the real twin: [`ToyArm`] (an xArm5-like serial chain with sphere-
 //! swept links, analytic FK, distances to axis-aligned boxes), [`ToyScene`] and
 //! [`ToyLookahead`] with [`ToyPolicy`] (a policy that is a small random MLP evaluated on the
-//! joint error, rolled out for a whole episode).
+//! joint error, rolled out for a whole episode). The toy's goal is the policy's joint
+//! target: its TCP there is the goal target point.
 
 use crate::cycle::shield::{ShieldModel, WATCHED_POINTS};
-use crate::twin_thread::worker::{Lookahead, Verdict};
+use crate::twin_thread::worker::{GoalApproach, Lookahead, Verdict};
 use twin::{DOF, Joints};
 
 /// Maximum obstacles in a [`ToyScene`].
@@ -196,6 +197,10 @@ pub struct ToyLookahead {
     pub min_distance_m: f64,
     /// Joint tolerance for success, rad.
     pub tolerance_rad: f64,
+    /// TCP distance to the goal target point (the TCP at the policy's joint target) that
+    /// counts as reached on a smoothed plan, m: loose enough for every episode that ends
+    /// within twice `tolerance_rad` of the target (a TCP within ~0.04 m).
+    pub goal_tolerance_m: f64,
 }
 
 impl Default for ToyLookahead {
@@ -205,8 +210,29 @@ impl Default for ToyLookahead {
             step_s: 0.05,
             min_distance_m: 0.01,
             tolerance_rad: 0.01,
+            goal_tolerance_m: 0.05,
         }
     }
+}
+
+/// The toy's goal target point for `policy`: the TCP at its joint target, m.
+pub fn toy_goal_target_m(policy: &ToyPolicy) -> [f64; 3] {
+    ToyArm::points_m(&policy.target_rad)[4]
+}
+
+/// The closest approach of the toy arm's TCP along `path_q_rad` to `target_m`, m (infinite
+/// for an empty path). No allocation.
+pub fn toy_closest_approach_m(target_m: &[f64; 3], path_q_rad: &[Joints]) -> f64 {
+    path_q_rad
+        .iter()
+        .map(|q| {
+            let p = ToyArm::points_m(q)[4];
+            ((p[0] - target_m[0]).powi(2)
+                + (p[1] - target_m[1]).powi(2)
+                + (p[2] - target_m[2]).powi(2))
+            .sqrt()
+        })
+        .fold(f64::INFINITY, f64::min)
 }
 
 impl Lookahead for ToyLookahead {
@@ -263,6 +289,18 @@ impl Lookahead for ToyLookahead {
             min_distance_m: min_d,
             steps: steps as u32,
             policy_id: policy.id,
+        }
+    }
+
+    fn goal_approach(
+        &mut self,
+        policy: &ToyPolicy,
+        _scene: &ToyScene,
+        path_q_rad: &[Joints],
+    ) -> GoalApproach {
+        GoalApproach {
+            closest_m: toy_closest_approach_m(&toy_goal_target_m(policy), path_q_rad),
+            tolerance_m: self.goal_tolerance_m,
         }
     }
 }

@@ -14,7 +14,10 @@
 //!   increase (someone else is writing the detection service).
 //!
 //! A frame without a goal (none, or one below the confidence floor) is accepted — its
-//! obstacles count — but nothing is planned until a goal is seen again.
+//! obstacles count — but nothing is planned until a goal is seen again. Likewise a frame not
+//! marked settled (`DetectionFrame::FRAME_SETTLED`: perception is still confirming a
+//! changing world) is accepted and re-verified against, but no plan is approved on it: the
+//! worker waits for a settled frame.
 
 use shm_schemas::{DetectionFrame, ObjectClass, SchemaError};
 use twin::{BoxObstacle, Goal, Scene};
@@ -177,6 +180,9 @@ pub struct AcceptedFrame {
     pub scene: Scene,
     /// The frame carries a goal at or above the confidence floor.
     pub goal_seen: bool,
+    /// The frame is marked settled (`DetectionFrame::FRAME_SETTLED`): plans may be
+    /// approved on its scene.
+    pub settled: bool,
     /// Capture time on the cycle's clock (since its origin), ns.
     pub stamp_ns: u64,
 }
@@ -269,7 +275,7 @@ impl SceneIntake {
     {
         let outcome = self.accept(frame, mono_now_ns, publishers);
         match &outcome {
-            Ok(a) => twin.on_detection(a.scene, a.stamp_ns, a.goal_seen, events),
+            Ok(a) => twin.on_detection(a.scene, a.stamp_ns, a.goal_seen, a.settled, events),
             Err(_) => twin.on_refused_detection(),
         }
         outcome
@@ -298,6 +304,7 @@ impl SceneIntake {
         Ok(AcceptedFrame {
             scene,
             goal_seen,
+            settled: frame.settled(),
             stamp_ns,
         })
     }
@@ -552,6 +559,29 @@ mod tests {
             .unwrap();
         assert!(a.goal_seen);
         assert_eq!(k.counters().without_goal, 2);
+    }
+
+    /// Issue 15: the settled flag travels with the accepted scene (an unsettled frame is
+    /// accepted: its obstacles count); an unknown flag bit is refused.
+    #[test]
+    fn the_settled_flag_travels_with_the_scene_and_unknown_flags_are_refused() {
+        let now = ORIGIN_NS + 1_000_000_000;
+        let mut k = intake();
+        let mut f = frame(1, now, &[goal([0.3, 0.2, 0.025])]);
+        let a = k.accept(&f, now, 1).unwrap();
+        assert!(!a.settled && a.goal_seen);
+        f.sequence = 2;
+        f.set_settled(true);
+        assert!(k.accept(&f, now, 1).unwrap().settled);
+        f.sequence = 3;
+        f.flags = DetectionFrame::FRAME_SETTLED | 0x100;
+        assert_eq!(
+            k.accept(&f, now, 1),
+            Err(FrameRefusal::Invalid(SchemaError::BadEnum {
+                field: "flags",
+                value: 0x100
+            }))
+        );
     }
 
     /// Issue 14, item 3: zero, future, old and pre-start stamps looked fresh.

@@ -6,6 +6,11 @@
 //! (at most `approach_speed_rad_s`); that approach is not part of the episode, but like every
 //! sample of a plan it is checked by the shield against the scene before approval and again
 //! in the cycle.
+//!
+//! "Goal reached" has one meaning: the TCP within the task's `success.tolerance_m` of
+//! `scene.goal_target_m(success.goal_hover_m)`, on this lookahead's model (the task's tool
+//! installed) — what `twin::TwinEnv::step` calls `task_done`, and what
+//! [`TwinLookahead::goal_approach`] measures on the smoothed plan before it is approved.
 
 use policy::MlpPolicy;
 use twin::{
@@ -13,7 +18,7 @@ use twin::{
     rollout_until,
 };
 
-use crate::twin_thread::worker::{Lookahead, Verdict};
+use crate::twin_thread::worker::{GoalApproach, Lookahead, Verdict};
 
 /// How the lookahead picks the executed actions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -126,6 +131,31 @@ impl Lookahead for TwinLookahead {
             min_distance_m: summary.min_distance_m,
             steps: summary.steps,
             policy_id: policy.policy_id(),
+        }
+    }
+
+    /// The TCP's closest approach to `scene.goal_target_m(success.goal_hover_m)` along the
+    /// path, against `success.tolerance_m`: the target, tolerance and TCP (the model with the
+    /// task's tool) of `twin::TwinEnv::step`'s `task_done`.
+    ///
+    /// # Performance
+    /// One forward kinematics per sample; no allocation.
+    fn goal_approach(
+        &mut self,
+        _policy: &MlpPolicy,
+        scene: &Scene,
+        path_q_rad: &[Joints],
+    ) -> GoalApproach {
+        let success = self.env.config().success;
+        let target_m = scene.goal_target_m(success.goal_hover_m);
+        let model = self.env.model();
+        let closest_m = path_q_rad
+            .iter()
+            .map(|q| (model.fk(q).tcp_m() - target_m).norm())
+            .fold(f64::INFINITY, f64::min);
+        GoalApproach {
+            closest_m,
+            tolerance_m: success.tolerance_m,
         }
     }
 }

@@ -19,4 +19,4 @@ pub mod serve;
 pub mod smoother;
 pub mod worker;
 
-pub use worker::{Lookahead, TwinEvent, TwinWorker, Verdict};
+pub use worker::{GoalApproach, Lookahead, TwinEvent, TwinWorker, Verdict};

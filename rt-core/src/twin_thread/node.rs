@@ -131,14 +131,15 @@ pub struct TwinNode {
 }
 
 impl TwinNode {
-    /// Creates the node and opens every service under `prefix`; detection frames pass
+    /// Creates the node and opens every service under `prefix`; policies must meet
+    /// `expected` (the task hash and observation length); detection frames pass
     /// `intake` before the worker sees them.
     ///
     /// # Errors
     /// [`TwinNodeError::NodeCreate`], [`TwinNodeError::Open`].
     pub fn open(
         prefix: &str,
-        task_hash: u64,
+        expected: PolicyExpectation,
         intake: SceneIntake,
         gate: bool,
     ) -> Result<(Self, CleanupState), TwinNodeError> {
@@ -172,8 +173,8 @@ impl TwinNode {
             state_pub,
             verdict_pub,
             retrain_pub,
-            loader: PolicyLoader::new(PolicyExpectation::for_task(task_hash)),
-            task_hash,
+            loader: PolicyLoader::new(expected),
+            task_hash: expected.task_config_hash,
             gate,
             intake,
             refusals_in_a_row: 0,
@@ -525,11 +526,18 @@ fn log_event(e: &TwinEvent<Scene>, rate_hz: f64) {
             policy_id,
             smooth,
             shield,
+            goal,
         } => tracing::warn!(
             policy_id,
             ?smooth,
             ?shield,
+            goal_closest_m = goal.map(|g| g.closest_m),
+            goal_tolerance_m = goal.map(|g| g.tolerance_m),
             "plan rejected after the lookahead"
+        ),
+        TwinEvent::AwaitingSettledScene { stamp_ns } => tracing::info!(
+            stamp_ns,
+            "scene not settled (perception still confirming a change): planning waits"
         ),
         TwinEvent::Revoked { plan_id, at_index } => tracing::warn!(
             plan_id,

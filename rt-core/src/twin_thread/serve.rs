@@ -16,6 +16,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use policy::PolicyExpectation;
 use twin::{RobotModel, Scene, TaskConfig};
 
 use crate::config::RuntimeConfig;
@@ -294,7 +295,12 @@ pub fn serve<L: RobotLink + 'static>(
         table_height_m,
         clock.origin_ns(),
     );
-    let (mut node, cleanup) = TwinNode::open(&opts.prefix, task_hash, intake, !opts.no_lookahead)?;
+    let (mut node, cleanup) = TwinNode::open(
+        &opts.prefix,
+        PolicyExpectation::for_task_obs(task_hash, task.obs_dim()),
+        intake,
+        !opts.no_lookahead,
+    )?;
     tracing::info!(?cleanup, prefix = opts.prefix, "iceoryx2 node up");
     let mut events = Vec::new();
     if let Some(path) = &opts.policy {

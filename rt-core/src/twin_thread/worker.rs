@@ -3,7 +3,14 @@
 //! when the scene changes (revoking it when it has become unsafe), runs the lookahead — the
 //! whole next episode in the twin with the current policy — whenever the scene or the policy
 //! changes or the cycle waits for a plan, and then either approves a Ruckig-smoothed plan
-//! (`task_ok && safe`, and every sample passes the shield) or asks for retraining.
+//! (`task_ok && safe`, every sample passes the shield, and the smoothed path's TCP comes
+//! within the task's goal tolerance of the goal target: [`Lookahead::goal_approach`]) or asks
+//! for retraining.
+//!
+//! Plans are made only on a *settled* scene (perception's `FRAME_SETTLED`: every object
+//! confirmed, nothing appearing, disappearing or moving): an intermediate view of a changing
+//! world is re-verified against (and may revoke the running plan) but never gets a plan
+//! approved — the worker waits for the settled frame.
 //!
 //! A new policy is swapped in with one step (it arrives validated and prepared); the cycle
 //! never sees a policy's plan before its lookahead has passed. A replacement plan joins the
@@ -66,6 +73,37 @@ pub trait Lookahead: Send + 'static {
         start_q_rad: &Joints,
         waypoints: &mut Vec<Joints>,
     ) -> Verdict;
+
+    /// How near the TCP comes to the goal along `path_q_rad` (the smoothed plan the arm
+    /// would follow), judged as the lookahead judges `task_ok`: the same target point and
+    /// the same tolerance, so "goal reached" has one meaning for the twin and the arm.
+    ///
+    /// # Performance
+    /// Called for every plan the worker would approve; must not allocate.
+    fn goal_approach(
+        &mut self,
+        policy: &Self::Policy,
+        scene: &Self::Scene,
+        path_q_rad: &[Joints],
+    ) -> GoalApproach;
+}
+
+/// The closest approach of a path's TCP to the goal target point, and the tolerance that
+/// counts as reaching it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GoalApproach {
+    /// Smallest TCP distance to the goal target point along the path, m (infinite for an
+    /// empty path).
+    pub closest_m: f64,
+    /// Distance that counts as reached (the task's `success.tolerance_m`), m.
+    pub tolerance_m: f64,
+}
+
+impl GoalApproach {
+    /// The path reaches the goal: `closest_m <= tolerance_m`.
+    pub fn reached(&self) -> bool {
+        self.closest_m <= self.tolerance_m
+    }
 }
 
 /// Something the twin did that the outside should know (publish, log, assert on).
@@ -89,7 +127,8 @@ pub enum TwinEvent<S> {
         /// Whether it joins a running plan.
         joins: bool,
     },
-    /// The lookahead passed but the smoothed plan did not (smoothing or shield).
+    /// The lookahead passed but the smoothed plan did not (smoothing, shield, or its path
+    /// misses the goal).
     PlanRejected {
         /// Policy id.
         policy_id: u64,
@@ -97,6 +136,9 @@ pub enum TwinEvent<S> {
         smooth: Option<SmoothError>,
         /// Shield violation and sample index, if that was the cause.
         shield: Option<(usize, ShieldViolation)>,
+        /// The smoothed path's closest approach to the goal, if missing the goal was the
+        /// cause.
+        goal: Option<GoalApproach>,
     },
     /// The running plan became unsafe in the new scene and was revoked.
     Revoked {
@@ -138,6 +180,13 @@ pub enum TwinEvent<S> {
     NoGoal {
         /// The current policy, 0 for none.
         policy_id: u64,
+    },
+    /// A plan is due but the latest detection frame is not settled (the world is changing):
+    /// nothing is planned until a settled frame arrives (reported once per unsettled
+    /// stretch).
+    AwaitingSettledScene {
+        /// Capture time of that frame (cycle clock), ns.
+        stamp_ns: u64,
     },
 }
 
@@ -193,11 +242,29 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     scene_refused: bool,
     /// Capture stamp of the latest accepted frame (cycle clock), ns.
     scene_stamp_ns: u64,
+    /// The latest accepted frame is settled: plans may be approved on its scene.
+    scene_settled: bool,
+    /// [`TwinEvent::AwaitingSettledScene`] was reported for the current unsettled stretch.
+    unsettled_reported: bool,
 }
 
-/// Why a smoothed plan was not approved: the smoothing error or the shield's first
-/// violation (sample index and kind).
-type NotApproved = (Option<SmoothError>, Option<(usize, ShieldViolation)>);
+/// Why a smoothed plan was not approved: the smoothing error, the shield's first violation
+/// (sample index and kind), or the smoothed path's miss of the goal.
+type NotApproved = (
+    Option<SmoothError>,
+    Option<(usize, ShieldViolation)>,
+    Option<GoalApproach>,
+);
+
+/// Whether [`TwinWorker::smoothed_checked_plan`] also checks that the path reaches the goal
+/// (an episode plan) or not (the way home).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum GoalCheck {
+    /// The smoothed path must come within the goal tolerance of the goal target.
+    Reach,
+    /// No goal check.
+    None,
+}
 
 /// A rest pose this close (every joint) to a sample of the recorded path lies on it, rad.
 const ON_PATH_TOLERANCE_RAD: f64 = 0.05;
@@ -243,6 +310,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             no_goal_reported: false,
             scene_refused: false,
             scene_stamp_ns: 0,
+            scene_settled: false,
+            unsettled_reported: false,
         }
     }
 
@@ -254,14 +323,17 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     }
 
     /// An accepted detection arrived (captured at `stamp_ns` on the cycle's clock; with a
-    /// goal or without one): forwards it to the cycle at once and marks a scene change.
-    /// Without a goal the obstacles count (the running plan is re-verified against them)
-    /// but nothing new is planned.
+    /// goal or without one; `settled` or not): forwards it to the cycle at once and marks a
+    /// scene change. Without a goal, or not settled, the obstacles count (the running plan is
+    /// re-verified against them and revoked when unsafe) but nothing new is planned; a
+    /// settled frame then lets the planning waiting for it go ahead. Scenes that do not come
+    /// from a camera (a fixed scene, a bench) are settled.
     pub fn on_detection(
         &mut self,
         scene: L::Scene,
         stamp_ns: u64,
         goal_seen: bool,
+        settled: bool,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) {
         self.io.scenes.send(SceneUpdate {
@@ -278,6 +350,12 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             self.goal_seen = goal_seen;
             self.no_goal_reported = false;
             self.want_plan = true;
+        }
+        if settled != self.scene_settled {
+            // A plan due while unsettled stays due (`want_plan`): it is made on the first
+            // settled frame. Settling alone (the same scene) asks for no new plan.
+            self.scene_settled = settled;
+            self.unsettled_reported = false;
         }
         if self.scene != Some(scene) {
             self.scene = Some(scene);
@@ -400,6 +478,17 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     pub fn step(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
         self.take_reports();
         if self.scene_refused {
+            return;
+        }
+        if !self.scene_settled {
+            // No plan of any kind reaches the cycle from an unsettled scene; the running
+            // plan was re-verified against it on arrival.
+            if self.want_plan && self.scene.is_some() && !self.unsettled_reported {
+                self.unsettled_reported = true;
+                events.push(TwinEvent::AwaitingSettledScene {
+                    stamp_ns: self.scene_stamp_ns,
+                });
+            }
             return;
         }
         if self.return_home_due(events) {
@@ -580,15 +669,16 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         }
         self.waypoints.push(self.path_from_home[0]);
         let start = MotionState::at_rest(r.cmd.q_rad);
-        let plan = match self.smoothed_checked_plan(&start, None, policy_id, &scene) {
-            Ok(plan) => plan,
-            Err((smooth, shield)) => {
-                self.return_refused_for = sent_id;
-                self.want_plan = true;
-                events.push(TwinEvent::ReturnHomeRefused { shield, smooth });
-                return false;
-            }
-        };
+        let plan =
+            match self.smoothed_checked_plan(&start, None, policy_id, &scene, GoalCheck::None) {
+                Ok(plan) => plan,
+                Err((smooth, shield, _)) => {
+                    self.return_refused_for = sent_id;
+                    self.want_plan = true;
+                    events.push(TwinEvent::ReturnHomeRefused { shield, smooth });
+                    return false;
+                }
+            };
         let (plan_id, samples) = (plan.id, plan.len());
         if self.send_plan(plan) {
             self.sent_is_return = true;
@@ -604,13 +694,17 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     }
 
     /// Smooths `self.waypoints` from `start` into a new plan and checks every sample with
-    /// the shield in `scene` (what every plan passes before it reaches the cycle).
+    /// the shield in `scene` (what every plan passes before it reaches the cycle); with
+    /// [`GoalCheck::Reach`] (an episode plan, the lookahead gate on) also that the smoothed
+    /// path's TCP comes within the task's tolerance of the goal target — the plan the arm
+    /// follows must reach the goal the lookahead declared reached, not only its waypoints.
     fn smoothed_checked_plan(
         &mut self,
         start: &MotionState,
         join: Option<JoinPoint>,
         policy_id: u64,
         scene: &L::Scene,
+        goal: GoalCheck,
     ) -> Result<Plan, NotApproved> {
         let id = self.next_plan_id;
         self.next_plan_id += 1;
@@ -624,10 +718,18 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 self.shield.model_mut(),
                 &mut plan,
             )
-            .map_err(|e| (Some(e), None))?;
+            .map_err(|e| (Some(e), None, None))?;
         self.shield
             .check_path(&start.q_rad, &plan.q_rad, self.period_s, scene)
-            .map_err(|v| (None, Some(v)))?;
+            .map_err(|v| (None, Some(v), None))?;
+        if goal == GoalCheck::Reach
+            && let Some(policy) = self.policy.as_deref()
+        {
+            let approach = self.la.goal_approach(policy, scene, &plan.q_rad);
+            if !approach.reached() {
+                return Err((None, None, Some(approach)));
+            }
+        }
         Ok(plan)
     }
 
@@ -683,44 +785,59 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             // Already at the goal: nothing to do.
             return;
         }
-        let plan = match self.smoothed_checked_plan(&start, join, verdict.policy_id, &scene) {
-            Ok(plan) => plan,
-            Err((smooth, shield)) => {
-                events.push(TwinEvent::PlanRejected {
-                    policy_id: verdict.policy_id,
-                    smooth,
-                    shield,
-                });
-                // The lookahead passed but the plan the arm would follow does not: publish
-                // the verdict as failed and ask for retraining (once per policy and scene),
-                // instead of waiting for a plan that will not come.
-                let failed = Verdict {
-                    safe: false,
-                    min_distance_m: match shield {
-                        Some((_, ShieldViolation::Clearance { distance_m })) => {
-                            distance_m.min(verdict.min_distance_m)
+        let goal_check = if self.gate {
+            GoalCheck::Reach
+        } else {
+            GoalCheck::None
+        };
+        let plan =
+            match self.smoothed_checked_plan(&start, join, verdict.policy_id, &scene, goal_check) {
+                Ok(plan) => plan,
+                Err((smooth, shield, goal)) => {
+                    events.push(TwinEvent::PlanRejected {
+                        policy_id: verdict.policy_id,
+                        smooth,
+                        shield,
+                        goal,
+                    });
+                    // The lookahead passed but the plan the arm would follow does not: publish
+                    // the verdict as failed and ask for retraining (once per policy and scene),
+                    // instead of waiting for a plan that will not come. A smoothed path that
+                    // misses the goal fails the task, not safety.
+                    let failed = if goal.is_some() {
+                        Verdict {
+                            task_ok: false,
+                            ..verdict
                         }
-                        _ => verdict.min_distance_m,
-                    },
-                    ..verdict
-                };
-                events.push(TwinEvent::Verdict {
-                    verdict: failed,
-                    scene,
-                    elapsed_s: t0.elapsed().as_secs_f64(),
-                });
-                if self.gate && self.last_retrain != Some((verdict.policy_id, scene)) {
-                    self.last_retrain = Some((verdict.policy_id, scene));
-                    events.push(TwinEvent::Retrain {
-                        request_id: self.next_request_id,
+                    } else {
+                        Verdict {
+                            safe: false,
+                            min_distance_m: match shield {
+                                Some((_, ShieldViolation::Clearance { distance_m })) => {
+                                    distance_m.min(verdict.min_distance_m)
+                                }
+                                _ => verdict.min_distance_m,
+                            },
+                            ..verdict
+                        }
+                    };
+                    events.push(TwinEvent::Verdict {
                         verdict: failed,
                         scene,
+                        elapsed_s: t0.elapsed().as_secs_f64(),
                     });
-                    self.next_request_id += 1;
+                    if self.gate && self.last_retrain != Some((verdict.policy_id, scene)) {
+                        self.last_retrain = Some((verdict.policy_id, scene));
+                        events.push(TwinEvent::Retrain {
+                            request_id: self.next_request_id,
+                            verdict: failed,
+                            scene,
+                        });
+                        self.next_request_id += 1;
+                    }
+                    return;
                 }
-                return;
-            }
-        };
+            };
         let plan_id = plan.id;
         if !self.send_plan(plan) {
             self.want_plan = true;

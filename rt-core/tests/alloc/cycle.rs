@@ -62,7 +62,8 @@ fn the_cycle_allocates_nothing_over_100k_cycles_with_policy_swaps() {
         rig.detections_on = cycles % 20_000 <= 19_800;
         let now = rig.clock.now_ns();
         if rig.detections_on && cycles.is_multiple_of(8) {
-            rig.twin.on_detection(rig.scene, now, true, &mut rig.events);
+            rig.twin
+                .on_detection(rig.scene, now, true, true, &mut rig.events);
         }
         rig.twin.step(&mut rig.events);
         let taken_before = rig.cycle.report().plans_taken;

@@ -123,3 +123,58 @@ fn sixteen_boxes_a_tool_and_self_collision_do_not_allocate() {
         "16 boxes + tool + self-collision allocated {allocations} times"
     );
 }
+
+/// The worker's goal check of a smoothed plan (`Lookahead::goal_approach` on the real twin)
+/// allocates nothing, and judges a lookahead's own waypoints as the rollout judged them: the
+/// same target point and tolerance as `task_done`.
+#[test]
+fn the_goal_check_of_a_plan_matches_task_done_and_does_not_allocate() {
+    use policy::{PolicyExpectation, PolicyLoader};
+    use rt_core::twin_thread::Lookahead;
+    use rt_core::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
+    use shm_schemas::PolicyBlobBuilder;
+    use twin::ACT_DIM;
+
+    let task = crate::twin_fixtures::task();
+    let hash = task.hash();
+    let blob = PolicyBlobBuilder::random(1, hash, task.obs_dim(), &[64, 64], ACT_DIM, 1)
+        .build()
+        .unwrap();
+    let policy = PolicyLoader::new(PolicyExpectation::for_task_obs(hash, task.obs_dim()))
+        .prepare(&blob)
+        .unwrap();
+    let model = model().with_tool(task.tool.map(|t| t.capsule()));
+    let mut la = TwinLookahead::new(
+        model.clone(),
+        task,
+        LookaheadActions::ScriptedWithPolicyCost,
+    );
+    // The small-box scene's goal, the box taken away: the straight line reaches it.
+    let mut small = scene("small_box.toml");
+    small.obstacles.clear();
+    let mut waypoints = Vec::with_capacity(MAX_EPISODE_STEPS + 64);
+    let start = la.start_q_rad();
+    let verdict = la.lookahead(&policy, &small, &start, &mut waypoints);
+    assert!(verdict.task_ok, "{verdict:?}");
+    la.goal_approach(&policy, &small, &waypoints);
+    let (approach, allocations) = count_allocations(|| {
+        let mut a = la.goal_approach(&policy, &small, &waypoints);
+        for k in 1..100 {
+            let b = la.goal_approach(&policy, &small, &waypoints[..waypoints.len() - k % 7]);
+            a.closest_m = a.closest_m.min(b.closest_m);
+        }
+        a
+    });
+    assert_eq!(
+        allocations, 0,
+        "the goal check allocated {allocations} times"
+    );
+    assert_eq!(approach.tolerance_m, task.success.tolerance_m);
+    assert!(approach.reached(), "{approach:?}");
+    // The last waypoint is the step that reached the goal; the ones before did not.
+    let before = la.goal_approach(&policy, &small, &waypoints[..waypoints.len() - 1]);
+    assert!(!before.reached(), "{before:?}");
+    let target = small.goal_target_m(task.success.goal_hover_m);
+    let last = model.tcp_m(&waypoints[waypoints.len() - 1]);
+    assert!(((last - target).norm() - approach.closest_m).abs() < 1e-12);
+}

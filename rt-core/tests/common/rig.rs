@@ -32,6 +32,8 @@ pub struct Rig {
     pub detections_on: bool,
     /// The frames carry a goal.
     pub goal_seen: bool,
+    /// The frames are settled (perception's `FRAME_SETTLED`).
+    pub settled: bool,
     /// The frames are refused by the intake (as `twin_thread::intake` does).
     pub refusing: bool,
     pub cycles: u64,
@@ -96,6 +98,7 @@ impl Rig {
             detections_every: 8,
             detections_on: true,
             goal_seen: true,
+            settled: true,
             refusing: false,
             cycles: 0,
         }
@@ -115,8 +118,13 @@ impl Rig {
                 if self.refusing {
                     self.twin.on_refused_detection();
                 } else {
-                    self.twin
-                        .on_detection(self.scene, now, self.goal_seen, &mut self.events);
+                    self.twin.on_detection(
+                        self.scene,
+                        now,
+                        self.goal_seen,
+                        self.settled,
+                        &mut self.events,
+                    );
                 }
             }
             self.twin.step(&mut self.events);

@@ -1,6 +1,8 @@
 //! Integration tests of the runtime: the cycle and the twin worker together on the toy rig
 //! (`cycle`), its safety paths (`safety`), the shield on the real twin model (`shield_twin`) and the `rt-core twin` CLI
-//! (`twin_cli`), and who may drive the arm and whether the twin matches it (`arm_owner`).
+//! (`twin_cli`), who may drive the arm and whether the twin matches it (`arm_owner`), plans
+//! only on settled scenes (`settled_scene`) and only when the smoothed path reaches the goal
+//! (`goal_reach`).
 
 #![allow(missing_docs, clippy::unwrap_used)]
 
@@ -13,8 +15,10 @@ mod xarm_rig;
 
 mod arm_owner;
 mod cycle;
+mod goal_reach;
 mod limits;
 mod safety;
+mod settled_scene;
 mod shield_twin;
 mod sweep;
 mod twin_cli;
