@@ -1,6 +1,8 @@
 //! The perception pipeline: frame → detector → confidence floors → tracker → published
 //! `DetectionFrame`, and the loop `perception run` drives ([`run`]). A bad frame is logged
-//! and skipped; the loop keeps serving the next ones.
+//! and skipped; the loop keeps serving the next ones. Each frame carries the tracker's
+//! settled state (`FRAME_SETTLED`, see [`crate::tracker`]); the moment a scene settles is
+//! logged.
 //!
 //! The detector is off the capture path: a capture thread takes frames from the source at
 //! the frame rate and hands them to the detector through a one-frame hand-off
@@ -110,9 +112,11 @@ impl Pipeline {
     pub fn process(&mut self, frame: &Frame) -> Result<Processed, PipelineError> {
         let mut dets = self.detector.detect(frame, Some(&self.calibration))?;
         let floors = apply_confidence_floors(&self.selection, &mut dets);
-        let changed = self.tracker.update(&dets);
+        let changed = self.tracker.update(&dets, frame.capture_time_ns);
         let objects = self.tracker.objects();
-        let built = self.publisher.publish(frame.capture_time_ns, &objects)?;
+        let built =
+            self.publisher
+                .publish(frame.capture_time_ns, &objects, self.tracker.settled())?;
         Ok(Processed {
             sent: built.frame,
             changed,
@@ -347,6 +351,7 @@ fn detect_loop(
     stop: &(dyn Fn() -> bool + Sync),
 ) {
     let mut truncation_log = LogLimiter::new(WARN_INTERVAL);
+    let mut was_settled = false;
     while !stop() {
         let frame = match handoff.pop(POLL) {
             Popped::Item(f) => f,
@@ -357,6 +362,18 @@ fn detect_loop(
             Ok(p) => {
                 stats.count(&p);
                 let sent = p.sent;
+                if sent.settled() != was_settled {
+                    was_settled = sent.settled();
+                    if was_settled {
+                        tracing::info!(
+                            sequence = sent.sequence,
+                            objects = sent.count,
+                            "scene settled (rt-core may approve a plan on it)"
+                        );
+                    } else {
+                        tracing::debug!(sequence = sent.sequence, "scene no longer settled");
+                    }
+                }
                 if sent.dropped_count > 0
                     && let Some(held_back) = truncation_log.allow(Instant::now())
                 {

@@ -8,7 +8,9 @@
 //! `dropped_count` = how many were left out: [`DetectionFrame::validate`] refuses such a
 //! frame, so rt-core stops rather than act on a scene with a hidden obstacle. Every other
 //! check of `validate` holds before a frame is sent, and a frame without a capture time
-//! (`capture_time_ns` = 0) is never sent.
+//! (`capture_time_ns` = 0) is never sent. `DetectionFrame::FRAME_SETTLED` is set when the
+//! tracker says the reported set is settled ([`crate::tracker`]): rt-core approves plans
+//! only on such frames.
 
 use iceoryx2::node::Node;
 use iceoryx2::port::publisher::Publisher;
@@ -60,12 +62,14 @@ pub struct BuiltFrame {
 
 /// Builds the frame: at most one goal, then obstacles nearest the robot base first, the
 /// first [`MAX_DETECTIONS`](shm_schemas::MAX_DETECTIONS) of them kept and the rest counted in `dropped_count`; sizes
-/// clamped to at least 1 mm so a flat blob stays a valid box.
+/// clamped to at least 1 mm so a flat blob stays a valid box; `FRAME_SETTLED` as `settled`
+/// says ([`crate::tracker::Tracker::settled`]).
 pub fn to_frame(
     sequence: u64,
     capture_time_ns: u64,
     camera_id: u32,
     objects: &[TrackedObject],
+    settled: bool,
 ) -> BuiltFrame {
     let mut f = DetectionFrame {
         sequence,
@@ -73,6 +77,7 @@ pub fn to_frame(
         camera_id,
         ..Default::default()
     };
+    f.set_settled(settled);
     let selection = select(objects);
     for o in &selection.objects {
         f.push(DetectedObject::new(
@@ -144,8 +149,15 @@ impl DetectionPublisher {
         &mut self,
         capture_time_ns: u64,
         objects: &[TrackedObject],
+        settled: bool,
     ) -> Result<BuiltFrame, PublishError> {
-        let built = to_frame(self.sequence + 1, capture_time_ns, self.camera_id, objects);
+        let built = to_frame(
+            self.sequence + 1,
+            capture_time_ns,
+            self.camera_id,
+            objects,
+            settled,
+        );
         let frame = built.frame;
         check_before_sending(&frame)?;
         self.sequence += 1;
@@ -193,7 +205,7 @@ mod tests {
             },
             obstacle(9, 0.35),
         ];
-        let b = to_frame(3, 1234, 0, &objs);
+        let b = to_frame(3, 1234, 0, &objs, true);
         let f = b.frame;
         assert_eq!(f.sequence, 3);
         assert_eq!(f.capture_time_ns, 1234);
@@ -202,8 +214,12 @@ mod tests {
         assert_eq!(f.objects()[0].class().unwrap(), ObjectClass::Goal);
         assert_eq!(f.objects()[0].confidence, 1.0);
         assert_eq!(f.objects()[1].object_id, 9);
+        assert!(f.settled());
         f.validate().unwrap();
         check_before_sending(&f).unwrap();
+        let unsettled = to_frame(3, 1234, 0, &objs, false).frame;
+        assert_eq!((unsettled.flags, unsettled.objects()), (0, f.objects()));
+        check_before_sending(&unsettled).unwrap();
     }
 
     /// 40 obstacles in tracker (id) order, the farthest first: the frame keeps the goal and
@@ -220,7 +236,7 @@ mod tests {
             position_m: [0.6, 0.3, 0.025],
             size_m: [0.05; 3],
         });
-        let f = to_frame(1, 5, 0, &objs).frame;
+        let f = to_frame(1, 5, 0, &objs, false).frame;
         assert_eq!(f.count as usize, MAX_DETECTIONS);
         assert_eq!(f.dropped_count as usize, 41 - MAX_DETECTIONS);
         assert_eq!(f.objects()[0].object_id, 100, "the goal comes first");
@@ -236,7 +252,7 @@ mod tests {
         ));
         check_before_sending(&f).unwrap();
         // Exactly full: nothing dropped.
-        let f = to_frame(1, 5, 0, &objs[..MAX_DETECTIONS]).frame;
+        let f = to_frame(1, 5, 0, &objs[..MAX_DETECTIONS], false).frame;
         assert_eq!((f.count as usize, f.dropped_count), (MAX_DETECTIONS, 0));
         f.validate().unwrap();
     }
@@ -255,17 +271,18 @@ mod tests {
             5,
             0,
             &[goal(1, 0.3, 0.6), goal(2, 0.5, 0.9), goal(3, 0.51, 0.7)],
+            false,
         );
         b.frame.validate().unwrap();
         assert_eq!(b.frame.goal().unwrap().object_id, 2);
         assert_eq!((b.goals_merged, b.goals_as_obstacles), (1, 1));
         assert_eq!(b.frame.count, 2);
-        let unstamped = to_frame(1, 0, 0, &[goal(1, 0.3, 0.6)]).frame;
+        let unstamped = to_frame(1, 0, 0, &[goal(1, 0.3, 0.6)], true).frame;
         assert!(matches!(
             check_before_sending(&unstamped),
             Err(PublishError::NoCaptureTime)
         ));
-        let wild = to_frame(1, 5, 0, &[obstacle(1, 50.0)]).frame;
+        let wild = to_frame(1, 5, 0, &[obstacle(1, 50.0)], true).frame;
         assert!(matches!(
             check_before_sending(&wild),
             Err(PublishError::Invalid(_))
@@ -282,12 +299,12 @@ mod tests {
             .map(|i| obstacle(i + 1, 0.3 + 0.01 * f64::from(i)))
             .collect();
         assert!(matches!(
-            p.publish(0, &objs),
+            p.publish(0, &objs, true),
             Err(PublishError::NoCaptureTime)
         ));
         assert_eq!(p.sequence(), 0);
         assert!(sub.receive().unwrap().is_none(), "nothing was sent");
-        let sent = p.publish(42, &objs).unwrap().frame;
+        let sent = p.publish(42, &objs, false).unwrap().frame;
         assert_eq!((sent.sequence, sent.dropped_count), (1, 4));
         let got = *sub
             .receive()
@@ -296,5 +313,6 @@ mod tests {
             .payload();
         assert_eq!(got, sent);
         assert_eq!(got.camera_id, 3);
+        assert!(!got.settled());
     }
 }

@@ -6,6 +6,17 @@
 //! object's position or size changes only when the new measurement differs from the
 //! reported one by more than `noise_tolerance_m` for `persist_frames` consecutive frames, or
 //! at once when it differs by more than `jump_m` (a box swapped for a taller one).
+//!
+//! **Settled** ([`Tracker::settled`], published as `DetectionFrame::FRAME_SETTLED`): the
+//! reported set is complete and stable — every track is confirmed and has kept its reported
+//! box for `settle_frames` frames, none is missing from the latest frame, none is measured
+//! more than `settle_motion_m` from its reported box, and for `settle_quiet_ms` (capture time)
+//! no object appeared (a new track, even one never confirmed), disappeared (a track dropped)
+//! or moved (a reported box changed, or a measurement beyond `settle_motion_m`). rt-core plans
+//! only on settled frames, so the intermediate views of a world change (the new goal with the
+//! old box, the new boxes not yet confirmed) never get a plan approved. With the defaults at
+//! the 60 Hz synthetic camera a plan waits 100–117 ms (the quiet time, rounded up to a frame)
+//! longer after the last change than before.
 
 use serde::{Deserialize, Serialize};
 
@@ -23,7 +34,24 @@ pub struct TrackerConfig {
     pub noise_tolerance_m: f64,
     /// Changes beyond this count at once (m).
     pub jump_m: f64,
+    /// Frames every object must have been confirmed with its reported box before a frame is
+    /// settled ([`SETTLE_FRAMES_MAX`] at most).
+    pub settle_frames: u32,
+    /// Capture time with nothing appearing, disappearing or moving before a frame is settled
+    /// (ms, [`SETTLE_QUIET_MS_MAX`] at most). The cost of settling: at 60 Hz the default
+    /// 100 ms delays the first plan after a world change by 100–117 ms.
+    pub settle_quiet_ms: u32,
+    /// A measurement further than this from its object's reported box is motion: the frame
+    /// is not settled and the quiet time starts again (m; from `noise_tolerance_m` to
+    /// `jump_m`).
+    pub settle_motion_m: f64,
 }
+
+/// Largest `settle_frames` accepted (2 s at 60 Hz).
+pub const SETTLE_FRAMES_MAX: u32 = 120;
+
+/// Largest `settle_quiet_ms` accepted.
+pub const SETTLE_QUIET_MS_MAX: u32 = 2_000;
 
 impl Default for TrackerConfig {
     fn default() -> Self {
@@ -32,6 +60,9 @@ impl Default for TrackerConfig {
             persist_frames: 3,
             noise_tolerance_m: 0.005,
             jump_m: 0.05,
+            settle_frames: 3,
+            settle_quiet_ms: 100,
+            settle_motion_m: 0.005,
         }
     }
 }
@@ -53,6 +84,25 @@ pub enum TrackerConfigError {
         /// The jump threshold given (m).
         jump_m: f64,
     },
+    /// `settle_frames` is 0 or above [`SETTLE_FRAMES_MAX`].
+    #[error("settle_frames = {0} must be in 1..={SETTLE_FRAMES_MAX}")]
+    SettleFrames(u32),
+    /// `settle_quiet_ms` is above [`SETTLE_QUIET_MS_MAX`].
+    #[error("settle_quiet_ms = {0} must be in 0..={SETTLE_QUIET_MS_MAX}")]
+    SettleQuiet(u32),
+    /// `settle_motion_m` is below `noise_tolerance_m` (jitter the tracker ignores would keep
+    /// every frame unsettled) or above `jump_m`.
+    #[error(
+        "settle_motion_m = {settle_motion_m} must be in noise_tolerance_m ..= jump_m ({noise_tolerance_m} ..= {jump_m})"
+    )]
+    SettleMotion {
+        /// The threshold given (m).
+        settle_motion_m: f64,
+        /// The noise tolerance (m).
+        noise_tolerance_m: f64,
+        /// The jump threshold (m).
+        jump_m: f64,
+    },
 }
 
 impl TrackerConfig {
@@ -69,6 +119,19 @@ impl TrackerConfig {
         }
         if !(self.noise_tolerance_m >= 0.0 && self.jump_m > self.noise_tolerance_m) {
             return Err(TrackerConfigError::NoiseVsJump {
+                noise_tolerance_m: self.noise_tolerance_m,
+                jump_m: self.jump_m,
+            });
+        }
+        if !(1..=SETTLE_FRAMES_MAX).contains(&self.settle_frames) {
+            return Err(TrackerConfigError::SettleFrames(self.settle_frames));
+        }
+        if self.settle_quiet_ms > SETTLE_QUIET_MS_MAX {
+            return Err(TrackerConfigError::SettleQuiet(self.settle_quiet_ms));
+        }
+        if !(self.noise_tolerance_m..=self.jump_m).contains(&self.settle_motion_m) {
+            return Err(TrackerConfigError::SettleMotion {
+                settle_motion_m: self.settle_motion_m,
                 noise_tolerance_m: self.noise_tolerance_m,
                 jump_m: self.jump_m,
             });
@@ -102,6 +165,8 @@ struct Track {
     seen: u32,
     missed: u32,
     changing: u32,
+    /// Frames seen since `reported` was last set (0 while unconfirmed).
+    confirmed_frames: u32,
 }
 
 /// The tracker.
@@ -111,6 +176,13 @@ pub struct Tracker {
     tracks: Vec<Track>,
     next_id: u32,
     pairs: Vec<(f64, usize, usize)>,
+    /// Capture time of the last appearance, disappearance or motion (the first frame counts
+    /// as one), ns.
+    last_change_ns: Option<u64>,
+    /// The latest frame was settled.
+    settled: bool,
+    /// A track was created or removed in the frame being processed.
+    motion: bool,
 }
 
 /// Distance on the table (x, y): a box swapped for a taller one moves its centre up, not
@@ -137,12 +209,53 @@ impl Tracker {
             tracks: Vec::new(),
             next_id: 1,
             pairs: Vec::new(),
+            last_change_ns: None,
+            settled: false,
+            motion: false,
         })
     }
 
-    /// Feeds one frame's detections; returns whether the reported set changed (an object
-    /// appeared, disappeared, moved or changed size).
-    pub fn update(&mut self, detections: &[Detection]) -> bool {
+    /// Whether the reported set of the latest frame is settled (see the module docs).
+    pub fn settled(&self) -> bool {
+        self.settled
+    }
+
+    /// Feeds one frame's detections, captured at `capture_time_ns` (`CLOCK_MONOTONIC`);
+    /// returns whether the reported set changed (an object appeared, disappeared, moved or
+    /// changed size). Updates [`Tracker::settled`].
+    pub fn update(&mut self, detections: &[Detection], capture_time_ns: u64) -> bool {
+        let changed = self.match_and_report(detections);
+        self.update_settled(changed, capture_time_ns);
+        changed
+    }
+
+    /// The settle rule after a frame: `changed` (the reported set changed), any track
+    /// created or removed (`motion` set by [`Tracker::match_and_report`]), or a measurement
+    /// beyond `settle_motion_m` restarts the quiet time.
+    fn update_settled(&mut self, changed: bool, now_ns: u64) {
+        let cfg = self.config;
+        let moving = self.tracks.iter().any(|t| {
+            t.missed == 0
+                && t.reported
+                    .is_some_and(|r| max_dev(&r, &t.latest) > cfg.settle_motion_m)
+        });
+        if changed || moving || self.motion || self.last_change_ns.is_none() {
+            self.last_change_ns = Some(now_ns);
+        }
+        self.motion = false;
+        let quiet_ns = u64::from(cfg.settle_quiet_ms) * 1_000_000;
+        // A capture time before the last change (a clock step back) is not quiet.
+        let quiet = self
+            .last_change_ns
+            .and_then(|t| now_ns.checked_sub(t))
+            .is_some_and(|d| d >= quiet_ns);
+        let all_confirmed = self.tracks.iter().all(|t| {
+            t.reported.is_some() && t.missed == 0 && t.confirmed_frames >= cfg.settle_frames
+        });
+        self.settled = quiet && all_confirmed && !moving;
+    }
+
+    fn match_and_report(&mut self, detections: &[Detection]) -> bool {
         let cfg = self.config;
         self.pairs.clear();
         for (ti, t) in self.tracks.iter().enumerate() {
@@ -175,20 +288,24 @@ impl Tracker {
                 None => {
                     if t.seen >= cfg.persist_frames {
                         t.reported = Some(t.latest);
+                        t.confirmed_frames = 1;
                         changed = true;
                     }
                 }
                 Some(rep) => {
                     let dev = max_dev(&rep, &t.latest);
+                    t.confirmed_frames = t.confirmed_frames.saturating_add(1);
                     if dev > cfg.jump_m {
                         t.reported = Some(t.latest);
                         t.changing = 0;
+                        t.confirmed_frames = 1;
                         changed = true;
                     } else if dev > cfg.noise_tolerance_m {
                         t.changing += 1;
                         if t.changing >= cfg.persist_frames {
                             t.reported = Some(t.latest);
                             t.changing = 0;
+                            t.confirmed_frames = 1;
                             changed = true;
                         }
                     } else {
@@ -203,6 +320,7 @@ impl Tracker {
                 t.seen = 0;
                 t.missed += 1;
                 if t.reported.is_none() {
+                    self.motion = true;
                     continue;
                 }
                 if t.missed >= cfg.persist_frames {
@@ -222,6 +340,7 @@ impl Tracker {
             let latest = (d.position_m, d.size_m);
             let confirmed = cfg.persist_frames <= 1;
             changed |= confirmed;
+            self.motion = true;
             self.tracks.push(Track {
                 id,
                 kind: d.kind,
@@ -231,6 +350,7 @@ impl Tracker {
                 seen: 1,
                 missed: 0,
                 changing: 0,
+                confirmed_frames: u32::from(confirmed),
             });
         }
         changed
@@ -275,10 +395,10 @@ mod tests {
         let mut t = Tracker::new(TrackerConfig::default()).unwrap();
         let g = det(ObjectKind::Goal, [0.4, 0.2, 0.025], [0.05; 3]);
         let o = det(ObjectKind::Obstacle, [0.35, 0.0, 0.05], [0.06, 0.06, 0.1]);
-        assert!(!t.update(&[g.clone(), o.clone()]));
-        assert!(!t.update(&[g.clone(), o.clone()]));
+        assert!(!t.update(&[g.clone(), o.clone()], 0));
+        assert!(!t.update(&[g.clone(), o.clone()], 0));
         assert!(t.objects().is_empty());
-        assert!(t.update(&[o.clone(), g.clone()]));
+        assert!(t.update(&[o.clone(), g.clone()], 0));
         let objs = t.objects();
         assert_eq!(objs.len(), 2);
         assert_eq!(objs[0].kind, ObjectKind::Goal);
@@ -287,7 +407,7 @@ mod tests {
         let mut o2 = o.clone();
         o2.position_m[0] += 0.003;
         for _ in 0..5 {
-            assert!(!t.update(&[g.clone(), o2.clone()]));
+            assert!(!t.update(&[g.clone(), o2.clone()], 0));
         }
         assert_eq!(t.objects().iter().map(|o| o.id).collect::<Vec<_>>(), ids);
         assert_eq!(t.objects()[1].position_m, o.position_m);
@@ -301,32 +421,32 @@ mod tests {
         };
         let mut t = Tracker::new(cfg).unwrap();
         let o = det(ObjectKind::Obstacle, [0.35, 0.0, 0.05], [0.06, 0.06, 0.1]);
-        t.update(std::slice::from_ref(&o));
-        t.update(std::slice::from_ref(&o));
+        t.update(std::slice::from_ref(&o), 0);
+        t.update(std::slice::from_ref(&o), 0);
         let id = t.objects()[0].id;
         let mut moved = o.clone();
         moved.position_m[1] += 0.02;
         assert!(
-            !t.update(std::slice::from_ref(&moved)),
+            !t.update(std::slice::from_ref(&moved), 0),
             "one frame is not enough"
         );
-        assert!(t.update(std::slice::from_ref(&moved)));
+        assert!(t.update(std::slice::from_ref(&moved), 0));
         assert!((t.objects()[0].position_m[1] - 0.02).abs() < 1e-12);
         // The small box is swapped for a tall one at the same place: counts at once.
         let mut tall = moved.clone();
         tall.size_m[2] = 0.3;
         tall.position_m[2] = 0.15;
-        assert!(t.update(std::slice::from_ref(&tall)));
+        assert!(t.update(std::slice::from_ref(&tall), 0));
         assert_eq!(t.objects()[0].size_m[2], 0.3);
         assert_eq!(t.objects()[0].id, id);
         // A one-frame dropout keeps the object; persisting absence removes it.
-        assert!(!t.update(&[]));
+        assert!(!t.update(&[], 0));
         assert_eq!(t.objects().len(), 1);
-        assert!(t.update(&[]));
+        assert!(t.update(&[], 0));
         assert!(t.objects().is_empty());
         // Something new gets a new id.
-        t.update(std::slice::from_ref(&o));
-        t.update(std::slice::from_ref(&o));
+        t.update(std::slice::from_ref(&o), 0);
+        t.update(std::slice::from_ref(&o), 0);
         assert!(t.objects()[0].id > id);
     }
 
@@ -337,11 +457,14 @@ mod tests {
             ..TrackerConfig::default()
         })
         .unwrap();
-        t.update(&[det(ObjectKind::Goal, [0.4, 0.0, 0.025], [0.05; 3])]);
-        t.update(&[
-            det(ObjectKind::Goal, [0.4, 0.0, 0.025], [0.05; 3]),
-            det(ObjectKind::Obstacle, [0.4, 0.0, 0.025], [0.05; 3]),
-        ]);
+        t.update(&[det(ObjectKind::Goal, [0.4, 0.0, 0.025], [0.05; 3])], 0);
+        t.update(
+            &[
+                det(ObjectKind::Goal, [0.4, 0.0, 0.025], [0.05; 3]),
+                det(ObjectKind::Obstacle, [0.4, 0.0, 0.025], [0.05; 3]),
+            ],
+            0,
+        );
         let objs = t.objects();
         assert_eq!(objs.len(), 2, "{objs:?}");
         assert_ne!(objs[0].id, objs[1].id);
@@ -360,5 +483,181 @@ mod tests {
         .unwrap_err();
         assert!(matches!(e, TrackerConfigError::NoiseVsJump { .. }), "{e:?}");
         assert!(e.to_string().contains("jump_m"), "{e}");
+    }
+
+    /// Capture time of frame `k` of a 60 Hz camera, ns.
+    fn at_60hz(k: u64) -> u64 {
+        5_000_000_000 + k * 16_666_667
+    }
+
+    /// Feeds `frames` frames from frame `*k` on, each built by `dets(k)`; returns the
+    /// settled flag of each.
+    fn feed(
+        t: &mut Tracker,
+        k: &mut u64,
+        frames: u64,
+        dets: impl Fn(u64) -> Vec<Detection>,
+    ) -> Vec<bool> {
+        (0..frames)
+            .map(|_| {
+                t.update(&dets(*k), at_60hz(*k));
+                *k += 1;
+                t.settled()
+            })
+            .collect()
+    }
+
+    /// The settle rule with the defaults at 60 Hz (issue 15): a frame is settled only once
+    /// every object is confirmed (3 frames) and has kept its box for 3 frames, and nothing
+    /// appeared, disappeared or moved beyond 5 mm for 100 ms. The intermediate views of a
+    /// world change (the new goal with the old box, the new box not yet confirmed) are not.
+    #[test]
+    fn frames_are_settled_only_when_every_object_is_confirmed_and_nothing_changed_for_the_quiet_time()
+     {
+        let cfg = TrackerConfig::default();
+        assert_eq!(
+            (cfg.settle_frames, cfg.settle_quiet_ms, cfg.settle_motion_m),
+            (3, 100, 0.005)
+        );
+        let mut t = Tracker::new(cfg).unwrap();
+        let g1 = det(ObjectKind::Goal, [0.4, 0.2, 0.025], [0.05; 3]);
+        let o1 = det(ObjectKind::Obstacle, [0.35, 0.0, 0.05], [0.06, 0.06, 0.1]);
+        let mut k = 0;
+        // Scene A: confirmed at frame 2 (the last change), settled 100 ms later: frame 8.
+        let s = feed(&mut t, &mut k, 12, |_| vec![g1.clone(), o1.clone()]);
+        assert_eq!(s.iter().position(|x| *x), Some(8), "{s:?}");
+        assert!(s[8..].iter().all(|x| *x), "{s:?}");
+        // Jitter below the threshold (3 mm) keeps it settled.
+        let s = feed(&mut t, &mut k, 10, |k| {
+            let mut o = o1.clone();
+            o.position_m[0] += if k % 2 == 0 { 0.003 } else { -0.003 };
+            vec![g1.clone(), o]
+        });
+        assert!(s.iter().all(|x| *x), "{s:?}");
+
+        // Scene B from frame k0: the goal moves far away, the box goes, and a tall box
+        // appears one frame later (it enters the image late).
+        let k0 = k;
+        let g2 = det(ObjectKind::Goal, [0.3, -0.25, 0.025], [0.05; 3]);
+        let o2 = det(ObjectKind::Obstacle, [0.45, -0.1, 0.15], [0.06, 0.06, 0.3]);
+        let mut published_without_o2 = false;
+        let mut s = Vec::new();
+        for _ in 0..16 {
+            let mut d = vec![g2.clone()];
+            if k > k0 {
+                d.push(o2.clone());
+            }
+            t.update(&d, at_60hz(k));
+            let objs = t.objects();
+            if objs.iter().any(|o| o.position_m == g2.position_m)
+                && !objs.iter().any(|o| o.position_m == o2.position_m)
+            {
+                // The intermediate scene of the issue: the new goal, the new box unseen.
+                published_without_o2 = true;
+                assert!(!t.settled(), "frame {}: intermediate scene settled", k - k0);
+            }
+            s.push(t.settled());
+            k += 1;
+        }
+        assert!(published_without_o2, "the test shows an intermediate scene");
+        // o2 confirmed at k0 + 3 (the last change): settled 100 ms later, at k0 + 9.
+        assert_eq!(s.iter().position(|x| *x), Some(9), "{s:?}");
+        assert!(s[9..].iter().all(|x| *x), "{s:?}");
+
+        // A one-frame dropout of a confirmed box: that frame is not settled (it may be
+        // disappearing); it is back at once when the box is.
+        let s = feed(&mut t, &mut k, 3, |k| {
+            if k % 3 == 0 {
+                vec![g2.clone()]
+            } else {
+                vec![g2.clone(), o2.clone()]
+            }
+        });
+        assert_eq!(s.iter().filter(|x| !**x).count(), 1, "{s:?}");
+
+        // The box moves 8 mm (beyond the 5 mm threshold, below a jump): unsettled at once,
+        // its new place reported two frames later (the last change), settled 100 ms after.
+        let mut moved = o2.clone();
+        moved.position_m[1] += 0.008;
+        let s = feed(&mut t, &mut k, 10, |_| vec![g2.clone(), moved.clone()]);
+        assert_eq!(s.iter().position(|x| *x), Some(8), "{s:?}");
+    }
+
+    #[test]
+    fn an_empty_table_settles_after_the_quiet_time_and_a_clock_step_back_is_not_quiet() {
+        let mut t = Tracker::new(TrackerConfig::default()).unwrap();
+        let mut k = 0;
+        let s = feed(&mut t, &mut k, 8, |_| Vec::new());
+        assert_eq!(s.iter().position(|x| *x), Some(6), "{s:?}");
+        t.update(&[], at_60hz(0) - 1);
+        assert!(!t.settled(), "a capture time before the last change");
+        // A flicker (one frame, never confirmed) restarts the quiet time.
+        let mut t = Tracker::new(TrackerConfig::default()).unwrap();
+        let mut k = 0;
+        let blip = det(ObjectKind::Obstacle, [0.3, 0.1, 0.05], [0.05; 3]);
+        let s = feed(&mut t, &mut k, 16, |k| {
+            if k == 7 {
+                vec![blip.clone()]
+            } else {
+                Vec::new()
+            }
+        });
+        assert!(t.objects().is_empty());
+        // Created at 7, gone at 8 (the last change): settled 100 ms after frame 8.
+        assert_eq!(
+            &s[6..],
+            &[
+                true, false, false, false, false, false, false, false, true, true
+            ]
+        );
+    }
+
+    #[test]
+    fn settle_settings_out_of_bounds_are_rejected_naming_the_field() {
+        let bad = [
+            TrackerConfig {
+                settle_frames: 0,
+                ..TrackerConfig::default()
+            },
+            TrackerConfig {
+                settle_frames: SETTLE_FRAMES_MAX + 1,
+                ..TrackerConfig::default()
+            },
+            TrackerConfig {
+                settle_quiet_ms: SETTLE_QUIET_MS_MAX + 1,
+                ..TrackerConfig::default()
+            },
+            TrackerConfig {
+                settle_motion_m: 0.001,
+                ..TrackerConfig::default()
+            },
+            TrackerConfig {
+                settle_motion_m: 0.2,
+                ..TrackerConfig::default()
+            },
+            TrackerConfig {
+                settle_motion_m: f64::NAN,
+                ..TrackerConfig::default()
+            },
+        ];
+        let fields = [
+            "settle_frames",
+            "settle_frames",
+            "settle_quiet_ms",
+            "settle_motion_m",
+            "settle_motion_m",
+            "settle_motion_m",
+        ];
+        for (cfg, field) in bad.iter().zip(fields) {
+            let e = Tracker::new(*cfg).unwrap_err();
+            assert!(e.to_string().contains(field), "{field}: {e}");
+        }
+        Tracker::new(TrackerConfig {
+            settle_frames: 1,
+            settle_quiet_ms: 0,
+            settle_motion_m: 0.05,
+            ..TrackerConfig::default()
+        })
+        .unwrap();
     }
 }
