@@ -18,10 +18,11 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Pre-train on random small-obstacle scenes; keeps best.ckpt and last.ckpt in --out.
+    /// Pre-train on the task's broad [world] distribution (random small-obstacle scenes
+    /// without one); keeps best.ckpt and last.ckpt in --out.
     Pretrain(cli::pretrain::PretrainArgs),
     /// Evaluate a checkpoint: on a scene file (the scene and lightly jittered variants), or
-    /// on random small-obstacle scenes without --scene. Prints JSON.
+    /// on the fixed pre-training scenes without --scene. Prints JSON.
     Eval(cli::eval::EvalArgs),
     /// PPO training throughput on the pre-training task; prints one JSON line.
     Bench(cli::bench::BenchArgs),
@@ -32,6 +33,10 @@ enum Cmd {
     /// One retraining on a scene file, offline (what `serve` does for one request); prints
     /// a JSON summary. Output goes to --out (default: `retrain/` beside the checkpoint).
     Retrain(cli::retrain::RetrainArgs),
+    /// The offline unseen-worlds benchmark: feasibility, straight line, zero-shot and
+    /// (with --retrain) retraining on random worlds of the task's [world]; table and
+    /// worlds.json / worlds.md in --out.
+    Worlds(cli::worlds::WorldsArgs),
 }
 
 fn main() -> Result<()> {
@@ -51,5 +56,18 @@ fn main() -> Result<()> {
         Cmd::Export(a) => cli::export::run(a),
         Cmd::Serve(a) => cli::serve::run(a, device),
         Cmd::Retrain(a) => cli::retrain::run(a, device),
+        Cmd::Worlds(a) => cli::worlds::run(a, device),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    /// clap's own consistency checks over every subcommand (a flag defined twice, e.g. by a
+    /// flattened settings struct and the subcommand, fails here instead of at a user's call).
+    #[test]
+    fn the_command_line_is_consistent() {
+        super::Cli::command().debug_assert();
     }
 }

@@ -66,6 +66,20 @@ pub struct RunOptions {
     pub title: String,
     /// Show an indicatif progress bar (only drawn when stderr is a terminal).
     pub progress: bool,
+    /// Linear learning-rate schedule over the run's steps: `(first, last)` (`None` keeps the
+    /// trainer's rate).
+    pub lr_schedule: Option<(f64, f64)>,
+}
+
+/// The learning rate `steps` into a run of `total` steps under the linear schedule
+/// `(first, last)`.
+pub fn scheduled_lr(schedule: (f64, f64), steps: u64, total: u64) -> f64 {
+    let f = if total == 0 {
+        1.0
+    } else {
+        (steps as f64 / total as f64).clamp(0.0, 1.0)
+    };
+    schedule.0 + (schedule.1 - schedule.0) * f
 }
 
 /// Why a run stopped.
@@ -131,6 +145,11 @@ pub fn train<E: Env + Clone, S: SceneSampler<E::Scene>>(
     let bar = progress_bar(opts, trainer.steps);
     let mut stop = StopReason::Steps;
     while trainer.steps < opts.total_steps {
+        if let Some(sched) = opts.lr_schedule {
+            let lr = scheduled_lr(sched, trainer.steps, opts.total_steps);
+            trainer.adam.lr = lr;
+            trainer.cfg.learning_rate = lr;
+        }
         let t0 = Instant::now();
         let st = trainer.iterate(sampler);
         let it_s = t0.elapsed().as_secs_f64();

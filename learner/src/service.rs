@@ -1,5 +1,7 @@
 //! The retraining service (`learner serve`): subscribes to [`RetrainRequest`]s over
-//! iceoryx2; for each, resumes PPO from the base checkpoint on the reported scene (with
+//! iceoryx2; for each, first checks that the world is feasible (a safe goal posture from many
+//! IK seeds, a collision-free joint-space path to it: `twin::feasibility`) and answers
+//! [`RetrainPhase::Infeasible`] with the reason when not; otherwise resumes PPO from the base checkpoint on the reported scene (with
 //! randomisation around it and a share of the old distribution), stops when the evaluation
 //! on the reported scene succeeds (≥ 95 %, no contact, return converged) or a step/time
 //! budget runs out, and publishes the best policy as a validated [`PolicyBlob`] plus
@@ -21,12 +23,15 @@ use shm_schemas::checksum::Fnv1a64;
 use shm_schemas::services;
 use shm_schemas::{PolicyBlob, PolicyBuildError, RetrainPhase, RetrainProgress, RetrainRequest};
 use twin::Scene;
+use twin::{Feasibility, FeasibilityConfig, InfeasibleReason, check_feasibility};
 
 use crate::checkpoint::{self, Checkpoint, CheckpointError};
 use crate::export;
 use crate::ppo::{EvalResult, IterStats, Trainer, TrainerBuildError};
 use crate::run::{RunOptions, RunSummary, StopReason, SuccessRule, train};
-use crate::twin_env::{Jitter, RetrainSampler, TaskLoadError, TwinTask};
+use crate::twin_env::{
+    CurriculumSampler, Jitter, RetrainSampler, TaskLoadError, TwinTask, fixed_scenes,
+};
 
 /// How one retraining runs (each field is the `learner serve` / `learner retrain` flag of
 /// the same name; see `--help` for the measurements behind the defaults).
@@ -58,6 +63,10 @@ pub struct RetrainSettings {
     pub height_start: f32,
     /// Rollout worker threads (0: the checkpoint's setting).
     pub workers: usize,
+    /// Pre-training scenes the base policy solves that every evaluation also runs (0: none):
+    /// the retraining converges only when the policy still solves them (no contact at all,
+    /// ≥ 95 % success over the whole evaluation set), so it keeps what it knew.
+    pub kept_episodes: usize,
 }
 
 /// The set-up of `learner serve`.
@@ -75,6 +84,8 @@ pub struct ServiceConfig {
     pub max_requests: u64,
     /// Each retraining.
     pub retrain: RetrainSettings,
+    /// The feasibility check run before each retraining.
+    pub feasibility: FeasibilityConfig,
 }
 
 /// Why retraining or the service failed.
@@ -123,7 +134,24 @@ fn progress(
         success_rate: succ,
         wall_time_s: t0.elapsed().as_secs_f64(),
         phase: phase as u8,
-        reserved: [0; 7],
+        ..Default::default()
+    }
+}
+
+/// The final answer to `req` when the feasibility check finds no safe way: phase
+/// [`RetrainPhase::Infeasible`] with the reason's wire form.
+pub fn infeasible_progress(
+    req: &RetrainRequest,
+    reason: &InfeasibleReason,
+    t0: Instant,
+) -> RetrainProgress {
+    let (kind, blocker, link, by_m) = reason.wire();
+    RetrainProgress {
+        infeasible_kind: kind,
+        infeasible_blocker: blocker,
+        infeasible_link: link,
+        infeasible_by_m: by_m,
+        ..progress(req, RetrainPhase::Infeasible, 0, 0.0, 0.0, t0, 0)
     }
 }
 
@@ -183,7 +211,13 @@ pub fn retrain(
     let s = settings;
     let mut trainer = retrain_trainer(base, env, s, device)?;
     let sampler = RetrainSampler::new(env, scene, Jitter::default(), s.old_share);
-    let eval_scenes = sampler.eval_scenes(s.eval_episodes, eval_seed, s.eval_jitter);
+    let mut eval_scenes = sampler.eval_scenes(s.eval_episodes, eval_seed, s.eval_jitter);
+    let kept = kept_scenes(&trainer, env, s.kept_episodes);
+    tracing::info!(
+        kept = kept.len(),
+        "pre-training scenes the base policy solves, evaluated with the reported scene"
+    );
+    eval_scenes.extend(kept);
     let _ = std::fs::remove_dir_all(out_dir);
     let opts = RunOptions {
         out_dir: out_dir.to_path_buf(),
@@ -195,6 +229,7 @@ pub fn retrain(
         success_rule: Some(SuccessRule::default()),
         title: format!("retraining ({})", out_dir.display()),
         progress: false,
+        lr_schedule: None,
     };
     let start_steps = trainer.steps;
     let before = trainer.evaluate(&eval_scenes);
@@ -213,6 +248,26 @@ pub fn retrain(
         on_iter(&st, e)
     })?;
     Ok((sum, before))
+}
+
+/// Seed of the kept scenes (distinct from the training and evaluation streams).
+const KEPT_SEED: u64 = 0x4B45_5054;
+
+/// Up to `n` scenes of the pre-training distribution that `trainer`'s policy solves (drawn
+/// from a fixed seed; at most `2 n` tried).
+fn kept_scenes(trainer: &Trainer<TwinTask>, env: &TwinTask, n: usize) -> Vec<Scene> {
+    if n == 0 {
+        return Vec::new();
+    }
+    let candidates = fixed_scenes(&CurriculumSampler::pretraining(env), 2 * n, KEPT_SEED);
+    candidates
+        .into_iter()
+        .filter(|s| {
+            let e = trainer.evaluate(std::slice::from_ref(s));
+            e.success_rate > 0.5 && e.collision_rate == 0.0
+        })
+        .take(n)
+        .collect()
 }
 
 /// The height curriculum of the retraining after one that stopped with `stop`: back to the
@@ -379,10 +434,35 @@ impl<'a> Server<'a> {
             }
         };
         let t0 = Instant::now();
+        // Feasibility first: a world with no safe goal posture, or no collision-free path to
+        // one, is answered at once with the reason, and nothing is trained.
+        let verdict = check_feasibility(
+            &self.env.env,
+            &scene,
+            &self.env.env.config().start.joints_rad,
+            self.cfg.feasibility,
+        );
+        if let Feasibility::Infeasible(reason) = &verdict {
+            let words = reason.display_with(&scene.obstacles).to_string();
+            tracing::warn!(
+                request = req.request_id,
+                check_s = t0.elapsed().as_secs_f64(),
+                "no safe way found: {words}; not training"
+            );
+            let _ = self
+                .progress
+                .send_copy(infeasible_progress(req, reason, t0));
+            println!(
+                "{}",
+                serde_json::json!({"request_id": req.request_id, "infeasible": words, "check_s": t0.elapsed().as_secs_f64()})
+            );
+            return Ok(Handled::Answered(None));
+        }
         tracing::info!(
             request = req.request_id,
             obstacles = scene.obstacles.len(),
-            "retraining"
+            feasibility_s = t0.elapsed().as_secs_f64(),
+            "feasible; retraining"
         );
         let base = Checkpoint::load(&self.base_path)?;
         let out_dir = self.out_root.join(format!("request-{}", req.request_id));

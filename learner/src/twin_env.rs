@@ -1,6 +1,6 @@
 //! The rt-core twin as a training environment, and the scene distributions the learner
-//! trains on: the pre-training curriculum (random goal, one random small box between start
-//! and goal) and the retraining mix (the reported scene with randomisation around it, plus a
+//! trains on: the pre-training distribution (the task's broad `[world]`, or the paper's
+//! random goal with one random small box between start and goal) and the retraining mix (the reported scene with randomisation around it, plus a
 //! share of the old distribution so the policy does not forget it).
 
 use std::path::Path;
@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use twin::{ACT_DIM, OBS_DIM, ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
+use twin::{ACT_DIM, ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
 
 use crate::env::{Env, SceneSampler, StepInfo};
 
@@ -72,19 +72,20 @@ impl TwinTask {
 impl Env for TwinTask {
     type Scene = Scene;
     fn obs_dim(&self) -> usize {
-        OBS_DIM
+        self.env.config().obs_dim()
     }
     fn act_dim(&self) -> usize {
         ACT_DIM
     }
     fn reset(&mut self, scene: &Scene, obs: &mut [f32]) {
-        obs.copy_from_slice(&self.env.reset(scene));
+        let full = self.env.reset(scene);
+        obs.copy_from_slice(&full[..obs.len()]);
     }
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> StepInfo {
         let mut a = [0.0f32; ACT_DIM];
         a.copy_from_slice(&action[..ACT_DIM]);
         let out = self.env.step(&a);
-        obs.copy_from_slice(&out.obs);
+        obs.copy_from_slice(&out.obs[..obs.len()]);
         StepInfo {
             reward: out.reward,
             terminated: out.terminated,
@@ -95,12 +96,22 @@ impl Env for TwinTask {
     }
 }
 
-/// Pre-training scenes: the task's random goal and one random box of a class.
+/// Which scenes a [`CurriculumSampler`] draws.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Distribution {
+    /// One box of a class between start and goal (the paper's pre-training).
+    Class(ObstacleClass),
+    /// The task's broad `[world]` distribution (the generalist's pre-training).
+    World,
+}
+
+/// Pre-training scenes: the task's random goal and one random box of a class, or the broad
+/// world distribution.
 #[derive(Debug, Clone)]
 pub struct CurriculumSampler {
     env: TwinEnv,
-    /// Obstacle class.
-    pub class: ObstacleClass,
+    /// What is drawn.
+    pub distribution: Distribution,
 }
 
 impl CurriculumSampler {
@@ -108,14 +119,35 @@ impl CurriculumSampler {
     pub fn small(task: &TwinTask) -> Self {
         Self {
             env: task.env.clone(),
-            class: ObstacleClass::Small,
+            distribution: Distribution::Class(ObstacleClass::Small),
+        }
+    }
+
+    /// The task's `[world]` distribution (small-obstacle scenes if it has none).
+    pub fn world(task: &TwinTask) -> Self {
+        Self {
+            env: task.env.clone(),
+            distribution: Distribution::World,
+        }
+    }
+
+    /// The pre-training distribution of `task`: its `[world]` if it has one, else small
+    /// obstacles.
+    pub fn pretraining(task: &TwinTask) -> Self {
+        if task.env.config().world.is_some() {
+            Self::world(task)
+        } else {
+            Self::small(task)
         }
     }
 }
 
 impl SceneSampler<Scene> for CurriculumSampler {
     fn sample(&self, rng: &mut ChaCha8Rng) -> Scene {
-        self.env.sample_scene(rng, self.class)
+        match self.distribution {
+            Distribution::Class(class) => self.env.sample_scene(rng, class),
+            Distribution::World => self.env.sample_world(rng),
+        }
     }
 }
 
@@ -179,13 +211,13 @@ pub struct RetrainSampler {
 }
 
 impl RetrainSampler {
-    /// Around `scene`, with `old_share` of `task`'s small-obstacle scenes.
+    /// Around `scene`, with `old_share` of `task`'s pre-training scenes ([`CurriculumSampler::pretraining`]).
     pub fn new(task: &TwinTask, scene: Scene, jitter: Jitter, old_share: f64) -> Self {
         Self {
             scene,
             jitter,
             old_share,
-            old: CurriculumSampler::small(task),
+            old: CurriculumSampler::pretraining(task),
             height_lo: AtomicU32::new(1.0f32.to_bits()),
         }
     }

@@ -102,6 +102,7 @@ fn run_driver_trains_checkpoints_and_writes_metrics() {
         success_rule: None,
         title: "test".into(),
         progress: false,
+        lr_schedule: None,
     };
     let mut iters = 0;
     let sum = train(&mut t, &PointScene::random, &scenes, &opts, |_, _| {

@@ -33,7 +33,7 @@ pub struct BenchArgs {
 pub fn run(args: BenchArgs, device: tch::Device) -> Result<()> {
     tch::set_num_threads(args.ppo.torch_threads);
     let env = TwinTask::load(&args.task, None)?;
-    let sampler = CurriculumSampler::small(&env);
+    let sampler = CurriculumSampler::pretraining(&env);
     let mut trainer = Trainer::new(args.ppo.config(), env, args.seed, device)?;
     let t0 = Instant::now();
     let (mut rollout_s, mut update_s) = (0.0, 0.0);

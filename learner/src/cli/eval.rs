@@ -1,5 +1,5 @@
 //! `learner eval`: a checkpoint's deterministic policy on a scene file (the scene and lightly
-//! jittered variants) or on the fixed random small-obstacle scenes; prints the
+//! jittered variants) or on the fixed scenes of the task's pre-training distribution; prints the
 //! [`learner::ppo::EvalResult`] as JSON.
 
 use std::path::PathBuf;
@@ -53,7 +53,11 @@ pub fn run(args: EvalArgs, device: tch::Device) -> Result<()> {
         match &args.scene {
             Some(p) => RetrainSampler::new(&env, load_scene(p)?, Jitter::default(), 0.0)
                 .eval_scenes(args.episodes, EVAL_SEED, 0.5),
-            None => fixed_scenes(&CurriculumSampler::small(&env), args.episodes, EVAL_SEED),
+            None => fixed_scenes(
+                &CurriculumSampler::pretraining(&env),
+                args.episodes,
+                EVAL_SEED,
+            ),
         };
     let net = ck.network(device)?;
     let norm = if args.blob {

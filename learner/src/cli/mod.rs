@@ -2,12 +2,14 @@
 //! `clap::Args` struct and a `run` function (the only place, with `main.rs`, where `anyhow`
 //! is used):
 //!
-//! - [`pretrain`]: PPO on random small-obstacle scenes, checkpoints in `--out`;
+//! - [`pretrain`]: PPO on the task's pre-training distribution (its broad `[world]`, or
+//!   random small-obstacle scenes), checkpoints in `--out`;
 //! - [`eval`]: evaluate a checkpoint (JSON);
 //! - [`bench`]: training throughput (JSON);
 //! - [`export`]: a checkpoint's policy as a `PolicyBlob` file;
 //! - [`serve`]: the retraining service over iceoryx2 (also owns the retraining flags);
-//! - [`retrain`]: one retraining offline, as `serve` does for one request.
+//! - [`retrain`]: one retraining offline, as `serve` does for one request;
+//! - [`worlds`]: the offline unseen-worlds benchmark.
 //!
 //! Shared here: the PPO flags of `pretrain` and `bench` ([`PpoArgs`]), the seed of the fixed
 //! evaluation scenes and scene-file loading.
@@ -18,6 +20,7 @@ pub mod export;
 pub mod pretrain;
 pub mod retrain;
 pub mod serve;
+pub mod worlds;
 
 use std::path::Path;
 
@@ -50,6 +53,12 @@ pub struct PpoArgs {
     /// Learning rate.
     #[arg(long)]
     lr: Option<f64>,
+    /// Hidden layer widths, comma-separated (e.g. `128,128`; each ≤ 256).
+    #[arg(long, value_delimiter = ',')]
+    hidden: Option<Vec<usize>>,
+    /// Entropy bonus coefficient.
+    #[arg(long)]
+    ent_coef: Option<f64>,
     /// Torch intra-op threads.
     #[arg(long, default_value_t = 1)]
     pub torch_threads: i32,
@@ -76,6 +85,12 @@ impl PpoArgs {
         }
         if let Some(v) = self.lr {
             c.learning_rate = v;
+        }
+        if let Some(v) = &self.hidden {
+            c.hidden.clone_from(v);
+        }
+        if let Some(v) = self.ent_coef {
+            c.ent_coef = v;
         }
         c
     }

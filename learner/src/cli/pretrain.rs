@@ -1,5 +1,5 @@
-//! `learner pretrain`: PPO on random small-obstacle scenes of the task, evaluated on a fixed
-//! scene set; keeps `best.ckpt`, `last.ckpt`, `metrics.csv` and `reward.svg` in `--out`
+//! `learner pretrain`: PPO on the task's pre-training distribution (its broad `[world]`, or
+//! random small-obstacle scenes without one), evaluated on a fixed scene set of it; keeps `best.ckpt`, `last.ckpt`, `metrics.csv` and `reward.svg` in `--out`
 //! (`--resume` continues from `last.ckpt`). Prints the run summary as JSON.
 
 use std::path::PathBuf;
@@ -40,6 +40,9 @@ pub struct PretrainArgs {
     /// Wall-time budget (s).
     #[arg(long)]
     time_budget_s: Option<f64>,
+    /// Anneal the learning rate linearly from `--lr` (or the default) to this by `--steps`.
+    #[arg(long)]
+    lr_final: Option<f64>,
     #[command(flatten)]
     ppo: PpoArgs,
 }
@@ -52,7 +55,12 @@ pub fn run(args: PretrainArgs, device: tch::Device) -> Result<()> {
     tch::set_num_threads(args.ppo.torch_threads);
     let env = TwinTask::load(&args.task, None)?;
     let hash = env.task_hash();
-    let sampler = CurriculumSampler::small(&env);
+    if let Some(lr) = args.lr_final
+        && !(lr.is_finite() && lr > 0.0 && lr <= 1.0)
+    {
+        bail!("--lr-final must be in (0, 1] (got {lr})");
+    }
+    let sampler = CurriculumSampler::pretraining(&env);
     let eval_scenes = fixed_scenes(&sampler, args.eval_episodes, EVAL_SEED);
     let mut trainer = Trainer::new(args.ppo.config(), env, args.seed, device)?;
     if args.resume {
@@ -69,6 +77,7 @@ pub fn run(args: PretrainArgs, device: tch::Device) -> Result<()> {
         success_rule: None,
         title: format!("pre-training (seed {seed})"),
         progress: true,
+        lr_schedule: args.lr_final.map(|end| (trainer.cfg.learning_rate, end)),
     };
     tracing::info!(device = ?device, workers = trainer.cfg.effective_workers(), envs = trainer.cfg.n_envs, "pre-training");
     let sum = train(&mut trainer, &sampler, &eval_scenes, &opts, |_, _| true)?;

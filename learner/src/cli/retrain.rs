@@ -1,6 +1,6 @@
 //! `learner retrain`: one retraining on a scene file, offline (what `serve` does for one
 //! request), then the best checkpoint evaluated on the exact scene and on the fixed
-//! small-obstacle scenes; prints a JSON summary.
+//! pre-training scenes (the task's `[world]`); prints a JSON summary.
 
 use std::path::PathBuf;
 
@@ -55,7 +55,7 @@ pub fn run(args: RetrainArgs, device: tch::Device) -> Result<()> {
         &best.network(device)?,
         &norm,
         &env,
-        &fixed_scenes(&CurriculumSampler::small(&env), 200, EVAL_SEED),
+        &fixed_scenes(&CurriculumSampler::pretraining(&env), 200, EVAL_SEED),
         best.meta.ppo.effective_workers(),
     );
     println!(
