@@ -72,6 +72,12 @@ pub struct LaunchArgs {
     /// Seed of the randomised scenarios.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// What the randomised scenarios (`--runs N`) draw: `pair` — a small obstacle, then a
+    /// large one (the paper's setting); `random` — a small-obstacle warm-up, then an unseen
+    /// world of the task's broad `[world]` distribution (the unseen-worlds benchmark: a
+    /// table and a plot of every world's outcome in `<out>/worlds-seed<S>/`).
+    #[arg(long, value_enum, default_value_t = WorldsChoice::Pair)]
+    pub worlds: WorldsChoice,
     /// Retraining wall-time budget per request (s).
     #[arg(long, default_value_t = 30.0)]
     pub retrain_budget_s: f64,
@@ -105,6 +111,16 @@ pub enum LearnerHostError {
     /// The link settings are refused.
     #[error("--learner-host: {0}")]
     Link(#[from] LinkError),
+}
+
+/// What `--runs N` draws (`--worlds`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum WorldsChoice {
+    /// A small obstacle, then a large one.
+    #[default]
+    Pair,
+    /// A small-obstacle warm-up, then a world of the task's `[world]` distribution.
+    Random,
 }
 
 /// Which detector `perception run` uses (`--detector`).

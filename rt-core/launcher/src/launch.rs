@@ -15,7 +15,7 @@ use rand::SeedableRng;
 use shm_schemas::scene_file::{SceneFile, WorldScript};
 use twin::{ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
 
-use crate::args::LaunchArgs;
+use crate::args::{LaunchArgs, WorldsChoice};
 use crate::observer::Observer;
 use crate::processes::{self, Started};
 use crate::report::{self, View};
@@ -37,7 +37,7 @@ pub fn run_all(args: &LaunchArgs) -> Result<bool> {
     if args.runs == 0 {
         let world = WorldScript::load(&args.world)
             .with_context(|| format!("loading {}", args.world.display()))?;
-        let summary = run_scenario(args, &task, world.steps, &stop)?;
+        let (summary, _) = run_scenario(args, &task, world.steps, &stop)?;
         return Ok(judge(args, &summary));
     }
     let model =
@@ -46,37 +46,77 @@ pub fn run_all(args: &LaunchArgs) -> Result<bool> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(args.seed);
     let mut all_ok = true;
     let mut collisions = 0;
+    let random = args.worlds == WorldsChoice::Random;
+    if random && task.world.is_none() {
+        bail!(
+            "--worlds random draws from the task's [world] section, and {} has none",
+            args.task.display()
+        );
+    }
+    // The unseen worlds come from their own stream, so that `--seed S` gives the worlds
+    // `learner worlds --seed S` draws (the warm-up scenes use the other stream).
+    let mut world_rng = rand_chacha::ChaCha8Rng::seed_from_u64(args.seed);
+    let mut rows = Vec::new();
     for i in 0..args.runs {
         if stop.load(Ordering::Relaxed) {
             break;
         }
         let small: Scene = env.sample_scene(&mut rng, ObstacleClass::Small);
-        let large: Scene = env.sample_scene(&mut rng, ObstacleClass::Large);
-        let (mut a, mut b) = (small.to_file(), large.to_file());
+        let second: Scene = if random {
+            env.sample_world(&mut world_rng)
+        } else {
+            env.sample_scene(&mut rng, ObstacleClass::Large)
+        };
+        let (mut a, mut b) = (small.to_file(), second.to_file());
         a.name = format!("random-{i}-small");
-        b.name = format!("random-{i}-large");
+        b.name = if random {
+            format!("world-{i}")
+        } else {
+            format!("random-{i}-large")
+        };
         println!(
             "=== scenario {}/{} (seed {}) ===",
             i + 1,
             args.runs,
             args.seed
         );
-        let summary = run_scenario(args, &task, vec![(0.0, a), (5.0, b)], &stop)?;
+        let (summary, run_dir) =
+            run_scenario(args, &task, vec![(0.0, a), (5.0, b.clone())], &stop)?;
         collisions += summary.collisions;
         all_ok &= judge(args, &summary);
+        if random {
+            rows.push(crate::worlds::WorldRun::new(
+                i as usize, &b, &summary, run_dir,
+            ));
+        }
     }
     println!(
         "=== {} scenario(s): {collisions} collision(s) in total ===",
         args.runs
     );
+    if random {
+        let dir = args.out.join(format!("worlds-seed{}", args.seed));
+        let table = crate::worlds::write_benchmark(&dir, args.seed, &rows)
+            .with_context(|| format!("writing the worlds benchmark to {}", dir.display()))?;
+        println!("{table}");
+        println!("worlds benchmark: {}", dir.join("worlds.md").display());
+    }
     Ok(all_ok)
 }
 
 fn judge(args: &LaunchArgs, s: &report::Summary) -> bool {
     if args.no_lookahead {
         true
+    } else if args.worlds == WorldsChoice::Random && args.runs > 0 {
+        // An unseen world may be infeasible: holding the arm and saying so is the right
+        // answer there.
+        s.collisions == 0
+            && matches!(
+                s.outcome,
+                report::Outcome::Reached | report::Outcome::Infeasible
+            )
     } else {
-        s.goal_reached && s.collisions == 0
+        s.goal_reached && s.collisions == 0 && s.outcome == report::Outcome::Reached
     }
 }
 
@@ -139,13 +179,13 @@ fn open_observer(prefix: &str) -> Result<Observer> {
 }
 
 /// Runs one scenario: processes up, the world script directed against them, an orderly
-/// stop, the report.
+/// stop, the report. Returns the summary and the run folder.
 fn run_scenario(
     args: &LaunchArgs,
     task: &TaskConfig,
     world: Vec<(f64, SceneFile)>,
     stop: &Arc<AtomicBool>,
-) -> Result<report::Summary> {
+) -> Result<(report::Summary, PathBuf)> {
     let runtime = RuntimeView::load(&args.runtime)
         .with_context(|| format!("loading {}", args.runtime.display()))?;
     let setup = set_up_run(args, &world)?;
@@ -189,7 +229,7 @@ fn run_scenario(
         println!("referee: {}", r.describe());
     }
     println!("report: {}", setup.run.path.join("report.md").display());
-    Ok(summary)
+    Ok((summary, setup.run.path.clone()))
 }
 
 /// The launcher's watch over a running scenario.

@@ -6,7 +6,8 @@
 //! - [`scenario`]: the world director (scene changes, phases, goal and collision checks);
 //!   [`observer`]: what the run publishes, as the director sees it; [`sim_link`]: the
 //!   simulated arm's control port.
-//! - [`report`]: summary, plots and Markdown; [`run_dir`]: the run folder, atomic writes;
+//! - [`report`]: summary, plots and Markdown; [`worlds`]: the unseen-worlds benchmark's
+//!   table and plot over `--runs N --worlds random`; [`run_dir`]: the run folder, atomic writes;
 //!   [`runtime_view`]: what the launcher reads of rt-core's configuration.
 
 pub mod args;
@@ -19,3 +20,4 @@ pub mod runtime_view;
 pub mod scenario;
 pub mod sim_link;
 pub mod supervisor;
+pub mod worlds;

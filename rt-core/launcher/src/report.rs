@@ -17,6 +17,17 @@ use super::run_dir::write_atomic;
 pub struct Summary {
     /// Whether the arm reached the final goal.
     pub goal_reached: bool,
+    /// How the run ended: every goal reached, a world the learner proved infeasible (the
+    /// arm held), or a goal not learned in time (the first scene that decides it).
+    #[serde(default)]
+    pub outcome: Outcome,
+    /// Why, in plain words (empty when every goal was reached).
+    #[serde(default)]
+    pub outcome_reason: String,
+    /// Whether the policy in force passed the lookahead on the last scene at the first
+    /// try (no retraining); `None` when no verdict came.
+    #[serde(default)]
+    pub zero_shot: Option<bool>,
     /// Collisions reported by the arm (xarm-sim's ground truth, or the real controller).
     pub collisions: u64,
     /// Whether the lookahead flagged the coming collision before the arm moved in the new
@@ -56,6 +67,30 @@ pub struct Summary {
     pub remote_learner: Option<RemoteLearner>,
     /// Free-form notes (e.g. what timed out).
     pub notes: Vec<String>,
+}
+
+/// How a run ended (`summary.json`'s `outcome`).
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    /// Every goal was reached.
+    #[default]
+    Reached,
+    /// The learner's feasibility check found no safe way to a goal; the arm was held.
+    Infeasible,
+    /// A goal was not reached in time: the policy was not (re)learned, or a plan refused.
+    NotLearned,
+}
+
+impl Outcome {
+    /// The name in `summary.json`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Reached => "reached",
+            Self::Infeasible => "infeasible",
+            Self::NotLearned => "not_learned",
+        }
+    }
 }
 
 /// The remote retraining of a `--learner-host` run, from the controller relay's status file.
@@ -499,12 +534,17 @@ pub fn write_markdown(
     files: &[(&str, &str)],
 ) -> Result<(), ReportError> {
     let mut md = String::new();
-    let verdict = if summary.goal_reached && summary.collisions == 0 {
-        "goal reached with no collision"
-    } else if summary.collisions > 0 {
-        "the arm COLLIDED"
+    let verdict = if summary.collisions > 0 {
+        "the arm COLLIDED".to_owned()
+    } else if summary.goal_reached && summary.outcome == Outcome::Reached {
+        "goal reached with no collision".to_owned()
+    } else if summary.outcome == Outcome::Infeasible {
+        format!(
+            "no safe way found: {}; the arm was held, no collision",
+            summary.outcome_reason
+        )
     } else {
-        "goal NOT reached"
+        format!("goal NOT reached: {}", summary.outcome_reason)
     };
     let _ = writeln!(
         md,
@@ -514,6 +554,11 @@ pub fn write_markdown(
     let _ = writeln!(md, "| figure | value |\n|---|---|");
     let rows = [
         ("goal reached", summary.goal_reached.to_string()),
+        ("outcome", summary.outcome.name().to_owned()),
+        (
+            "zero-shot (no retraining)",
+            summary.zero_shot.map_or("–".to_owned(), |z| z.to_string()),
+        ),
         ("collisions (arm)", summary.collisions.to_string()),
         (
             "collision predicted before motion",

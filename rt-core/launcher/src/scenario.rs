@@ -17,7 +17,8 @@ use shm_schemas::scene_file::SceneFile;
 use shm_schemas::{RetrainPhase, RetrainProgress, RetrainRequest, RobotState, TwinVerdict};
 
 use super::observer::{Observations, SeenScene};
-use super::report::{PathSample, Summary};
+use super::report::{Outcome, PathSample, Summary};
+use twin::InfeasibleReason;
 use twin::max_joint_gap_rad;
 
 /// Director settings.
@@ -95,6 +96,14 @@ pub struct Director {
     approved_after_change: bool,
     policy_swaps: u64,
     goals_reached: Vec<bool>,
+    /// Per scene: the learner's "no safe way" verdict, in words.
+    infeasible: Vec<Option<String>>,
+    /// Per scene: retraining budgets that ran out without a passing policy.
+    budgets_exhausted: Vec<u32>,
+    /// Per scene: verdicts that refused a plan (lookahead failed or not approved).
+    refused_verdicts: Vec<u32>,
+    /// Per scene: whether the first verdict after the scene was seen approved a plan.
+    zero_shot: Vec<Option<bool>>,
     p99_us: Option<f64>,
     last_progress_print_s: f64,
 }
@@ -127,6 +136,10 @@ impl Director {
             approved_after_change: false,
             policy_swaps: 0,
             goals_reached: vec![false; n],
+            infeasible: vec![None; n],
+            budgets_exhausted: vec![0; n],
+            refused_verdicts: vec![0; n],
+            zero_shot: vec![None; n],
             p99_us: None,
             last_progress_print_s: f64::NEG_INFINITY,
         }
@@ -188,13 +201,13 @@ impl Director {
             self.on_scene_seen(t_s, &seen, scene_idx);
         }
         for v in &obs.verdicts {
-            self.on_verdict(t_s, v);
+            self.on_verdict(t_s, v, scene_idx);
         }
         for r in &obs.retrain_requests {
             self.on_retrain_request(t_s, r);
         }
         for p in &obs.progress {
-            self.on_progress(t_s, p);
+            self.on_progress(t_s, p, scene_idx);
         }
         if obs.rejected > 0 {
             self.log(
@@ -233,7 +246,7 @@ impl Director {
     }
 
     /// A lookahead verdict: logged; the first after a change marks the prediction.
-    fn on_verdict(&mut self, t_s: f64, v: &TwinVerdict) {
+    fn on_verdict(&mut self, t_s: f64, v: &TwinVerdict, scene: usize) {
         let text = format!(
             "policy {}: task_ok={} safe={} min_distance={:.3} m steps={} plan_approved={} ({} µs)",
             v.policy_id,
@@ -247,6 +260,15 @@ impl Director {
         self.log(t_s, "verdict", text);
         if self.change_s.is_some() && v.is_plan_approved() {
             self.approved_after_change = true;
+        }
+        if !v.is_plan_approved() {
+            self.refused_verdicts[scene] += 1;
+        }
+        // Zero-shot: the first verdict on the scene (after it was seen, for a changed world)
+        // approves a plan with the policy in force, before any retraining.
+        let seen = self.change_s.is_none() || self.detect_s.is_some();
+        if seen && self.zero_shot[scene].is_none() {
+            self.zero_shot[scene] = Some(v.is_plan_approved());
         }
         if self.detect_s.is_some() && self.verdict_s.is_none() {
             self.verdict_s = Some(t_s);
@@ -283,8 +305,33 @@ impl Director {
     }
 
     /// Retraining progress: logged at most once a second, and when it ends.
-    fn on_progress(&mut self, t_s: f64, p: &RetrainProgress) {
+    fn on_progress(&mut self, t_s: f64, p: &RetrainProgress, scene: usize) {
         let phase = RetrainPhase::try_from(p.phase).ok();
+        if phase == Some(RetrainPhase::BudgetExhausted) {
+            self.budgets_exhausted[scene] += 1;
+        }
+        if phase == Some(RetrainPhase::Infeasible) && self.infeasible[scene].is_none() {
+            let boxes = twin::Scene::from_file(&self.cfg.world[scene].1)
+                .map(|s| s.obstacles)
+                .unwrap_or_default();
+            let words = InfeasibleReason::from_wire(
+                p.infeasible_kind,
+                p.infeasible_blocker,
+                p.infeasible_link,
+                p.infeasible_by_m,
+            )
+            .map_or_else(
+                || "the learner found no safe way (reason not given)".to_owned(),
+                |r| r.display_with(&boxes).to_string(),
+            );
+            self.log(
+                t_s,
+                "infeasible",
+                format!("no safe way found: {words} (after {:.2} s)", p.wall_time_s),
+            );
+            self.infeasible[scene] = Some(words);
+            return;
+        }
         let published = phase == Some(RetrainPhase::Published);
         if published && self.published_s.is_none() && self.request_s.is_some() {
             self.published_s = Some(t_s);
@@ -323,7 +370,9 @@ impl Director {
             }
             Phase::Reaching { scene, since_s } => {
                 let last = scene + 1 == self.cfg.world.len();
-                let reached = self.goals_reached[scene];
+                // A scene the learner proved infeasible is over: the arm is held, nothing
+                // more will come for it.
+                let reached = self.goals_reached[scene] || self.infeasible[scene].is_some();
                 let timed_out = t_s - since_s > self.cfg.phase_timeout_s;
                 if timed_out && !reached {
                     self.log(
@@ -456,6 +505,30 @@ impl Director {
         self.last_state = Some(*s);
     }
 
+    /// Why scene `i`'s goal was not reached, as far as the director saw it.
+    fn not_reached_cause(&self, i: usize) -> String {
+        let exhausted = self.budgets_exhausted[i];
+        let refused = self.refused_verdicts[i];
+        if exhausted > 0 {
+            format!(
+                "the retraining budget ran out {exhausted} time(s) without a policy the twin \
+                 passes ({refused} plan(s) refused by the lookahead); the arm was held"
+            )
+        } else if refused > 0 {
+            format!(
+                "the lookahead refused {refused} plan(s) and no retrained policy passed in time; \
+                 the arm was held"
+            )
+        } else if self.zero_shot[i] == Some(true) {
+            "a plan was approved but the arm did not get there in time (refused by the \
+             cycle's shield? see `plan rejected` in logs/rt-core.log)"
+                .to_owned()
+        } else {
+            "no verdict on the scene in time (perception or the twin did not see it settle)"
+                .to_owned()
+        }
+    }
+
     /// The summary of the run so far (collisions and p99.9 come from outside).
     pub fn summary(
         &self,
@@ -466,9 +539,27 @@ impl Director {
     ) -> Summary {
         let since = |t: Option<f64>| t.zip(self.change_s).map(|(t, c)| t - c);
         let mut notes = Vec::new();
+        let mut outcome = Outcome::Reached;
+        let mut outcome_reason = String::new();
         for (i, r) in self.goals_reached.iter().enumerate() {
-            if !r {
-                notes.push(format!("goal of scene {i} was not reached"));
+            if *r {
+                continue;
+            }
+            if let Some(words) = &self.infeasible[i] {
+                notes.push(format!(
+                    "scene {i}: no safe way found: {words}; the arm was held"
+                ));
+                if outcome == Outcome::Reached {
+                    outcome = Outcome::Infeasible;
+                    outcome_reason = format!("scene {i}: {words}");
+                }
+                continue;
+            }
+            let cause = self.not_reached_cause(i);
+            notes.push(format!("goal of scene {i} was not reached: {cause}"));
+            if outcome != Outcome::NotLearned {
+                outcome = Outcome::NotLearned;
+                outcome_reason = format!("scene {i}: {cause}");
             }
         }
         if self.approved_after_change && !self.moved_since_change {
@@ -480,6 +571,9 @@ impl Director {
         }
         Summary {
             goal_reached: self.goals_reached.last().copied().unwrap_or(false),
+            outcome,
+            outcome_reason,
+            zero_shot: self.zero_shot.last().copied().flatten(),
             collisions,
             collision_predicted_before_motion: self.predicted_before_motion,
             policy_swaps: self.policy_swaps,
