@@ -149,6 +149,7 @@ impl Rig {
                     sequence: seq,
                     capture_time_ns: rt_core::rt::rt_setup::monotonic_now_ns(),
                     camera_id: 1,
+                    flags: DetectionFrame::FRAME_SETTLED,
                     ..DetectionFrame::default()
                 };
                 frame.push(DetectedObject::new(

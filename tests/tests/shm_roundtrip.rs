@@ -92,6 +92,7 @@ fn detections_round_trip_and_validate() {
             sequence,
             capture_time_ns: sequence * 33_000_000,
             camera_id: 1,
+            flags: DetectionFrame::FRAME_SETTLED,
             ..Default::default()
         };
         frame.push(DetectedObject::new(
