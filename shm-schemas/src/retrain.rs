@@ -224,6 +224,7 @@ impl TryFrom<u8> for RetrainPhase {
             2 => Ok(Self::Evaluating),
             3 => Ok(Self::Published),
             4 => Ok(Self::BudgetExhausted),
+            5 => Ok(Self::Infeasible),
             _ => Err(SchemaError::BadEnum {
                 field: "phase",
                 value: u32::from(value),

@@ -60,7 +60,7 @@ pub fn run(args: RetrainArgs, device: tch::Device) -> Result<()> {
     );
     println!(
         "{}",
-        serde_json::json!({"summary": sum, "before": before, "best": best.meta.eval, "exact_scene": exact, "small_obstacle_scenes": old, "best_steps": best.meta.steps - base.meta.steps, "out": out})
+        serde_json::json!({"summary": sum, "before": before, "best": best.meta.eval, "exact_scene": exact, "pretraining_scenes": old, "best_steps": best.meta.steps - base.meta.steps, "out": out})
     );
     Ok(())
 }

@@ -34,8 +34,45 @@ pub fn evaluate<E: Env + Clone>(
     if scenes.is_empty() {
         return EvalResult::default();
     }
+    let stats = episode_stats(net, norm, template, scenes, workers);
+    let n = stats.len().max(1) as f64;
+    EvalResult {
+        episodes: stats.len(),
+        success_rate: stats.iter().filter(|e| e.success).count() as f64 / n,
+        collision_rate: stats.iter().filter(|e| e.collision).count() as f64 / n,
+        mean_return: stats.iter().map(|e| e.ret).sum::<f64>() / n,
+    }
+}
+
+/// Like [`evaluate`], but whether each scene's episode succeeded with no contact, in the
+/// order of `scenes` (to combine policies scene by scene, as the lookahead's policy library
+/// does).
+pub fn successes<E: Env + Clone>(
+    net: &ActorCritic,
+    norm: &ObsNormalizer,
+    template: &E,
+    scenes: &[E::Scene],
+    workers: usize,
+) -> Vec<bool> {
+    if scenes.is_empty() {
+        return Vec::new();
+    }
+    episode_stats(net, norm, template, scenes, workers)
+        .iter()
+        .map(|e| e.success)
+        .collect()
+}
+
+/// One episode per scene, in the order of `scenes` (chunks joined in order).
+fn episode_stats<E: Env + Clone>(
+    net: &ActorCritic,
+    norm: &ObsNormalizer,
+    template: &E,
+    scenes: &[E::Scene],
+    workers: usize,
+) -> Vec<EpisodeStat> {
     let per = scenes.len().div_ceil(workers.max(1));
-    let stats: Vec<EpisodeStat> = std::thread::scope(|s| {
+    std::thread::scope(|s| {
         let hs: Vec<_> = scenes
             .chunks(per)
             .map(|chunk| {
@@ -47,14 +84,7 @@ pub fn evaluate<E: Env + Clone>(
         hs.into_iter()
             .flat_map(|h| h.join().unwrap_or_default())
             .collect()
-    });
-    let n = stats.len().max(1) as f64;
-    EvalResult {
-        episodes: stats.len(),
-        success_rate: stats.iter().filter(|e| e.success).count() as f64 / n,
-        collision_rate: stats.iter().filter(|e| e.collision).count() as f64 / n,
-        mean_return: stats.iter().map(|e| e.ret).sum::<f64>() / n,
-    }
+    })
 }
 
 fn eval_chunk<E: Env + Clone>(

@@ -10,7 +10,7 @@
 //!   scaling, truncation bootstrap) and [`EpisodeStat`];
 //! - `trainer`: [`Trainer`] — start reading here: [`Trainer::iterate`] is one rollout plus
 //!   one update;
-//! - `evaluation`: deterministic episodes, [`evaluate`] and [`EvalResult`].
+//! - `evaluation`: deterministic episodes, [`evaluate`], [`successes`] and [`EvalResult`].
 //!
 //! # Threads
 //! The environments are split into `workers` chunks; each rollout runs every chunk for the
@@ -32,7 +32,7 @@ mod rollout;
 mod trainer;
 
 pub use config::{PpoConfig, PpoConfigValidateError};
-pub use evaluation::{EvalResult, evaluate};
+pub use evaluation::{EvalResult, evaluate, successes};
 pub use gae::gae;
 pub use loss::{LossParts, clipped_surrogate, normalize_advantages, ppo_loss};
 pub use rollout::EpisodeStat;

@@ -204,7 +204,7 @@ impl Director {
             self.on_verdict(t_s, v, scene_idx);
         }
         for r in &obs.retrain_requests {
-            self.on_retrain_request(t_s, r);
+            self.on_retrain_request(t_s, r, scene_idx);
         }
         for p in &obs.progress {
             self.on_progress(t_s, p, scene_idx);
@@ -264,11 +264,12 @@ impl Director {
         if !v.is_plan_approved() {
             self.refused_verdicts[scene] += 1;
         }
-        // Zero-shot: the first verdict on the scene (after it was seen, for a changed world)
-        // approves a plan with the policy in force, before any retraining.
+        // Zero-shot: a plan is approved on the scene (after it was seen, for a changed world)
+        // with a policy already there — the current one or the library's base — before any
+        // retraining was asked for it (a retrain request marks the scene not zero-shot).
         let seen = self.change_s.is_none() || self.detect_s.is_some();
-        if seen && self.zero_shot[scene].is_none() {
-            self.zero_shot[scene] = Some(v.is_plan_approved());
+        if seen && v.is_plan_approved() && self.zero_shot[scene].is_none() {
+            self.zero_shot[scene] = Some(true);
         }
         if self.detect_s.is_some() && self.verdict_s.is_none() {
             self.verdict_s = Some(t_s);
@@ -290,9 +291,12 @@ impl Director {
     }
 
     /// A retrain request: logged; the first after a change is timed.
-    fn on_retrain_request(&mut self, t_s: f64, r: &RetrainRequest) {
+    fn on_retrain_request(&mut self, t_s: f64, r: &RetrainRequest, scene: usize) {
         if self.request_s.is_none() && self.change_s.is_some() {
             self.request_s = Some(t_s);
+        }
+        if self.zero_shot[scene].is_none() {
+            self.zero_shot[scene] = Some(false);
         }
         self.log(
             t_s,

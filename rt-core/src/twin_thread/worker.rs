@@ -13,7 +13,14 @@
 //! approved — the worker waits for the settled frame.
 //!
 //! A new policy is swapped in with one step (it arrives validated and prepared); the cycle
-//! never sees a policy's plan before its lookahead has passed. A replacement plan joins the
+//! never sees a policy's plan before its lookahead has passed.
+//!
+//! Policy library (issue 15, retraining that keeps what it knew): the first policy the
+//! worker receives (the bundled generalist) is kept as the *base* when later ones (each
+//! retrained for one world) replace it as the current policy. The lookahead tries the
+//! current policy first and, when its episode or smoothed plan fails, the base: a world the
+//! generalist solves is solved again without retraining even after a fine-tune forgot it,
+//! and retraining is asked for only when both fail. Either plan passes the same checks. A replacement plan joins the
 //! running one at a sample `join_ahead_s` ahead of the arm, starting from that sample's
 //! position, velocity and acceleration, so the hand-over is continuous.
 //!
@@ -198,7 +205,10 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     io: TwinIo<L::Scene>,
     period_s: f64,
     join_ahead: usize,
+    /// The current policy (the latest received).
     policy: Option<Box<L::Policy>>,
+    /// The first policy received, kept as the fallback once another replaces it.
+    base: Option<Box<L::Policy>>,
     scene: Option<L::Scene>,
     report: Option<CycleReport>,
     sent: Option<Plan>,
@@ -266,6 +276,31 @@ enum GoalCheck {
     None,
 }
 
+/// A policy of the library: the current one, or the base kept as its fallback.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum PolicySlot {
+    /// The latest policy received.
+    Current,
+    /// The first policy received (the bundled generalist).
+    Base,
+}
+
+/// What one policy of the library did in [`TwinWorker::plan_from`].
+enum Tried {
+    /// The slot is empty.
+    NoPolicy,
+    /// A plan was approved and sent (or the arm is already at the goal, or the hand-over
+    /// slot was full and planning is due again): nothing more to try.
+    Done,
+    /// Its lookahead or its smoothed plan failed.
+    Failed {
+        /// The verdict as published (failed).
+        verdict: Verdict,
+        /// The lookahead itself found the continuation unsafe.
+        lookahead_unsafe: bool,
+    },
+}
+
 /// A rest pose this close (every joint) to a sample of the recorded path lies on it, rad.
 const ON_PATH_TOLERANCE_RAD: f64 = 0.05;
 
@@ -284,6 +319,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             period_s,
             join_ahead: (cfg.join_ahead_s / period_s).ceil() as usize,
             policy: None,
+            base: None,
             scene: None,
             report: None,
             sent: None,
@@ -379,12 +415,18 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         }
     }
 
-    /// A validated, prepared policy arrived: swapped in with one step; the old one is
-    /// dropped here, off the cycle.
+    /// A validated, prepared policy arrived: swapped in with one step as the current
+    /// policy. The first one ever received is kept as the base (the fallback of the
+    /// lookahead); any other replaced one is dropped here, off the cycle.
     pub fn on_policy(&mut self, policy: Box<L::Policy>, events: &mut Vec<TwinEvent<L::Scene>>) {
         let policy_id = L::policy_id(&policy);
-        // The old policy is dropped here, on the twin thread.
-        drop(self.policy.replace(policy));
+        let old = self.policy.replace(policy);
+        if self.base.is_none() {
+            self.base = old;
+        } else {
+            // The replaced retrained policy is dropped here, on the twin thread.
+            drop(old);
+        }
         self.want_plan = true;
         events.push(TwinEvent::PolicySwapped { policy_id });
     }
@@ -397,6 +439,11 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// The current policy.
     pub fn policy(&self) -> Option<&L::Policy> {
         self.policy.as_deref()
+    }
+
+    /// The base policy (the first received), once another has replaced it as current.
+    pub fn base_policy(&self) -> Option<&L::Policy> {
+        self.base.as_deref()
     }
 
     /// The lookahead.
@@ -669,16 +716,22 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         }
         self.waypoints.push(self.path_from_home[0]);
         let start = MotionState::at_rest(r.cmd.q_rad);
-        let plan =
-            match self.smoothed_checked_plan(&start, None, policy_id, &scene, GoalCheck::None) {
-                Ok(plan) => plan,
-                Err((smooth, shield, _)) => {
-                    self.return_refused_for = sent_id;
-                    self.want_plan = true;
-                    events.push(TwinEvent::ReturnHomeRefused { shield, smooth });
-                    return false;
-                }
-            };
+        let plan = match self.smoothed_checked_plan(
+            &start,
+            None,
+            policy_id,
+            &scene,
+            GoalCheck::None,
+            PolicySlot::Current,
+        ) {
+            Ok(plan) => plan,
+            Err((smooth, shield, _)) => {
+                self.return_refused_for = sent_id;
+                self.want_plan = true;
+                events.push(TwinEvent::ReturnHomeRefused { shield, smooth });
+                return false;
+            }
+        };
         let (plan_id, samples) = (plan.id, plan.len());
         if self.send_plan(plan) {
             self.sent_is_return = true;
@@ -705,6 +758,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         policy_id: u64,
         scene: &L::Scene,
         goal: GoalCheck,
+        slot: PolicySlot,
     ) -> Result<Plan, NotApproved> {
         let id = self.next_plan_id;
         self.next_plan_id += 1;
@@ -722,8 +776,12 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         self.shield
             .check_path(&start.q_rad, &plan.q_rad, self.period_s, scene)
             .map_err(|v| (None, Some(v), None))?;
+        let policy = match slot {
+            PolicySlot::Current => self.policy.as_deref(),
+            PolicySlot::Base => self.base.as_deref(),
+        };
         if goal == GoalCheck::Reach
-            && let Some(policy) = self.policy.as_deref()
+            && let Some(policy) = policy
         {
             let approach = self.la.goal_approach(policy, scene, &plan.q_rad);
             if !approach.reached() {
@@ -747,6 +805,11 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         true
     }
 
+    /// Plans the next episode from `start`: the current policy first, then the base (the
+    /// policy library); the first whose lookahead and smoothed plan pass is approved. When
+    /// none passes, the current policy's failure is what counts: the running plan is revoked
+    /// when that continuation is unsafe in a changed scene, and retraining is asked for
+    /// (once per policy and scene).
     fn plan_from(
         &mut self,
         start: MotionState,
@@ -754,8 +817,56 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         scene: L::Scene,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) {
-        let Some(policy) = self.policy.as_deref() else {
+        let mut first_failure: Option<(Verdict, bool)> = None;
+        for slot in [PolicySlot::Current, PolicySlot::Base] {
+            if slot == PolicySlot::Base && !self.gate {
+                // Without the lookahead gate the current policy's plan is taken as it is.
+                break;
+            }
+            match self.try_policy(slot, &start, join, scene, events) {
+                Tried::NoPolicy => {}
+                Tried::Done => return,
+                Tried::Failed {
+                    verdict,
+                    lookahead_unsafe,
+                } => {
+                    first_failure.get_or_insert((verdict, lookahead_unsafe));
+                }
+            }
+        }
+        let Some((verdict, lookahead_unsafe)) = first_failure else {
             return;
+        };
+        if lookahead_unsafe && self.scene_of_sent.is_some_and(|s| s != scene) {
+            self.revoke_under_way(events);
+        }
+        if self.gate && self.last_retrain != Some((verdict.policy_id, scene)) {
+            self.last_retrain = Some((verdict.policy_id, scene));
+            events.push(TwinEvent::Retrain {
+                request_id: self.next_request_id,
+                verdict,
+                scene,
+            });
+            self.next_request_id += 1;
+        }
+    }
+
+    /// One policy of the library: its lookahead, then (when it passes) its smoothed,
+    /// shield-checked plan, sent to the cycle.
+    fn try_policy(
+        &mut self,
+        slot: PolicySlot,
+        start: &MotionState,
+        join: Option<JoinPoint>,
+        scene: L::Scene,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) -> Tried {
+        let policy = match slot {
+            PolicySlot::Current => self.policy.as_deref(),
+            PolicySlot::Base => self.base.as_deref(),
+        };
+        let Some(policy) = policy else {
+            return Tried::NoPolicy;
         };
         let t0 = std::time::Instant::now();
         let verdict = self
@@ -767,84 +878,75 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             elapsed_s: t0.elapsed().as_secs_f64(),
         });
         if self.gate && !(verdict.task_ok && verdict.safe) {
-            if !verdict.safe && self.scene_of_sent.is_some_and(|s| s != scene) {
-                self.revoke_under_way(events);
-            }
-            if self.last_retrain != Some((verdict.policy_id, scene)) {
-                self.last_retrain = Some((verdict.policy_id, scene));
-                events.push(TwinEvent::Retrain {
-                    request_id: self.next_request_id,
-                    verdict,
-                    scene,
-                });
-                self.next_request_id += 1;
-            }
-            return;
+            return Tried::Failed {
+                verdict,
+                lookahead_unsafe: !verdict.safe,
+            };
         }
         if self.waypoints.is_empty() {
             // Already at the goal: nothing to do.
-            return;
+            return Tried::Done;
         }
         let goal_check = if self.gate {
             GoalCheck::Reach
         } else {
             GoalCheck::None
         };
-        let plan =
-            match self.smoothed_checked_plan(&start, join, verdict.policy_id, &scene, goal_check) {
-                Ok(plan) => plan,
-                Err((smooth, shield, goal)) => {
-                    events.push(TwinEvent::PlanRejected {
-                        policy_id: verdict.policy_id,
-                        smooth,
-                        shield,
-                        goal,
-                    });
-                    // The lookahead passed but the plan the arm would follow does not: publish
-                    // the verdict as failed and ask for retraining (once per policy and scene),
-                    // instead of waiting for a plan that will not come. A smoothed path that
-                    // misses the goal fails the task, not safety.
-                    let failed = if goal.is_some() {
-                        Verdict {
-                            task_ok: false,
-                            ..verdict
-                        }
-                    } else {
-                        Verdict {
-                            safe: false,
-                            min_distance_m: match shield {
-                                Some((_, ShieldViolation::Clearance { distance_m })) => {
-                                    distance_m.min(verdict.min_distance_m)
-                                }
-                                _ => verdict.min_distance_m,
-                            },
-                            ..verdict
-                        }
-                    };
-                    events.push(TwinEvent::Verdict {
-                        verdict: failed,
-                        scene,
-                        elapsed_s: t0.elapsed().as_secs_f64(),
-                    });
-                    if self.gate && self.last_retrain != Some((verdict.policy_id, scene)) {
-                        self.last_retrain = Some((verdict.policy_id, scene));
-                        events.push(TwinEvent::Retrain {
-                            request_id: self.next_request_id,
-                            verdict: failed,
-                            scene,
-                        });
-                        self.next_request_id += 1;
+        let plan = match self.smoothed_checked_plan(
+            start,
+            join,
+            verdict.policy_id,
+            &scene,
+            goal_check,
+            slot,
+        ) {
+            Ok(plan) => plan,
+            Err((smooth, shield, goal)) => {
+                events.push(TwinEvent::PlanRejected {
+                    policy_id: verdict.policy_id,
+                    smooth,
+                    shield,
+                    goal,
+                });
+                // The lookahead passed but the plan the arm would follow does not: publish
+                // the verdict as failed (and, when no policy passes, ask for retraining)
+                // instead of waiting for a plan that will not come. A smoothed path that
+                // misses the goal fails the task, not safety.
+                let failed = if goal.is_some() {
+                    Verdict {
+                        task_ok: false,
+                        ..verdict
                     }
-                    return;
-                }
-            };
+                } else {
+                    Verdict {
+                        safe: false,
+                        min_distance_m: match shield {
+                            Some((_, ShieldViolation::Clearance { distance_m })) => {
+                                distance_m.min(verdict.min_distance_m)
+                            }
+                            _ => verdict.min_distance_m,
+                        },
+                        ..verdict
+                    }
+                };
+                events.push(TwinEvent::Verdict {
+                    verdict: failed,
+                    scene,
+                    elapsed_s: t0.elapsed().as_secs_f64(),
+                });
+                return Tried::Failed {
+                    verdict: failed,
+                    lookahead_unsafe: false,
+                };
+            }
+        };
         let plan_id = plan.id;
         if !self.send_plan(plan) {
             self.want_plan = true;
-            return;
+            return Tried::Done;
         }
         if let Some(sent) = self.sent.take() {
-            self.record_episode_plan(&start, join, &sent);
+            self.record_episode_plan(start, join, &sent);
             self.sent = Some(sent);
         }
         events.push(TwinEvent::PlanApproved {
@@ -852,5 +954,6 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             policy_id: verdict.policy_id,
             joins: join.is_some(),
         });
+        Tried::Done
     }
 }

@@ -86,15 +86,24 @@ fn a_hot_swap_joins_the_running_plan_only_after_its_lookahead_passes() {
         "{:?}",
         rig.events
     );
-    assert_eq!(
-        rig.cycle.report().plans_taken,
-        before,
-        "a refused policy changed the plan"
+    // The policy library: the refused policy 2 falls back to the base policy 1, whose plan
+    // (to the same target) may join; nothing of policy 2 reaches the cycle.
+    assert!(
+        rig.approvals().iter().all(|a| a.1 == 1),
+        "a refused policy's plan was approved: {:?}",
+        rig.events
     );
+    assert!(rig.cycle.report().plans_taken >= before);
     assert_eq!(rig.cycle.report().policy_id, 1);
     // A good policy: plan approved, joins the running one, the arm ends at its target.
     rig.policy(3, TARGET_B);
-    rig.run(3);
+    // (Planned once the base's join, if any, has taken over.)
+    for _ in 0..200 {
+        rig.run(1);
+        if rig.approvals().iter().any(|a| a.1 == 3) {
+            break;
+        }
+    }
     let joined: Vec<_> = rig.approvals().into_iter().filter(|a| a.1 == 3).collect();
     assert_eq!(joined.len(), 1, "{:?}", rig.events);
     assert!(joined[0].2, "the swap should join the running plan");

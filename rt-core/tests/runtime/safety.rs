@@ -115,7 +115,21 @@ fn a_box_on_the_path_of_a_plan_scheduled_to_join_revokes_it_and_the_running_plan
         joined_id,
         "the revoked plan took over"
     );
-    assert_eq!(rig.mode(), Mode::Stopped);
+    // After the stop only the base policy 1 (the policy library's fallback), whose episode
+    // to TARGET_A stays clear of the box, may be planned with again; policy 2 never.
+    let revoked_at = rig
+        .events
+        .iter()
+        .position(|e| matches!(e, TwinEvent::Revoked { .. }))
+        .unwrap();
+    assert!(
+        rig.events[revoked_at..]
+            .iter()
+            .all(|e| !matches!(e, TwinEvent::PlanApproved { policy_id: 2, .. })),
+        "{:?}",
+        rig.events
+    );
+    assert!(matches!(rig.mode(), Mode::Stopped | Mode::Following));
 }
 
 #[test]

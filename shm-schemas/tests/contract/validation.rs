@@ -247,6 +247,37 @@ fn retrain_progress_rejects_bad_input() {
     );
 }
 
+#[test]
+fn every_retrain_phase_byte_round_trips_and_an_infeasible_answer_validates() {
+    // Issue 15: `Infeasible` (5) was missing from the byte conversion, so the learner's
+    // "no safe way found" answer was rejected as malformed by every subscriber.
+    for phase in [
+        RetrainPhase::Training,
+        RetrainPhase::Evaluating,
+        RetrainPhase::Published,
+        RetrainPhase::BudgetExhausted,
+        RetrainPhase::Infeasible,
+    ] {
+        assert_eq!(RetrainPhase::try_from(phase as u8), Ok(phase));
+    }
+    let mut p = retrain_progress();
+    p.phase = RetrainPhase::Infeasible as u8;
+    p.infeasible_kind = InfeasibleKind::NoGoalPosture as u8;
+    p.infeasible_blocker = 0;
+    p.infeasible_link = 3;
+    p.infeasible_by_m = 0.065;
+    p.validate().unwrap();
+    assert!(p.phase().unwrap().is_final());
+    // An infeasible phase without a reason, or a reason on another phase, is refused.
+    p.infeasible_kind = InfeasibleKind::None as u8;
+    assert_eq!(
+        p.validate(),
+        Err(SchemaError::OutOfRange {
+            field: "infeasible_kind"
+        })
+    );
+}
+
 fn policy() -> Box<PolicyBlob> {
     PolicyBlobBuilder::random(1, 2, 17, &[64, 64], 3, 3)
         .build()

@@ -406,7 +406,7 @@ fn the_bundled_scenes_are_feasible_and_blocked_goal_is_not() {
     // infeasible scene (assets/scenes/blocked_goal.toml, used by tests/tests/unseen_worlds.rs)
     // must be refused for the reason its comment gives: box 0 blocks the arm at the goal.
     let e = env();
-    let start = e.model().home();
+    let start = e.config().start.joints_rad;
     let cfg = FeasibilityConfig {
         goal_seeds: 64,
         planner: budget(),
@@ -416,6 +416,9 @@ fn the_bundled_scenes_are_feasible_and_blocked_goal_is_not() {
         assert!(f.is_feasible(), "{name}: {:?}", f.reason());
     }
     let blocked = super::common::scene("blocked_goal.toml");
+    // The wall stands clear of the arm at its start posture: the world itself puts nothing
+    // into the arm (a scene that does is not a test of the refusal).
+    assert!(is_safe_posture(&e, &blocked, &start));
     let f = check_goal_postures(&e, &blocked, 64);
     match f.reason {
         Some(InfeasibleReason::NoGoalPosture {
