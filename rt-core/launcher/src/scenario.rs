@@ -104,6 +104,8 @@ pub struct Director {
     refused_verdicts: Vec<u32>,
     /// Per scene: whether the first verdict after the scene was seen approved a plan.
     zero_shot: Vec<Option<bool>>,
+    /// Per scene: the arm's closest TCP approach to the goal target seen, m.
+    closest_m: Vec<f64>,
     p99_us: Option<f64>,
     last_progress_print_s: f64,
 }
@@ -140,6 +142,7 @@ impl Director {
             budgets_exhausted: vec![0; n],
             refused_verdicts: vec![0; n],
             zero_shot: vec![None; n],
+            closest_m: vec![f64::INFINITY; n],
             p99_us: None,
             last_progress_print_s: f64::NEG_INFINITY,
         }
@@ -493,9 +496,9 @@ impl Director {
         if s.p99_compute_us.is_finite() && s.p99_compute_us > 0.0 {
             self.p99_us = Some(f64::from(s.p99_compute_us));
         }
-        if !self.goals_reached[scene]
-            && (tcp - self.target(scene)).norm() <= self.cfg.goal_tolerance_m
-        {
+        let to_goal_m = (tcp - self.target(scene)).norm();
+        self.closest_m[scene] = self.closest_m[scene].min(to_goal_m);
+        if !self.goals_reached[scene] && to_goal_m <= self.cfg.goal_tolerance_m {
             self.goals_reached[scene] = true;
             self.log(
                 t_s,
@@ -524,9 +527,13 @@ impl Director {
                  the arm was held"
             )
         } else if self.zero_shot[i] == Some(true) {
-            "a plan was approved but the arm did not get there in time (refused by the \
-             cycle's shield? see `plan rejected` in logs/rt-core.log)"
-                .to_owned()
+            format!(
+                "a plan was approved but the arm came only within {:.1} mm of the goal \
+                 (tolerance {:.1} mm; a plan the cycle's shield refused, or the twin's goal \
+                 off the real one: see `plan rejected` in logs/rt-core.log)",
+                1000.0 * self.closest_m[i],
+                1000.0 * self.cfg.goal_tolerance_m
+            )
         } else {
             "no verdict on the scene in time (perception or the twin did not see it settle)"
                 .to_owned()

@@ -171,9 +171,15 @@ fn the_goal_check_of_a_plan_matches_task_done_and_does_not_allocate() {
     );
     assert_eq!(approach.tolerance_m, task.success.tolerance_m);
     assert!(approach.reached(), "{approach:?}");
-    // The last waypoint is the step that reached the goal; the ones before did not.
-    let before = la.goal_approach(&policy, &small, &waypoints[..waypoints.len() - 1]);
+    // The episode's last step reached the goal, the ones before did not; the waypoints
+    // after it settle the TCP on the target (`TwinLookahead`'s settling) and end closest.
+    let steps = verdict.steps as usize;
+    let before = la.goal_approach(&policy, &small, &waypoints[..steps - 1]);
     assert!(!before.reached(), "{before:?}");
+    assert!(
+        la.goal_approach(&policy, &small, &waypoints[..steps])
+            .reached()
+    );
     let target = small.goal_target_m(task.success.goal_hover_m);
     let last = model.tcp_m(&waypoints[waypoints.len() - 1]);
     assert!(((last - target).norm() - approach.closest_m).abs() < 1e-12);
