@@ -297,9 +297,9 @@ impl TwinEnv {
             }
             picked[slot] = best;
         }
-        for slot in 0..2 {
+        for (slot, pick) in picked.into_iter().enumerate() {
             let base = PAPER_OBS_DIM + EXTRA_BOX_VALUES * slot;
-            let values = match picked[slot] {
+            let values = match pick {
                 Some(i) if slot + 1 < self.observed_boxes => {
                     let b = &self.scene.obstacles[i];
                     let r = &self.box_reports[i];
