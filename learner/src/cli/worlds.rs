@@ -10,12 +10,10 @@
 //! counts when either policy solves it). Prints a table and writes `worlds.json`
 //! and `worlds.md` (atomically) to `--out`.
 
-use std::io::Write as _;
-use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use learner::checkpoint::{self, Checkpoint};
+use learner::checkpoint::{self, Checkpoint, write_atomic};
 use learner::normalize::ObsNormalizer;
 use learner::ppo::{EvalResult, evaluate, successes};
 use learner::service;
@@ -371,15 +369,4 @@ fn markdown(rows: &[WorldRow], a: &Aggregate, seed: u64) -> String {
         );
     }
     s
-}
-
-/// Writes `bytes` to `path` through a temporary file and a rename.
-fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
-    let tmp: PathBuf = path.with_extension("tmp");
-    let mut f =
-        std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-    f.write_all(bytes)?;
-    f.sync_all()?;
-    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
 }
