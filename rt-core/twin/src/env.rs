@@ -324,6 +324,27 @@ impl TwinEnv {
         }
     }
 
+    /// The arm's poses at the goal target of `scene` (empty of boxes yet) by IK from home;
+    /// `None` when the IK does not get there or only by folding the arm into itself. The
+    /// samplers draw goals only where it does, and leave room for these poses.
+    fn goal_poses(&self, scene: &Scene) -> Option<LinkPoses> {
+        let goal_target = scene.goal_target_m(self.cfg.success.goal_hover_m);
+        let at_goal = self.ik.solve_with(
+            &self.model,
+            &goal_target,
+            &self.model.home(),
+            GOAL_IK_ITERATIONS,
+        );
+        if !at_goal.reached {
+            return None;
+        }
+        let poses = self.model.fk(&at_goal.joints);
+        self.geometry
+            .self_collision(&poses)
+            .is_none()
+            .then_some(poses)
+    }
+
     fn write_obs(&mut self) {
         let tcp = self.poses.tcp_m();
         let d = &self.last_distance;
@@ -464,21 +485,9 @@ impl TwinEnv {
             // The arm at the goal: a box must leave room for it (the xArm5 is a planar
             // linkage in the plane of joint 1, so a tall box in that plane, nearer than the
             // goal, makes the goal unreachable).
-            let goal_target = scene.goal_target_m(self.cfg.success.goal_hover_m);
-            let at_goal = self.ik.solve_with(
-                &self.model,
-                &goal_target,
-                &self.model.home(),
-                GOAL_IK_ITERATIONS,
-            );
-            if !at_goal.reached {
+            let Some(goal_poses) = self.goal_poses(&scene) else {
                 continue;
-            }
-            let goal_poses = self.model.fk(&at_goal.joints);
-            if self.geometry.self_collision(&goal_poses).is_some() {
-                // A goal the arm cannot reach without folding into itself.
-                continue;
-            }
+            };
             let (ux, uy) = (dir[0] / len, dir[1] / len);
             for _ in 0..BOX_TRIES {
                 let f = uniform(rng, s.obstacle_fraction);
@@ -554,20 +563,9 @@ impl TwinEnv {
                 size_m: s.goal_size_m,
             };
             let mut scene = Scene::empty(s.table_height_m, goal);
-            let goal_target = scene.goal_target_m(self.cfg.success.goal_hover_m);
-            let at_goal = self.ik.solve_with(
-                &self.model,
-                &goal_target,
-                &self.model.home(),
-                GOAL_IK_ITERATIONS,
-            );
-            if !at_goal.reached {
+            let Some(goal_poses) = self.goal_poses(&scene) else {
                 continue;
-            }
-            let goal_poses = self.model.fk(&at_goal.joints);
-            if self.geometry.self_collision(&goal_poses).is_some() {
-                continue;
-            }
+            };
             let (ux, uy) = (dir[0] / len, dir[1] / len);
             let count = rng.random_range(w.boxes[0]..=w.boxes[1]) as usize;
             for _ in 0..count.min(MAX_OBSTACLES) {
