@@ -101,6 +101,29 @@ impl ChildGuard {
         None
     }
 
+    /// Waits for the exit (at most `limit`) and returns the exit code (-1 for a signal).
+    ///
+    /// # Panics
+    /// If the child does not exit within `limit`, or waiting fails.
+    pub fn wait_exit(&mut self, limit: Duration) -> i32 {
+        let deadline = Instant::now() + limit;
+        loop {
+            if let Some(status) = self
+                .child
+                .try_wait()
+                .unwrap_or_else(|e| panic!("waiting for {}: {e}", self.name))
+            {
+                return status.code().unwrap_or(-1);
+            }
+            assert!(
+                Instant::now() < deadline,
+                "{} did not finish within {limit:?}",
+                self.name
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
     /// The name given at spawn.
     pub fn name(&self) -> &str {
         &self.name

@@ -62,21 +62,6 @@ fn launch(
     (guard, rx)
 }
 
-/// Waits for the launcher's exit (at most `limit`) and returns its exit code.
-fn wait_exit(guard: &mut ChildGuard, limit: Duration) -> i32 {
-    let deadline = Instant::now() + limit;
-    loop {
-        if let Some(status) = guard.child.try_wait().expect("waiting for foresight") {
-            return status.code().unwrap_or(-1);
-        }
-        assert!(
-            Instant::now() < deadline,
-            "foresight did not finish within {limit:?}"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
-}
-
 /// The run folder under `out`.
 fn run_folder(out: &Path) -> PathBuf {
     newest_run(out).expect("a run folder")
@@ -162,7 +147,7 @@ fn the_self_improving_loop_predicts_retrains_and_reaches_the_goal_without_collis
     let out = scratch("loop");
     let _logs = logs_on_failure(&out);
     let (mut guard, _rx) = launch(&out, 60, &[]);
-    let code = wait_exit(&mut guard, Duration::from_secs(240));
+    let code = guard.wait_exit(Duration::from_secs(240));
     let run = run_folder(&out);
     let s = summary(&run);
     assert_eq!(code, 0, "foresight exit code; summary: {s}");
@@ -224,7 +209,7 @@ fn without_the_lookahead_the_old_policy_collides() {
     let out = scratch("blind");
     let _logs = logs_on_failure(&out);
     let (mut guard, _rx) = launch(&out, 60, &["--no-lookahead"]);
-    let code = wait_exit(&mut guard, Duration::from_secs(240));
+    let code = guard.wait_exit(Duration::from_secs(240));
     let s = summary(&run_folder(&out));
     assert_eq!(
         code, 0,
@@ -253,7 +238,7 @@ fn the_launcher_survives_kill_9_of_perception_and_of_the_learner() {
     wait_line(&rx, " retrain_request ", Duration::from_secs(120));
     let learner = child_named(pid, "learner").expect("learner is running");
     kill_9(learner);
-    let code = wait_exit(&mut guard, Duration::from_secs(300));
+    let code = guard.wait_exit(Duration::from_secs(300));
     let run = run_folder(&out);
     let s = summary(&run);
     let timeline = timeline_without_timeouts(&run);
@@ -276,7 +261,7 @@ fn a_dry_run_computes_and_logs_commands_and_sends_none() {
     let out = scratch("dry");
     let _logs = logs_on_failure(&out);
     let (mut guard, _rx) = launch(&out, 8, &["--dry-run"]);
-    wait_exit(&mut guard, Duration::from_secs(120));
+    guard.wait_exit(Duration::from_secs(120));
     let run = run_folder(&out);
     let s = summary(&run);
     assert_eq!(s["goal_reached"], false, "nothing moves in a dry run: {s}");

@@ -13,7 +13,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::{Mutex, MutexGuard};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use foresight_tests::runs::{LogsOnFailure, newest_run, scratch_dir};
 use foresight_tests::{ChildGuard, bin_path, repo_root};
@@ -38,18 +38,7 @@ fn run_foresight(out: &Path, args: &[&str], limit: Duration) -> i32 {
         .args(args)
         .stdout(Stdio::inherit())
         .stderr(Stdio::inherit());
-    let mut guard = ChildGuard::spawn("foresight", &mut cmd);
-    let deadline = Instant::now() + limit;
-    loop {
-        if let Some(status) = guard.child.try_wait().expect("waiting for foresight") {
-            return status.code().unwrap_or(-1);
-        }
-        assert!(
-            Instant::now() < deadline,
-            "foresight did not finish within {limit:?}"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    ChildGuard::spawn("foresight", &mut cmd).wait_exit(limit)
 }
 
 fn json(path: &Path) -> serde_json::Value {
