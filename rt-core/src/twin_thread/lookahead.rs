@@ -207,3 +207,70 @@ impl Lookahead for TwinLookahead {
         }
     }
 }
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use std::path::PathBuf;
+
+    use twin::{BoxObstacle, Goal, IkSolver, RobotModel, Scene, TaskConfig, is_safe_posture};
+
+    use super::*;
+
+    /// The settling of a plan's end onto the goal target adds no waypoint that breaks the
+    /// episode's contact rule: with a box placed so that the posture at the target is too
+    /// close to it while the episode's end, 17 mm away, is clear, no waypoint toward it is
+    /// added.
+    #[test]
+    fn settling_onto_the_goal_never_adds_an_unsafe_waypoint() {
+        let assets = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets");
+        let model = RobotModel::load(&assets.join("xarm5.urdf")).unwrap();
+        let task = TaskConfig::load(&assets.join("task.toml")).unwrap();
+        let la = TwinLookahead::new(model.clone(), task.clone(), LookaheadActions::Policy);
+        let goal = Goal {
+            center_m: [0.35, 0.0, 0.025],
+            size_m: 0.05,
+        };
+        let free = Scene::empty(0.0, goal);
+        let target = free.goal_target_m(task.success.goal_hover_m);
+        let ik = IkSolver::new(&model, task.ik);
+        let start = task.start.joints_rad;
+        let at_target = ik.solve(&model, &target, &start).joints;
+        let end_point = target - nalgebra::Vector3::new(0.017, 0.0, 0.0);
+        let episode_end = ik.solve(&model, &end_point, &at_target).joints;
+        assert!((model.tcp_m(&episode_end) - target).norm() > 0.015);
+
+        // In the free scene the plan is settled onto the target.
+        let mut waypoints = vec![episode_end];
+        la.settle_on_goal(&free, &mut waypoints);
+        let end_m = (model.tcp_m(waypoints.last().unwrap()) - target).norm();
+        assert!(end_m <= SETTLE_DONE_M, "{end_m}");
+
+        // A box beyond the target (+x), moved toward it until the posture at the target
+        // breaks the contact rule while the episode's end (17 mm nearer the base) keeps it.
+        let env = la.env.clone();
+        let mut blocked = None;
+        for mm in 0..200 {
+            let face_x = target.x + 0.20 - f64::from(mm) * 0.001;
+            let mut scene = free;
+            scene
+                .obstacles
+                .push(BoxObstacle {
+                    center_m: [face_x + 0.05, 0.0, 0.20],
+                    size_m: [0.10, 0.30, 0.40],
+                })
+                .unwrap();
+            if !is_safe_posture(&env, &scene, &at_target) {
+                assert!(is_safe_posture(&env, &scene, &episode_end), "no such box");
+                blocked = Some(scene);
+                break;
+            }
+        }
+        let blocked = blocked.expect("a box that blocks the target posture");
+        let mut waypoints = vec![episode_end];
+        la.settle_on_goal(&blocked, &mut waypoints);
+        for q in &waypoints {
+            assert!(is_safe_posture(&env, &blocked, q), "unsafe waypoint {q:?}");
+        }
+    }
+}
