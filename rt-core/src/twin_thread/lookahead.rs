@@ -226,7 +226,7 @@ mod tests {
         let assets = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets");
         let model = RobotModel::load(&assets.join("xarm5.urdf")).unwrap();
         let task = TaskConfig::load(&assets.join("task.toml")).unwrap();
-        let la = TwinLookahead::new(model.clone(), task.clone(), LookaheadActions::Policy);
+        let la = TwinLookahead::new(model.clone(), task, LookaheadActions::Policy);
         let goal = Goal {
             center_m: [0.35, 0.0, 0.025],
             size_m: 0.05,
