@@ -30,6 +30,7 @@
 //! ```
 
 pub mod checksum;
+pub mod cli_bounds;
 pub mod detection;
 pub mod error;
 pub mod policy_blob;

@@ -36,31 +36,31 @@ pub const EVAL_SEED: u64 = 0x00E0_A15E;
 #[derive(clap::Args, Clone)]
 pub struct PpoArgs {
     /// Parallel environments.
-    #[arg(long)]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(1usize, 65_536))]
     envs: Option<usize>,
     /// Rollout worker threads (0 = one per core).
-    #[arg(long)]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(0usize, 256))]
     workers: Option<usize>,
     /// Steps per environment per rollout.
-    #[arg(long)]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(1usize, 1_000_000))]
     n_steps: Option<usize>,
     /// Minibatch size.
-    #[arg(long)]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(1usize, 10_000_000))]
     batch: Option<usize>,
     /// Epochs per rollout.
-    #[arg(long)]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(1usize, 1000))]
     epochs: Option<usize>,
     /// Learning rate.
-    #[arg(long)]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
     lr: Option<f64>,
     /// Hidden layer widths, comma-separated (e.g. `128,128`; each ≤ 256).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', value_parser = shm_schemas::cli_bounds::int_within(1usize, 256))]
     hidden: Option<Vec<usize>>,
     /// Entropy bonus coefficient.
-    #[arg(long)]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
     ent_coef: Option<f64>,
     /// Torch intra-op threads.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = shm_schemas::cli_bounds::int_within(1i32, 256), allow_negative_numbers = true)]
     pub torch_threads: i32,
 }
 

@@ -20,7 +20,7 @@ pub struct PretrainArgs {
     #[arg(long, default_value = "assets/task.toml")]
     task: PathBuf,
     /// Environment steps.
-    #[arg(long, default_value_t = 1_000_000)]
+    #[arg(long, default_value_t = 1_000_000, value_parser = shm_schemas::cli_bounds::int_within(1u64, 100_000_000_000))]
     steps: u64,
     /// Seed.
     #[arg(long, default_value_t = 1)]
@@ -32,16 +32,16 @@ pub struct PretrainArgs {
     #[arg(long)]
     resume: bool,
     /// Evaluate and checkpoint every this many steps.
-    #[arg(long, default_value_t = 100_000)]
+    #[arg(long, default_value_t = 100_000, value_parser = shm_schemas::cli_bounds::int_within(1u64, 10_000_000_000))]
     eval_every: u64,
     /// Evaluation scenes (fixed set).
-    #[arg(long, default_value_t = 200)]
+    #[arg(long, default_value_t = 200, value_parser = shm_schemas::cli_bounds::int_within(1usize, 1_000_000))]
     eval_episodes: usize,
     /// Wall-time budget (s).
-    #[arg(long)]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::f64_within(0.1, 1e7), allow_negative_numbers = true)]
     time_budget_s: Option<f64>,
     /// Anneal the learning rate linearly from `--lr` (or the default) to this by `--steps`.
-    #[arg(long)]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
     lr_final: Option<f64>,
     #[command(flatten)]
     ppo: PpoArgs,

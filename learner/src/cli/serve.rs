@@ -25,28 +25,28 @@ pub struct ServeArgs {
     pub out: Option<PathBuf>,
     /// Step budget per request (the tall-box scene needs about 2e5–6e5 from the bundled
     /// policy, see the learner README).
-    #[arg(long, default_value_t = 600_000)]
+    #[arg(long, default_value_t = 600_000, value_parser = shm_schemas::cli_bounds::int_within(1u64, 10_000_000_000))]
     pub max_steps: u64,
     /// Wall-time budget per request (s).
-    #[arg(long, default_value_t = 90.0)]
+    #[arg(long, default_value_t = 90.0, value_parser = shm_schemas::cli_bounds::f64_within(0.1, 86_400.0), allow_negative_numbers = true)]
     pub time_budget_s: f64,
     /// Evaluate every this many steps.
-    #[arg(long, default_value_t = 8_192)]
+    #[arg(long, default_value_t = 8_192, value_parser = shm_schemas::cli_bounds::int_within(1u64, 1_000_000_000))]
     pub eval_every: u64,
     /// Evaluation episodes (the reported scene and lightly jittered variants).
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = shm_schemas::cli_bounds::int_within(1usize, 100_000))]
     pub eval_episodes: usize,
     /// Jitter of the evaluation variants as a fraction of the training jitter (2 cm, 10 %):
     /// 0 (default) evaluates the reported scene exactly as reported (the lookahead re-checks
     /// the live scene anyway); 0.5 asks for robustness to ±1 cm / ±5 % and takes ~5× longer.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
     pub eval_jitter: f64,
     /// Share of training episodes from the old (pre-training) distribution. 0.5 by default
     /// with the generalist policy: on the tall-box scene from a generalist checkpoint, 0.5
     /// (with `--explore-std 0.5`) converged in 1.5e5 steps and kept 91.5 % of the
     /// pre-training scenes (base 94.5 %), where 0 (with `--explore-std 2`) had not converged
     /// after 3e5 steps and kept 79.5 %. (With the earlier small-obstacle policy 0 was best.)
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
     pub old_share: f64,
     /// Exit after answering this many requests (0: serve forever).
     #[arg(long, default_value_t = 0)]
@@ -55,40 +55,40 @@ pub struct ServeArgs {
     /// (a converged policy barely explores; 0 keeps it). 0.5 by default for the generalist
     /// (see `--old-share`; 2.0, best for the earlier small-obstacle policy, wipes out much
     /// of what the generalist knew).
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 10.0), allow_negative_numbers = true)]
     pub explore_std: f64,
     /// Keep the pre-training observation/return statistics fixed while retraining (off by
     /// default: measured worse — the unseen tall-box features saturate at the clip).
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set)]
     pub freeze_stats: bool,
     /// Minibatch size during retraining (0: the checkpoint's).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = shm_schemas::cli_bounds::int_within(0usize, 1_000_000))]
     pub batch: usize,
     /// Learning rate during retraining (0: the checkpoint's).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
     pub lr: f64,
     /// Entropy bonus coefficient during retraining (keeps the raised exploration alive;
     /// 0.01 measured best of 0, 0.005, 0.01 on the tall-box scene).
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = 0.01, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
     pub ent_coef: f64,
     /// Height curriculum: box heights start scaled by a factor in `[h, 1]` and `h` rises
     /// to 1 over the first half of the step budget (1 = off). 0.3 by default: on the 20
     /// tall-box scenes of `foresight --runs 20 --seed 7`, offline from the bundled policy
     /// with a 4e5-step budget, 17 converged (median 9.8e4 steps, 5.3 s) against 14 with the
     /// curriculum off (median 1.1e5 steps, 6.2 s). Evaluation is always on the full heights.
-    #[arg(long, default_value_t = 0.3)]
+    #[arg(long, default_value_t = 0.3, value_parser = shm_schemas::cli_bounds::f32_within(0.0, 1.0), allow_negative_numbers = true)]
     pub height_start: f32,
     /// Rollout worker threads (0 = the checkpoint's setting).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = shm_schemas::cli_bounds::int_within(0usize, 256))]
     pub workers: usize,
     /// Pre-training scenes the base policy solves, evaluated with the reported scene: a
     /// retraining converges only when it still solves them with no contact (0 = off).
-    #[arg(long, default_value_t = 40)]
+    #[arg(long, default_value_t = 40, value_parser = shm_schemas::cli_bounds::int_within(0usize, 100_000))]
     pub kept_episodes: usize,
     /// Wall-time budget of the feasibility check's joint-space planner per request (s): a
     /// world whose safe goal postures it cannot connect to the start within it is answered
     /// as infeasible ("no collision-free path found").
-    #[arg(long, default_value_t = 20.0)]
+    #[arg(long, default_value_t = 20.0, value_parser = shm_schemas::cli_bounds::f64_within(0.001, 600.0), allow_negative_numbers = true)]
     pub planner_budget_s: f64,
 }
 

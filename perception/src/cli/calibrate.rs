@@ -14,6 +14,7 @@ use perception::calibration::{
 use perception::frame::read_colour;
 use perception::geometry::Intrinsics;
 use perception::workspace::WorkspaceRect;
+use shm_schemas::cli_bounds::f64_within;
 
 use super::shared::asset;
 
@@ -38,7 +39,7 @@ pub struct CalibrateArgs {
     #[arg(long)]
     workspace_size: Option<String>,
     /// Table height (m).
-    #[arg(long)]
+    #[arg(long, value_parser = f64_within(-0.5, 2.0), allow_negative_numbers = true)]
     table_height: Option<f64>,
     /// Tape colour range "h,s,v-h,s,v" (OpenCV HSV scale).
     #[arg(long)]

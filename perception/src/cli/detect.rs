@@ -16,6 +16,7 @@ use perception::detection::Detection;
 use perception::frame::{Frame, monotonic_now_ns, read_colour, read_depth};
 use perception::pipeline::Detector;
 use serde::Serialize;
+use shm_schemas::cli_bounds::int_within;
 
 use super::shared::{YoloArgs, load_detector};
 
@@ -41,7 +42,7 @@ pub struct DetectArgs {
     #[arg(long)]
     annotated: Option<PathBuf>,
     /// Run the detection this many times (after one warm-up) and print the per-frame timing.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = int_within(0u32, 1_000_000))]
     repeat: u32,
 }
 

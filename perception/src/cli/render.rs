@@ -9,6 +9,7 @@ use clap::Args;
 use perception::annotate::write_image;
 use perception::frame::{Frame, write_depth};
 use perception::synthetic::SyntheticCamera;
+use shm_schemas::cli_bounds::f64_within;
 use shm_schemas::scene_file::{SceneFile, WorldScript};
 
 use super::shared::{asset, synthetic_calibration};
@@ -20,7 +21,7 @@ pub struct RenderArgs {
     #[arg(long)]
     scene: PathBuf,
     /// Time into the world script (s).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = f64_within(0.0, 1e7), allow_negative_numbers = true)]
     at_s: f64,
     /// Synthetic camera description.
     #[arg(long)]

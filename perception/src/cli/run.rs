@@ -25,6 +25,7 @@ use perception::ros2_source::{NetworkAccess, Ros2Source, Ros2Topics};
 use perception::selection::SelectionConfig;
 use perception::source::{FileSource, FrameSource, SourceSpec, SyntheticSource};
 use perception::tracker::{Tracker, TrackerConfig};
+use shm_schemas::cli_bounds::{f32_within, f64_within, int_within};
 
 use super::shared::{YoloArgs, asset, load_detector, synthetic_calibration};
 
@@ -42,13 +43,13 @@ pub struct RunArgs {
     #[arg(long, default_value = "")]
     prefix: String,
     /// Frame rate (Hz).
-    #[arg(long, default_value_t = 15.0)]
+    #[arg(long, default_value_t = 15.0, value_parser = f64_within(0.1, 1000.0), allow_negative_numbers = true)]
     rate: f64,
     /// Synthetic camera description.
     #[arg(long)]
     camera: Option<PathBuf>,
     /// Stop after this many frames.
-    #[arg(long)]
+    #[arg(long, value_parser = int_within(1u64, u64::MAX))]
     frames: Option<u64>,
     /// Script time advances by 1/rate per frame instead of by wall-clock time.
     #[arg(long)]
@@ -60,19 +61,19 @@ pub struct RunArgs {
     #[command(flatten)]
     yolo: YoloArgs,
     /// Frames a change must persist before it is published.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = int_within(1u32, 1000))]
     persist_frames: u32,
     /// Settled frames (`FRAME_SETTLED`, the only ones rt-core plans on): frames every object
     /// must have been confirmed with its box (1..=120).
-    #[arg(long, default_value_t = TrackerConfig::default().settle_frames)]
+    #[arg(long, default_value_t = TrackerConfig::default().settle_frames, value_parser = int_within(1u32, 120))]
     settle_frames: u32,
     /// Settled frames: capture time with nothing appearing, disappearing or moving (ms,
     /// 0..=2000; the default 100 delays a plan after a world change by 100–117 ms at 60 Hz).
-    #[arg(long, default_value_t = TrackerConfig::default().settle_quiet_ms)]
+    #[arg(long, default_value_t = TrackerConfig::default().settle_quiet_ms, value_parser = int_within(0u32, 2000))]
     settle_quiet_ms: u32,
     /// Settled frames: a measurement this far from its object's reported box is motion (m,
     /// from the tracker's noise tolerance, 0.005, to its jump threshold, 0.05).
-    #[arg(long, default_value_t = TrackerConfig::default().settle_motion_m)]
+    #[arg(long, default_value_t = TrackerConfig::default().settle_motion_m, value_parser = f64_within(0.005, 0.05), allow_negative_numbers = true)]
     settle_motion_m: f64,
     /// ROS 2 topics config (TOML: topic names, `domain_id`, `networks`, `timeout_s`,
     /// `[stamp] max_age_s / max_ahead_s`); ZED wrapper names by default.
@@ -94,14 +95,14 @@ pub struct RunArgs {
     selection_config: Option<PathBuf>,
     /// A goal detection below this confidence is reported as an obstacle, not the goal
     /// (0.05..=1; default 0.5).
-    #[arg(long)]
+    #[arg(long, value_parser = f32_within(0.05, 1.0), allow_negative_numbers = true)]
     min_goal_confidence: Option<f32>,
     /// An obstacle detection below this confidence is left out (0..=0.25 and not above the
     /// goal floor; default 0.05): a doubtful obstacle is still reported.
-    #[arg(long)]
+    #[arg(long, value_parser = f32_within(0.0, 0.25), allow_negative_numbers = true)]
     min_obstacle_confidence: Option<f32>,
     /// Camera id written into each DetectionFrame.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = int_within(0u32, u32::MAX))]
     camera_id: u32,
 }
 

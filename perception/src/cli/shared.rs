@@ -10,6 +10,7 @@ use perception::color_detector::{ColourDetector, ColourDetectorConfig};
 use perception::pipeline::Detector;
 use perception::synthetic::SyntheticCamera;
 use perception::yolo::{BackendChoice, YoloDetector, YoloFile};
+use shm_schemas::cli_bounds::int_within;
 use shm_schemas::scene_file::SceneFile;
 
 /// A bundled perception asset: `$FORESIGHT_ASSETS/perception`, else `./assets/perception`
@@ -59,7 +60,7 @@ pub struct YoloArgs {
     #[arg(long, value_enum)]
     pub backend: Option<BackendChoice>,
     /// Inference threads (0: the cores this process may use).
-    #[arg(long)]
+    #[arg(long, value_parser = int_within(0usize, 1024))]
     pub threads: Option<usize>,
     /// ONNX Runtime shared library (default: ORT_DYLIB_PATH, else the one `make setup`
     /// installed).

@@ -9,6 +9,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::Parser;
 use ros_bridge::RosBridgeConfig;
+use shm_schemas::cli_bounds::{f64_within, int_within};
 use twin::RobotModel;
 
 /// Republishes a Foresight run's robot state, scene and verdicts over ROS 2.
@@ -22,20 +23,20 @@ pub struct RosBridgeArgs {
     #[arg(long, default_value = "assets/xarm5.urdf")]
     urdf: PathBuf,
     /// DDS domain id (defaults to $ROS_DOMAIN_ID, else 0).
-    #[arg(long, env = "ROS_DOMAIN_ID", default_value_t = 0)]
+    #[arg(long, env = "ROS_DOMAIN_ID", default_value_t = 0, value_parser = int_within(0u16, 232))]
     domain_id: u16,
     /// Interface address DDS may use (repeatable). Default: loopback only. Pass the robot
     /// PC's address to be seen from other hosts.
     #[arg(long = "ros-network", default_value = "127.0.0.1")]
     networks: Vec<IpAddr>,
     /// `/joint_states` and `/tf` rate (Hz, at least 50).
-    #[arg(long, default_value_t = 100.0)]
+    #[arg(long, default_value_t = 100.0, value_parser = f64_within(50.0, 1000.0), allow_negative_numbers = true)]
     rate_hz: f64,
     /// Fixed frame of all published poses (the URDF's base link).
     #[arg(long, default_value = "link_base")]
     frame_id: String,
     /// Stop after this many seconds (0 = run until SIGINT/SIGTERM).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = f64_within(0.0, 1e7), allow_negative_numbers = true)]
     seconds: f64,
 }
 

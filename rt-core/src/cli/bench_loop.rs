@@ -25,22 +25,23 @@ use rt_core::rt::clock::{Clock, MonotonicClock};
 use rt_core::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
 use rt_core::twin_thread::{TwinEvent, TwinWorker};
 use shm_schemas::PolicyBlobBuilder;
+use shm_schemas::cli_bounds::{f64_within, int_within};
 use twin::{ACT_DIM, BoxObstacle, Goal, OBS_DIM, RobotModel, Scene, TaskConfig};
 
 /// Arguments of `bench-loop`.
 #[derive(Debug, Args)]
 pub struct BenchLoopArgs {
     /// Cycle rate, Hz.
-    #[arg(long, default_value_t = 250.0)]
+    #[arg(long, default_value_t = 250.0, value_parser = f64_within(1.0, 10_000.0), allow_negative_numbers = true)]
     rate: f64,
     /// Duration of the measured run, s.
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = 3.0, value_parser = f64_within(0.001, 86_400.0), allow_negative_numbers = true)]
     seconds: f64,
     /// Real-time set-up of the cycle thread.
     #[command(flatten)]
     rt: super::RtArgs,
     /// Period of policy hot-swaps, ms (0 = none after the first).
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, default_value_t = 50, value_parser = int_within(1u64, 3_600_000))]
     swap_every_ms: u64,
     /// Folder with runtime.toml, xarm5.urdf and task.toml.
     #[arg(long, default_value = "assets")]

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand};
 use rt_core::rt::rt_setup::RtRequest;
+use shm_schemas::cli_bounds::int_within;
 
 mod bench_loop;
 mod run;
@@ -55,10 +56,10 @@ pub fn main() -> ExitCode {
 #[derive(Debug, Clone, Copy, Args)]
 pub struct RtArgs {
     /// Pin the cycle thread to this CPU.
-    #[arg(long)]
+    #[arg(long, value_parser = int_within(0usize, 4095))]
     cpu: Option<usize>,
     /// Ask for SCHED_FIFO at this priority for the cycle thread.
-    #[arg(long)]
+    #[arg(long, value_parser = int_within(1i32, 99), allow_negative_numbers = true)]
     rt_priority: Option<i32>,
     /// Do not lock memory.
     #[arg(long)]

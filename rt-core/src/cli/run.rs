@@ -22,9 +22,10 @@ use rt_core::config::RuntimeConfig;
 use rt_core::cycle::link::{InProcessArm, RobotLink};
 use rt_core::cycle::shield::ShieldLimits;
 use rt_core::cycle::xarm_link::{
-    XArmOpenError, XArmOpenOptions, check_blind_mode_target, open_xarm,
+    XArmOpenError, XArmOpenOptions, check_auto_resume_target, check_blind_mode_target, open_xarm,
 };
 use rt_core::twin_thread::serve::{InjectedFault, ServeOptions, serve_on};
+use shm_schemas::cli_bounds::{f64_within, int_within};
 use twin::{RobotModel, TaskConfig};
 
 use super::bench_loop::load_assets;
@@ -57,14 +58,14 @@ pub struct RunArgs {
     #[command(flatten)]
     rt: super::RtArgs,
     /// Stop after this many seconds (0 = until SIGINT/SIGTERM).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = f64_within(0.0, 1e7), allow_negative_numbers = true)]
     seconds: f64,
     /// Service-name prefix (overrides the config's `service_prefix`; the launcher gives
     /// every run a unique one).
     #[arg(long)]
     prefix: Option<String>,
     /// Report port of the arm for `--link xarm` (default: the real controller's 30003).
-    #[arg(long)]
+    #[arg(long, value_parser = int_within(1u16, u16::MAX))]
     report_port: Option<u16>,
     /// Operator action: clear the controller's error and warning at start before entering
     /// servo mode. Without it rt-core never sends CLEAN_ERROR: an error at start is
@@ -74,6 +75,8 @@ pub struct RunArgs {
     /// After a lost link returns, take fresh plans (and re-enter servo mode) without an
     /// operator's acknowledgement. For simulated arms (`xarm-sim`, `--link sim`) only: a
     /// real arm waits for `kill -USR1 <pid>` (the acknowledgement; see docs/real-arm.md).
+    /// With `--link xarm` it is refused, before any connection, unless `--robot` is (or
+    /// resolves only to) a loopback address, as `--no-lookahead` is.
     #[arg(long)]
     auto_resume: bool,
     /// Test hook: inject a fault to exercise an exit path (`twin-panic:MS`, a twin-thread
@@ -159,6 +162,13 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
         && let Some(host) = args.robot.as_deref()
     {
         check_blind_mode_target(host)?;
+    }
+    // Neither does resuming without the operator: the same address check.
+    if args.auto_resume
+        && args.link == LinkKind::Xarm
+        && let Some(host) = args.robot.as_deref()
+    {
+        check_auto_resume_target(host)?;
     }
     let (cfg, model, task) = load_assets(&args.assets, None, Some(&args.config))?;
     let opts = ServeOptions {

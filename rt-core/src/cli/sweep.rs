@@ -14,18 +14,19 @@ use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use rt_core::testing::sweep::{SweepAssets, SweepSettings, SweepSummary, run_sweep};
+use shm_schemas::cli_bounds::{f64_within, int_within};
 
 /// Arguments of `sweep`.
 #[derive(Debug, Args)]
 pub struct SweepArgs {
     /// Episodes to run.
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = 100, value_parser = int_within(1u64, 100_000_000))]
     episodes: u64,
     /// Seed of the sweep.
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Index of the first episode (replay one with `--first-episode I --episodes 1`).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = int_within(0u64, 1_000_000_000_000))]
     first_episode: u64,
     /// Folder for summary.json.
     #[arg(long, default_value = "sweep-out")]
@@ -34,10 +35,10 @@ pub struct SweepArgs {
     #[arg(long, default_value = "assets")]
     assets: PathBuf,
     /// Worker threads (default: the available cores).
-    #[arg(long)]
+    #[arg(long, value_parser = int_within(1usize, 1024))]
     jobs: Option<usize>,
     /// Longest episode, s.
-    #[arg(long, default_value_t = 12.0)]
+    #[arg(long, default_value_t = 12.0, value_parser = f64_within(0.1, 3600.0), allow_negative_numbers = true)]
     max_episode_s: f64,
 }
 

@@ -20,6 +20,7 @@ use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde_json::{Value, json};
+use shm_schemas::cli_bounds::{f32_within, int_within};
 use shm_schemas::scene_file::{MAX_OBSTACLES, SceneFile};
 use twin::{
     BoxObstacle, DOF, Goal, IkConfig, IkSolver, Joints, N_FRAMES, ObstacleClass, RobotGeometry,
@@ -67,7 +68,7 @@ pub struct IkArgs {
     #[arg(long, value_parser = parse_joints, allow_hyphen_values = true)]
     from: Option<Joints>,
     /// Iteration budget.
-    #[arg(long, default_value_t = 200)]
+    #[arg(long, default_value_t = 200, value_parser = int_within(1u32, 1_000_000))]
     iterations: u32,
     #[command(flatten)]
     model: ModelArgs,
@@ -93,7 +94,7 @@ pub struct RolloutArgs {
     #[arg(long)]
     scene: Option<PathBuf>,
     /// Number of episodes.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = int_within(1u32, 10_000_000))]
     episodes: u32,
     /// Seed of the scene sampling and of the action noise.
     #[arg(long, default_value_t = 0)]
@@ -102,7 +103,7 @@ pub struct RolloutArgs {
     #[arg(long, default_value = "small", value_parser = parse_class)]
     class: ObstacleClass,
     /// Standard deviation-like amplitude of uniform noise added to the scripted actions.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = f32_within(0.0, 1.0), allow_negative_numbers = true)]
     noise: f32,
     /// Task file (default: the bundled assets/task.toml).
     #[arg(long)]

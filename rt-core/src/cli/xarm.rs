@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use serde_json::json;
+use shm_schemas::cli_bounds::{f64_within, int_within};
 use xarm::codes::ControllerError;
 use xarm::driver::{XArmConfig, XArmDriver};
 use xarm::owner::ArmLock;
@@ -33,16 +34,16 @@ pub struct ProbeArgs {
     #[arg(long)]
     addr: String,
     /// Report port (the 100 Hz "real" report; default 30003).
-    #[arg(long, default_value_t = 30003)]
+    #[arg(long, default_value_t = 30003, value_parser = int_within(1u16, u16::MAX))]
     report_port: u16,
     /// Stream a small J1 motion at 100 Hz and report round-trip timing.
     #[arg(long)]
     servo_test: bool,
     /// Peak J1 excursion of the servo test (degrees, at most 5).
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, value_parser = f64_within(0.0, 5.0), allow_negative_numbers = true)]
     amplitude_deg: f64,
     /// Duration of the servo test (s).
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, value_parser = f64_within(0.0, 600.0), allow_negative_numbers = true)]
     duration_s: f64,
 }
 

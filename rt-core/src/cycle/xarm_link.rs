@@ -224,19 +224,37 @@ impl Deref for XArmLink {
     }
 }
 
-/// `--no-lookahead` (blind mode) asked for a robot address that is not known to be this
-/// machine's loopback: blind mode is a demonstration on the simulated arm only.
+/// A simulation-only flag (`--no-lookahead`, blind mode; `--auto-resume`, resuming after a
+/// lost link without the operator) asked for a robot address that is not known to be this
+/// machine's loopback: those flags are for `xarm-sim` on this machine only.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error(
-    "--no-lookahead is refused for the non-loopback robot address {addr}: blind mode is a \
-     simulation-only demonstration ({reason}; no connection was attempted)"
+    "{flag} is refused for the non-loopback robot address {addr}: {why} ({reason}; no \
+     connection was attempted)"
 )]
 pub struct BlindModeError {
+    /// The flag refused.
+    pub flag: &'static str,
+    /// What the flag is for, in words.
+    pub why: &'static str,
     /// The address as given (`HOST[:PORT]`).
     pub addr: String,
     /// Why it is not loopback.
     pub reason: LoopbackCheckError,
 }
+
+/// What blind mode is, for [`BlindModeError`].
+const BLIND_MODE: (&str, &str) = (
+    "--no-lookahead",
+    "blind mode is a simulation-only demonstration",
+);
+
+/// What `--auto-resume` is, for [`BlindModeError`].
+const AUTO_RESUME: (&str, &str) = (
+    "--auto-resume",
+    "resuming after a lost link without the operator's acknowledgement is for simulated \
+     arms only",
+);
 
 /// Decides, before any connection (nothing is sent to `addr`), whether blind mode may
 /// drive the controller at `addr` (`HOST[:PORT]`, as [`open_xarm`] takes it): only if it
@@ -246,7 +264,25 @@ pub struct BlindModeError {
 /// # Errors
 /// [`BlindModeError`] naming the address and why it is refused.
 pub fn check_blind_mode_target(addr: &str) -> Result<(), BlindModeError> {
-    blind_mode_verdict(addr, XArmConfig::from_addr(addr).check_loopback_only())
+    simulation_only_verdict(
+        BLIND_MODE,
+        addr,
+        XArmConfig::from_addr(addr).check_loopback_only(),
+    )
+}
+
+/// The same decision as [`check_blind_mode_target`] (one check) for `--auto-resume`: a
+/// real arm waits for the operator's acknowledgement after a lost link; only `xarm-sim` on
+/// this machine may resume on its own.
+///
+/// # Errors
+/// [`BlindModeError`] naming `--auto-resume`, the address and why it is refused.
+pub fn check_auto_resume_target(addr: &str) -> Result<(), BlindModeError> {
+    simulation_only_verdict(
+        AUTO_RESUME,
+        addr,
+        XArmConfig::from_addr(addr).check_loopback_only(),
+    )
 }
 
 /// [`check_blind_mode_target`] with the name resolution injected (`resolve(host, port)`,
@@ -258,17 +294,21 @@ pub fn check_blind_mode_target_with<R>(addr: &str, resolve: R) -> Result<(), Bli
 where
     R: FnOnce(&str, u16) -> std::io::Result<Vec<IpAddr>>,
 {
-    blind_mode_verdict(
+    simulation_only_verdict(
+        BLIND_MODE,
         addr,
         XArmConfig::from_addr(addr).check_loopback_only_with(resolve),
     )
 }
 
-fn blind_mode_verdict(
+fn simulation_only_verdict(
+    (flag, why): (&'static str, &'static str),
     addr: &str,
     checked: Result<(), LoopbackCheckError>,
 ) -> Result<(), BlindModeError> {
     checked.map_err(|reason| BlindModeError {
+        flag,
+        why,
         addr: addr.to_owned(),
         reason,
     })
@@ -405,6 +445,11 @@ impl RobotLink for XArmDriver {
         XArmDriver::acknowledge(self, now_ns).map_err(link_error)
     }
 
+    fn hold_controller(&mut self, now_ns: u64) {
+        // One pipelined SET_STATE(4): the controller stops where the arm stands.
+        XArmDriver::stop(self, now_ns);
+    }
+
     fn stop_controller(&mut self, _now_ns: u64) {
         // Blocking (the loop has ended): SET_STATE 4 until the controller reads 4.
         if let Err(e) = XArmDriver::emergency_stop(self) {
@@ -430,6 +475,10 @@ impl RobotLink for XArmLink {
 
     fn acknowledge(&mut self, now_ns: u64) -> Result<(), LinkError> {
         RobotLink::acknowledge(&mut self.driver, now_ns)
+    }
+
+    fn hold_controller(&mut self, now_ns: u64) {
+        RobotLink::hold_controller(&mut self.driver, now_ns);
     }
 
     fn stop_controller(&mut self, now_ns: u64) {
@@ -471,6 +520,28 @@ mod tests {
         }
     }
 
+    /// Issue 25 item 7: `--auto-resume` is decided by the same address check as blind mode.
+    #[test]
+    fn auto_resume_is_refused_off_loopback_by_the_same_check() {
+        for addr in ["127.0.0.1:5020", "[::1]:502", "localhost"] {
+            assert_eq!(check_auto_resume_target(addr), Ok(()), "{addr}");
+        }
+        for addr in ["10.0.0.2", "192.168.1.195:502", "0.0.0.0"] {
+            let e = check_auto_resume_target(addr).expect_err(addr);
+            assert_eq!(
+                e.reason,
+                check_blind_mode_target(addr).expect_err(addr).reason
+            );
+            let msg = e.to_string();
+            assert!(
+                msg.starts_with(&format!(
+                    "--auto-resume is refused for the non-loopback robot address {addr}"
+                )) && msg.contains("no connection was attempted"),
+                "{msg}"
+            );
+        }
+    }
+
     #[test]
     fn blind_mode_refuses_a_name_resolving_elsewhere() {
         let far: IpAddr = "192.168.1.195".parse().expect("ip");
@@ -483,6 +554,8 @@ mod tests {
             assert_eq!(
                 check_blind_mode_target_with("xarm.lab", move |_, _| Ok(ips)),
                 Err(BlindModeError {
+                    flag: "--no-lookahead",
+                    why: BLIND_MODE.1,
                     addr: "xarm.lab".into(),
                     reason: LoopbackCheckError::NotLoopback(far)
                 })

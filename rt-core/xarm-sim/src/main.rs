@@ -22,6 +22,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
+use shm_schemas::cli_bounds::{f64_within, int_within};
 use shm_schemas::scene_file::{SceneFile, WorldScript};
 use xarm_sim::server::default_urdf;
 use xarm_sim::world::World;
@@ -35,7 +36,7 @@ struct Args {
     #[arg(long, default_value = "127.0.0.1")]
     bind: IpAddr,
     /// Added to every default port (502, 30000–30003, control 30010).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = int_within(0u16, 35_000))]
     port_offset: u16,
     /// Command port (overrides the offset).
     #[arg(long)]
@@ -68,40 +69,26 @@ struct Args {
     #[arg(long)]
     urdf: Option<PathBuf>,
     /// Contact margin (m).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = f64_within(0.0, 0.5), allow_negative_numbers = true)]
     contact_margin_m: f64,
     /// Initial joints, 5 comma-separated values (rad); default: the model's home posture.
-    #[arg(long, value_delimiter = ',', num_args = 5)]
+    #[arg(long, value_delimiter = ',', num_args = 5, value_parser = f64_within(-7.0, 7.0), allow_negative_numbers = true)]
     q0_rad: Option<Vec<f64>>,
     /// Protective fault: joint speed limit (rad/s) a servo_j target may ask for.
-    #[arg(long, default_value_t = xarm_sim::controller::MAX_JOINT_SPEED_RAD_S, value_parser = positive_finite, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = xarm_sim::controller::MAX_JOINT_SPEED_RAD_S, value_parser = f64_within(0.001, 100.0), allow_negative_numbers = true)]
     max_joint_speed_rad_s: f64,
     /// Protective fault: TCP speed limit (m/s) a servo_j target may ask for.
-    #[arg(long, default_value_t = xarm_sim::controller::MAX_TCP_SPEED_M_S, value_parser = positive_finite, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = xarm_sim::controller::MAX_TCP_SPEED_M_S, value_parser = f64_within(0.001, 100.0), allow_negative_numbers = true)]
     max_tcp_speed_m_s: f64,
     /// Protective fault: the servo period one target is executed in (ms).
-    #[arg(long, default_value_t = 1e3 * xarm_sim::controller::SERVO_PERIOD_S, value_parser = positive_finite, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 1e3 * xarm_sim::controller::SERVO_PERIOD_S, value_parser = f64_within(0.1, 1000.0), allow_negative_numbers = true)]
     servo_period_ms: f64,
     /// Protective fault: relative slack above the limits (0.25 = 25 %).
-    #[arg(long, default_value_t = xarm_sim::controller::FAULT_TOLERANCE, value_parser = non_negative_finite, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = xarm_sim::controller::FAULT_TOLERANCE, value_parser = f64_within(0.0, 10.0), allow_negative_numbers = true)]
     fault_tolerance: f64,
     /// Turn the protective faults (joint and TCP speed) off.
     #[arg(long)]
     no_protective_faults: bool,
-}
-
-fn positive_finite(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        _ => Err(format!("{s:?} is not a positive finite number")),
-    }
-}
-
-fn non_negative_finite(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
-        _ => Err(format!("{s:?} is not a finite number >= 0")),
-    }
 }
 
 fn parse_time_s(s: &str) -> Result<f64> {

@@ -10,6 +10,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
+use shm_schemas::cli_bounds::{f64_within, int_within};
+
 /// How long `learner serve` gets to exit after SIGTERM.
 pub const LEARNER_STOP_GRACE: Duration = Duration::from_secs(5);
 /// Pause before restarting a learner that exited.
@@ -31,10 +33,10 @@ pub struct LearnerArgs {
     #[arg(long, default_value = "runs/learner-host")]
     pub out: PathBuf,
     /// Retraining wall-time budget per request (s), as `foresight --retrain-budget-s`.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, value_parser = f64_within(0.1, 86_400.0), allow_negative_numbers = true)]
     pub time_budget_s: f64,
     /// Retraining step budget per request, as `foresight --retrain-steps`.
-    #[arg(long, default_value_t = 400_000)]
+    #[arg(long, default_value_t = 400_000, value_parser = int_within(1u64, 10_000_000_000))]
     pub max_steps: u64,
     /// More `learner serve` flags, after `--`.
     #[arg(last = true)]
