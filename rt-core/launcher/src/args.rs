@@ -2,6 +2,7 @@
 
 use std::path::PathBuf;
 
+use shm_schemas::cli_bounds::{f64_within, int_within};
 use xarm::config::{LoopbackCheckError, XArmConfig};
 use zenoh_relay::link::{LinkArgs, LinkError};
 
@@ -36,7 +37,7 @@ pub struct LaunchArgs {
     pub camera: String,
     /// Frame rate of the synthetic camera (Hz). 60 is the ZED's 720p rate; perception
     /// confirms a new object after 3 frames, so a world change is seen within ≈ 50–70 ms.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = 60.0, value_parser = f64_within(0.1, 1000.0), allow_negative_numbers = true)]
     pub camera_rate_hz: f64,
     /// Calibration file for a real camera.
     #[arg(long)]
@@ -67,7 +68,7 @@ pub struct LaunchArgs {
     pub ros: bool,
     /// Randomised scenarios: run this many, each with a world drawn from the task's
     /// sampling ranges (a small obstacle, then a large one).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = int_within(0u32, 100_000))]
     pub runs: u32,
     /// Seed of the randomised scenarios.
     #[arg(long, default_value_t = 1)]
@@ -78,19 +79,27 @@ pub struct LaunchArgs {
     /// table and a plot of every world's outcome in `<out>/worlds-seed<S>/`).
     #[arg(long, value_enum, default_value_t = WorldsChoice::Pair)]
     pub worlds: WorldsChoice,
-    /// Retraining wall-time budget per request (s).
-    #[arg(long, default_value_t = 30.0)]
+    /// Retraining wall-time budget per request (s, 0.1..=86400).
+    #[arg(long, default_value_t = 30.0, value_parser = f64_within(0.1, 86_400.0), allow_negative_numbers = true)]
     pub retrain_budget_s: f64,
     /// Retraining step budget per request (a request that runs out is answered with the
     /// best policy so far; the next request resumes where it stopped).
-    #[arg(long, default_value_t = 400_000)]
+    #[arg(long, default_value_t = 400_000, value_parser = int_within(1u64, 10_000_000_000))]
     pub retrain_steps: u64,
-    /// Longest one scene may take (s).
-    #[arg(long, default_value_t = 90.0)]
+    /// Longest one scene may take (s, 0.1..=86400).
+    #[arg(long, default_value_t = 90.0, value_parser = f64_within(0.1, 86_400.0), allow_negative_numbers = true)]
     pub phase_timeout_s: f64,
     /// Where run folders go.
     #[arg(long, default_value = "runs")]
     pub out: PathBuf,
+    /// Do not record the run. By default every run is recorded to `<run folder>/run.mcap`
+    /// (ROS 2 messages with their schemas: `ros2 bag info`, `ros2 bag play` and Foxglove
+    /// open it).
+    #[arg(long)]
+    pub no_record: bool,
+    /// Largest run recording (MiB, 1..=1048576); recording stops there, with a note.
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u64).range(1..=1_048_576))]
+    pub record_max_mib: u64,
     /// The learner runs on another host (a GPU box): start no learner here, but the
     /// controller side of `zenoh-relay`, which carries retrain requests there and policies
     /// back over Zenoh. The other host runs `zenoh-relay learner-host --listen
@@ -157,6 +166,29 @@ pub struct BlindModeRefused {
     pub reason: LoopbackCheckError,
 }
 
+/// A `--robot` off this machine without a real camera source and an explicit calibration:
+/// a real arm is never driven from an imaginary world (the synthetic camera plays the world
+/// script, not the arm's table; the bundled calibration is another camera's).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "--robot {addr} is a real arm ({reason}): it is driven only from a real camera and an \
+     explicit calibration file, give --camera ros2 and --calibration FILE ({missing}); \
+     --dry-run plans on synthetic data and sends nothing that moves the arm (no process was \
+     started, no connection was attempted)"
+)]
+pub struct RealArmSensorsRefused {
+    /// The `--robot` address as given.
+    pub addr: String,
+    /// Why it is not loopback.
+    pub reason: LoopbackCheckError,
+    /// What is missing, in words.
+    pub missing: String,
+}
+
+/// The camera sources that watch the arm's own table (`--camera`): the ROS 2 topics of a
+/// live camera. The synthetic camera plays the world script; `file:` plays a recording.
+pub const REAL_CAMERA_SOURCES: [&str; 1] = ["ros2"];
+
 impl LaunchArgs {
     /// The assets folder: the folder of `--task` (rt-core gets it as `--assets` too).
     pub fn assets_dir(&self) -> PathBuf {
@@ -172,11 +204,58 @@ impl LaunchArgs {
     /// [`LearnerHostError`] naming the flag.
     pub fn check_learner_host(&self) -> Result<(), LearnerHostError> {
         if self.learner_host {
-            self.link.validate()?;
+            // The robot PC's keys (`--link-keys`) are loaded here so that a missing or
+            // unusable key file is named before anything starts.
+            self.link.load_keys(zenoh_relay::wire::Side::Controller)?;
         } else if !self.link.peers.is_empty() || !self.link.listen.is_empty() || self.link.scout {
             return Err(LearnerHostError::LinkWithoutLearnerHost);
         }
         Ok(())
+    }
+
+    /// A real arm is driven only from real sensors: with a `--robot` that is not (or does
+    /// not resolve only to) a loopback address, `--camera` must be a live camera
+    /// ([`REAL_CAMERA_SOURCES`]) and `--calibration` a file given explicitly (never the
+    /// bundled one), unless `--dry-run` (nothing that moves the arm is sent; every report
+    /// line then says the data are synthetic, [`Self::synthetic_data_note`]). Decided from
+    /// the address alone, before any process starts.
+    ///
+    /// # Errors
+    /// [`RealArmSensorsRefused`] naming `--camera`, `--calibration` and the address.
+    pub fn check_real_arm_sensors(&self) -> Result<(), RealArmSensorsRefused> {
+        let Some(addr) = &self.robot else {
+            return Ok(());
+        };
+        if self.dry_run {
+            return Ok(());
+        }
+        let Err(reason) = XArmConfig::from_addr(addr).check_loopback_only() else {
+            return Ok(());
+        };
+        let mut missing = Vec::new();
+        if !REAL_CAMERA_SOURCES.contains(&self.camera.as_str()) {
+            missing.push(format!("--camera {} is not a live camera", self.camera));
+        }
+        if self.calibration.is_none() {
+            missing.push("no --calibration was given".to_owned());
+        }
+        if missing.is_empty() {
+            return Ok(());
+        }
+        Err(RealArmSensorsRefused {
+            addr: addr.clone(),
+            reason,
+            missing: missing.join(", "),
+        })
+    }
+
+    /// In a dry run on synthetic data (the synthetic camera or a recording, or no explicit
+    /// calibration) the words every report line carries; `None` otherwise.
+    pub fn synthetic_data_note(&self) -> Option<&'static str> {
+        let synthetic =
+            !REAL_CAMERA_SOURCES.contains(&self.camera.as_str()) || self.calibration.is_none();
+        (self.dry_run && self.robot.is_some() && synthetic)
+            .then_some("[DRY RUN on synthetic camera data, nothing sent to the arm]")
     }
 
     /// Blind mode never reaches a real arm: with `--no-lookahead`, a `--robot` address must
@@ -231,9 +310,44 @@ mod tests {
             args(&["--learner-host"]).check_learner_host(),
             Err(LearnerHostError::Link(LinkError::Nowhere))
         ));
-        let ok = args(&["--learner-host", "--peer", "tcp/10.0.0.2:7447"]);
+        // Issue 25 item 1: no unauthenticated link; the keys are checked before anything starts.
+        let e = args(&["--learner-host", "--peer", "tcp/10.0.0.2:7447"])
+            .check_learner_host()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("--link-keys") && e.contains("zenoh-relay keygen"),
+            "{e}"
+        );
+        let keys = std::env::temp_dir().join(format!("launcher-link-keys-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&keys);
+        zenoh_relay::keys::generate(&keys).unwrap();
+        let robot_pc = keys.join("robot-pc").display().to_string();
+        let learner_host = keys.join("learner-host").display().to_string();
+        let e = args(&[
+            "--learner-host",
+            "--peer",
+            "tcp/10.0.0.2:7447",
+            "--link-keys",
+            &learner_host,
+        ])
+        .check_learner_host()
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("controller.key") && e.contains("robot-pc"),
+            "{e}"
+        );
+        let ok = args(&[
+            "--learner-host",
+            "--peer",
+            "tcp/10.0.0.2:7447",
+            "--link-keys",
+            &robot_pc,
+        ]);
         assert_eq!(ok.check_learner_host(), Ok(()));
         assert_eq!(ok.link.peers, ["tcp/10.0.0.2:7447"]);
+        std::fs::remove_dir_all(&keys).ok();
         let e = args(&["--learner-host", "--peer", "10.0.0.2"])
             .check_learner_host()
             .unwrap_err();
@@ -242,6 +356,80 @@ mod tests {
             args(&["--listen", "tcp/0.0.0.0:7447"]).check_learner_host(),
             Err(LearnerHostError::LinkWithoutLearnerHost)
         );
+    }
+
+    /// Issue 25 item 2: a real arm needs a live camera and an explicit calibration.
+    #[test]
+    fn a_robot_off_this_machine_needs_a_real_camera_and_an_explicit_calibration() {
+        for (extra, names) in [
+            (
+                &[][..],
+                "--camera synthetic is not a live camera, no --calibration",
+            ),
+            (&["--camera", "ros2"][..], "no --calibration"),
+            (&["--calibration", "cal.toml"][..], "--camera synthetic"),
+            (
+                &["--camera", "file:rec.mp4", "--calibration", "cal.toml"][..],
+                "--camera file:rec.mp4 is not a live camera",
+            ),
+        ] {
+            for robot in ["10.0.0.2", "192.168.1.195:502"] {
+                let mut a = vec!["--robot", robot];
+                a.extend_from_slice(extra);
+                let e = args(&a).check_real_arm_sensors().expect_err(robot);
+                let m = e.to_string();
+                assert!(
+                    m.contains(&format!("--robot {robot} is a real arm"))
+                        && m.contains("--camera ros2 and --calibration FILE")
+                        && m.contains(names)
+                        && m.contains("no process was started"),
+                    "{m}"
+                );
+                assert_eq!(args(&a).synthetic_data_note(), None);
+                // A dry run may plan on synthetic data, and says so.
+                a.push("--dry-run");
+                assert_eq!(args(&a).check_real_arm_sensors(), Ok(()));
+                assert!(
+                    args(&a)
+                        .synthetic_data_note()
+                        .is_some_and(|n| n.contains("DRY RUN"))
+                );
+            }
+        }
+        for ok in [
+            args(&[]),
+            args(&["--robot", "127.0.0.1:5020"]),
+            args(&["--robot", "localhost"]),
+            args(&[
+                "--robot",
+                "192.168.1.195",
+                "--camera",
+                "ros2",
+                "--calibration",
+                "cal.toml",
+            ]),
+        ] {
+            assert_eq!(ok.check_real_arm_sensors(), Ok(()), "{ok:?}");
+            assert_eq!(ok.synthetic_data_note(), None, "{ok:?}");
+        }
+    }
+
+    /// Issue 25 item 13: every float flag refuses NaN, infinities, negatives and huge values
+    /// with clap's error naming the flag.
+    #[test]
+    fn float_flags_are_bounded() {
+        for flag in [
+            "--camera-rate-hz",
+            "--retrain-budget-s",
+            "--phase-timeout-s",
+        ] {
+            for bad in ["NaN", "inf", "-1", "1e300"] {
+                let e = LaunchArgs::try_parse_from(["foresight", flag, bad])
+                    .expect_err(bad)
+                    .to_string();
+                assert!(e.contains(flag), "{flag} {bad}: {e}");
+            }
+        }
     }
 
     #[test]

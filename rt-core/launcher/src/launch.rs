@@ -28,6 +28,7 @@ use crate::supervisor::{ProcessEvent, Supervisor};
 /// Runs one scenario, or `--runs N` randomised ones; true when every run met its goal.
 pub fn run_all(args: &LaunchArgs) -> Result<bool> {
     args.check_blind_mode()?;
+    args.check_real_arm_sensors()?;
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(sig, stop.clone()).context("installing the signal handler")?;
@@ -120,8 +121,14 @@ fn judge(args: &LaunchArgs, s: &report::Summary) -> bool {
     }
 }
 
-fn print_event(e: &TimelineEvent) {
-    println!("{:>8.3} s  {:<20} {}", e.t_s, e.kind, e.detail);
+/// One timeline line (printed and in report.md); a dry run on synthetic data says so in
+/// each ([`LaunchArgs::synthetic_data_note`]).
+fn event_line(args: &LaunchArgs, e: &TimelineEvent) -> String {
+    let line = format!("{:>8.3} s  {:<20} {}", e.t_s, e.kind, e.detail);
+    match args.synthetic_data_note() {
+        Some(note) => format!("{line}  {note}"),
+        None => line,
+    }
 }
 
 /// One run's folder, world files and service prefix.
@@ -207,7 +214,11 @@ fn run_scenario(
         world: &world,
         started,
         sup: &mut sup,
-        notes: Vec::new(),
+        notes: args
+            .synthetic_data_note()
+            .map(str::to_owned)
+            .into_iter()
+            .collect(),
         extra_events: Vec::new(),
         last_status_s: f64::NEG_INFINITY,
         collisions_seen: 0,
@@ -290,7 +301,7 @@ impl Watch<'_> {
             printed = director.events().len();
             new.append(&mut self.extra_events);
             for e in &new {
-                print_event(e);
+                println!("{}", event_line(self.args, e));
                 let _ = writeln!(timeline, "{}", serde_json::to_string(e).unwrap_or_default());
             }
             if director.is_done() || self.blind_collided {
@@ -555,7 +566,7 @@ fn write_report(
     let timeline: Vec<String> = director
         .events()
         .iter()
-        .map(|e| format!("{:>8.3} s  {:<20} {}", e.t_s, e.kind, e.detail))
+        .map(|e| event_line(args, e))
         .collect();
     report::write_markdown(
         &run.path.join("report.md"),

@@ -37,8 +37,9 @@ fn s(p: &Path) -> String {
 /// current.
 ///
 /// # Errors
-/// Blind mode with a robot off this machine ([`LaunchArgs::check_blind_mode`]; nothing is
-/// started), a process cannot be started, or `xarm-sim` does not come up within 15 s.
+/// Blind mode with a robot off this machine ([`LaunchArgs::check_blind_mode`]), a robot
+/// off this machine without a live camera and an explicit calibration
+/// ([`LaunchArgs::check_real_arm_sensors`]; nothing is started either), a process cannot be started, or `xarm-sim` does not come up within 15 s.
 pub fn start_all(
     sup: &mut Supervisor,
     args: &LaunchArgs,
@@ -47,6 +48,7 @@ pub fn start_all(
     live: &Path,
 ) -> Result<Started> {
     args.check_blind_mode()?;
+    args.check_real_arm_sensors()?;
     args.check_learner_host()?;
     // Before anything starts: a `--detector yolo` without its model is refused here, not
     // discovered as a perception process that keeps failing.
