@@ -155,6 +155,10 @@ pub mod bounds {
     pub const SDK_MAX_JOINT_JERK_RAD_S3: f64 = 500.0;
     /// Largest cycle rate on the xArm link, Hz (the controller's servo-mode maximum).
     pub const XARM_MAX_RATE_HZ: f64 = 250.0;
+    /// Smallest cycle rate on the xArm link, Hz: the controller executes each servo target
+    /// within its own period (4 ms), so a slower stream sends larger jumps per target, and
+    /// the cycle's one-step bound (a period's motion at the speed limits) grows with it.
+    pub const XARM_MIN_RATE_HZ: f64 = 100.0;
     /// Largest detection age, s: older, a dead perception would leave the arm moving on a
     /// scene that may have changed.
     pub const MAX_DETECTION_AGE_S: f64 = 1.0;
@@ -418,7 +422,8 @@ impl RuntimeConfig {
     }
 
     /// Checks the parts that depend on the link: the xArm controller takes at most one
-    /// servo target per 4 ms.
+    /// servo target per 4 ms, and at least one per 10 ms
+    /// ([`bounds::XARM_MIN_RATE_HZ`]..=[`bounds::XARM_MAX_RATE_HZ`]).
     ///
     /// # Errors
     /// [`RuntimeConfigError::Invalid`] naming `rate_hz`.
@@ -427,6 +432,13 @@ impl RuntimeConfig {
             return Err(RuntimeConfigError::Invalid {
                 field: "rate_hz",
                 why: "must be at most 250 Hz on the xArm link (the controller's servo-mode maximum)",
+            });
+        }
+        if !(self.rate_hz >= bounds::XARM_MIN_RATE_HZ) {
+            return Err(RuntimeConfigError::Invalid {
+                field: "rate_hz",
+                why: "must be at least 100 Hz on the xArm link (a slower servo stream sends \
+                      larger jumps per target)",
             });
         }
         Ok(())
@@ -596,6 +608,21 @@ mod tests {
             Err(RuntimeConfigError::Invalid { field, .. }) => assert_eq!(field, "rate_hz"),
             other => panic!("expected Invalid(rate_hz), got {other:?}"),
         }
+        // Issue 25 item 13: and at least 100 Hz (1 Hz passed the general 1..=1000 bound).
+        for slow in ["1.0", "50.0", "99.9"] {
+            let cfg = RuntimeConfig::from_toml(&with_value("rate_hz", slow)).unwrap();
+            match cfg.check_for_xarm_link() {
+                Err(e @ RuntimeConfigError::Invalid { field, .. }) => {
+                    assert_eq!(field, "rate_hz");
+                    assert!(e.to_string().contains("at least 100 Hz"), "{e}");
+                }
+                other => panic!("rate_hz = {slow}: expected Invalid(rate_hz), got {other:?}"),
+            }
+        }
+        RuntimeConfig::from_toml(&with_value("rate_hz", "100.0"))
+            .unwrap()
+            .check_for_xarm_link()
+            .unwrap();
         RuntimeConfig::xarm5_default()
             .check_for_xarm_link()
             .unwrap();
