@@ -434,7 +434,7 @@ impl RuntimeConfig {
                 why: "must be at most 250 Hz on the xArm link (the controller's servo-mode maximum)",
             });
         }
-        if !(self.rate_hz >= bounds::XARM_MIN_RATE_HZ) {
+        if self.rate_hz < bounds::XARM_MIN_RATE_HZ {
             return Err(RuntimeConfigError::Invalid {
                 field: "rate_hz",
                 why: "must be at least 100 Hz on the xArm link (a slower servo stream sends \
