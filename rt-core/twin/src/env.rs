@@ -250,9 +250,18 @@ impl TwinEnv {
 
     /// Starts an episode in `scene` from the configured start posture.
     pub fn reset(&mut self, scene: &Scene) -> [f32; OBS_DIM] {
+        let start = self.cfg.start.joints_rad;
+        self.reset_from(scene, &start)
+    }
+
+    /// Starts an episode in `scene` from the posture `joints` (clamped into the limits)
+    /// instead of the configured start: e.g. a posture along a planned path, for episodes
+    /// that begin part of the way to the goal (a reverse curriculum). Otherwise as
+    /// [`TwinEnv::reset`] (step count 0, TCP at rest).
+    pub fn reset_from(&mut self, scene: &Scene, joints: &Joints) -> [f32; OBS_DIM] {
         self.scene.clone_from(scene);
         self.target_m = self.scene.goal_target_m(self.cfg.success.goal_hover_m);
-        self.q = self.cfg.start.joints_rad;
+        self.q = *joints;
         self.model.limits().clamp(&mut self.q);
         self.model.fk_into(&self.q, &mut self.poses);
         self.tcp_vel_m_s = Vector3::zeros();

@@ -350,6 +350,16 @@ impl Feasibility {
         matches!(self, Self::Feasible { .. })
     }
 
+    /// The planner's collision-free joint path from the start to a safe goal posture, when
+    /// feasible: the demonstration the learner's retraining starts from
+    /// (`learner::demonstrations`).
+    pub fn path(&self) -> Option<&[Joints]> {
+        match self {
+            Self::Feasible { path, .. } => Some(path),
+            Self::Infeasible(_) => None,
+        }
+    }
+
     /// The reason, when infeasible.
     pub fn reason(&self) -> Option<&InfeasibleReason> {
         match self {
