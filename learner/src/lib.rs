@@ -17,7 +17,9 @@
 //!   [`checkpoint`]: atomic one-file checkpoints; [`metrics`]: `metrics.csv` and the
 //!   `reward.svg` curve, drawn by [`chart`];
 //! - [`export`]: checkpoint → `PolicyBlob` and the blob file format;
-//! - [`service`]: the iceoryx2 retraining service behind `learner serve`.
+//! - [`service`]: the iceoryx2 retraining service behind `learner serve`;
+//!   [`demonstrations`]: the feasibility planner's path re-tracked into the task's actions
+//!   (what a retraining imitates first, [`ppo::bc`]).
 //!
 //! The `learner` binary (`main.rs`, one module per subcommand under `cli/`) is a thin layer
 //! over these modules.
@@ -32,6 +34,7 @@
 pub mod adam;
 pub mod chart;
 pub mod checkpoint;
+pub mod demonstrations;
 pub mod env;
 pub mod export;
 pub mod metrics;

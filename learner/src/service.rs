@@ -19,18 +19,24 @@ use iceoryx2::node::Node;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::ipc;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
 use shm_schemas::checksum::Fnv1a64;
 use shm_schemas::services;
 use shm_schemas::{PolicyBlob, PolicyBuildError, RetrainPhase, RetrainProgress, RetrainRequest};
-use twin::Scene;
-use twin::{Feasibility, FeasibilityConfig, InfeasibleReason, check_feasibility};
+use twin::{Feasibility, FeasibilityConfig, InfeasibleReason, Joints, check_feasibility};
+use twin::{Scene, check_goal_postures};
 
 use crate::checkpoint::{self, Checkpoint, CheckpointError};
+use crate::demonstrations::{demonstrate, retrack_noisy};
+use crate::env::Env;
 use crate::export;
+use crate::ppo::bc::{BcConfig, BcReport, BcSet, behaviour_clone, policy_pairs};
 use crate::ppo::{EvalResult, IterStats, Trainer, TrainerBuildError};
 use crate::run::{RunOptions, RunSummary, StopReason, SuccessRule, train};
 use crate::twin_env::{
-    CurriculumSampler, Jitter, RetrainSampler, TaskLoadError, TwinTask, fixed_scenes,
+    CurriculumSampler, Jitter, RetrainSampler, TaskLoadError, TwinTask, fixed_scenes, jittered,
 };
 
 /// How one retraining runs (each field is the `learner serve` / `learner retrain` flag of
@@ -67,6 +73,17 @@ pub struct RetrainSettings {
     /// the retraining converges only when the policy still solves them (no contact at all,
     /// ≥ 95 % success over the whole evaluation set), so it keeps what it knew.
     pub kept_episodes: usize,
+    /// Start from the planner's demonstrations: the feasibility planner's path re-tracked
+    /// in the twin ([`crate::demonstrations`]), cloned into the actor before PPO
+    /// ([`crate::ppo::bc`]).
+    pub demonstrations: bool,
+    /// Jittered variants of the reported scene demonstrated besides the scene itself (each
+    /// planned on its own).
+    pub demo_variants: usize,
+    /// Behaviour-cloning gradient steps.
+    pub bc_steps: usize,
+    /// The planner's settings for the demonstrations (goal-posture seeds, budget).
+    pub feasibility: FeasibilityConfig,
 }
 
 /// The set-up of `learner serve`.
@@ -190,10 +207,151 @@ fn retrain_trainer(
     Ok(trainer)
 }
 
+/// Tries per scene to find a path that re-tracks cleanly ([`demonstrate`]).
+const DEMO_TRIES: usize = 6;
+
+/// Noisy re-tracks per demonstration ([`retrack_noisy`]).
+const NOISY_REPEATS: usize = 4;
+
+/// Their action noise (std, action units).
+const NOISE_STD: f32 = 0.3;
+
+/// Seed of the jittered demonstration variants and of the cloning minibatches.
+const DEMO_SEED: u64 = 0x4445_4D4F;
+
+/// What the demonstrations and the behaviour cloning before a retraining did.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct WarmStart {
+    /// Scenes demonstrated (the reported one and its jittered variants).
+    pub scenes: usize,
+    /// Of those, scenes with a demonstration that reached the goal without contact in the
+    /// twin.
+    pub demonstrated: usize,
+    /// Whether the reported scene itself has one.
+    pub reported_scene: bool,
+    /// Planner paths re-tracked in all (the first clean one per scene ends the search).
+    pub paths_tried: usize,
+    /// Steps of the reported scene's demonstration (0 without one).
+    pub reported_steps: usize,
+    /// The cloning (absent when nothing was demonstrated).
+    pub bc: Option<BcReport>,
+    /// The cloned policy's evaluation (reported scene and kept scenes) before PPO.
+    pub after_bc: Option<EvalResult>,
+    /// Wall time of planning, re-tracking and cloning (s).
+    pub wall_s: f64,
+}
+
+/// Everything one retraining reports.
+#[derive(Debug, Clone, Serialize)]
+pub struct RetrainOutcome {
+    /// The run.
+    pub summary: RunSummary,
+    /// The base policy's evaluation (reported scene and kept scenes).
+    pub before: EvalResult,
+    /// The demonstrations and cloning, when on.
+    pub warm_start: Option<WarmStart>,
+}
+
+/// Seed of the pre-training scenes whose episodes anchor the cloning (distinct from the
+/// kept scenes' seed: the gate is not trained on).
+const ANCHOR_SEED: u64 = 0x414E_4348;
+
+/// Pre-training scenes whose base-policy episodes anchor the cloning.
+const ANCHOR_SCENES: usize = 80;
+
+/// Demonstrates `scene` (re-tracking `path` first when given) and `s.demo_variants`
+/// jittered variants of it, each with [`NOISY_REPEATS`] noisy re-tracks, then clones the
+/// demonstrations into `trainer`'s actor, anchored by the policy's own actions along its
+/// episodes on [`ANCHOR_SCENES`] pre-training scenes and on the kept scenes (the part of
+/// `eval_scenes` after the first `s.eval_episodes`: without them, 3 of the 40 kept scenes
+/// ended in contact after cloning the tall box, with them none); evaluates the result on
+/// `eval_scenes`.
+fn warm_start(
+    trainer: &mut Trainer<TwinTask>,
+    env: &TwinTask,
+    sampler: &RetrainSampler,
+    path: Option<&[Joints]>,
+    eval_scenes: &[Scene],
+    s: &RetrainSettings,
+) -> WarmStart {
+    let t0 = Instant::now();
+    let obs_dim = env.obs_dim();
+    let mut rng = ChaCha8Rng::seed_from_u64(DEMO_SEED);
+    let mut scenes = vec![sampler.scene];
+    scenes.extend((0..s.demo_variants).map(|_| jittered(&sampler.scene, sampler.jitter, &mut rng)));
+    let mut demos = BcSet::default();
+    let mut out = WarmStart {
+        scenes: scenes.len(),
+        ..Default::default()
+    };
+    for (k, sc) in scenes.iter().enumerate() {
+        let first = if k == 0 { path } else { None };
+        if k > 0
+            && check_goal_postures(&env.env, sc, s.feasibility.goal_seeds)
+                .reason
+                .is_some()
+        {
+            continue;
+        }
+        let d = demonstrate(&env.env, sc, first, s.feasibility, DEMO_TRIES, obs_dim);
+        out.paths_tried += d.paths_tried;
+        if let Some(demo) = d.demonstration {
+            out.demonstrated += 1;
+            if k == 0 {
+                out.reported_scene = true;
+                out.reported_steps = demo.steps();
+            }
+            demos.extend(&demo.obs, &demo.actions);
+            // Noise injection: the states of a slightly wrong imitator, labelled by the
+            // path expert.
+            for _ in 0..NOISY_REPEATS {
+                let mut tw = env.env.clone();
+                let d = retrack_noisy(
+                    &mut tw,
+                    sc,
+                    &demo.path,
+                    obs_dim,
+                    Some((NOISE_STD, &mut rng)),
+                );
+                demos.extend(&d.obs, &d.actions);
+            }
+        }
+    }
+    if !demos.is_empty() {
+        let norm = trainer.obs_normalizer();
+        let anchor_scenes = fixed_scenes(
+            &CurriculumSampler::pretraining(env),
+            ANCHOR_SCENES,
+            ANCHOR_SEED,
+        );
+        let mut anchors = policy_pairs(&trainer.net, &norm, env, &anchor_scenes);
+        let kept = &eval_scenes[s.eval_episodes.min(eval_scenes.len())..];
+        let kept_pairs = policy_pairs(&trainer.net, &norm, env, kept);
+        anchors.extend(&kept_pairs.obs, &kept_pairs.actions);
+        let cfg = BcConfig {
+            steps: s.bc_steps,
+            ..Default::default()
+        };
+        out.bc = Some(behaviour_clone(
+            &mut trainer.net,
+            &norm,
+            &demos,
+            &anchors,
+            &cfg,
+            &mut rng,
+        ));
+        out.after_bc = Some(trainer.evaluate(eval_scenes));
+    }
+    out.wall_s = t0.elapsed().as_secs_f64();
+    tracing::info!(warm_start = ?out, "demonstrations cloned");
+    out
+}
+
 /// Retrains `base` on `scene` (with randomisation and a share of the old distribution) into
 /// `out_dir` (best/last checkpoints, metrics, plot). `on_iter` sees every iteration with the
 /// steps taken in this retraining; returning `false` cancels. Returns the run summary and
-/// the base policy's evaluation on the reported scene.
+/// the base policy's evaluation on the reported scene. With `settings.demonstrations`, the
+/// planner's path is found here ([`retrain_with`] takes one already found).
 ///
 /// # Errors
 /// Checkpoint or configuration failures.
@@ -206,8 +364,31 @@ pub fn retrain(
     out_dir: &Path,
     eval_seed: u64,
     device: tch::Device,
-    mut on_iter: impl FnMut(&IterStats, Option<&EvalResult>) -> bool,
+    on_iter: impl FnMut(&IterStats, Option<&EvalResult>) -> bool,
 ) -> Result<(RunSummary, EvalResult), ServeError> {
+    let o = retrain_with(
+        base, env, scene, None, settings, out_dir, eval_seed, device, on_iter,
+    )?;
+    Ok((o.summary, o.before))
+}
+
+/// [`retrain`] with the feasibility check's path for the demonstrations (`None`: planned
+/// here when `settings.demonstrations` is on), reporting the warm start too.
+///
+/// # Errors
+/// Checkpoint or configuration failures.
+#[allow(clippy::too_many_arguments)]
+pub fn retrain_with(
+    base: &Checkpoint,
+    env: &TwinTask,
+    scene: Scene,
+    path: Option<&[Joints]>,
+    settings: &RetrainSettings,
+    out_dir: &Path,
+    eval_seed: u64,
+    device: tch::Device,
+    mut on_iter: impl FnMut(&IterStats, Option<&EvalResult>) -> bool,
+) -> Result<RetrainOutcome, ServeError> {
     let s = settings;
     let mut trainer = retrain_trainer(base, env, s, device)?;
     let sampler = RetrainSampler::new(env, scene, Jitter::default(), s.old_share);
@@ -218,6 +399,10 @@ pub fn retrain(
         "pre-training scenes the base policy solves, evaluated with the reported scene"
     );
     eval_scenes.extend(kept);
+    let before = trainer.evaluate(&eval_scenes);
+    let warm = s
+        .demonstrations
+        .then(|| warm_start(&mut trainer, env, &sampler, path, &eval_scenes, s));
     let _ = std::fs::remove_dir_all(out_dir);
     let opts = RunOptions {
         out_dir: out_dir.to_path_buf(),
@@ -232,7 +417,6 @@ pub fn retrain(
         lr_schedule: None,
     };
     let start_steps = trainer.steps;
-    let before = trainer.evaluate(&eval_scenes);
     tracing::info!(
         success = before.success_rate,
         collision = before.collision_rate,
@@ -247,7 +431,11 @@ pub fn retrain(
         sampler.set_height_lo(s.height_start + (1.0 - s.height_start) * f);
         on_iter(&st, e)
     })?;
-    Ok((sum, before))
+    Ok(RetrainOutcome {
+        summary: sum,
+        before,
+        warm_start: warm,
+    })
 }
 
 /// Seed of the kept scenes (distinct from the training and evaluation streams).
@@ -468,10 +656,11 @@ impl<'a> Server<'a> {
         let out_dir = self.out_root.join(format!("request-{}", req.request_id));
         let mut newer: Option<RetrainRequest> = None;
         let mut stop_requested = false;
-        let res = retrain(
+        let res = retrain_with(
             &base,
             &self.env,
             scene,
+            verdict.path(),
             &self.settings,
             &out_dir,
             req.request_id,
@@ -479,7 +668,7 @@ impl<'a> Server<'a> {
             |st, eval| self.on_iter(req, st, eval, t0, &mut newer, &mut stop_requested),
         );
         let (sum, before) = match res {
-            Ok(s) => s,
+            Ok(o) => (o.summary, o.before),
             Err(e) => {
                 tracing::error!(request = req.request_id, "retraining failed: {e}");
                 return Ok(Handled::Skipped);
@@ -604,8 +793,83 @@ mod tests {
     use super::*;
     use crate::checkpoint::{CheckpointMeta, FORMAT, StatsState};
     use crate::net::NetSpec;
+    use crate::normalize::ObsNormalizer;
     use crate::ppo::PpoConfig;
     use crate::random::RngState;
+
+    fn assets() -> std::path::PathBuf {
+        std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets")
+    }
+
+    /// The `learner serve` defaults (`cli/serve.rs`), with a step budget for tests.
+    fn settings(demonstrations: bool, max_steps: u64) -> RetrainSettings {
+        RetrainSettings {
+            max_steps,
+            time_budget_s: 600.0,
+            eval_every: 8_192,
+            eval_episodes: 20,
+            eval_jitter: 0.0,
+            old_share: 0.5,
+            explore_std: 0.5,
+            freeze_stats: false,
+            batch: 0,
+            lr: 0.0,
+            ent_coef: 0.01,
+            height_start: 0.3,
+            workers: 0,
+            kept_episodes: 40,
+            demonstrations,
+            demo_variants: 4,
+            bc_steps: 300,
+            feasibility: FeasibilityConfig::default(),
+        }
+    }
+
+    #[test]
+    fn retraining_from_demonstrations_learns_the_tall_box_the_base_policy_fails() {
+        tch::set_num_threads(1);
+        let env = TwinTask::load(&assets().join("task.toml"), None).expect("task");
+        let base = Checkpoint::load(&assets().join("policy/best.ckpt")).expect("base");
+        let file = shm_schemas::scene_file::SceneFile::load(&assets().join("scenes/tall_box.toml"))
+            .expect("scene file");
+        let scene = Scene::from_file(&file).expect("scene");
+        let one = std::slice::from_ref(&scene);
+        let zero_shot = crate::ppo::evaluate(
+            &base.network(tch::Device::Cpu).expect("net"),
+            &ObsNormalizer::from_stats(&base.meta.obs_rms.to_rms(), base.meta.ppo.clip_obs),
+            &env,
+            one,
+            1,
+        );
+        assert_eq!(
+            zero_shot.success_rate, 0.0,
+            "the base policy solves it already"
+        );
+        let dir = std::env::temp_dir().join(format!("learner-demo-retrain-{}", std::process::id()));
+        let o = retrain_with(
+            &base,
+            &env,
+            scene,
+            None,
+            &settings(true, 200_000),
+            &dir,
+            1,
+            tch::Device::Cpu,
+            |_, _| true,
+        )
+        .expect("retraining");
+        let warm = o.warm_start.expect("warm start");
+        assert!(warm.reported_scene, "{warm:?}");
+        let bc = warm.bc.expect("cloned");
+        assert!(bc.demo_loss_after < bc.demo_loss_before, "{bc:?}");
+        assert_eq!(o.summary.stop, StopReason::Converged, "{:?}", o.summary);
+        let best = Checkpoint::load(&dir.join(checkpoint::BEST)).expect("best");
+        let norm = ObsNormalizer::from_stats(&best.meta.obs_rms.to_rms(), best.meta.ppo.clip_obs);
+        let net = best.network(tch::Device::Cpu).expect("net");
+        let exact = crate::ppo::evaluate(&net, &norm, &env, one, 1);
+        assert_eq!((exact.success_rate, exact.collision_rate), (1.0, 0.0));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn an_exhausted_budget_switches_the_height_curriculum_and_a_success_restores_it() {

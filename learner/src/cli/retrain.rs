@@ -1,15 +1,18 @@
-//! `learner retrain`: one retraining on a scene file, offline (what `serve` does for one
-//! request), then the best checkpoint evaluated on the exact scene and on the fixed
-//! pre-training scenes (the task's `[world]`); prints a JSON summary.
+//! `learner retrain`: one retraining on a scene file (or one world of the unseen-worlds
+//! benchmark's generator), offline (what `serve` does for one request), then the best
+//! checkpoint evaluated on the exact scene and on the fixed pre-training scenes (the task's
+//! `[world]`); prints a JSON summary.
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use learner::checkpoint::{self, Checkpoint};
 use learner::normalize::ObsNormalizer;
 use learner::ppo::evaluate;
 use learner::service;
 use learner::twin_env::{CurriculumSampler, TwinTask, fixed_scenes};
+use rand::SeedableRng;
+use twin::{Feasibility, Scene, check_feasibility};
 
 use super::serve::ServeArgs;
 use super::{EVAL_SEED, load_scene};
@@ -17,19 +20,46 @@ use super::{EVAL_SEED, load_scene};
 /// Arguments of `learner retrain`.
 #[derive(clap::Args)]
 pub struct RetrainArgs {
-    /// The failed scene.
+    /// The failed scene (or `--world-index`).
+    #[arg(
+        long,
+        required_unless_present = "world_index",
+        conflicts_with = "world_index"
+    )]
+    scene: Option<PathBuf>,
+    /// Instead of `--scene`: world number N (0-based) of the worlds `learner worlds --seed S`
+    /// draws (the task's `[world]` generator), e.g. `--world-index 34 --world-seed 7`.
     #[arg(long)]
-    scene: PathBuf,
+    world_index: Option<usize>,
+    /// The generator seed of `--world-index`.
+    #[arg(long, default_value_t = 7)]
+    world_seed: u64,
     #[command(flatten)]
     args: ServeArgs,
+}
+
+/// World `index` of the `[world]` generator with `seed` (as `learner worlds` draws them).
+fn benchmark_world(env: &TwinTask, seed: u64, index: usize) -> Scene {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut scene = env.env.sample_world(&mut rng);
+    for _ in 0..index {
+        scene = env.env.sample_world(&mut rng);
+    }
+    scene
 }
 
 /// Runs `learner retrain`.
 ///
 /// # Errors
-/// Task, scene, checkpoint or training failures.
+/// Task, scene, checkpoint or training failures, and an infeasible scene.
 pub fn run(args: RetrainArgs, device: tch::Device) -> Result<()> {
-    let RetrainArgs { scene, args } = args;
+    let RetrainArgs {
+        scene,
+        world_index,
+        world_seed,
+        args,
+    } = args;
+    args.check()?;
     tch::set_num_threads(1);
     let env = TwinTask::load(&args.task, None)?;
     let base = Checkpoint::load(&args.checkpoint)?;
@@ -37,18 +67,47 @@ pub fn run(args: RetrainArgs, device: tch::Device) -> Result<()> {
         .out
         .clone()
         .unwrap_or_else(|| checkpoint::resolve(&args.checkpoint).with_file_name("retrain"));
-    let scene = load_scene(&scene)?;
-    let (sum, before) = service::retrain(
+    let scene = match (scene, world_index) {
+        (Some(path), _) => load_scene(&path)?,
+        (None, Some(i)) => {
+            if env.env.config().world.is_none() {
+                anyhow::bail!(
+                    "--world-index: {} has no [world] section to draw worlds from",
+                    args.task.display()
+                );
+            }
+            benchmark_world(&env, world_seed, i)
+        }
+        (None, None) => anyhow::bail!("give --scene or --world-index"),
+    };
+    // As the service does: the feasibility check first; its path seeds the demonstrations.
+    let t0 = std::time::Instant::now();
+    let verdict = check_feasibility(
+        &env.env,
+        &scene,
+        &env.env.config().start.joints_rad,
+        args.feasibility(),
+    );
+    let feasibility_s = t0.elapsed().as_secs_f64();
+    if let Feasibility::Infeasible(reason) = &verdict {
+        anyhow::bail!(
+            "infeasible scene: {} (checked in {feasibility_s:.2} s); not training",
+            reason.display_with(&scene.obstacles)
+        );
+    }
+    let outcome = service::retrain_with(
         &base,
         &env,
         scene,
+        verdict.path(),
         &args.settings(),
         &out,
         1,
         device,
         |_, _| true,
     )?;
-    let best = Checkpoint::load(&out.join(checkpoint::BEST))?;
+    let best = Checkpoint::load(&out.join(checkpoint::BEST))
+        .with_context(|| format!("best checkpoint in {}", out.display()))?;
     let norm = ObsNormalizer::from_stats(&best.meta.obs_rms.to_rms(), best.meta.ppo.clip_obs);
     let exact = evaluate(&best.network(device)?, &norm, &env, &[scene], 1);
     let old = evaluate(
@@ -60,7 +119,7 @@ pub fn run(args: RetrainArgs, device: tch::Device) -> Result<()> {
     );
     println!(
         "{}",
-        serde_json::json!({"summary": sum, "before": before, "best": best.meta.eval, "exact_scene": exact, "pretraining_scenes": old, "best_steps": best.meta.steps - base.meta.steps, "out": out})
+        serde_json::json!({"summary": outcome.summary, "before": outcome.before, "warm_start": outcome.warm_start, "feasibility_s": feasibility_s, "best": best.meta.eval, "exact_scene": exact, "pretraining_scenes": old, "best_steps": best.meta.steps - base.meta.steps, "out": out})
     );
     Ok(())
 }

@@ -90,6 +90,29 @@ pub struct ServeArgs {
     /// as infeasible ("no collision-free path found").
     #[arg(long, default_value_t = 20.0, value_parser = shm_schemas::cli_bounds::f64_within(0.001, 600.0), allow_negative_numbers = true)]
     pub planner_budget_s: f64,
+    /// Start each retraining from the planner's demonstrations: the feasibility check's
+    /// collision-free path re-tracked in the twin with the task's Cartesian actions, cloned
+    /// into the actor (anchored by the policy's own actions on pre-training scenes it
+    /// solves) before PPO fine-tunes it (`off`: PPO from the base policy alone, as before).
+    #[arg(long, value_enum, default_value_t = OnOff::On)]
+    pub demonstrations: OnOff,
+    /// Jittered variants of the reported scene (±2 cm, ±10 %) demonstrated besides the
+    /// scene itself, each planned on its own.
+    #[arg(long, default_value_t = 4)]
+    pub demo_variants: usize,
+    /// Behaviour-cloning gradient steps (minibatches of 256, half demonstrations, half the
+    /// policy's own actions on pre-training scenes).
+    #[arg(long, default_value_t = 300)]
+    pub bc_steps: usize,
+}
+
+/// A switch flag's value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum OnOff {
+    /// On.
+    On,
+    /// Off.
+    Off,
 }
 
 impl ServeArgs {
@@ -110,6 +133,10 @@ impl ServeArgs {
             height_start: self.height_start,
             workers: self.workers,
             kept_episodes: self.kept_episodes,
+            demonstrations: self.demonstrations == OnOff::On,
+            demo_variants: self.demo_variants,
+            bc_steps: self.bc_steps,
+            feasibility: self.feasibility(),
         }
     }
 
@@ -139,6 +166,15 @@ impl ServeArgs {
                 "--planner-budget-s must be in (0, 600] s (got {})",
                 self.planner_budget_s
             );
+        }
+        if self.demo_variants > 64 {
+            anyhow::bail!(
+                "--demo-variants must be at most 64 (got {})",
+                self.demo_variants
+            );
+        }
+        if self.bc_steps > 100_000 {
+            anyhow::bail!("--bc-steps must be at most 100000 (got {})", self.bc_steps);
         }
         Ok(())
     }

@@ -10,7 +10,8 @@
 //!   scaling, truncation bootstrap) and [`EpisodeStat`];
 //! - `trainer`: [`Trainer`] — start reading here: [`Trainer::iterate`] is one rollout plus
 //!   one update;
-//! - `evaluation`: deterministic episodes, [`evaluate`], [`successes`] and [`EvalResult`].
+//! - `evaluation`: deterministic episodes, [`evaluate`], [`successes`] and [`EvalResult`];
+//! - [`bc`]: behaviour cloning of the actor (the warm start from demonstrations).
 //!
 //! # Threads
 //! The environments are split into `workers` chunks; each rollout runs every chunk for the
@@ -24,6 +25,7 @@
 //! bit-reproducible. Changing `workers` changes the batch shapes of the forward passes and
 //! hence float rounding; on CUDA, kernels are not bit-reproducible.
 
+pub mod bc;
 mod config;
 mod evaluation;
 mod gae;
