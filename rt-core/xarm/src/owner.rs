@@ -7,11 +7,29 @@
 //! file, so it dies with the process whatever the way out (a crash, `kill -9`), and a stale
 //! lock cannot exist. The file itself stays; only the lock on it counts.
 //!
-//! Where: `$FORESIGHT_LOCK_DIR` if set, else `/tmp/foresight-arm-locks` (one folder for the
-//! whole machine, sticky and writable by all like `/tmp`, so two users cannot both drive one
-//! arm). Name: `xarm-<ip>-<port>.lock` from the first address the name resolves to (the one
-//! the driver connects to), so `localhost` and `127.0.0.1` are the same arm. The lock cannot
-//! see a process on *another* machine driving the same controller.
+//! Where: `$FORESIGHT_LOCK_DIR` if set, else the machine's own lock folder, `/run/lock`
+//! (or `/tmp` where there is none): a folder owned by root, sticky and writable by all, so
+//! two users of one machine lock the same file and cannot both drive one arm, and neither
+//! can remove the other's lock file. The files lie directly in it (`foresight-xarm-…`); no
+//! sub-folder that another user could have made first. Every folder is checked before use
+//! ([`check_lock_folder`]): it and each folder above it must be a real folder (no symbolic
+//! link), owned by root or by this user, and sticky if others may write to it; otherwise
+//! the lock is refused ([`ArmLockError::InsecureFolder`], naming the folder and why), since
+//! another user could remove or replace the lock file under a running owner.
+//!
+//! Name: the *canonical* controller address ([`canonical_addr`]), so every spelling of one
+//! arm is one lock: the name is resolved (trailing dots and case ignored) to the first
+//! address (the one the driver connects to), an IPv4-mapped IPv6 address is the IPv4 one
+//! (`::ffff:127.0.0.1` is `127.0.0.1`), and every loopback address (127.0.0.0/8, `::1`) is
+//! `127.0.0.1` (a simulator listening on all addresses answers on each of them).
+//!
+//! Limits: the lock is this machine's. It cannot see a process on *another* machine driving
+//! the same controller, nor one in another container or network namespace with its own
+//! `/run/lock` and `/tmp` (share the folder into every container that may drive the arm, or
+//! point `FORESIGHT_LOCK_DIR` at a shared one), nor one that reaches the controller through
+//! another address of it (a second network interface, a NAT). On NFS `flock` is emulated
+//! with POSIX locks on the server (Linux ≥ 2.6.12) and is only as good as the server's lock
+//! manager: keep the lock folder on a local file system.
 //!
 //! The holder writes one fixed-size record (pid, since, address, command line) at offset 0
 //! in a single write, closed by an end line that repeats the pid; a reader that catches a
@@ -28,8 +46,8 @@
 use std::fmt;
 use std::fs::{File, OpenOptions, TryLockError};
 use std::io::ErrorKind;
-use std::net::{SocketAddr, ToSocketAddrs};
-use std::os::unix::fs::{DirBuilderExt, FileExt, OpenOptionsExt, PermissionsExt};
+use std::net::{IpAddr, Ipv4Addr, SocketAddr, ToSocketAddrs};
+use std::os::unix::fs::{DirBuilderExt, FileExt, MetadataExt, OpenOptionsExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -38,8 +56,11 @@ use crate::config::XArmConfig;
 /// Environment variable naming the lock folder (default [`DEFAULT_LOCK_DIR`]).
 pub const LOCK_DIR_ENV: &str = "FORESIGHT_LOCK_DIR";
 
-/// The machine-wide lock folder.
-pub const DEFAULT_LOCK_DIR: &str = "/tmp/foresight-arm-locks";
+/// The machine-wide lock folders, in order of preference: the first that exists is used.
+pub const DEFAULT_LOCK_DIRS: [&str; 2] = ["/run/lock", "/tmp"];
+
+/// Prefix of the lock files' names.
+const LOCK_FILE_PREFIX: &str = "foresight-xarm-";
 
 /// Size of the holder record (bytes); the command line is cut to fit.
 const RECORD_LEN: usize = 1024;
@@ -91,6 +112,19 @@ pub enum ArmLockError {
         /// Why.
         kind: ErrorKind,
     },
+    /// The lock folder (or one above it) could let another user remove or replace the lock
+    /// file under a running owner.
+    #[error(
+        "refusing the lock folder {}: {why}; use a folder owned by root or by this user, \
+         not writable by others unless sticky (like /tmp), e.g. FORESIGHT_LOCK_DIR=/run/lock",
+        .path.display()
+    )]
+    InsecureFolder {
+        /// The folder.
+        path: PathBuf,
+        /// Why.
+        why: InsecureFolderWhy,
+    },
     /// Another process holds the arm.
     #[error(
         "the xArm at {addr} is already commanded by {}: one process drives an arm at a \
@@ -108,6 +142,32 @@ pub enum ArmLockError {
     },
 }
 
+/// Why a lock folder is refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum InsecureFolderWhy {
+    /// A symbolic link (it could be pointed elsewhere).
+    #[error("it is a symbolic link")]
+    SymbolicLink,
+    /// Not a folder.
+    #[error("it is not a folder")]
+    NotAFolder,
+    /// Owned by another user (who may remove anything in it).
+    #[error("it is owned by another user (uid {owner_uid})")]
+    OtherOwner {
+        /// The owner.
+        owner_uid: u32,
+    },
+    /// Writable by others without the sticky bit (anyone may remove the lock file).
+    #[error("it is writable by others without the sticky bit (mode {mode:o})")]
+    WritableNotSticky {
+        /// The folder's permission bits.
+        mode: u32,
+    },
+    /// The lock file is not a regular file.
+    #[error("the lock file is not a regular file")]
+    NotAFile,
+}
+
 /// The exclusive right to command one arm; released when dropped or when the process ends
 /// (however it ends).
 #[derive(Debug)]
@@ -120,16 +180,15 @@ pub struct ArmLock {
 
 impl ArmLock {
     /// Takes the lock of the controller at `cfg.host:cfg.command_port` in the lock folder
-    /// (`$FORESIGHT_LOCK_DIR` or [`DEFAULT_LOCK_DIR`]). Does not connect to the controller
-    /// (the name is resolved, nothing is sent) and does not block.
+    /// ([`lock_dir`]). Does not connect to the controller (the name is resolved, nothing is
+    /// sent) and does not block.
     ///
     /// # Errors
-    /// [`ArmLockError::Held`] naming the holder when another process has it; the others
-    /// when the name does not resolve or the file cannot be opened.
+    /// [`ArmLockError::Held`] naming the holder when another process has it;
+    /// [`ArmLockError::InsecureFolder`]; the others when the name does not resolve or the
+    /// file cannot be opened.
     pub fn acquire(cfg: &XArmConfig) -> Result<Self, ArmLockError> {
-        let dir = std::env::var_os(LOCK_DIR_ENV)
-            .map_or_else(|| PathBuf::from(DEFAULT_LOCK_DIR), PathBuf::from);
-        Self::acquire_in(&dir, cfg)
+        Self::acquire_in(&lock_dir(), cfg)
     }
 
     /// [`ArmLock::acquire`] in the folder `dir`.
@@ -137,9 +196,10 @@ impl ArmLock {
     /// # Errors
     /// As [`ArmLock::acquire`].
     pub fn acquire_in(dir: &Path, cfg: &XArmConfig) -> Result<Self, ArmLockError> {
-        let addr = resolve(cfg)?;
+        let addr = canonical_addr(&cfg.host, cfg.command_port)?;
         let path = dir.join(lock_file_name(addr));
         make_dir(dir)?;
+        check_lock_folder(dir)?;
         let file = open(&path)?;
         match file.try_lock() {
             Ok(()) => {}
@@ -153,6 +213,18 @@ impl ArmLock {
                     kind: e.kind(),
                 });
             }
+        }
+        // The file locked must still be the one the path names (not removed or replaced
+        // between the open and the lock).
+        let same = std::fs::symlink_metadata(&path)
+            .ok()
+            .zip(file.metadata().ok())
+            .is_some_and(|(p, f)| p.dev() == f.dev() && p.ino() == f.ino());
+        if !same {
+            return Err(ArmLockError::Io {
+                path,
+                kind: ErrorKind::NotFound,
+            });
         }
         let holder = LockHolder {
             pid: std::process::id(),
@@ -186,25 +258,245 @@ impl ArmLock {
     }
 }
 
-fn resolve(cfg: &XArmConfig) -> Result<SocketAddr, ArmLockError> {
+/// Why the owner of an arm could not be named.
+#[derive(Debug, thiserror::Error)]
+pub enum ArmOwnerError {
+    /// The controller's name does not resolve.
+    #[error(transparent)]
+    Lock(#[from] ArmLockError),
+    /// No process holds the arm's lock.
+    #[error("no process owns the xArm at {addr} (its lock {} is free)", .path.display())]
+    NotHeld {
+        /// The controller's canonical address.
+        addr: SocketAddr,
+        /// The lock file.
+        path: PathBuf,
+    },
+    /// The lock is held, but the holder cannot be named for sure (no readable record that
+    /// the kernel's lock table confirms).
+    #[error(
+        "the xArm at {addr} is owned, but its owner cannot be named for sure (lock {}; \
+         the kernel's lock table does not confirm the record)",
+        .path.display()
+    )]
+    Unconfirmed {
+        /// The controller's canonical address.
+        addr: SocketAddr,
+        /// The lock file.
+        path: PathBuf,
+    },
+}
+
+/// The process that owns the arm at `cfg` now, from the lock folder ([`lock_dir`]): the
+/// lock must be held, and its holder is the pid the kernel's lock table (`/proc/locks`)
+/// gives for the lock file (the record's pid must agree when it is readable). For the
+/// operator's acknowledgement, which must reach that process and no other.
+///
+/// # Errors
+/// [`ArmOwnerError`].
+pub fn owner_of(cfg: &XArmConfig) -> Result<LockHolder, ArmOwnerError> {
+    owner_in(&lock_dir(), cfg)
+}
+
+/// [`owner_of`] in the folder `dir`.
+///
+/// # Errors
+/// As [`owner_of`].
+pub fn owner_in(dir: &Path, cfg: &XArmConfig) -> Result<LockHolder, ArmOwnerError> {
+    let addr = canonical_addr(&cfg.host, cfg.command_port)?;
+    let path = dir.join(lock_file_name(addr));
+    let not_held = || ArmOwnerError::NotHeld {
+        addr,
+        path: path.clone(),
+    };
+    let file = match OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
+        .open(&path)
+    {
+        Ok(f) => f,
+        Err(e) if e.kind() == ErrorKind::NotFound => return Err(not_held()),
+        Err(e) => {
+            return Err(ArmLockError::Io {
+                path,
+                kind: e.kind(),
+            }
+            .into());
+        }
+    };
+    match file.try_lock_shared() {
+        Ok(()) => return Err(not_held()),
+        Err(TryLockError::WouldBlock) => {}
+        Err(TryLockError::Error(e)) => {
+            return Err(ArmLockError::Io {
+                path,
+                kind: e.kind(),
+            }
+            .into());
+        }
+    }
+    let unconfirmed = || ArmOwnerError::Unconfirmed {
+        addr,
+        path: path.clone(),
+    };
+    let ino = file.metadata().map_err(|_| unconfirmed())?.ino();
+    let table = std::fs::read_to_string("/proc/locks").map_err(|_| unconfirmed())?;
+    let pid = flock_holder(&table, ino).ok_or_else(unconfirmed)?;
+    match read_holder(&file) {
+        Some(h) if h.pid == pid => Ok(h),
+        Some(_) => Err(unconfirmed()),
+        None => Ok(LockHolder {
+            pid,
+            since_unix_s: 0,
+            addr: addr.to_string(),
+            command_line: String::new(),
+        }),
+    }
+}
+
+/// The pid holding an exclusive `flock` on inode `ino` in a `/proc/locks` table.
+fn flock_holder(table: &str, ino: u64) -> Option<u32> {
+    table.lines().find_map(|line| {
+        // `1: FLOCK  ADVISORY  WRITE 1234 08:01:5678 0 EOF`; waiters read `1: -> FLOCK …`.
+        let f: Vec<&str> = line.split_whitespace().collect();
+        match f.as_slice() {
+            [_, "FLOCK", _, "WRITE", pid, dev, ..]
+                if dev.rsplit(':').next()?.parse::<u64>().ok()? == ino =>
+            {
+                pid.parse().ok()
+            }
+            _ => None,
+        }
+    })
+}
+
+/// The lock folder: `$FORESIGHT_LOCK_DIR` if set, else the first of [`DEFAULT_LOCK_DIRS`]
+/// that exists.
+pub fn lock_dir() -> PathBuf {
+    if let Some(d) = std::env::var_os(LOCK_DIR_ENV) {
+        return PathBuf::from(d);
+    }
+    DEFAULT_LOCK_DIRS
+        .iter()
+        .map(PathBuf::from)
+        .find(|d| d.is_dir())
+        .unwrap_or_else(|| PathBuf::from("/tmp"))
+}
+
+/// The canonical address of the controller at `host:port`, the key of its lock: the name
+/// (trailing dots and case ignored) resolved to its first address, an IPv4-mapped IPv6
+/// address as IPv4, every loopback address as `127.0.0.1`. Resolves the name; sends nothing.
+///
+/// # Errors
+/// [`ArmLockError::Resolve`] when the name does not resolve.
+pub fn canonical_addr(host: &str, port: u16) -> Result<SocketAddr, ArmLockError> {
+    canonical_addr_with(host, port, |h, p| {
+        (h, p).to_socket_addrs().map(Iterator::collect)
+    })
+}
+
+/// [`canonical_addr`] with the name resolution injected (`resolve(host, port)`, called with
+/// the cleaned name; an IP literal is not resolved), for tests.
+///
+/// # Errors
+/// As [`canonical_addr`].
+pub fn canonical_addr_with<R>(host: &str, port: u16, resolve: R) -> Result<SocketAddr, ArmLockError>
+where
+    R: FnOnce(&str, u16) -> std::io::Result<Vec<SocketAddr>>,
+{
     let err = |kind| ArmLockError::Resolve {
-        addr: format!("{}:{}", cfg.host, cfg.command_port),
+        addr: format!("{host}:{port}"),
         kind,
     };
-    (cfg.host.as_str(), cfg.command_port)
-        .to_socket_addrs()
-        .map_err(|e| err(e.kind()))?
-        .next()
-        .ok_or_else(|| err(ErrorKind::NotFound))
+    let bare = host.trim_start_matches('[').trim_end_matches(']');
+    let bare = bare.split('%').next().unwrap_or(bare);
+    let first = match bare.parse::<IpAddr>() {
+        Ok(ip) => ip,
+        Err(_) => {
+            let name = host.trim_end_matches('.').to_ascii_lowercase();
+            if name.is_empty() {
+                return Err(err(ErrorKind::InvalidInput));
+            }
+            resolve(&name, port)
+                .map_err(|e| err(e.kind()))?
+                .first()
+                .map(SocketAddr::ip)
+                .ok_or_else(|| err(ErrorKind::NotFound))?
+        }
+    };
+    let ip = match first.to_canonical() {
+        ip if ip.is_loopback() => IpAddr::V4(Ipv4Addr::LOCALHOST),
+        ip => ip,
+    };
+    Ok(SocketAddr::new(ip, port))
 }
 
-/// `xarm-<ip>-<port>.lock`, the IPv6 colons as underscores.
+/// `foresight-xarm-<ip>-<port>.lock`, the IPv6 colons as underscores.
 fn lock_file_name(addr: SocketAddr) -> String {
-    format!("xarm-{}-{}.lock", addr.ip(), addr.port()).replace(':', "_")
+    format!("{LOCK_FILE_PREFIX}{}-{}.lock", addr.ip(), addr.port()).replace(':', "_")
 }
 
+/// The effective user id of this process.
+fn effective_uid() -> u32 {
+    // SAFETY: geteuid(2) takes no argument, touches no memory of ours and cannot fail.
+    unsafe { libc::geteuid() }
+}
+
+/// Checks that `dir` and every folder above it cannot be used by another user to remove or
+/// replace a lock file: each is a real folder (not a symbolic link), owned by root or by
+/// this user, and sticky when others may write to it.
+///
+/// # Errors
+/// [`ArmLockError::InsecureFolder`] naming the first folder that fails and why;
+/// [`ArmLockError::Io`] when one cannot be read.
+pub fn check_lock_folder(dir: &Path) -> Result<(), ArmLockError> {
+    check_lock_folder_as(dir, effective_uid())
+}
+
+/// [`check_lock_folder`] as the user `uid`.
+fn check_lock_folder_as(dir: &Path, uid: u32) -> Result<(), ArmLockError> {
+    let abs = if dir.is_absolute() {
+        dir.to_path_buf()
+    } else {
+        std::env::current_dir()
+            .map_err(|e| ArmLockError::Io {
+                path: dir.to_path_buf(),
+                kind: e.kind(),
+            })?
+            .join(dir)
+    };
+    for folder in abs.ancestors() {
+        let meta = std::fs::symlink_metadata(folder).map_err(|e| ArmLockError::Io {
+            path: folder.to_path_buf(),
+            kind: e.kind(),
+        })?;
+        let insecure = |why| ArmLockError::InsecureFolder {
+            path: folder.to_path_buf(),
+            why,
+        };
+        if meta.file_type().is_symlink() {
+            return Err(insecure(InsecureFolderWhy::SymbolicLink));
+        }
+        if !meta.is_dir() {
+            return Err(insecure(InsecureFolderWhy::NotAFolder));
+        }
+        if meta.uid() != 0 && meta.uid() != uid {
+            return Err(insecure(InsecureFolderWhy::OtherOwner {
+                owner_uid: meta.uid(),
+            }));
+        }
+        let mode = meta.mode() & 0o7777;
+        if mode & 0o022 != 0 && mode & 0o1000 == 0 {
+            return Err(insecure(InsecureFolderWhy::WritableNotSticky { mode }));
+        }
+    }
+    Ok(())
+}
+
+/// Makes a missing `$FORESIGHT_LOCK_DIR` (sticky, writable by all, owned by this user; the
+/// check that follows decides whether it may be used).
 fn make_dir(dir: &Path) -> Result<(), ArmLockError> {
-    if dir.is_dir() {
+    if std::fs::symlink_metadata(dir).is_ok() {
         return Ok(());
     }
     let io = |e: std::io::Error| ArmLockError::Io {
@@ -235,23 +527,32 @@ fn open(path: &Path) -> Result<File, ArmLockError> {
             .truncate(false)
             .mode(0o666)
             // Never follow a link planted in a shared folder.
-            .custom_flags(libc::O_NOFOLLOW);
+            // (O_NONBLOCK: a FIFO planted under the name must not block the open.)
+            .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK);
         o
     };
     let io = |e: std::io::Error| ArmLockError::Io {
         path: path.to_path_buf(),
         kind: e.kind(),
     };
-    match opts(true).open(path) {
+    let file = match opts(true).open(path) {
         Ok(f) => {
             // Writable by the next user too (the mode above is cut by the umask).
             let _ = f.set_permissions(std::fs::Permissions::from_mode(0o666));
-            Ok(f)
+            f
         }
         // Another user's file we may not write: a read-only descriptor locks as well.
-        Err(e) if e.kind() == ErrorKind::PermissionDenied => opts(false).open(path).map_err(io),
-        Err(e) => Err(io(e)),
+        Err(e) if e.kind() == ErrorKind::PermissionDenied => opts(false).open(path).map_err(io)?,
+        Err(e) => return Err(io(e)),
+    };
+    // A FIFO or a device planted under the name is no lock file.
+    if !file.metadata().map_err(io)?.is_file() {
+        return Err(ArmLockError::InsecureFolder {
+            path: path.to_path_buf(),
+            why: InsecureFolderWhy::NotAFile,
+        });
     }
+    Ok(file)
 }
 
 fn record_text(h: &LockHolder) -> [u8; RECORD_LEN] {
@@ -373,7 +674,7 @@ mod tests {
         let d = dir("second");
         let cfg = XArmConfig::from_addr("127.0.0.1:5020");
         let first = ArmLock::acquire_in(&d, &cfg).unwrap();
-        assert_eq!(first.path(), d.join("xarm-127.0.0.1-5020.lock"));
+        assert_eq!(first.path(), d.join("foresight-xarm-127.0.0.1-5020.lock"));
         // `localhost` is the same arm; flock conflicts between two opens in one process too.
         let e = ArmLock::acquire_in(&d, &XArmConfig::from_addr("localhost:5020")).unwrap_err();
         let ArmLockError::Held { holder, addr, .. } = &e else {
@@ -393,6 +694,169 @@ mod tests {
         drop(first);
         let again = ArmLock::acquire_in(&d, &cfg).unwrap();
         drop((again, other));
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    #[test]
+    fn every_spelling_of_one_controller_is_one_lock() {
+        let no_dns = |_: &str, _: u16| -> std::io::Result<Vec<SocketAddr>> {
+            panic!("an IP literal is not resolved")
+        };
+        let key = |host: &str| canonical_addr_with(host, 502, no_dns).unwrap();
+        let arm: SocketAddr = "192.168.1.195:502".parse().unwrap();
+        for spelling in [
+            "192.168.1.195",
+            "::ffff:192.168.1.195",
+            "[::ffff:192.168.1.195]",
+            "::ffff:c0a8:1c3",
+        ] {
+            assert_eq!(key(spelling), arm, "{spelling}");
+        }
+        let lo: SocketAddr = "127.0.0.1:502".parse().unwrap();
+        for spelling in ["127.0.0.1", "127.0.0.2", "::1", "[::1]", "::ffff:127.0.0.1"] {
+            assert_eq!(key(spelling), lo, "{spelling}");
+        }
+        // Names: trailing dots and case do not matter, the first address counts, and a
+        // mapped or loopback answer is canonical too.
+        let named = |host: &str, answer: &str| {
+            let answer: SocketAddr = answer.parse().unwrap();
+            canonical_addr_with(host, 502, move |name, _| {
+                assert_eq!(name, "xarm.lab", "the name as resolved");
+                Ok(vec![answer, "10.9.9.9:502".parse().unwrap()])
+            })
+            .unwrap()
+        };
+        assert_eq!(named("XArm.Lab.", "192.168.1.195:502"), arm);
+        assert_eq!(named("xarm.lab", "[::ffff:192.168.1.195]:502"), arm);
+        assert_eq!(named("xarm.lab..", "[::1]:502"), lo);
+        assert!(matches!(
+            canonical_addr_with("xarm.lab", 502, |_, _| Ok(vec![])),
+            Err(ArmLockError::Resolve { .. })
+        ));
+        assert!(matches!(
+            canonical_addr_with(".", 502, no_dns),
+            Err(ArmLockError::Resolve { .. })
+        ));
+        // And the real locks: an IPv4-mapped spelling and a trailing dot are refused as the
+        // arm already held.
+        let d = dir("spelling");
+        let first = ArmLock::acquire_in(&d, &XArmConfig::from_addr("127.0.0.1:5020")).unwrap();
+        for other in ["[::ffff:127.0.0.1]:5020", "[::1]:5020", "localhost.:5020"] {
+            let e = ArmLock::acquire_in(&d, &XArmConfig::from_addr(other)).unwrap_err();
+            assert!(matches!(e, ArmLockError::Held { .. }), "{other}: {e}");
+        }
+        drop(first);
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    #[test]
+    fn a_lock_folder_others_could_empty_is_refused() {
+        use std::os::unix::fs::symlink;
+        let cfg = XArmConfig::from_addr("127.0.0.1:5030");
+        let set_mode = |d: &Path, mode: u32| {
+            std::fs::set_permissions(d, std::fs::Permissions::from_mode(mode)).unwrap();
+        };
+        // World-writable without the sticky bit: anyone could remove the lock file.
+        let open = dir("open");
+        std::fs::create_dir_all(&open).unwrap();
+        set_mode(&open, 0o777);
+        let e = ArmLock::acquire_in(&open, &cfg).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ArmLockError::InsecureFolder {
+                    why: InsecureFolderWhy::WritableNotSticky { mode: 0o777 },
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(e.to_string().contains("sticky"), "{e}");
+        // A folder above the lock folder counts too.
+        let inner = open.join("inner");
+        std::fs::create_dir_all(&inner).unwrap();
+        assert!(matches!(
+            ArmLock::acquire_in(&inner, &cfg),
+            Err(ArmLockError::InsecureFolder { ref path, .. }) if *path == open
+        ));
+        // Sticky (like /tmp): accepted.
+        set_mode(&open, 0o1777);
+        drop(ArmLock::acquire_in(&open, &cfg).unwrap());
+        // A symbolic link to a good folder: refused.
+        let link = dir("link");
+        symlink(&open, &link).unwrap();
+        assert!(matches!(
+            ArmLock::acquire_in(&link, &cfg),
+            Err(ArmLockError::InsecureFolder {
+                why: InsecureFolderWhy::SymbolicLink,
+                ..
+            })
+        ));
+        // Owned by another user (who may remove anything in it, sticky or not).
+        let theirs = dir("theirs");
+        std::fs::create_dir_all(&theirs).unwrap();
+        set_mode(&theirs, 0o1777);
+        let me = effective_uid();
+        let as_uid = if me == 0 {
+            std::os::unix::fs::chown(&theirs, Some(65_534), None).unwrap();
+            0
+        } else {
+            me + 1
+        };
+        let owner = std::fs::metadata(&theirs).unwrap().uid();
+        assert!(matches!(
+            check_lock_folder_as(&theirs, as_uid),
+            Err(ArmLockError::InsecureFolder {
+                why: InsecureFolderWhy::OtherOwner { owner_uid },
+                ..
+            }) if owner_uid == owner
+        ));
+        // A FIFO planted under the lock file's name: refused, without blocking.
+        let fifo_dir = dir("fifo");
+        std::fs::create_dir_all(&fifo_dir).unwrap();
+        let name = lock_file_name(canonical_addr("127.0.0.1", 5030).unwrap());
+        let made = std::process::Command::new("mkfifo")
+            .arg(fifo_dir.join(name))
+            .status()
+            .is_ok_and(|s| s.success());
+        if made {
+            assert!(matches!(
+                ArmLock::acquire_in(&fifo_dir, &cfg),
+                Err(ArmLockError::InsecureFolder {
+                    why: InsecureFolderWhy::NotAFile,
+                    ..
+                })
+            ));
+        }
+        for d in [&open, &link, &theirs, &fifo_dir] {
+            let _ = std::fs::remove_file(d);
+            let _ = std::fs::remove_dir_all(d);
+        }
+    }
+
+    #[test]
+    fn the_owner_is_the_pid_the_kernel_names_for_the_lock() {
+        let d = dir("owner");
+        let cfg = XArmConfig::from_addr("127.0.0.1:5040");
+        assert!(matches!(
+            owner_in(&d, &cfg),
+            Err(ArmOwnerError::NotHeld { .. })
+        ));
+        let lock = ArmLock::acquire_in(&d, &cfg).unwrap();
+        let owner = owner_in(&d, &XArmConfig::from_addr("[::ffff:127.0.0.1]:5040")).unwrap();
+        assert_eq!(owner.pid, std::process::id());
+        assert_eq!(&owner, lock.holder());
+        drop(lock);
+        assert!(matches!(
+            owner_in(&d, &cfg),
+            Err(ArmOwnerError::NotHeld { .. })
+        ));
+        let table = "1: FLOCK  ADVISORY  WRITE 77 00:2a:991 0 EOF\n\
+                     2: -> FLOCK  ADVISORY  WRITE 78 00:2a:992 0 EOF\n\
+                     3: POSIX  ADVISORY  WRITE 79 00:2a:993 0 EOF\n";
+        assert_eq!(flock_holder(table, 991), Some(77));
+        assert_eq!(flock_holder(table, 992), None);
+        assert_eq!(flock_holder(table, 993), None);
         std::fs::remove_dir_all(&d).ok();
     }
 
