@@ -86,6 +86,37 @@ pub struct StaleConfig {
     pub max_robot_state_age_s: f64,
 }
 
+/// The cycle's check that the arm follows its commands (`[tracking]`): the measured joints
+/// more than `max_error_rad` from the last command sent for `max_error_cycles` periods in a
+/// row is a frozen or blocked arm — a controlled stop, latched until an operator
+/// acknowledges (see [`crate::cycle::StopReason::TrackingLost`]).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrackingConfig {
+    /// Largest joint gap between the last command sent and the measured joints, rad.
+    #[serde(default = "default_tracking_error_rad")]
+    pub max_error_rad: f64,
+    /// Periods in a row beyond `max_error_rad` before the stop.
+    #[serde(default = "default_tracking_error_cycles")]
+    pub max_error_cycles: u32,
+}
+
+impl Default for TrackingConfig {
+    fn default() -> Self {
+        Self {
+            max_error_rad: default_tracking_error_rad(),
+            max_error_cycles: default_tracking_error_cycles(),
+        }
+    }
+}
+
+fn default_tracking_error_rad() -> f64 {
+    0.1
+}
+fn default_tracking_error_cycles() -> u32 {
+    25
+}
+
 /// What rt-core accepts from perception (`[intake]`): a frame with an object outside the
 /// calibrated workspace, a goal out of reach or a stamp that is not fresh is refused whole
 /// (counted, and the arm stops: see [`crate::twin_thread::intake`]).
@@ -182,6 +213,11 @@ pub mod bounds {
     pub const WORKSPACE_MAX_Z_M: f64 = 1.1;
     /// Smallest goal-confidence floor.
     pub const MIN_GOAL_CONFIDENCE_FLOOR: f32 = 0.05;
+    /// Allowed range of the tracking tolerance, rad: below 0.01 rad the controller's own
+    /// lag at full speed trips it; above 0.5 rad a frozen arm goes unnoticed too long.
+    pub const TRACKING_ERROR_RANGE_RAD: (f64, f64) = (0.01, 0.5);
+    /// Allowed range of the tracking check's periods in a row (1000: 4 s at 250 Hz).
+    pub const TRACKING_CYCLES_RANGE: (u32, u32) = (1, 1000);
 }
 
 /// The whole runtime configuration.
@@ -215,6 +251,9 @@ pub struct RuntimeConfig {
     /// What is accepted from perception.
     #[serde(default)]
     pub intake: IntakeConfig,
+    /// The check that the arm follows its commands.
+    #[serde(default)]
+    pub tracking: TrackingConfig,
 }
 
 fn default_rate_hz() -> f64 {
@@ -318,7 +357,22 @@ impl RuntimeConfig {
                 "must exceed one cycle period and be at most 0.2 s",
             );
         }
-        self.validate_intake()
+        self.validate_intake()?;
+        self.validate_tracking()
+    }
+
+    fn validate_tracking(&self) -> Result<(), RuntimeConfigError> {
+        let bad = |field, why| Err(RuntimeConfigError::Invalid { field, why });
+        let t = &self.tracking;
+        let (lo, hi) = bounds::TRACKING_ERROR_RANGE_RAD;
+        if !(t.max_error_rad.is_finite() && (lo..=hi).contains(&t.max_error_rad)) {
+            return bad("tracking.max_error_rad", "must be within 0.01..=0.5 rad");
+        }
+        let (lo, hi) = bounds::TRACKING_CYCLES_RANGE;
+        if !(lo..=hi).contains(&t.max_error_cycles) {
+            return bad("tracking.max_error_cycles", "must be within 1..=1000");
+        }
+        Ok(())
     }
 
     fn validate_limits(&self) -> Result<(), RuntimeConfigError> {
@@ -667,6 +721,33 @@ mod tests {
                 ..
             })
         ));
+    }
+
+    #[test]
+    fn tracking_bounds_name_the_field() {
+        let d = RuntimeConfig::xarm5_default();
+        assert_eq!(d.tracking, TrackingConfig::default());
+        for (key, value, field) in [
+            ("max_error_rad", "0.001", "tracking.max_error_rad"),
+            ("max_error_rad", "nan", "tracking.max_error_rad"),
+            ("max_error_rad", "inf", "tracking.max_error_rad"),
+            ("max_error_rad", "-0.1", "tracking.max_error_rad"),
+            ("max_error_cycles", "0", "tracking.max_error_cycles"),
+            ("max_error_cycles", "5000", "tracking.max_error_cycles"),
+        ] {
+            match RuntimeConfig::from_toml(&with_value(key, value)) {
+                Err(RuntimeConfigError::Invalid { field: f, .. }) => {
+                    assert_eq!(f, field, "{key} = {value}");
+                }
+                other => panic!("{key} = {value}: expected Invalid({field}), got {other:?}"),
+            }
+        }
+        // A file without the section takes the defaults.
+        let without = ASSET.split("[tracking]").next().unwrap();
+        assert_eq!(
+            RuntimeConfig::from_toml(without).unwrap().tracking,
+            TrackingConfig::default()
+        );
     }
 
     #[test]

@@ -8,8 +8,13 @@
 //! rt-core is tied to its parent, whoever started it: it asks the kernel for SIGTERM when
 //! the parent dies (`PR_SET_PDEATHSIG`), and SIGTERM is the runtime's controlled stop (the
 //! arm brakes to rest, the controller is put in its stop state, then the process exits).
-//! Before the runtime's handler is installed nothing moves, and the default action (exit)
-//! stands. With `--link xarm` the arm's lock is taken before connecting
+//! So is every other signal whose default action would end the process (SIGHUP, SIGQUIT,
+//! SIGUSR2, SIGALRM, …; [`rt_core::rt::process_stop`]): their handlers are installed first
+//! thing, before any connection; one that arrives while connecting stops the run at its
+//! first cycle. SIGPIPE never ends the process, and a SIGUSR1 before the runtime listens
+//! for acknowledgements is dropped. In a `panic = "abort"` build (`--profile deploy`) a
+//! panic off the cycle thread brakes the arm before the abort. With `--link xarm` the arm's
+//! lock is taken before connecting
 //! ([`rt_core::cycle::xarm_link::open_xarm`]): a second rt-core on the same controller is
 //! refused with the holder named.
 
@@ -24,7 +29,8 @@ use rt_core::cycle::shield::ShieldLimits;
 use rt_core::cycle::xarm_link::{
     XArmOpenError, XArmOpenOptions, check_auto_resume_target, check_blind_mode_target, open_xarm,
 };
-use rt_core::twin_thread::serve::{InjectedFault, ServeOptions, serve_on};
+use rt_core::rt::process_stop;
+use rt_core::twin_thread::serve::{InjectedFault, SHUTDOWN_TIMEOUT, ServeOptions, serve_on};
 use shm_schemas::cli_bounds::{f64_within, int_within};
 use twin::{RobotModel, TaskConfig};
 
@@ -104,6 +110,12 @@ pub struct RunArgs {
     command_log: Option<PathBuf>,
 }
 
+/// How long a panic (deploy build, `panic = "abort"`) waits for the cycle to brake the arm
+/// and put the controller in its stop state before the process aborts: the cycle's own
+/// shutdown bound plus the controller's `SET_STATE 4` round trips (up to 3 s).
+const PANIC_BRAKE_WAIT: std::time::Duration =
+    SHUTDOWN_TIMEOUT.saturating_add(std::time::Duration::from_secs(4));
+
 /// Runs the runtime.
 pub fn run(args: RunArgs) -> ExitCode {
     let _ = tracing_subscriber::fmt()
@@ -155,6 +167,11 @@ fn stop_with_parent() -> anyhow::Result<()> {
 }
 
 fn runtime(args: &RunArgs) -> anyhow::Result<()> {
+    // First, before anything can move: every signal that would end the process becomes a
+    // controlled stop, SIGPIPE and an early SIGUSR1 are harmless, and (deploy builds) a
+    // panic brakes before the abort.
+    process_stop::install_signal_handlers()?;
+    process_stop::install_panic_hook(PANIC_BRAKE_WAIT);
     stop_with_parent()?;
     // Blind mode never reaches a real arm: decided from the address alone, first.
     if args.no_lookahead
@@ -239,7 +256,14 @@ fn run_on<L: RobotLink + 'static>(
     task: TaskConfig,
     link: L,
 ) -> anyhow::Result<()> {
-    let summary = serve_on(opts, cfg, model, task, link)?;
+    let served = serve_on(opts, cfg, model, task, link);
+    if let Some(sig) = process_stop::stop_signal() {
+        tracing::info!(
+            signal = process_stop::signal_name(sig),
+            "stopped by a signal: the arm was braked to rest and the controller stopped"
+        );
+    }
+    let summary = served?;
     summary.log();
     // One JSON line on stdout with the run's figures, for the launcher's report.
     println!("{}", summary.to_json(opts));

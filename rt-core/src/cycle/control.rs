@@ -31,6 +31,16 @@
 //! twin's TCP and the controller's disagree) stops under control first, then latches the
 //! same way once the arm is at rest. When the link returns while stopping, the cycle snaps
 //! to the measured joints and finishes the stop there (the arm got no command meanwhile).
+//!
+//! The controller and the arm are watched too: a controller that leaves its ready state
+//! without the cycle asking ([`StopReason::ControllerStopped`]: the pendant's stop, the SDK,
+//! another client's `SET_STATE 4`) latches like an arm error, and measured joints that stop
+//! following the commands sent ([`StopReason::TrackingLost`], a frozen arm: more than
+//! [`CycleConfig::max_tracking_error_rad`] for [`CycleConfig::tracking_error_cycles`]
+//! periods) make the controller hold the arm where it stands and latch. Neither applies to
+//! a link whose commands do not reach the arm (a dry run, [`RobotLink::commands_reach_arm`]).
+//! An acknowledgement given while the link is down or the arm still stopping is dropped
+//! ([`CycleEvent::AcknowledgementDropped`]), never kept to re-enable the arm later.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -43,6 +53,7 @@ use crate::cycle::shield::{Shield, ShieldModel, ShieldViolation};
 use crate::rt::clock::Clock;
 use crate::rt::handoff::{self, BoxReceiver, BoxSender, LatestReceiver, LatestSender};
 use crate::rt::histogram::{Histogram, Summary};
+use crate::rt::process_stop;
 use crate::rt::rt_log::{self, RtLogDrain, RtLogger};
 use twin::{DOF, Joints, max_joint_gap_rad};
 
@@ -128,6 +139,22 @@ pub enum CycleEvent {
     },
     /// The link returned while stopping: the stop ends at the measured joints.
     SnappedToMeasured,
+    /// The controller left its ready state without the cycle asking (the pendant's stop,
+    /// the SDK, `SET_STATE` from another client): latched until acknowledged.
+    ControllerStopped {
+        /// The controller's state (3 paused, 4 stopped, …).
+        state: u8,
+    },
+    /// The measured joints stopped following the commands sent (a frozen or blocked arm):
+    /// a stop, latched until acknowledged.
+    TrackingLost {
+        /// The largest joint gap between the last command sent and the measured joints,
+        /// rad.
+        error_rad: f64,
+    },
+    /// An acknowledgement arrived while the link was down or the arm was still stopping:
+    /// dropped (an operator acknowledges an arm at rest they can see; a new one is needed).
+    AcknowledgementDropped,
     /// An operator acknowledged the protective stop; motion was re-enabled.
     Acknowledged,
     /// An acknowledgement could not be passed to the controller.
@@ -167,6 +194,18 @@ pub enum StopReason {
     /// more than the link's tolerance (a wrong model or base calibration): latched, like an
     /// arm error, once the arm is at rest, until an operator acknowledges.
     ModelMismatch,
+    /// The controller left its ready state without the cycle asking (the pendant's stop,
+    /// the SDK, `SET_STATE 4` from another client): latched like an arm error, until an
+    /// operator acknowledges.
+    ControllerStopped {
+        /// The controller's state when it was seen (3 paused, 4 stopped, …).
+        state: u8,
+    },
+    /// The measured joints did not follow the commands sent for
+    /// [`CycleConfig::tracking_error_cycles`] periods in a row (more than
+    /// [`CycleConfig::max_tracking_error_rad`] apart): a frozen or blocked arm. Stopped and
+    /// latched until an operator acknowledges.
+    TrackingLost,
 }
 
 impl StopReason {
@@ -183,6 +222,8 @@ impl StopReason {
             StopReason::Shutdown => 7,
             StopReason::DetectionRefused => 8,
             StopReason::ModelMismatch => 9,
+            StopReason::ControllerStopped { .. } => 20,
+            StopReason::TrackingLost => 21,
         }
     }
 }
@@ -243,6 +284,11 @@ pub struct CycleReport {
     pub envelope_breaches: u64,
     /// A shutdown was requested and the arm is at rest: the cycle may end.
     pub shutdown_complete: bool,
+    /// The largest joint gap between the last command sent and the measured joints, rad
+    /// (the tracking check's input; 0 when not checked).
+    pub tracking_error_rad: f64,
+    /// Acknowledgements dropped (given while the link was down or the arm stopping).
+    pub acks_dropped: u64,
 }
 
 /// Control flags shared by the cycle, the twin thread and the process (relaxed atomics).
@@ -295,9 +341,11 @@ impl CycleControl {
         self.shutdown.store(true, Ordering::Release);
     }
 
-    /// Whether a shutdown was requested.
+    /// Whether a shutdown was requested: through [`CycleControl::request_shutdown`] or
+    /// the shutdown flag, or process-wide by a signal or a panic
+    /// ([`crate::rt::process_stop::stop_requested`]).
     pub fn shutdown_requested(&self) -> bool {
-        self.shutdown.load(Ordering::Acquire)
+        self.shutdown.load(Ordering::Acquire) || process_stop::stop_requested()
     }
 
     /// The shutdown flag itself (for signal handlers).
@@ -379,6 +427,12 @@ pub struct CycleConfig {
     /// After the link returns, take fresh plans without an operator's acknowledgement
     /// (opt-in for simulated arms; a real arm waits for the operator).
     pub auto_resume_after_link_loss: bool,
+    /// The measured joints may trail the last command sent by this much (largest joint
+    /// gap), rad (`tracking.max_error_rad`).
+    pub max_tracking_error_rad: f64,
+    /// More than [`CycleConfig::max_tracking_error_rad`] for this many periods in a row is
+    /// a frozen arm: a latched stop (`tracking.max_error_cycles`).
+    pub tracking_error_cycles: u32,
 }
 
 impl CycleConfig {
@@ -408,6 +462,8 @@ impl CycleConfig {
                 (brake_s.max(path_s) * cfg.rate_hz).ceil() as usize
             },
             auto_resume_after_link_loss: false,
+            max_tracking_error_rad: cfg.tracking.max_error_rad,
+            tracking_error_cycles: cfg.tracking.max_error_cycles,
         }
     }
 }
@@ -451,6 +507,12 @@ pub struct Cycle<M: ShieldModel, L: RobotLink> {
     ack_failures: u32,
     /// A model-mismatch stop is under way: latched once the arm is at rest.
     mismatch_latch_pending: bool,
+    /// The controller has been seen ready (state 0, 1 or 2) since the cycle started, the
+    /// link returned or an acknowledgement: from then on, a stopped state the cycle did
+    /// not ask for latches (before, a report from before servo mode may still read 4).
+    controller_ready_seen: bool,
+    /// Periods in a row with the measured joints beyond the tracking tolerance.
+    tracking_bad_cycles: u32,
 }
 
 impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
@@ -486,6 +548,8 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             acks_seen: 0,
             ack_failures: 0,
             mismatch_latch_pending: false,
+            controller_ready_seen: false,
+            tracking_bad_cycles: 0,
         }
     }
 
@@ -604,6 +668,70 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         self.snap_to(now_ns, measured_q_rad);
     }
 
+    /// The controller's reported state: ready (0, 1 moving, 2 ready) arms the check; any
+    /// other state once armed (3 paused, 4 stopped, …) is a stop the cycle did not ask for
+    /// (the pendant, the SDK, another client's `SET_STATE 4`): the controller holds the arm
+    /// where it stands, so the stop ends there and latches like an arm error. Returns
+    /// whether the state allows motion.
+    fn watch_controller_state(&mut self, now_ns: u64, state: u8, measured_q_rad: Joints) -> bool {
+        if state <= 2 {
+            self.controller_ready_seen = true;
+            return true;
+        }
+        if !self.controller_ready_seen || self.report.awaiting_ack {
+            // Not yet ready since (re-)enabling, or already latched: no motion either way.
+            return false;
+        }
+        self.io
+            .log
+            .log(now_ns, CycleEvent::ControllerStopped { state });
+        let reason = StopReason::ControllerStopped { state };
+        self.begin_stop(now_ns, reason, StopMotion::Brake);
+        self.report.stop_reason = reason;
+        self.report.awaiting_ack = true;
+        self.mismatch_latch_pending = false;
+        self.snap_to(now_ns, measured_q_rad);
+        false
+    }
+
+    /// Compares the measured joints with the last command sent: more than
+    /// [`CycleConfig::max_tracking_error_rad`] apart for
+    /// [`CycleConfig::tracking_error_cycles`] periods in a row is a frozen (or blocked) arm.
+    /// Streaming on (or braking the commands along the plan) would leave the controller a
+    /// target the arm reaches at once when it comes free; instead the controller is asked
+    /// to hold the arm where it stands ([`RobotLink::hold_controller`], the xArm's
+    /// `SET_STATE 4`, non-blocking), the stop ends at the measured joints and latches until
+    /// an operator acknowledges. Returns whether tracking allows motion. Allocation-free.
+    fn watch_tracking(&mut self, now_ns: u64, measured_q_rad: &Joints) -> bool {
+        if self.report.awaiting_ack {
+            self.tracking_bad_cycles = 0;
+            self.report.tracking_error_rad = 0.0;
+            return true;
+        }
+        let error_rad = max_joint_gap_rad(&self.last_sent.q_rad, measured_q_rad);
+        self.report.tracking_error_rad = error_rad;
+        // NaN counts as beyond.
+        if error_rad <= self.cfg.max_tracking_error_rad {
+            self.tracking_bad_cycles = 0;
+            return true;
+        }
+        self.tracking_bad_cycles = self.tracking_bad_cycles.saturating_add(1);
+        if self.tracking_bad_cycles < self.cfg.tracking_error_cycles {
+            return true;
+        }
+        self.io
+            .log
+            .log(now_ns, CycleEvent::TrackingLost { error_rad });
+        self.link.hold_controller(now_ns);
+        self.begin_stop(now_ns, StopReason::TrackingLost, StopMotion::Brake);
+        self.report.stop_reason = StopReason::TrackingLost;
+        self.report.awaiting_ack = true;
+        self.mismatch_latch_pending = false;
+        self.tracking_bad_cycles = 0;
+        self.snap_to(now_ns, *measured_q_rad);
+        false
+    }
+
     /// The twin's TCP and the controller's disagree: a controlled stop along the plan (the
     /// arm is still commanded to rest), latched once at rest. Ignored while a latch stands.
     fn on_model_mismatch(&mut self, now_ns: u64, gap_m: f64) {
@@ -699,6 +827,9 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                     // without it, and a restarted controller may report the arm elsewhere).
                     // A stop under way ends here; a fresh plan must start from this pose.
                     self.snap_to(now_ns, st.q_rad);
+                    // A re-opened connection may report the state from before servo mode.
+                    self.controller_ready_seen = false;
+                    self.tracking_bad_cycles = 0;
                 }
                 if st.error_code != 0 {
                     inputs_ok = false;
@@ -711,6 +842,14 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                 if let Some(gap_m) = st.model_mismatch_m {
                     inputs_ok = false;
                     self.on_model_mismatch(now_ns, gap_m);
+                }
+                if st.error_code == 0 && self.started && self.link.commands_reach_arm() {
+                    if !self.watch_controller_state(now_ns, st.state, st.q_rad) {
+                        inputs_ok = false;
+                    }
+                    if !self.watch_tracking(now_ns, &st.q_rad) {
+                        inputs_ok = false;
+                    }
                 }
                 if now_ns.saturating_sub(st.stamp_ns) > self.cfg.max_robot_state_age_ns {
                     inputs_ok = false;
@@ -756,7 +895,11 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             return;
         }
         if !self.link_ok || self.mode == Mode::Stopping {
-            // Kept for when the link is back and the arm at rest.
+            // Dropped, never kept for later: an operator acknowledges an arm at rest on a
+            // live link, and a new acknowledgement is needed once it is.
+            self.acks_seen = acks;
+            self.report.acks_dropped += 1;
+            self.io.log.log(now_ns, CycleEvent::AcknowledgementDropped);
             return;
         }
         match self.link.acknowledge(now_ns) {
@@ -765,6 +908,10 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                 self.ack_failures = 0;
                 self.report.awaiting_ack = false;
                 self.report.arm_error_code = 0;
+                // The controller re-enters servo mode now; its reports may still read the
+                // stopped state for a while.
+                self.controller_ready_seen = false;
+                self.tracking_bad_cycles = 0;
                 let q = self.report.measured_q_rad;
                 self.snap_to(now_ns, q);
                 self.fresh_after_id = self.newest_plan_id_seen;

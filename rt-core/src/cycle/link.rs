@@ -76,6 +76,17 @@ pub trait RobotLink: Send {
     /// rest (the xArm's `SET_STATE 4`). Called off the loop, after its last period; may
     /// block up to the link's reply timeout.
     fn stop_controller(&mut self, _now_ns: u64) {}
+
+    /// Asks the controller to hold the arm where it stands and drop its last target,
+    /// without blocking (the xArm's `SET_STATE 4`): the cycle found that the arm does not
+    /// follow its commands. Motion needs an operator's acknowledgement afterwards.
+    fn hold_controller(&mut self, _now_ns: u64) {}
+
+    /// Whether the commands sent reach the arm (false for a dry run): only then does the
+    /// cycle hold the controller's state and the measured joints to what it commanded.
+    fn commands_reach_arm(&self) -> bool {
+        true
+    }
 }
 
 /// A simulated arm in the same process. Each servo target is clamped into the joint limits
@@ -233,6 +244,10 @@ impl<L: RobotLink> RobotLink for DryRunLink<L> {
     }
 
     fn stop_controller(&mut self, _now_ns: u64) {}
+
+    fn commands_reach_arm(&self) -> bool {
+        false
+    }
 }
 
 #[cfg(test)]

@@ -14,6 +14,7 @@ use crate::cycle::shield::ShieldModel;
 use crate::cycle::{Cycle, LoopShared, LoopStats, run_loop};
 use crate::rt::alloc_count;
 use crate::rt::clock::Clock;
+use crate::rt::process_stop;
 use crate::rt::rt_setup::{self, RtRequest, RtSetupReport};
 
 /// What the cycle thread hands back when it stops.
@@ -47,6 +48,9 @@ where
     std::thread::Builder::new()
         .name("cycle".into())
         .spawn(move || {
+            // Counted until the controller is in its stop state: a panic elsewhere in a
+            // `panic = "abort"` build waits for that before the process aborts.
+            let running = process_stop::CycleRunning::enter();
             let rt = rt_setup::apply(&request);
             let mut stats = LoopStats::default();
             alloc_count::count_this_thread(true);
@@ -62,6 +66,7 @@ where
             shared
                 .finished
                 .store(true, std::sync::atomic::Ordering::Release);
+            drop(running);
             if let Err(panic) = looped {
                 std::panic::resume_unwind(panic);
             }

@@ -1112,6 +1112,8 @@ fn stop_reason_name(r: StopReason) -> &'static str {
         StopReason::Shutdown => "shutdown",
         StopReason::DetectionRefused => "detection_refused",
         StopReason::ModelMismatch => "model_mismatch",
+        StopReason::ControllerStopped { .. } => "controller_stopped",
+        StopReason::TrackingLost => "tracking_lost",
     }
 }
 

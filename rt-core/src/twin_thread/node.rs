@@ -572,6 +572,10 @@ pub fn stop_code(reason: StopReason) -> shm_schemas::StopReason {
         StopReason::Shutdown => S::Requested,
         StopReason::DetectionRefused => S::DetectionRefused,
         StopReason::ModelMismatch => S::ModelMismatch,
+        // The contract's nearest codes (no schema change): a stop the controller made on
+        // its own, and measured joints that disagree with the commands.
+        StopReason::ControllerStopped { .. } => S::ArmError,
+        StopReason::TrackingLost => S::ModelMismatch,
     }
 }
 

@@ -237,6 +237,8 @@ pub struct Controller {
     model: Option<RobotModel>,
     stream: ServoStreamStats,
     last_wire_target: Option<([f64; 5], Option<[f64; 3]>)>,
+    /// Fault injection: the arm accepts targets and does not move (a frozen or blocked arm).
+    frozen: bool,
 }
 
 impl Default for Controller {
@@ -306,6 +308,7 @@ impl Controller {
             model: None,
             stream: ServoStreamStats::default(),
             last_wire_target: None,
+            frozen: false,
         }
     }
 
@@ -419,6 +422,23 @@ impl Controller {
         self.system_reset();
     }
 
+    /// Fault injection (control port `freeze on|off`): while frozen the controller accepts
+    /// every target as usual and reports itself moving, but the joints do not move.
+    pub fn set_frozen(&mut self, frozen: bool) {
+        self.frozen = frozen;
+    }
+
+    /// Whether the arm is frozen (fault injection).
+    pub fn frozen(&self) -> bool {
+        self.frozen
+    }
+
+    /// `SET_STATE(s)` as another client sends it (the pendant, the SDK; control port
+    /// `state <s>`).
+    pub fn request_state(&mut self, s: u8) {
+        self.set_state(s);
+    }
+
     /// Advances time to `now_s`: moves toward the target at no more than the joint speed
     /// limit, and updates the state (1 while a servo command is recent, then 2).
     pub fn step(&mut self, now_s: f64) {
@@ -426,6 +446,11 @@ impl Controller {
         self.now_s = now_s;
         if !self.can_move() {
             self.dq_rad_s = [0.0; 5];
+            return;
+        }
+        if self.frozen {
+            self.dq_rad_s = [0.0; 5];
+            self.state = if now_s < self.moving_until_s { 1 } else { 2 };
             return;
         }
         let max_step = self.speed_limit_rad_s * dt;
@@ -796,6 +821,23 @@ mod tests {
         let r = Response::parse(&out[..m]).unwrap();
         r.check(tid, 3, u8::from(req.register())).unwrap();
         (r.status, r.data.to_vec())
+    }
+
+    #[test]
+    fn a_frozen_arm_accepts_targets_and_stays_put() {
+        let (mut c, home) = servo_ready_at_home();
+        c.set_frozen(true);
+        let mut q = home;
+        q[0] += 0.001;
+        servo_j(&mut c, &q, 10);
+        c.step(c.now_s + 0.004);
+        assert_eq!(c.q_rad(), home, "frozen");
+        assert_eq!(c.state(), 1, "reports itself moving");
+        c.set_frozen(false);
+        c.step(c.now_s + 0.004);
+        assert!((c.q_rad()[0] - q[0]).abs() < 1e-9, "follows again");
+        c.request_state(4);
+        assert_eq!(c.state(), 4, "stopped by another client");
     }
 
     #[test]

@@ -5,7 +5,9 @@
 //! Control port protocol (one command per line, one reply line each):
 //! `scene <path>` swaps the scene now (`ok` / `error: …`), `status` prints the summary JSON,
 //! `error <code>` raises a controller error now (e.g. `error 31`, a collision; `ok` /
-//! `error: …`), `shutdown` asks the simulator to exit.
+//! `error: …`), `state <s>` sends `SET_STATE(s)` as another client would (the pendant's
+//! stop is `state 4`), `freeze on|off` freezes the arm (targets accepted, joints still: a
+//! fault injection), `shutdown` asks the simulator to exit.
 
 use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, TcpListener, TcpStream};
@@ -359,6 +361,16 @@ impl SimServer {
         lock(&self.shared.controller).raise_error(code);
     }
 
+    /// `SET_STATE(state)` from another client (the pendant's or the SDK's stop is 4).
+    pub fn inject_state(&self, state: u8) {
+        lock(&self.shared.controller).request_state(state);
+    }
+
+    /// Freezes the arm (targets accepted, joints still) or lets it move again.
+    pub fn freeze(&self, frozen: bool) {
+        lock(&self.shared.controller).set_frozen(frozen);
+    }
+
     /// The summary so far.
     pub fn summary(&self) -> SimSummary {
         summary(&self.shared)
@@ -644,12 +656,27 @@ fn control_command(s: &Shared, cmd: &str) -> String {
             }
             _ => format!("error: bad error code {:?} (1..=255)", arg.trim()),
         },
+        "state" => match arg.trim().parse::<u8>() {
+            Ok(state) => {
+                lock(&s.controller).request_state(state);
+                "ok".into()
+            }
+            _ => format!("error: bad state {:?} (0..=255)", arg.trim()),
+        },
+        "freeze" => match arg.trim() {
+            "on" | "off" => {
+                lock(&s.controller).set_frozen(arg.trim() == "on");
+                "ok".into()
+            }
+            other => format!("error: freeze on|off, not {other:?}"),
+        },
         "shutdown" => {
             s.shutdown_requested.store(true, Ordering::Relaxed);
             "ok".into()
         }
         other => format!(
-            "error: unknown command {other:?} (scene <path> | status | error <code> | shutdown)"
+            "error: unknown command {other:?} (scene <path> | status | error <code> | \
+             state <s> | freeze on|off | shutdown)"
         ),
     }
 }
