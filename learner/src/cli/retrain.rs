@@ -1,14 +1,15 @@
 //! `learner retrain`: one retraining on a scene file (or one world of the unseen-worlds
 //! benchmark's generator), offline (what `serve` does for one request), then the best
 //! checkpoint evaluated on the exact scene and on the fixed pre-training scenes (the task's
-//! `[world]`); prints a JSON summary.
+//! `[world]`: the retrained policy alone, the base, and both as the policy library rt-core
+//! runs); prints a JSON summary.
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use learner::checkpoint::{self, Checkpoint};
 use learner::normalize::ObsNormalizer;
-use learner::ppo::evaluate;
+use learner::ppo::{evaluate, successes};
 use learner::service;
 use learner::twin_env::{CurriculumSampler, TwinTask, fixed_scenes};
 use rand::SeedableRng;
@@ -110,16 +111,24 @@ pub fn run(args: RetrainArgs, device: tch::Device) -> Result<()> {
         .with_context(|| format!("best checkpoint in {}", out.display()))?;
     let norm = ObsNormalizer::from_stats(&best.meta.obs_rms.to_rms(), best.meta.ppo.clip_obs);
     let exact = evaluate(&best.network(device)?, &norm, &env, &[scene], 1);
-    let old = evaluate(
-        &best.network(device)?,
-        &norm,
-        &env,
-        &fixed_scenes(&CurriculumSampler::pretraining(&env), 200, EVAL_SEED),
-        best.meta.ppo.effective_workers(),
-    );
+    let pre = fixed_scenes(&CurriculumSampler::pretraining(&env), 200, EVAL_SEED);
+    let workers = best.meta.ppo.effective_workers();
+    let old = evaluate(&best.network(device)?, &norm, &env, &pre, workers);
+    // What rt-core runs: the policy library (retrained policy and base), the lookahead
+    // taking whichever passes — a scene counts when either solves it.
+    let base_norm = ObsNormalizer::from_stats(&base.meta.obs_rms.to_rms(), base.meta.ppo.clip_obs);
+    let base_ok = successes(&base.network(device)?, &base_norm, &env, &pre, workers);
+    let re_ok = successes(&best.network(device)?, &norm, &env, &pre, workers);
+    let either = base_ok
+        .iter()
+        .zip(&re_ok)
+        .filter(|(b, r)| **b || **r)
+        .count();
+    let library = either as f64 / pre.len().max(1) as f64;
+    let base_rate = base_ok.iter().filter(|b| **b).count() as f64 / pre.len().max(1) as f64;
     println!(
         "{}",
-        serde_json::json!({"summary": outcome.summary, "before": outcome.before, "warm_start": outcome.warm_start, "feasibility_s": feasibility_s, "best": best.meta.eval, "exact_scene": exact, "pretraining_scenes": old, "best_steps": best.meta.steps - base.meta.steps, "out": out})
+        serde_json::json!({"summary": outcome.summary, "before": outcome.before, "warm_start": outcome.warm_start, "feasibility_s": feasibility_s, "best": best.meta.eval, "exact_scene": exact, "pretraining_scenes": old, "pretraining_scenes_base": base_rate, "pretraining_scenes_library": library, "best_steps": best.meta.steps - base.meta.steps, "out": out})
     );
     Ok(())
 }
