@@ -7,6 +7,7 @@ use clap::{Args, Parser, Subcommand};
 use rt_core::rt::rt_setup::RtRequest;
 use shm_schemas::cli_bounds::int_within;
 
+mod ack;
 mod bench_loop;
 mod run;
 #[cfg(feature = "testing")]
@@ -31,6 +32,9 @@ enum Command {
     BenchLoop(bench_loop::BenchLoopArgs),
     /// The runtime: twin thread + control cycle with iceoryx2 I/O.
     Run(run::RunArgs),
+    /// The operator's acknowledgement of a protective stop, sent to the rt-core that owns
+    /// the arm at `--robot` (and no other).
+    Ack(ack::AckArgs),
     /// xArm driver tools (`probe`).
     #[command(subcommand)]
     Xarm(xarm::XarmCommand),
@@ -47,6 +51,7 @@ pub fn main() -> ExitCode {
         Command::BenchLoop(args) => bench_loop::run(args),
         Command::Run(args) => run::run(args),
         Command::Xarm(cmd) => xarm::run(cmd),
+        Command::Ack(args) => ack::run(args),
         #[cfg(feature = "testing")]
         Command::Sweep(args) => sweep::run(args),
     }
