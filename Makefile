@@ -22,7 +22,7 @@ export LIBTORCH_BYPASS_VERSION_CHECK := 1
 CARGO ?= cargo
 BIN := $(CARGO_TARGET_DIR)/release
 
-.PHONY: setup build demo test lint fmt learner-host bench bench-link bench-loop sweep clean help
+.PHONY: setup build demo test test-deploy lint fmt learner-host bench bench-link bench-loop sweep clean help
 
 help:
 	@echo "make demo   - run the main job on the simulated arm (installs what it needs)"
@@ -30,6 +30,7 @@ help:
 	@echo "make bench  - criterion benchmarks (medians in README)"
 	@echo "make learner-host - on a GPU box: learner serve + relay (LEARNER_HOST_ARGS)"
 	@echo "make bench-link - policy/request latency across two network namespaces (root)"
+	@echo "make test-deploy - the deploy build (panic = abort) brakes after a panic"
 	@echo "make sweep  - the adversarial safety sweep, 10 000 episodes (ARGS to override)"
 
 setup:
@@ -54,6 +55,14 @@ _test:
 	$(CARGO) build --release --workspace --bins
 	$(CARGO) test --release --workspace --no-fail-fast
 	@bash scripts/ci-bench-loop.sh "$(BIN)"
+
+# The deploy build (`panic = "abort"`) keeps the controlled stop after a panic (issue 25):
+# rt-core built in the deploy profile (every rt-core dependency once more: minutes, so not
+# part of `make test`), then the exit-path test on it against xarm-sim.
+test-deploy: setup
+	$(CARGO) build --profile deploy -p rt-core --bins
+	$(CARGO) build --release -p xarm-sim --bins
+	$(CARGO) test --release -p foresight-tests --test exit_paths -- --ignored deploy_build
 
 lint: setup
 	$(CARGO) fmt --all --check
