@@ -5,6 +5,9 @@
 //! # Map
 //! - [`config`](PpoConfig): hyper-parameters and their validation;
 //! - `gae`: [`gae`], advantages and returns of a time-major rollout;
+//! - `host_net`: the actor-critic on host `f32` buffers (no tch): batched forward passes of
+//!   rollouts, and the update's hand-written backward pass, split by rows over the worker
+//!   threads;
 //! - `loss`: [`ppo_loss`] and its pieces (clipped surrogate, advantage normalisation);
 //! - `rollout`: the threaded rollout collection (scene sampling, action noise, reward
 //!   scaling, truncation bootstrap) and [`EpisodeStat`];
@@ -29,6 +32,7 @@ pub mod bc;
 mod config;
 mod evaluation;
 mod gae;
+mod host_net;
 mod loss;
 mod rollout;
 mod trainer;

@@ -1,13 +1,16 @@
 //! Rollout collection: the environments are split into chunks, one per worker thread, and
 //! each thread runs its chunk for the whole rollout (scene sampling, normalisation, batched
 //! policy forward pass on a read-only shallow copy of the network, Gaussian action noise,
-//! reward scaling and the truncation bootstrap), so threads meet once per rollout.
+//! reward scaling and the truncation bootstrap), so threads meet once per rollout. The
+//! forward passes run on a host copy of the parameters ([`HostNet`]), taken once per rollout.
 //!
 //! [`collect`] is the entry point; [`ChunkBuf`] is what one worker hands back to the
 //! trainer's update.
 
 use rand_chacha::ChaCha8Rng;
 use tch::{Device, Tensor};
+
+use super::host_net::{ForwardWork, HostNet};
 
 use crate::env::{Env, SceneSampler, StepInfo};
 use crate::net::{ActorCritic, HALF_LOG_2PI};
@@ -119,8 +122,8 @@ pub(super) struct RolloutParams<'a> {
     pub(super) clip_reward: f32,
 }
 
-/// Runs every slot for `p.n_steps` steps on `workers` threads (each with a detached copy of
-/// `net`); one buffer per chunk, in slot order.
+/// Runs every slot for `p.n_steps` steps on `workers` threads (sharing one host snapshot of
+/// `net`'s parameters); one buffer per chunk, in slot order.
 pub(super) fn collect<E: Env, S: SceneSampler<E::Scene>>(
     slots: &mut [Slot<E>],
     net: &ActorCritic,
@@ -129,12 +132,12 @@ pub(super) fn collect<E: Env, S: SceneSampler<E::Scene>>(
     p: &RolloutParams<'_>,
 ) -> Vec<ChunkBuf> {
     let per = slots.len().div_ceil(workers.max(1)).max(1);
-    let nets: Vec<ActorCritic> = slots.chunks(per).map(|_| net.detached()).collect();
+    let host = HostNet::of(net);
+    let host = &host;
     std::thread::scope(|s| {
         let handles: Vec<_> = slots
             .chunks_mut(per)
-            .zip(nets)
-            .map(|(chunk, net)| s.spawn(move || run_chunk(chunk, &net, sampler, p)))
+            .map(|chunk| s.spawn(move || run_chunk(chunk, host, sampler, p)))
             .collect();
         handles
             .into_iter()
@@ -143,8 +146,9 @@ pub(super) fn collect<E: Env, S: SceneSampler<E::Scene>>(
     })
 }
 
-/// Batched policy forward on normalised observations `[n * obs_dim]`: returns action means
-/// and (when `want_value`) values.
+/// Batched policy forward with tch on normalised observations `[n * obs_dim]`: returns action
+/// means and (when `want_value`) values. Evaluations use it; rollouts use [`HostNet`] (tested
+/// against it).
 pub(super) fn forward(
     net: &ActorCritic,
     obs: &[f32],
@@ -206,7 +210,7 @@ impl Noise {
 
 fn run_chunk<E: Env, S: SceneSampler<E::Scene>>(
     chunk: &mut [Slot<E>],
-    net: &ActorCritic,
+    net: &HostNet,
     sampler: &S,
     p: &RolloutParams<'_>,
 ) -> ChunkBuf {
@@ -218,10 +222,18 @@ fn run_chunk<E: Env, S: SceneSampler<E::Scene>>(
     let mut cur = vec![0.0f32; n * d];
     let mut act = vec![0.0f32; a];
     let mut clipped = vec![0.0f32; a];
+    let mut work = ForwardWork::default();
+    let mut mean = vec![0.0f32; n * a];
+    let mut values = vec![0.0f32; n];
+    let mut one = Bootstrap {
+        obs: vec![0.0f32; d],
+        mean: vec![0.0f32; a],
+        work: ForwardWork::default(),
+    };
     for _ in 0..p.n_steps {
         observe(chunk, sampler, p.norm, &mut cur, &mut b);
         b.obs.extend_from_slice(&cur);
-        let (mean, values) = forward(net, &cur, n, true);
+        net.forward(&cur, n, &mut work, &mut mean, Some(&mut values));
         b.values.extend_from_slice(&values);
         for (e, slot) in chunk.iter_mut().enumerate() {
             let lp = noise.sample(
@@ -232,16 +244,23 @@ fn run_chunk<E: Env, S: SceneSampler<E::Scene>>(
             );
             b.actions.extend_from_slice(&act);
             b.logp.push(lp);
-            step_slot(slot, &clipped, net, p, &mut b);
+            step_slot(slot, &clipped, net, &mut one, p, &mut b);
         }
     }
     // Values of the observations after the rollout (for episodes still running).
     for (e, slot) in chunk.iter().enumerate() {
         p.norm.apply(&slot.obs, &mut cur[e * d..(e + 1) * d]);
     }
-    let (_, last) = forward(net, &cur, n, true);
-    b.last_values = last;
+    net.forward(&cur, n, &mut work, &mut mean, Some(&mut values));
+    b.last_values = values;
     b
+}
+
+/// Buffers of the one-observation value pass of the truncation bootstrap.
+struct Bootstrap {
+    obs: Vec<f32>,
+    mean: Vec<f32>,
+    work: ForwardWork,
 }
 
 /// Starts new episodes where needed, records the raw observations and writes the normalised
@@ -270,7 +289,8 @@ fn observe<E: Env, S: SceneSampler<E::Scene>>(
 fn step_slot<E: Env>(
     slot: &mut Slot<E>,
     clipped: &[f32],
-    net: &ActorCritic,
+    net: &HostNet,
+    one: &mut Bootstrap,
     p: &RolloutParams<'_>,
     b: &mut ChunkBuf,
 ) {
@@ -283,9 +303,9 @@ fn step_slot<E: Env>(
     let mut r = (info.reward * p.reward_scale).clamp(-p.clip_reward, p.clip_reward);
     let end = info.terminated || info.truncated;
     if info.truncated && !info.terminated {
-        let mut o = vec![0.0f32; net.spec.obs_dim];
-        p.norm.apply(&slot.obs, &mut o);
-        let (_, v) = forward(net, &o, 1, true);
+        p.norm.apply(&slot.obs, &mut one.obs);
+        let mut v = [0.0f32];
+        net.forward(&one.obs, 1, &mut one.work, &mut one.mean, Some(&mut v));
         r += p.gamma as f32 * v[0];
     }
     b.rewards.push(r);

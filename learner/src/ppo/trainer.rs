@@ -12,6 +12,7 @@ use tch::{Device, Tensor};
 use super::config::{PpoConfig, PpoConfigValidateError};
 use super::evaluation::{EvalResult, evaluate};
 use super::gae::gae;
+use super::host_net::{AdamCfg, HostUpdate, LossCfg};
 use super::loss::{LossParts, ppo_loss};
 use super::rollout::{ChunkBuf, EpisodeStat, RolloutParams, Slot, collect};
 use crate::adam::{Adam, clip_grad_norm};
@@ -79,6 +80,25 @@ pub struct Trainer<E: Env + Clone> {
     pub rng: ChaCha8Rng,
     slots: Vec<Slot<E>>,
     template: E,
+}
+
+/// One rollout flattened into host vectors (row-major), after GAE.
+#[derive(Default)]
+struct HostBatch {
+    obs: Vec<f32>,
+    actions: Vec<f32>,
+    logp: Vec<f32>,
+    adv: Vec<f32>,
+    returns: Vec<f32>,
+}
+
+/// A host tensor's values (a flat `f32` tensor on any device).
+fn to_host(t: &Tensor) -> Vec<f32> {
+    let t = t.detach().to_device(Device::Cpu).contiguous();
+    let n = t.numel();
+    let mut v = vec![0.0f32; n];
+    t.copy_data(&mut v, n);
+    v
 }
 
 /// One rollout flattened into tensors on the network's device, ready for minibatches.
@@ -230,51 +250,126 @@ impl<E: Env + Clone> Trainer<E> {
         bufs
     }
 
-    /// GAE per chunk, then everything concatenated into tensors on the network's device.
-    fn batch(&self, bufs: &[ChunkBuf]) -> Batch {
+    /// GAE per chunk, then everything concatenated (row-major host vectors).
+    fn host_batch(&self, bufs: &[ChunkBuf]) -> HostBatch {
         let (g, l) = (self.cfg.gamma as f32, self.cfg.gae_lambda as f32);
-        let d = self.net.spec.obs_dim;
-        let a = self.net.spec.act_dim;
-        let (mut obs, mut act, mut logp, mut adv, mut ret) =
-            (vec![], vec![], vec![], vec![], vec![]);
+        let mut hb = HostBatch::default();
         for b in bufs {
             if b.n == 0 {
                 continue;
             }
             let (ad, re) = gae(&b.rewards, &b.values, &b.ends, &b.last_values, g, l);
-            obs.extend_from_slice(&b.obs);
-            act.extend_from_slice(&b.actions);
-            logp.extend_from_slice(&b.logp);
-            adv.extend(ad);
-            ret.extend(re);
+            hb.obs.extend_from_slice(&b.obs);
+            hb.actions.extend_from_slice(&b.actions);
+            hb.logp.extend_from_slice(&b.logp);
+            hb.adv.extend(ad);
+            hb.returns.extend(re);
         }
-        let n = logp.len();
+        hb
+    }
+
+    /// The host batch as tensors on the network's device (the tch update path).
+    fn batch(&self, hb: &HostBatch) -> Batch {
+        let d = self.net.spec.obs_dim;
+        let a = self.net.spec.act_dim;
+        let n = hb.logp.len();
         let dev = self.net.device();
         Batch {
-            obs: Tensor::from_slice(&obs)
+            obs: Tensor::from_slice(&hb.obs)
                 .view([n as i64, d as i64])
                 .to_device(dev),
-            actions: Tensor::from_slice(&act)
+            actions: Tensor::from_slice(&hb.actions)
                 .view([n as i64, a as i64])
                 .to_device(dev),
-            logp: Tensor::from_slice(&logp).to_device(dev),
-            adv: Tensor::from_slice(&adv).to_device(dev),
-            returns: Tensor::from_slice(&ret).to_device(dev),
+            logp: Tensor::from_slice(&hb.logp).to_device(dev),
+            adv: Tensor::from_slice(&hb.adv).to_device(dev),
+            returns: Tensor::from_slice(&hb.returns).to_device(dev),
             len: n,
         }
     }
 
     fn update(&mut self, bufs: &[ChunkBuf]) -> IterStats {
-        let batch = self.batch(bufs);
+        let hb = self.host_batch(bufs);
+        let host = if self.net.device() == Device::Cpu {
+            HostUpdate::new(
+                self.net.spec.clone(),
+                self.net.flat(),
+                to_host(&self.adam.m),
+                to_host(&self.adam.v),
+                self.adam.t,
+                self.cfg.effective_workers(),
+            )
+        } else {
+            None
+        };
+        let mut st = match host {
+            Some(h) => self.update_host(&hb, h),
+            None => self.update_tch(&hb),
+        };
+        let count = (self.cfg.n_epochs * hb.logp.len().div_ceil(self.cfg.batch_size)).max(1) as f64;
+        st.policy_loss /= count;
+        st.value_loss /= count;
+        st.approx_kl /= count;
+        st.clip_fraction /= count;
+        self.iteration += 1;
+        st
+    }
+
+    /// The minibatch order of one epoch: a Fisher–Yates shuffle with the trainer's stream.
+    fn shuffle(&mut self, idx: &mut [i64]) {
+        for i in (1..idx.len()).rev() {
+            let j = self.rng.random_range(0..=i);
+            idx.swap(i, j);
+        }
+    }
+
+    /// The update on host buffers ([`HostUpdate`]); the parameters and Adam moments are
+    /// copied back into the tensors at the end. Loss sums are not yet averaged.
+    fn update_host(&mut self, hb: &HostBatch, mut h: HostUpdate) -> IterStats {
+        let mut idx: Vec<i64> = (0..hb.logp.len() as i64).collect();
+        let mut st = IterStats::default();
+        let loss_cfg = LossCfg {
+            clip: self.cfg.clip_range as f32,
+            vf_coef: self.cfg.vf_coef as f32,
+            ent_coef: self.cfg.ent_coef as f32,
+        };
+        let adam_cfg = AdamCfg {
+            lr: self.adam.lr,
+            beta1: self.adam.beta1,
+            beta2: self.adam.beta2,
+            eps: self.adam.eps,
+            max_grad_norm: self.cfg.max_grad_norm,
+        };
+        for _ in 0..self.cfg.n_epochs {
+            self.shuffle(&mut idx);
+            for mb in idx.chunks(self.cfg.batch_size) {
+                h.load(&hb.obs, &hb.actions, &hb.logp, &hb.adv, &hb.returns, mb);
+                let r = h.gradient(loss_cfg);
+                h.apply(adam_cfg);
+                st.policy_loss += r.policy;
+                st.value_loss += r.value;
+                st.approx_kl += r.approx_kl;
+                st.clip_fraction += r.clip_fraction;
+                st.entropy = r.entropy;
+            }
+        }
+        tch::no_grad(|| {
+            self.net.theta.copy_(&Tensor::from_slice(&h.theta));
+            self.adam.m.copy_(&Tensor::from_slice(&h.m));
+            self.adam.v.copy_(&Tensor::from_slice(&h.v));
+        });
+        self.adam.t = h.t;
+        st
+    }
+
+    /// The update with tch autograd (other devices than the CPU). Loss sums are not yet
+    /// averaged.
+    fn update_tch(&mut self, hb: &HostBatch) -> IterStats {
+        let batch = self.batch(hb);
         let mut idx: Vec<i64> = (0..batch.len as i64).collect();
         let mut st = IterStats::default();
-        let mut count = 0.0;
         for _ in 0..self.cfg.n_epochs {
-            // Fisher–Yates with the trainer's stream.
-            for i in (1..idx.len()).rev() {
-                let j = self.rng.random_range(0..=i);
-                idx.swap(i, j);
-            }
+            self.shuffle(&mut idx);
             for mb in idx.chunks(self.cfg.batch_size) {
                 let p = self.minibatch_step(&batch, mb);
                 st.policy_loss += p.policy.double_value(&[]);
@@ -282,14 +377,8 @@ impl<E: Env + Clone> Trainer<E> {
                 st.approx_kl += p.approx_kl.double_value(&[]);
                 st.clip_fraction += p.clip_fraction.double_value(&[]);
                 st.entropy = p.entropy.double_value(&[]);
-                count += 1.0;
             }
         }
-        st.policy_loss /= count;
-        st.value_loss /= count;
-        st.approx_kl /= count;
-        st.clip_fraction /= count;
-        self.iteration += 1;
         st
     }
 
