@@ -403,11 +403,24 @@ pub fn retrain_with(
     let warm = s
         .demonstrations
         .then(|| warm_start(&mut trainer, env, &sampler, path, &eval_scenes, s));
+    // When the cloned policy already passes the evaluation, PPO has only to confirm it: the
+    // stop rule's two consecutive passing evaluations come twice as often (tall box: 2.1 s
+    // instead of 4.6 s). Otherwise the configured interval (more evaluations only cost time
+    // while PPO still has to learn: world 34 of the benchmark took 31.8 s instead of 22.4 s
+    // evaluated every 4 096 steps).
+    let cloned_passes = warm.as_ref().and_then(|w| w.after_bc).is_some_and(|e| {
+        e.success_rate >= SuccessRule::default().min_success && e.collision_rate == 0.0
+    });
+    let eval_every = if cloned_passes {
+        (s.eval_every / 2).max(1)
+    } else {
+        s.eval_every
+    };
     let _ = std::fs::remove_dir_all(out_dir);
     let opts = RunOptions {
         out_dir: out_dir.to_path_buf(),
         total_steps: trainer.steps + s.max_steps,
-        eval_every_steps: s.eval_every,
+        eval_every_steps: eval_every,
         seed: base.meta.seed,
         task_hash: env.task_hash(),
         time_budget: Some(Duration::from_secs_f64(s.time_budget_s)),
