@@ -69,3 +69,26 @@ fn env_is_send_and_clone() {
     fn is_sync<T: Send + Sync + Clone>() {}
     is_sync::<twin::RobotModel>();
 }
+
+#[test]
+fn reset_from_the_start_posture_is_reset_and_another_posture_starts_there() {
+    let mut a = env();
+    let mut b = env();
+    let scene = super::common::scene("tall_box.toml");
+    let start = a.config().start.joints_rad;
+    let oa = a.reset(&scene);
+    let ob = b.reset_from(&scene, &start);
+    assert_eq!(oa.map(f32::to_bits), ob.map(f32::to_bits));
+    let act = [0.3f32, -0.7, 0.1];
+    for _ in 0..20 {
+        assert_eq!(bits(&a.step(&act)), bits(&b.step(&act)));
+    }
+    // Mid-way: the episode starts at the posture given, step count 0, at rest.
+    let q = a.joints();
+    let o = b.reset_from(&scene, &q);
+    assert_eq!(b.joints(), q);
+    assert_eq!(b.step_index(), 0);
+    assert_eq!(o[0], 0.0);
+    assert_eq!([o[6], o[7], o[8]], [0.0; 3]);
+    assert!((b.tcp_m() - a.tcp_m()).norm() < 1e-12);
+}
