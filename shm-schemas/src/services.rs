@@ -18,11 +18,14 @@
 
 use core::fmt::Debug;
 
+use iceoryx2::config::ConfigCreationError;
 use iceoryx2::node::{CleanupState, Node, NodeBuilder, NodeCreationFailure};
 use iceoryx2::port::LoanError;
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::{Subscriber, SubscriberCreateError};
-use iceoryx2::prelude::{AttributeVerifier, Config, NodeName, ServiceName, ZeroCopySend};
+use iceoryx2::prelude::{
+    AttributeVerifier, Config, FilePath, NodeName, SemanticString, ServiceName, ZeroCopySend,
+};
 use iceoryx2::sample_mut::SampleMut;
 use iceoryx2::service::Service;
 use iceoryx2::service::attribute::{AttributeKey, AttributeValue};
@@ -418,6 +421,48 @@ pub enum NodeCreateError {
     /// iceoryx2 could not create the node.
     #[error("cannot create the iceoryx2 node: {0:?}")]
     Create(NodeCreationFailure),
+    /// The iceoryx2 configuration file (`$FORESIGHT_ICEORYX2_CONFIG`, else
+    /// `assets/iceoryx2.toml`) exists but cannot be loaded.
+    #[error(
+        "cannot load the iceoryx2 configuration (${ICEORYX2_CONFIG_ENV}, else {ICEORYX2_CONFIG_FILE}): {0:?}"
+    )]
+    Config(ConfigCreationError),
+}
+
+/// The environment variable that names the iceoryx2 configuration file of a Foresight
+/// process (a deployment's own); see [`global_config`].
+pub const ICEORYX2_CONFIG_ENV: &str = "FORESIGHT_ICEORYX2_CONFIG";
+
+/// The iceoryx2 configuration Foresight ships, relative to the folder a process starts in
+/// (the repository root, where `make demo` and the launcher run).
+pub const ICEORYX2_CONFIG_FILE: &str = "assets/iceoryx2.toml";
+
+/// iceoryx2's global configuration of this process, set up on first use: the file
+/// `$FORESIGHT_ICEORYX2_CONFIG` names, else [`ICEORYX2_CONFIG_FILE`] when it is there, else
+/// iceoryx2's own lookup (`config/iceoryx2.toml`, the user's, `/etc/iceoryx2/`), which
+/// prints a warning when it finds no file. Loading a named file prints nothing, so a
+/// normal run's console stays clean.
+///
+/// # Errors
+/// [`NodeCreateError::Config`] when the file is there but unreadable or malformed.
+pub fn global_config() -> Result<&'static Config, NodeCreateError> {
+    let file = std::env::var(ICEORYX2_CONFIG_ENV)
+        .ok()
+        .filter(|p| !p.is_empty())
+        .or_else(|| {
+            std::path::Path::new(ICEORYX2_CONFIG_FILE)
+                .is_file()
+                .then(|| ICEORYX2_CONFIG_FILE.to_owned())
+        });
+    match file {
+        Some(path) => {
+            let path = FilePath::new(path.as_bytes()).map_err(|_| {
+                NodeCreateError::Config(ConfigCreationError::FailedToReadConfigFileContents)
+            })?;
+            Config::setup_global_config_from_file(&path).map_err(NodeCreateError::Config)
+        }
+        None => Ok(Config::global_config()),
+    }
 }
 
 /// Creates a named node and then removes the stale resources (shared memory, service
@@ -430,10 +475,11 @@ pub enum NodeCreateError {
 /// iceoryx2's default configuration also cleans dead nodes on node creation and service
 /// open; this explicit pass keeps the guarantee when a deployment's config turns those off.
 ///
-/// The node uses iceoryx2's global configuration (a deployment's config file, or the
-/// defaults) with the creation timeout raised to at least [`MIN_CREATION_TIMEOUT`].
+/// The node uses the process's iceoryx2 configuration ([`global_config`]: Foresight's
+/// `assets/iceoryx2.toml`, a deployment's file, or the defaults) with the creation timeout
+/// raised to at least [`MIN_CREATION_TIMEOUT`].
 pub fn create_node<S: Service>(name: &str) -> Result<(Node<S>, CleanupState), NodeCreateError> {
-    let mut config = Config::global_config().clone();
+    let mut config = global_config()?.clone();
     config.global.creation_timeout = config.global.creation_timeout.max(MIN_CREATION_TIMEOUT);
     create_node_with_config(name, &config)
 }
@@ -454,4 +500,21 @@ pub fn create_node_with_config<S: Service>(
         .map_err(NodeCreateError::Create)?;
     let cleanup = node.try_cleanup_dead_nodes();
     Ok((node, cleanup))
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod config_tests {
+    use super::*;
+
+    /// The shipped `assets/iceoryx2.toml` loads, and says what iceoryx2's defaults say
+    /// except the creation timeout: every process, with the file or without, agrees.
+    #[test]
+    fn the_shipped_iceoryx2_config_loads_and_keeps_the_defaults() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/iceoryx2.toml");
+        let shipped = Config::from_file(&FilePath::new(path.as_bytes()).unwrap()).unwrap();
+        let mut expected = Config::default();
+        expected.global.creation_timeout = MIN_CREATION_TIMEOUT;
+        assert_eq!(shipped, expected);
+    }
 }

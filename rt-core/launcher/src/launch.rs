@@ -22,7 +22,7 @@ use crate::report::{self, View};
 use crate::run_dir::{RunDir, write_atomic};
 use crate::runtime_view::RuntimeView;
 use crate::scenario::{Action, Director, ScenarioConfig, TimelineEvent};
-use crate::sim_link::{sim_collisions, sim_control, sim_status};
+use crate::sim_link::{sim_control, sim_status};
 use crate::supervisor::{ProcessEvent, Supervisor};
 
 /// Runs one scenario, or `--runs N` randomised ones; true when every run met its goal.
@@ -199,6 +199,9 @@ fn run_scenario(
     let mut sup = Supervisor::new(&setup.run.file("logs/.keep")?.with_file_name(""));
     let started = processes::start_all(&mut sup, args, &setup.run, &setup.prefix, &setup.live)?;
     let observer = open_observer(&setup.prefix)?;
+    let mut record_notes = Vec::new();
+    let recording =
+        crate::recording::start(args, &setup.run.path, &setup.prefix, &mut record_notes);
     let mut director = Director::new(ScenarioConfig {
         world: world.clone(),
         goal_tolerance_m: task.success.tolerance_m,
@@ -223,10 +226,14 @@ fn run_scenario(
         last_status_s: f64::NEG_INFINITY,
         collisions_seen: 0,
         blind_collided: false,
+        recording: recording.as_ref(),
     };
     watch.direct(&mut director, &observer, stop)?;
     let notes = std::mem::take(&mut watch.notes);
-    let (summary, referee) = finish(args, &setup, started, &mut sup, &director, notes)?;
+    let (mut summary, referee) = finish(args, &setup, started, &mut sup, &director, notes)?;
+    // The processes are stopped: the recording holds everything they published.
+    crate::recording::stop(recording, &mut summary.notes);
+    summary.notes.extend(record_notes);
     write_report(
         &setup.run,
         args,
@@ -240,6 +247,10 @@ fn run_scenario(
         println!("referee: {}", r.describe());
     }
     println!("report: {}", setup.run.path.join("report.md").display());
+    let mcap = setup.run.path.join(crate::recording::RUN_MCAP);
+    if mcap.exists() {
+        println!("recording: {} (ros2 bag info, Foxglove)", mcap.display());
+    }
     Ok((summary, setup.run.path.clone()))
 }
 
@@ -255,6 +266,8 @@ struct Watch<'a> {
     last_status_s: f64,
     collisions_seen: u64,
     blind_collided: bool,
+    /// The run's recording, which also gets the referee's figures.
+    recording: Option<&'a recorder::Recorder>,
 }
 
 impl Watch<'_> {
@@ -338,14 +351,23 @@ impl Watch<'_> {
     }
 
     /// Ground truth from the simulated arm, twice a second: a new collision is an event
-    /// (and ends a blind run).
+    /// (and ends a blind run); the referee's figures go to the recording.
     fn check_ground_truth(&mut self, t_s: f64) {
         let Some(sim) = self.started.sim else { return };
         if t_s - self.last_status_s < 0.5 {
             return;
         }
         self.last_status_s = t_s;
-        if let Some(n) = sim_collisions(sim.control)
+        let status = sim_status(sim.control);
+        if let (Some(rec), Some(r)) = (
+            self.recording,
+            status
+                .as_ref()
+                .and_then(crate::recording::referee_from_status),
+        ) {
+            rec.referee(r);
+        }
+        if let Some(n) = status.as_ref().and_then(|v| v["collisions"].as_u64())
             && n > self.collisions_seen
         {
             self.extra_events.push(TimelineEvent {
@@ -568,18 +590,24 @@ fn write_report(
         .iter()
         .map(|e| event_line(args, e))
         .collect();
+    let mut files = vec![
+        ("summary.json", "summary.json"),
+        ("verdict timeline (JSONL)", "timeline.jsonl"),
+    ];
+    if run.path.join(crate::recording::RUN_MCAP).exists() {
+        files.push((
+            "run recording (MCAP: `ros2 bag info`, Foxglove)",
+            crate::recording::RUN_MCAP,
+        ));
+    }
+    files.extend([("process logs", "logs/"), ("world scenes", "world/")]);
     report::write_markdown(
         &run.path.join("report.md"),
         summary,
         referee,
         &timeline,
         &images,
-        &[
-            ("summary.json", "summary.json"),
-            ("verdict timeline (JSONL)", "timeline.jsonl"),
-            ("process logs", "logs/"),
-            ("world scenes", "world/"),
-        ],
+        &files,
     )?;
     Ok(())
 }

@@ -8,12 +8,14 @@
 //!   simulated arm's control port.
 //! - [`report`]: summary, plots and Markdown; [`worlds`]: the unseen-worlds benchmark's
 //!   table and plot over `--runs N --worlds random`; [`run_dir`]: the run folder, atomic writes;
-//!   [`runtime_view`]: what the launcher reads of rt-core's configuration.
+//!   [`runtime_view`]: what the launcher reads of rt-core's configuration; [`recording`]:
+//!   the run's MCAP recording (`runs/<run>/run.mcap`).
 
 pub mod args;
 pub mod launch;
 pub mod observer;
 pub mod processes;
+pub mod recording;
 pub mod report;
 pub mod run_dir;
 pub mod runtime_view;

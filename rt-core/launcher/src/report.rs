@@ -286,6 +286,22 @@ const SCENE_COLOURS: [RGBColor; 4] = [
     RGBColor(148, 103, 189),
 ];
 
+/// An axis tick as a person writes it: `1M`, `1.5M`, `250k`, `0.25`, `-2` (never
+/// `1000000.0`): thousands and millions as `k` and `M`, at most two decimals, no trailing zeros.
+pub fn tick_text(v: f64) -> String {
+    let (scaled, suffix) = if v.abs() >= 1e6 - 0.5 {
+        (v / 1e6, "M")
+    } else if v.abs() >= 1e3 - 0.5 {
+        (v / 1e3, "k")
+    } else {
+        (v, "")
+    };
+    let text = format!("{scaled:.2}");
+    let text = text.trim_end_matches('0').trim_end_matches('.');
+    let text = if text == "-0" { "0" } else { text };
+    format!("{text}{suffix}")
+}
+
 fn plot_err(path: &Path) -> impl Fn(String) -> ReportError + '_ {
     move |e| ReportError::Plot(path.to_path_buf(), e)
 }
@@ -332,6 +348,10 @@ pub fn plot_path(
         .configure_mesh()
         .x_desc(xl)
         .y_desc(yl)
+        .x_labels(10)
+        .y_labels(8)
+        .x_label_formatter(&|v| tick_text(*v))
+        .y_label_formatter(&|v| tick_text(*v))
         .light_line_style(RGBColor(235, 235, 235))
         .draw()
         .map_err(|e| err(e.to_string()))?;
@@ -496,6 +516,10 @@ pub fn plot_reward_curves(
         .configure_mesh()
         .x_desc("environment steps")
         .y_desc("mean episode return")
+        .x_labels(7)
+        .y_labels(7)
+        .x_label_formatter(&|v| tick_text(*v))
+        .y_label_formatter(&|v| tick_text(*v))
         .draw()
         .map_err(|e| err(e.to_string()))?;
     for (i, (label, c)) in curves.iter().enumerate() {
@@ -765,5 +789,25 @@ mod tests {
             "{md}"
         );
         std::fs::remove_dir_all(&dir).ok();
+    }
+}
+
+#[cfg(test)]
+mod tick_text_tests {
+    use super::tick_text;
+
+    #[test]
+    fn ticks_read_as_people_write_them() {
+        let t = |vs: &[f64]| vs.iter().map(|v| tick_text(*v)).collect::<Vec<_>>();
+        assert_eq!(
+            t(&[0.0, 250_000.0, 1_000_000.0, 1_500_000.0, 2e7]),
+            ["0", "250k", "1M", "1.5M", "20M"]
+        );
+        assert_eq!(
+            t(&[-0.1, 0.0, 0.25, 0.7, -2.0]),
+            ["-0.1", "0", "0.25", "0.7", "-2"]
+        );
+        assert_eq!(t(&[999.0, 1000.0, 12_500.0]), ["999", "1k", "12.5k"]);
+        assert_eq!(tick_text(-1e-9), "0");
     }
 }

@@ -208,6 +208,17 @@ fn plot(out: &Path, rows: &[WorldRun]) -> Result<(), ReportError> {
         .configure_mesh()
         .x_desc("world")
         .y_desc("world change → motion (s)")
+        // One label per world (at most 20), as whole numbers; the seconds as 0.5, 1, 1.5.
+        .x_labels(n.min(20) * 2 + 1)
+        .x_label_formatter(&|x| {
+            let k = x.round();
+            if (x - k).abs() < 1e-6 && k >= 0.0 {
+                format!("{k:.0}")
+            } else {
+                String::new()
+            }
+        })
+        .y_label_formatter(&|y| crate::report::tick_text(*y))
         .light_line_style(RGBColor(235, 235, 235))
         .draw()
         .map_err(|e| err(e.to_string()))?;

@@ -108,6 +108,13 @@ pub struct RunArgs {
     /// in rad); written in dry runs, or whenever given.
     #[arg(long)]
     command_log: Option<PathBuf>,
+    /// Record the run to this MCAP file (ROS 2 messages with their schemas: `ros2 bag
+    /// info`/`play` and Foxglove open it), written by a normal thread subscribed to the run's
+    /// services, never by the cycle. Off unless given: the launcher records every run itself
+    /// (`runs/<run>/run.mcap`), and a bare `rt-core run` under a service manager writes no
+    /// file it was not asked for.
+    #[arg(long)]
+    record: Option<PathBuf>,
 }
 
 /// How long a panic (deploy build, `panic = "abort"`) waits for the cycle to brake the arm
@@ -202,6 +209,37 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
         auto_resume: args.auto_resume,
         inject: args.inject_fault,
     };
+    // The recorder subscribes before the runtime starts; a recording that was asked for and
+    // cannot start stops the run here, before anything moves.
+    let recording = match &args.record {
+        Some(path) => {
+            let urdf_path = args.assets.join("xarm5.urdf");
+            let urdf = std::fs::read_to_string(&urdf_path)
+                .with_context(|| format!("--record: reading {}", urdf_path.display()))?;
+            let cfg = recorder::RecorderConfig::new(path.clone(), &opts.prefix, urdf);
+            Some(recorder::Recorder::start(cfg).context("--record")?)
+        }
+        None => None,
+    };
+    let served = serve_link(args, &opts, cfg, model, task);
+    if let Some(r) = recording {
+        let path = r.path().display().to_string();
+        match r.stop() {
+            Ok(stats) => tracing::info!(%path, messages = stats.total(), "recording closed"),
+            Err(e) => tracing::warn!(%path, "recording ended badly: {e}"),
+        }
+    }
+    served
+}
+
+/// Opens the robot link `args` asks for and serves on it.
+fn serve_link(
+    args: &RunArgs,
+    opts: &ServeOptions,
+    cfg: RuntimeConfig,
+    model: RobotModel,
+    task: TaskConfig,
+) -> anyhow::Result<()> {
     match args.link {
         LinkKind::Sim => {
             let arm = InProcessArm::new(
@@ -210,7 +248,7 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
                 cfg.limits.joint_max_rad,
                 [std::f64::consts::PI; 5],
             );
-            run_on(&opts, &cfg, model, task, arm)
+            run_on(opts, &cfg, model, task, arm)
         }
         LinkKind::Xarm => {
             let host = args
@@ -243,7 +281,7 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
                     }
                 )
             })?;
-            run_on(&opts, &cfg, model, task, link)
+            run_on(opts, &cfg, model, task, link)
         }
     }
 }
