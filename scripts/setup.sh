@@ -14,7 +14,10 @@
 #   3. ONNX Runtime for perception's YOLO detector: the PyPI `onnxruntime` wheel (its
 #      libonnxruntime.so, loaded at run time by the `ort` crate's load-dynamic; ort 2.0.0-rc.15
 #      with api-22 needs ONNX Runtime >= 1.22), installed without dependencies into the same venv.
-#   4. build/env.mk: the LIBTORCH path and the ONNX Runtime library path that the Makefile
+#   4. The run-recording readers: the `mcap` and `mcap-ros2-support` Python packages (the
+#      independent reader of the runs' MCAP files in the system tests) and matplotlib (the
+#      README's picture of a recording).
+#   5. build/env.mk: the LIBTORCH path and the ONNX Runtime library path that the Makefile
 #      exports to every cargo call (perception bakes the latter in as its default), so that
 #      nothing is rebuilt because a variable changed.
 #
@@ -96,7 +99,32 @@ fi
 ort_lib=$(ls "$venv"/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.so.* 2>/dev/null | head -n1)
 [ -f "$ort_lib" ] || { echo "setup: the onnxruntime wheel has no capi/libonnxruntime.so.*" >&2; exit 1; }
 
-# ---- 4. build/env.mk ---------------------------------------------------------------------------
+# ---- 4. Run-recording readers ------------------------------------------------------------------
+# The `mcap` Python package is the independent reader the system tests check every run's
+# MCAP file with (tests/scripts/check_mcap.py, CDR decoded by mcap-ros2-support);
+# matplotlib draws the README's picture of a recording (tests/scripts/render_mcap.py).
+py_pkgs=(mcap==1.6.0 mcap-ros2-support==0.6.0 matplotlib==3.11.2)
+missing_py=$("$venv/bin/python" - "${py_pkgs[@]}" <<'PY' 2>/dev/null || true
+import importlib.metadata as m, sys
+for spec in sys.argv[1:]:
+    name, want = spec.split("==")
+    try:
+        ok = m.version(name) == want
+    except Exception:
+        ok = False
+    if not ok:
+        print(spec)
+PY
+)
+if [ -n "$missing_py" ]; then
+  say "installing $(echo $missing_py) (run-recording readers) into the venv"
+  # shellcheck disable=SC2086
+  "$venv/bin/python" -m pip install -q $missing_py
+else
+  say "mcap readers present"
+fi
+
+# ---- 5. build/env.mk ---------------------------------------------------------------------------
 mkdir -p "$here/build"
 cat > "$here/build/env.mk.tmp" <<MK
 # Written by scripts/setup.sh; do not edit.

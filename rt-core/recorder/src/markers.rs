@@ -115,7 +115,12 @@ pub fn scene_markers(
                 ..Vec3::default()
             },
             color: PATH,
-            points: path.points_m.iter().copied().map(Vec3::from_array).collect(),
+            points: path
+                .points_m
+                .iter()
+                .copied()
+                .map(Vec3::from_array)
+                .collect(),
             ..marker("plan_path", 0, Marker::LINE_STRIP)
         });
     }
@@ -132,7 +137,11 @@ pub fn scene_markers(
                 "verdict {} (policy {}): {}, {}, min distance {:.1} mm{}",
                 v.verdict_id,
                 v.policy_id,
-                if v.is_task_ok() { "reaches the goal" } else { "misses the goal" },
+                if v.is_task_ok() {
+                    "reaches the goal"
+                } else {
+                    "misses the goal"
+                },
                 if v.is_safe() { "safe" } else { "CONTACT" },
                 v.min_distance_m * 1e3,
                 if approved { ", approved" } else { "" }
@@ -151,8 +160,20 @@ mod tests {
     #[test]
     fn the_markers_show_boxes_path_and_verdict() {
         let mut frame = DetectionFrame::default();
-        frame.push(DetectedObject::new(1, ObjectClass::Goal, 0.9, [0.4, 0.1, 0.05], [0.05; 3]));
-        frame.push(DetectedObject::new(2, ObjectClass::Obstacle, 0.9, [0.3, 0.0, 0.1], [0.1, 0.1, 0.2]));
+        frame.push(DetectedObject::new(
+            1,
+            ObjectClass::Goal,
+            0.9,
+            [0.4, 0.1, 0.05],
+            [0.05; 3],
+        ));
+        frame.push(DetectedObject::new(
+            2,
+            ObjectClass::Obstacle,
+            0.9,
+            [0.3, 0.0, 0.1],
+            [0.1, 0.1, 0.2],
+        ));
         let mut path = PlanPath::default();
         path.restart(7);
         assert!(path.push([0.2, 0.0, 0.3]));
@@ -165,9 +186,16 @@ mod tests {
         v.set_flags(true, true, true);
         let m = scene_markers(&Header::default(), Some(&frame), &path, Some(&v));
         let ns: Vec<&str> = m.markers.iter().map(|m| m.ns.as_str()).collect();
-        assert_eq!(ns, ["foresight", "goal", "obstacles", "plan_path", "verdict"]);
+        assert_eq!(
+            ns,
+            ["foresight", "goal", "obstacles", "plan_path", "verdict"]
+        );
         assert_eq!(m.markers[0].action, Marker::DELETE_ALL);
         assert_eq!(m.markers[3].points.len(), 2);
-        assert!(m.markers[4].text.contains("approved"), "{}", m.markers[4].text);
+        assert!(
+            m.markers[4].text.contains("approved"),
+            "{}",
+            m.markers[4].text
+        );
     }
 }

@@ -254,8 +254,7 @@ impl McapFile {
         self.cdr.reset();
         msg.encode(&mut self.cdr);
         let len = self.cdr.as_bytes().len() as u64;
-        let worst_case =
-            self.written.load(Ordering::Relaxed) + self.opts.chunk_bytes + len + 64;
+        let worst_case = self.written.load(Ordering::Relaxed) + self.opts.chunk_bytes + len + 64;
         if worst_case + SUMMARY_RESERVE_BYTES > self.opts.max_bytes {
             tracing::warn!(
                 path = %self.path.display(),
@@ -396,7 +395,11 @@ mod tests {
         let len = std::fs::metadata(&path).unwrap().len();
         assert!(len <= max_bytes, "{len} > {max_bytes}");
         let bytes = std::fs::read(&path).unwrap();
-        assert_eq!(&bytes[bytes.len() - 8..], b"\x89MCAP0\r\n", "finished cleanly");
+        assert_eq!(
+            &bytes[bytes.len() - 8..],
+            b"\x89MCAP0\r\n",
+            "finished cleanly"
+        );
     }
 
     #[test]

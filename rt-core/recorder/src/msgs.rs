@@ -435,7 +435,10 @@ impl RosMessage for TwinVerdictMsg {
         w.bool(v.is_safe());
         w.bool(v.is_plan_approved());
         w.u8(v.episode_end);
-        w.string(&v.episode_end().map_or_else(|_| "unknown".to_owned(), |e| format!("{e:?}")));
+        w.string(
+            &v.episode_end()
+                .map_or_else(|_| "unknown".to_owned(), |e| format!("{e:?}")),
+        );
     }
 }
 
@@ -463,7 +466,10 @@ impl RosMessage for RetrainProgressMsg {
         w.f64(p.success_rate);
         w.f64(p.wall_time_s);
         w.u8(p.phase);
-        w.string(&p.phase().map_or_else(|_| "unknown".to_owned(), |e| format!("{e:?}")));
+        w.string(
+            &p.phase()
+                .map_or_else(|_| "unknown".to_owned(), |e| format!("{e:?}")),
+        );
     }
 }
 
@@ -566,7 +572,10 @@ impl RosMessage for RobotStatusMsg {
         w.u8(s.arm_warning_code);
         w.bool(s.controlled_stop != 0);
         w.u8(s.stop_reason);
-        w.string(&s.stop_reason().map_or_else(|_| "unknown".to_owned(), |e| format!("{e:?}")));
+        w.string(
+            &s.stop_reason()
+                .map_or_else(|_| "unknown".to_owned(), |e| format!("{e:?}")),
+        );
         w.bool(s.link_ok != 0);
     }
 }

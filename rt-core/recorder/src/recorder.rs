@@ -13,13 +13,14 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use shm_schemas::{
-    DetectionFrame, RetrainProgress, RetrainRequest, RobotState, ShmMessage, TwinVerdict,
-    services,
+    DetectionFrame, RetrainProgress, RetrainRequest, RobotState, ShmMessage, TwinVerdict, services,
 };
 use twin::{DOF, RobotModel};
 
 use crate::markers::{PlanPath, scene_markers};
-use crate::mcap_file::{McapCreateError, McapFile, McapFileOptions, McapWriteError, RecordingStats};
+use crate::mcap_file::{
+    McapCreateError, McapFile, McapFileOptions, McapWriteError, RecordingStats,
+};
 use crate::msgs::{
     DetectionsMsg, Header, JointState, MarkerArray, Quaternion, RefereeClearance,
     RefereeClearanceMsg, RetrainProgressMsg, RetrainRequestMsg, RobotStatusMsg, StringMsg,
@@ -127,8 +128,7 @@ impl RecorderConfig {
         if !(self.state_rate_hz.is_finite() && (1.0..=1000.0).contains(&self.state_rate_hz)) {
             return bad("state_rate_hz", "1 ..= 1000 Hz");
         }
-        if !(self.flush_interval_s.is_finite() && (0.05..=60.0).contains(&self.flush_interval_s))
-        {
+        if !(self.flush_interval_s.is_finite() && (0.05..=60.0).contains(&self.flush_interval_s)) {
             return bad("flush_interval_s", "0.05 ..= 60 s");
         }
         if self.frame_id.is_empty() {
@@ -198,7 +198,9 @@ pub struct Recorder {
 
 impl std::fmt::Debug for Recorder {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Recorder").field("path", &self.path).finish_non_exhaustive()
+        f.debug_struct("Recorder")
+            .field("path", &self.path)
+            .finish_non_exhaustive()
     }
 }
 
@@ -271,7 +273,9 @@ impl Recorder {
             }
             Err(_) => {
                 let _ = thread.join();
-                Err(RecorderStartError::Thread("ended before it was ready".to_owned()))
+                Err(RecorderStartError::Thread(
+                    "ended before it was ready".to_owned(),
+                ))
             }
         }
     }
@@ -452,7 +456,10 @@ impl Session {
             std::thread::sleep(POLL_PERIOD);
         }
         if self.rejected > 0 {
-            tracing::warn!(rejected = self.rejected, "the recorder skipped invalid samples");
+            tracing::warn!(
+                rejected = self.rejected,
+                "the recorder skipped invalid samples"
+            );
         }
     }
 
@@ -495,8 +502,7 @@ impl Session {
     fn on_state(&mut self, now: u64, s: &RobotState) {
         // The commanded path follows every sample; the topics are thinned to the rate.
         let tcp = self.model.fk(&s.command_joints_rad).tcp_m();
-        if self.path_active && self.path.push([tcp.x, tcp.y, tcp.z])
-        {
+        if self.path_active && self.path.push([tcp.x, tcp.y, tcp.z]) {
             self.markers_dirty = true;
         }
         if now < self.next_state_ns {
@@ -523,10 +529,7 @@ impl Session {
         self.put(crate::topics::JOINT_COMMANDS, now, &commanded);
         let tf = self.tf(&header, &s.joints_rad);
         self.put(crate::topics::TF, now, &tf);
-        let status = RobotStatusMsg {
-            header,
-            state: *s,
-        };
+        let status = RobotStatusMsg { header, state: *s };
         self.put(crate::topics::ROBOT_STATUS, now, &status);
     }
 
@@ -577,7 +580,10 @@ impl Session {
     }
 
     fn on_detection(&mut self, now: u64, f: DetectionFrame) {
-        if self.last_detection.is_some_and(|d| d.sequence == f.sequence) {
+        if self
+            .last_detection
+            .is_some_and(|d| d.sequence == f.sequence)
+        {
             return;
         }
         let changed = self
@@ -645,7 +651,13 @@ mod tests {
             sequence: 1,
             ..DetectionFrame::default()
         };
-        frame.push(DetectedObject::new(1, ObjectClass::Goal, 0.9, [0.4, 0.1, 0.05], [0.05; 3]));
+        frame.push(DetectedObject::new(
+            1,
+            ObjectClass::Goal,
+            0.9,
+            [0.4, 0.1, 0.05],
+            [0.05; 3],
+        ));
         s.on_detection(1_000, frame);
         let mut v = TwinVerdict::default();
         v.set_flags(true, true, true);

@@ -1,0 +1,189 @@
+//! Every run is recorded (issue 27): the `foresight` launcher with the real processes on the
+//! simulated arm leaves `<run>/run.mcap`, and an independent reader — the `mcap` Python
+//! package with `mcap-ros2-support`, in the project's venv (`scripts/setup.sh`) — reads it
+//! back: topics, message counts, schemas, CDR bytes that decode against their schemas, and
+//! log time never going back (`tests/scripts/check_mcap.py`). A launcher killed with
+//! SIGKILL leaves a file readable up to its last chunk.
+//!
+//! The world is one scene (`assets/scenes/small_box.toml`): the shortest whole run. Needs
+//! the workspace's binaries built and `make setup` done.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::{Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use foresight_tests::runs::{LogsOnFailure, newest_run, scratch_dir};
+use foresight_tests::{ChildGuard, bin_path, repo_root};
+
+/// One whole system at a time (two cores).
+static ONE_SYSTEM_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+fn one_at_a_time() -> MutexGuard<'static, ()> {
+    ONE_SYSTEM_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// The project's Python: `$FORESIGHT_VENV/bin/python`, the venv `scripts/setup.sh` made
+/// (named in `build/env.mk`).
+fn venv_python() -> PathBuf {
+    let venv = std::env::var_os("FORESIGHT_VENV")
+        .map(PathBuf::from)
+        .or_else(|| {
+            let env_mk = std::fs::read_to_string(repo_root().join("build/env.mk")).ok()?;
+            env_mk.lines().find_map(|l| {
+                l.strip_prefix("FORESIGHT_VENV := ")
+                    .map(|v| PathBuf::from(v.trim()))
+            })
+        })
+        .expect("FORESIGHT_VENV unset and no build/env.mk: run `make setup`");
+    let py = venv.join("bin/python");
+    assert!(py.is_file(), "{} missing: run `make setup`", py.display());
+    py
+}
+
+/// A world script of the one small-box scene, in `dir`.
+fn one_scene_world(dir: &Path) -> PathBuf {
+    let world = dir.join("one_scene.toml");
+    let scene = repo_root().join("assets/scenes/small_box.toml");
+    std::fs::write(
+        &world,
+        format!(
+            "[[step]]\nat_s = 0.0\nscene = {:?}\n",
+            scene.display().to_string()
+        ),
+    )
+    .expect("world script");
+    world
+}
+
+fn launch(out: &Path) -> ChildGuard {
+    let world = one_scene_world(out);
+    let mut cmd = Command::new(bin_path("foresight"));
+    cmd.current_dir(repo_root())
+        .arg("--world")
+        .arg(&world)
+        .args(["--phase-timeout-s", "60"])
+        .arg("--out")
+        .arg(out)
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit());
+    ChildGuard::spawn("foresight", &mut cmd)
+}
+
+/// Runs the independent reader on `mcap`; returns its exit code and its JSON report.
+fn check(mcap: &Path, extra: &[&str]) -> (i32, serde_json::Value) {
+    let script = repo_root().join("tests/scripts/check_mcap.py");
+    let out = Command::new(venv_python())
+        .arg(&script)
+        .arg(mcap)
+        .args(extra)
+        .output()
+        .expect("running check_mcap.py");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    println!("{stdout}");
+    eprintln!("{}", String::from_utf8_lossy(&out.stderr));
+    let report = serde_json::from_str(&stdout)
+        .unwrap_or_else(|e| panic!("check_mcap.py printed no JSON ({e}): {stdout}"));
+    (out.status.code().unwrap_or(-1), report)
+}
+
+fn count(report: &serde_json::Value, topic: &str) -> u64 {
+    report["topics"][topic]["count"].as_u64().unwrap_or(0)
+}
+
+#[test]
+fn a_run_leaves_an_mcap_file_that_an_independent_reader_validates() {
+    let _one = one_at_a_time();
+    let out = scratch_dir("mcap", "run");
+    let _logs = LogsOnFailure {
+        runs: out.clone(),
+        extra: Vec::new(),
+    };
+    let mut guard = launch(&out);
+    let code = guard.wait_exit(Duration::from_secs(240));
+    let run = newest_run(&out).expect("a run folder");
+    assert_eq!(code, 0, "foresight exit code");
+    let mcap = run.join("run.mcap");
+    let topics = [
+        "/joint_states",
+        "/joint_commands",
+        "/tf",
+        "/robot_description",
+        "/foresight/scene_markers",
+        "/foresight/detections",
+        "/foresight/verdicts",
+        "/foresight/robot_status",
+        "/foresight/referee",
+    ];
+    let mut args = Vec::new();
+    for t in topics {
+        args.extend(["--topic", t]);
+    }
+    let (code, report) = check(&mcap, &args);
+    assert_eq!(code, 0, "the reader found problems: {}", report["errors"]);
+    assert_eq!(report["footer"], true, "closed with summary and footer");
+    assert_eq!(count(&report, "/robot_description"), 1, "the URDF once");
+    // The arm moved: far more joint states than verdicts, and as many commands.
+    assert!(count(&report, "/joint_states") > 100, "{report}");
+    assert_eq!(
+        count(&report, "/joint_states"),
+        count(&report, "/joint_commands")
+    );
+    assert_eq!(
+        report["topics"]["/joint_states"]["schema"],
+        "sensor_msgs/msg/JointState"
+    );
+    assert_eq!(
+        report["topics"]["/foresight/scene_markers"]["schema"],
+        "visualization_msgs/msg/MarkerArray"
+    );
+    let md = std::fs::read_to_string(run.join("report.md")).expect("report.md");
+    assert!(md.contains("run.mcap"), "the report links the recording");
+}
+
+#[test]
+fn a_killed_launcher_leaves_a_recording_readable_up_to_its_last_chunk() {
+    let _one = one_at_a_time();
+    let out = scratch_dir("mcap", "killed");
+    let _logs = LogsOnFailure {
+        runs: out.clone(),
+        extra: Vec::new(),
+    };
+    let mut guard = launch(&out);
+    // Wait until the recording holds a few seconds of the arm (chunks reach the disk at
+    // least once a second), then kill the launcher without a chance to close the file.
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let mcap = loop {
+        let file = newest_run(&out).map(|r| r.join("run.mcap"));
+        if let Some(f) = file.filter(|f| std::fs::metadata(f).is_ok_and(|m| m.len() > 150_000)) {
+            break f;
+        }
+        assert!(Instant::now() < deadline, "no recording grew past 150 kB");
+        assert!(
+            guard.child.try_wait().ok().flatten().is_none(),
+            "foresight ended before the recording grew"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    guard.child.kill().expect("SIGKILL foresight");
+    let _ = guard.child.wait();
+    let (code, report) = check(
+        &mcap,
+        &[
+            "--allow-truncated",
+            "--topic",
+            "/joint_states",
+            "--topic",
+            "/tf",
+        ],
+    );
+    assert_eq!(code, 0, "the reader found problems: {}", report["errors"]);
+    assert_eq!(
+        report["footer"], false,
+        "a killed recorder writes no footer"
+    );
+    assert!(count(&report, "/joint_states") > 50, "{report}");
+    assert_eq!(count(&report, "/robot_description"), 1, "{report}");
+}
