@@ -15,7 +15,10 @@
 //! What the loop counts ([`RunStats`], printed as JSON by `perception run` at the end):
 //! frames taken from the source (`frames`) and published (`published`), frames the source
 //! could not deliver (`bad_frames`) or the detector/publisher failed on (`failed`), images
-//! refused for their stamp (`bad_stamps`), frames published with objects left out
+//! refused for their stamp (`bad_stamps`), colour images without a depth image of the same
+//! moment (`unpaired_depth`: a stalled depth topic; the tracker's settled state then starts
+//! over, [`Tracker::interrupt`], so no settled frame is published until depth is fresh
+//! again and the quiet time has passed), frames published with objects left out
 //! (`truncated_frames`, `dropped_objects`: the frame carries `dropped_count`, so rt-core
 //! refuses it and stops), detections below the confidence floors (`goals_demoted`,
 //! `low_confidence_dropped`), goal tracks beyond the one goal (`extra_goals`) and good
@@ -24,6 +27,7 @@
 //! refused stamps) are rate-limited ([`crate::log_limit`]); dropped frames are reported in an
 //! info line at most every 10 s.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
@@ -32,7 +36,7 @@ use shm_schemas::{DetectionFrame, MAX_DETECTIONS};
 use crate::calibration::Calibration;
 use crate::color_detector::{ColourDetector, DetectError};
 use crate::detection::Detection;
-use crate::frame::Frame;
+use crate::frame::{Frame, monotonic_now_ns};
 use crate::handoff::{ConsumerGuard, Handoff, Popped, ProducerGuard};
 use crate::log_limit::LogLimiter;
 use crate::publisher::{DetectionPublisher, PublishError};
@@ -126,6 +130,25 @@ impl Pipeline {
     }
 }
 
+impl Pipeline {
+    /// [`Pipeline::process`] after frames were refused at `interrupted_at_ns`
+    /// (`CLOCK_MONOTONIC`; `None`: none since the last frame): the tracker's settled state
+    /// starts over from then ([`Tracker::interrupt`]).
+    ///
+    /// # Errors
+    /// As [`Pipeline::process`].
+    pub fn process_after(
+        &mut self,
+        frame: &Frame,
+        interrupted_at_ns: Option<u64>,
+    ) -> Result<Processed, PipelineError> {
+        if let Some(t) = interrupted_at_ns {
+            self.tracker.interrupt(t);
+        }
+        self.process(frame)
+    }
+}
+
 /// Counters of a run.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
 pub struct RunStats {
@@ -141,6 +164,9 @@ pub struct RunStats {
     pub failed: u64,
     /// Images refused for their capture stamp (zero, in the future, too old).
     pub bad_stamps: u64,
+    /// Colour images refused for want of a depth image of the same moment (none, or only
+    /// stale ones: a stalled depth topic).
+    pub unpaired_depth: u64,
     /// Frames published with more objects seen than fit (`dropped_count` > 0: rt-core
     /// refuses them and stops).
     pub truncated_frames: u64,
@@ -194,6 +220,7 @@ struct CaptureCounts {
     frames: u64,
     bad_frames: u64,
     bad_stamps: u64,
+    unpaired_depth: u64,
 }
 
 /// Runs the pipeline until the source ends, `max_frames` frames were taken, or `stop()`
@@ -229,34 +256,47 @@ pub fn run(
 ) -> Result<RunStats, SourceError> {
     run_with(
         source,
-        &mut |f| pipeline.process(f),
+        &mut |f, interrupted_at_ns| pipeline.process_after(f, interrupted_at_ns),
         rate_hz,
         max_frames,
         stop,
     )
 }
 
+/// What processes one frame: the frame, and when frames were refused since the last one
+/// (`CLOCK_MONOTONIC` ns of the latest refusal, for [`Tracker::interrupt`]).
+type ProcessFn<'a> = dyn FnMut(&Frame, Option<u64>) -> Result<Processed, PipelineError> + 'a;
+
 /// [`run`] with the processing of one frame given as a closure (tests slow it down).
 fn run_with(
     source: &mut dyn FrameSource,
-    process: &mut dyn FnMut(&Frame) -> Result<Processed, PipelineError>,
+    process: &mut ProcessFn<'_>,
     rate_hz: f64,
     max_frames: Option<u64>,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Result<RunStats, SourceError> {
     let handoff = Handoff::new(HANDOFF_CAPACITY, source.when_busy());
+    // When the capture last refused a frame for its depth (0: never).
+    let interrupted_at_ns = AtomicU64::new(0);
     let mut stats = RunStats::default();
     let captured = std::thread::scope(|scope| {
         let capture = std::thread::Builder::new()
             .name("perception-capture".into())
             .spawn_scoped(scope, || {
                 let _closes = ProducerGuard(&handoff);
-                capture_loop(source, &handoff, rate_hz, max_frames, stop)
+                capture_loop(
+                    source,
+                    &handoff,
+                    &interrupted_at_ns,
+                    rate_hz,
+                    max_frames,
+                    stop,
+                )
             })
             .map_err(|e| SourceError::Failed(format!("cannot start the capture thread: {e}")))?;
         {
             let _closes = ConsumerGuard(&handoff);
-            detect_loop(&handoff, process, &mut stats, stop);
+            detect_loop(&handoff, &interrupted_at_ns, process, &mut stats, stop);
         }
         capture
             .join()
@@ -265,6 +305,7 @@ fn run_with(
     stats.frames = captured.frames;
     stats.bad_frames = captured.bad_frames;
     stats.bad_stamps = captured.bad_stamps;
+    stats.unpaired_depth = captured.unpaired_depth;
     stats.frames_dropped_behind_detector = handoff.dropped();
     Ok(stats)
 }
@@ -274,6 +315,7 @@ fn run_with(
 fn capture_loop(
     source: &mut dyn FrameSource,
     handoff: &Handoff<Frame>,
+    interrupted_at_ns: &AtomicU64,
     rate_hz: f64,
     max_frames: Option<u64>,
     stop: &(dyn Fn() -> bool + Sync),
@@ -283,6 +325,7 @@ fn capture_loop(
     let mut next = Instant::now();
     let mut failures_in_row = 0;
     let mut stamp_log = LogLimiter::new(WARN_INTERVAL);
+    let mut depth_log = LogLimiter::new(WARN_INTERVAL);
     let mut drop_log = LogLimiter::new(DROP_LOG_INTERVAL);
     while !stop() && max_frames.is_none_or(|m| counts.frames < m) {
         if !handoff.sleep_until(next) {
@@ -320,6 +363,19 @@ fn capture_loop(
                 }
                 continue;
             }
+            Err(SourceError::Depth(e)) => {
+                failures_in_row = 0;
+                counts.bad_frames += 1;
+                counts.unpaired_depth += 1;
+                interrupted_at_ns.fetch_max(monotonic_now_ns(), Ordering::AcqRel);
+                if let Some(held_back) = depth_log.allow(Instant::now()) {
+                    tracing::warn!(
+                        unpaired_depth = counts.unpaired_depth,
+                        "frame refused, no settled frame until depth is fresh again: {e} ({held_back} more refused since the last warning)"
+                    );
+                }
+                continue;
+            }
             Err(e) => {
                 counts.bad_frames += 1;
                 tracing::warn!("skipping a bad frame: {e}");
@@ -346,19 +402,24 @@ fn capture_loop(
 /// has ended and nothing is left, or `stop()`.
 fn detect_loop(
     handoff: &Handoff<Frame>,
-    process: &mut dyn FnMut(&Frame) -> Result<Processed, PipelineError>,
+    interrupted_at_ns: &AtomicU64,
+    process: &mut ProcessFn<'_>,
     stats: &mut RunStats,
     stop: &(dyn Fn() -> bool + Sync),
 ) {
     let mut truncation_log = LogLimiter::new(WARN_INTERVAL);
     let mut was_settled = false;
+    let mut interruption_seen_ns = 0;
     while !stop() {
         let frame = match handoff.pop(POLL) {
             Popped::Item(f) => f,
             Popped::Empty => continue,
             Popped::Ended => break,
         };
-        match process(&frame) {
+        let interrupted = interrupted_at_ns.load(Ordering::Acquire);
+        let since_last = (interrupted > interruption_seen_ns).then_some(interrupted);
+        interruption_seen_ns = interrupted;
+        match process(&frame, since_last) {
             Ok(p) => {
                 stats.count(&p);
                 let sent = p.sent;
@@ -544,7 +605,7 @@ mod tests {
         let mut detected: Vec<(u64, u64, u64)> = Vec::new();
         let stats = run_with(
             &mut camera,
-            &mut |f| {
+            &mut |f, _| {
                 if detected.is_empty() {
                     // A detector busy on its first frame until the camera has delivered
                     // every frame and found its end: all but the newest must be dropped.
@@ -612,7 +673,7 @@ mod tests {
         let mut detected = Vec::new();
         let stats = run_with(
             &mut camera,
-            &mut |f| {
+            &mut |f, _| {
                 std::thread::sleep(Duration::from_millis(15));
                 detected.push(f.sequence);
                 pipeline.process(f)
@@ -651,7 +712,7 @@ mod tests {
             let t = Instant::now();
             let stats = run_with(
                 &mut camera,
-                &mut |f| {
+                &mut |f, _| {
                     std::thread::sleep(Duration::from_millis(5));
                     let p = pipeline.process(f);
                     done.fetch_add(1, Ordering::SeqCst);
@@ -667,7 +728,7 @@ mod tests {
             // The frame limit counts frames taken from the source.
             let stats = run_with(
                 &mut camera,
-                &mut |f| pipeline.process(f),
+                &mut |f, _| pipeline.process(f),
                 500.0,
                 Some(4),
                 &|| false,
@@ -724,7 +785,88 @@ mod tests {
                 low_confidence_dropped: 0,
                 extra_goals: 0,
                 frames_dropped_behind_detector: 0,
+                unpaired_depth: 0,
             }
+        );
+    }
+
+    /// A camera whose frames are stamped when taken, with colour images refused for want of
+    /// depth (a stalled depth topic) where the script says `false`.
+    struct StallingDepth {
+        rendered: crate::synthetic::RenderedFrame,
+        script: Vec<bool>,
+        next: usize,
+    }
+
+    impl FrameSource for StallingDepth {
+        fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
+            let Some(&good) = self.script.get(self.next) else {
+                return Ok(None);
+            };
+            self.next += 1;
+            if !good {
+                return Err(SourceError::Depth(
+                    crate::ros2_source::DepthPairError::Stale {
+                        topic: "/depth".into(),
+                        skew_ms: 2_000.0,
+                        max_ms: 10.0,
+                    },
+                ));
+            }
+            let now = crate::frame::monotonic_now_ns();
+            Ok(Some(Frame::from_rendered(
+                &self.rendered,
+                self.next as u64,
+                now,
+            )?))
+        }
+
+        fn when_busy(&self) -> WhenBusy {
+            WhenBusy::Wait
+        }
+    }
+
+    /// Issue 25 item 3: frames refused for stale depth are counted, and the frames after
+    /// them are not settled until the quiet time (100 ms) of good frames has passed.
+    #[test]
+    fn frames_refused_for_stale_depth_are_counted_and_unsettle_the_scene() {
+        let prefix = format!("percstaledepth{}", std::process::id());
+        let (rendered, mut pipeline) = small_scene_pipeline(&prefix);
+        // 1 kHz: 300 ms of good frames, 20 refused, 30 ms of good frames.
+        let mut script = vec![true; 300];
+        script.extend([false; 20]);
+        script.extend([true; 30]);
+        let mut source = StallingDepth {
+            rendered,
+            script,
+            next: 0,
+        };
+        let mut settled = Vec::new();
+        let stats = run_with(
+            &mut source,
+            &mut |f, interrupted| {
+                let p = pipeline.process_after(f, interrupted)?;
+                settled.push(p.sent.settled());
+                Ok(p)
+            },
+            1000.0,
+            None,
+            &|| false,
+        )
+        .unwrap();
+        assert_eq!(
+            (stats.unpaired_depth, stats.bad_frames),
+            (20, 20),
+            "{stats:?}"
+        );
+        assert_eq!(stats.published, 330, "{stats:?}");
+        // Settled before the stall (the last frames before it may already see the
+        // interruption: the capture runs a frame or two ahead of the detector).
+        assert!(settled[250..298].iter().all(|s| *s), "{:?}", &settled[..300]);
+        assert!(
+            settled[300..].iter().all(|s| !s),
+            "a settled frame within 100 ms of a refused one: {:?}",
+            &settled[300..]
         );
     }
 }

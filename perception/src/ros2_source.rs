@@ -12,12 +12,37 @@
 //! (`ip link set lo multicast on`), which the system test sets inside its own network
 //! namespace.
 //!
+//! **Own DDS domain.** The camera subscription joins DDS domain [`DEFAULT_DOMAIN_ID`] (42)
+//! unless the topics file says otherwise (`domain_id`, 0..=101, the ids whose DDS ports
+//! stay clear of Linux's ephemeral range): a ROS 2 node on the default domain 0 on this
+//! machine is not heard. The camera driver must be started with `ROS_DOMAIN_ID=42` (or the
+//! file's id). A domain is a filter, not a lock: any process of this machine that joins it
+//! can publish images; see the README's real-arm checklist for what remains trusted.
+//!
+//! **ROS 2 security (SROS2) is not available in this build**: `ros2-client` 0.12 and
+//! `rustdds` 0.15 read none of the `ROS_SECURITY_*` variables (`ROS_SECURITY_ENABLE`,
+//! `ROS_SECURITY_KEYSTORE`, `ROS_SECURITY_STRATEGY`, `ROS_SECURITY_ENCLAVE_OVERRIDE`) nor
+//! `ROS_DOMAIN_ID`; DDS Security exists in rustdds only behind its `security` cargo feature
+//! (OpenSSL, configured in code), which the workspace does not enable. So a user who asks
+//! for security (`ROS_SECURITY_ENABLE=true`) is refused at start ([`check_ros_security`])
+//! rather than given an unsecured subscription silently.
+//!
+//! **Depth paired by stamp.** A colour image is paired with the depth image whose
+//! `header.stamp` is nearest to its own, within `max_depth_skew_ms` (default 10 ms; the
+//! ZED wrapper stamps a registered depth image with its colour image's stamp). Without
+//! one — no depth yet, or only depth images from another time (a stalled depth topic) —
+//! the frame is refused ([`SourceError::Depth`], counted as `unpaired_depth` by the run
+//! loop) and the tracker's settled state starts over ([`crate::tracker::Tracker::interrupt`]):
+//! a new box is never measured against the table's old depth (a tall box published as a
+//! 1 mm footprint in a settled frame).
+//!
 //! **Stamps.** A frame's `capture_time_ns` is the colour image's `header.stamp` (the
 //! camera's capture time, on the ROS/system clock) converted to `CLOCK_MONOTONIC` with the
 //! clock offset measured when the image was received ([`crate::stamp`]); an image whose
 //! stamp is zero, in the future beyond `stamp.max_ahead_s`, or older than `stamp.max_age_s`
 //! is refused ([`SourceError::Stamp`], counted as `bad_stamps` by the run loop).
 
+use std::collections::VecDeque;
 use std::net::{IpAddr, Ipv4Addr};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -120,8 +145,9 @@ impl ros2_client::Message for CameraInfo {}
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Ros2Topics {
-    /// DDS domain.
-    #[serde(default)]
+    /// DDS domain of the camera subscription (0..=[`MAX_DOMAIN_ID`]). Default:
+    /// [`DEFAULT_DOMAIN_ID`], a domain of our own, not ROS 2's default 0.
+    #[serde(default = "default_domain_id")]
     pub domain_id: u16,
     /// Local addresses DDS may use. Default: loopback only (`["127.0.0.1"]`). A
     /// non-loopback address, or an empty list (every interface), is accepted only with
@@ -140,6 +166,30 @@ pub struct Ros2Topics {
     /// How old or how far ahead a colour image's `header.stamp` may be (`[stamp]`).
     #[serde(default)]
     pub stamp: StampLimits,
+    /// Largest difference between the stamps of a colour image and the depth image paired
+    /// with it (ms, 0..=[`MAX_DEPTH_SKEW_MS`]); a colour image without such a depth image
+    /// is refused.
+    #[serde(default = "default_max_depth_skew_ms")]
+    pub max_depth_skew_ms: f64,
+}
+
+/// The camera subscription's DDS domain unless configured: ours, not ROS 2's default 0.
+pub const DEFAULT_DOMAIN_ID: u16 = 42;
+
+/// Largest `domain_id`: ROS 2's limit for Linux (higher ids put DDS ports in the ephemeral
+/// range).
+pub const MAX_DOMAIN_ID: u16 = 101;
+
+/// Largest `max_depth_skew_ms`: beyond it, a depth image of an earlier frame (60 Hz: 17 ms
+/// apart) could be paired with a new colour image.
+pub const MAX_DEPTH_SKEW_MS: f64 = 100.0;
+
+fn default_domain_id() -> u16 {
+    DEFAULT_DOMAIN_ID
+}
+
+fn default_max_depth_skew_ms() -> f64 {
+    10.0
 }
 
 fn default_timeout_s() -> f64 {
@@ -155,13 +205,14 @@ impl Default for Ros2Topics {
     /// The ZED ROS 2 wrapper's topics for a camera named `zed`, loopback only.
     fn default() -> Self {
         Self {
-            domain_id: 0,
+            domain_id: DEFAULT_DOMAIN_ID,
             networks: loopback_only(),
             colour: "/zed/zed_node/rgb/image_rect_color".into(),
             depth: "/zed/zed_node/depth/depth_registered".into(),
             camera_info: "/zed/zed_node/rgb/camera_info".into(),
             timeout_s: default_timeout_s(),
             stamp: StampLimits::default(),
+            max_depth_skew_ms: default_max_depth_skew_ms(),
         }
     }
 }
@@ -220,6 +271,20 @@ pub enum Ros2TopicsError {
     /// A `[stamp]` limit is out of bounds.
     #[error(transparent)]
     Stamp(#[from] StampLimitsError),
+    /// `domain_id` is above [`MAX_DOMAIN_ID`].
+    #[error("domain_id = {0} must be within 0..={MAX_DOMAIN_ID}")]
+    DomainId(u16),
+    /// `ROS_SECURITY_ENABLE=true` (SROS2 asked for), which this build cannot honour.
+    #[error(
+        "ROS_SECURITY_ENABLE={0}: ROS 2 security (SROS2) was asked for, but this build's DDS \
+         (rustdds without its `security` feature) cannot join a secured domain; unset it to run \
+         unsecured on loopback and perception's own domain, or keep the camera off this host's \
+         reach (README, real-arm checklist)"
+    )]
+    SecurityUnsupported(String),
+    /// `max_depth_skew_ms` is not within 0..=[`MAX_DEPTH_SKEW_MS`].
+    #[error("max_depth_skew_ms = {0} must be within 0..={MAX_DEPTH_SKEW_MS} ms")]
+    DepthSkew(f64),
 }
 
 impl From<Ros2TopicsError> for SourceError {
@@ -252,7 +317,8 @@ impl Ros2Topics {
     }
 
     /// Checks the values: with [`NetworkAccess::LoopbackOnly`], `networks` must list only
-    /// loopback addresses (and at least one); `timeout_s` and the stamp limits in bounds.
+    /// loopback addresses (and at least one); `timeout_s`, `domain_id`,
+    /// `max_depth_skew_ms` and the stamp limits in bounds.
     ///
     /// # Errors
     /// [`Ros2TopicsError`] naming the field.
@@ -275,8 +341,28 @@ impl Ros2Topics {
         if !(self.timeout_s > 0.0 && self.timeout_s <= 600.0) {
             return Err(Ros2TopicsError::Timeout(self.timeout_s));
         }
+        if self.domain_id > MAX_DOMAIN_ID {
+            return Err(Ros2TopicsError::DomainId(self.domain_id));
+        }
+        if !(self.max_depth_skew_ms.is_finite()
+            && (0.0..=MAX_DEPTH_SKEW_MS).contains(&self.max_depth_skew_ms))
+        {
+            return Err(Ros2TopicsError::DepthSkew(self.max_depth_skew_ms));
+        }
         self.stamp.validate()?;
         Ok(())
+    }
+}
+
+/// Refuses a request for ROS 2 security (`ROS_SECURITY_ENABLE`, given as `enable`; only
+/// `true`, as rcl reads it, asks for it): this build cannot provide it.
+///
+/// # Errors
+/// [`Ros2TopicsError::SecurityUnsupported`].
+pub fn check_ros_security(enable: Option<&str>) -> Result<(), Ros2TopicsError> {
+    match enable {
+        Some(v) if v == "true" => Err(Ros2TopicsError::SecurityUnsupported(v.to_owned())),
+        _ => Ok(()),
     }
 }
 
@@ -490,6 +576,63 @@ fn image_mat(
     Ok(m)
 }
 
+/// Why a colour image has no depth image to be measured with.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DepthPairError {
+    /// No depth image has arrived (yet, or for longer than the kept history).
+    #[error("no depth image received on {topic}")]
+    NoDepth {
+        /// The depth topic.
+        topic: String,
+    },
+    /// The depth images at hand are from other times than the colour image (a stalled or
+    /// lagging depth topic).
+    #[error(
+        "the depth image nearest in stamp on {topic} is {skew_ms:.1} ms from the colour image \
+         (max_depth_skew_ms = {max_ms}): stale or unpaired depth"
+    )]
+    Stale {
+        /// The depth topic.
+        topic: String,
+        /// The smallest stamp difference at hand (ms).
+        skew_ms: f64,
+        /// The bound (ms).
+        max_ms: f64,
+    },
+}
+
+/// A ROS stamp in ns since the epoch (`sec` may be negative in a malformed message; the
+/// colour image's stamp is checked by [`ros_stamp_to_monotonic_ns`]).
+pub fn stamp_ns(t: Time) -> i128 {
+    i128::from(t.sec) * 1_000_000_000 + i128::from(t.nanosec)
+}
+
+/// The pairing rule: the index of the depth stamp nearest to `colour_ns` (ns), if it lies
+/// within `max_skew_ns`; else `Err` with the nearest difference in ns (`None`: no depth
+/// stamp at all).
+///
+/// # Errors
+/// `Err(None)` without depth stamps, `Err(Some(skew_ns))` when the nearest is too far.
+pub fn pair_depth(
+    colour_ns: i128,
+    depth_ns: impl IntoIterator<Item = i128>,
+    max_skew_ns: i128,
+) -> Result<usize, Option<i128>> {
+    let nearest = depth_ns
+        .into_iter()
+        .enumerate()
+        .map(|(i, d)| (i, (d - colour_ns).abs()))
+        .min_by_key(|&(_, skew)| skew);
+    match nearest {
+        Some((i, skew)) if skew <= max_skew_ns => Ok(i),
+        Some((_, skew)) => Err(Some(skew)),
+        None => Err(None),
+    }
+}
+
+/// Depth images kept for pairing (the newest; 8 frames are 130 ms at 60 Hz).
+const DEPTH_HISTORY: usize = 8;
+
 /// Frames from ROS 2 topics.
 pub struct Ros2Source {
     _context: Context,
@@ -497,7 +640,8 @@ pub struct Ros2Source {
     colour: Subscription<Image>,
     depth: Subscription<Image>,
     info: Subscription<CameraInfo>,
-    latest_depth: Option<Image>,
+    /// The newest depth images, oldest first.
+    depths: VecDeque<Image>,
     /// Latest camera info received.
     pub latest_info: Option<CameraInfo>,
     timeout: Duration,
@@ -514,6 +658,7 @@ impl Ros2Source {
     /// [`SourceError::Open`], naming the field for refused settings.
     pub fn open(topics: &Ros2Topics, access: NetworkAccess) -> Result<Self, SourceError> {
         topics.validate(access)?;
+        check_ros_security(std::env::var("ROS_SECURITY_ENABLE").ok().as_deref())?;
         if topics.networks.is_empty() {
             tracing::warn!(
                 "ROS 2 camera source open on every interface (--ros2-open-network, networks = []): any host on the LAN can send camera images"
@@ -542,7 +687,7 @@ impl Ros2Source {
             colour,
             depth,
             info,
-            latest_depth: None,
+            depths: VecDeque::with_capacity(DEPTH_HISTORY),
             latest_info: None,
             timeout: Duration::from_secs_f64(topics.timeout_s.clamp(0.01, 600.0)),
             sequence: 0,
@@ -552,7 +697,10 @@ impl Ros2Source {
 
     fn drain_side_topics(&mut self) {
         while let Ok(Some((m, _))) = self.depth.take() {
-            self.latest_depth = Some(m);
+            if self.depths.len() == DEPTH_HISTORY {
+                self.depths.pop_front();
+            }
+            self.depths.push_back(m);
         }
         while let Ok(Some((m, _))) = self.info.take() {
             self.latest_info = Some(m);
@@ -560,14 +708,37 @@ impl Ros2Source {
     }
 }
 
+impl Ros2Source {
+    /// The kept depth image paired with `colour` by [`pair_depth`].
+    fn paired_depth(&self, colour: &Image) -> Result<&Image, DepthPairError> {
+        let max_skew_ns = (self.topics.max_depth_skew_ms * 1e6).round() as i128;
+        match pair_depth(
+            stamp_ns(colour.header.stamp),
+            self.depths.iter().map(|d| stamp_ns(d.header.stamp)),
+            max_skew_ns,
+        ) {
+            Ok(i) => Ok(&self.depths[i]),
+            Err(None) => Err(DepthPairError::NoDepth {
+                topic: self.topics.depth.clone(),
+            }),
+            Err(Some(skew_ns)) => Err(DepthPairError::Stale {
+                topic: self.topics.depth.clone(),
+                skew_ms: skew_ns as f64 / 1e6,
+                max_ms: self.topics.max_depth_skew_ms,
+            }),
+        }
+    }
+}
+
 impl FrameSource for Ros2Source {
-    /// The latest colour image with the depth image of the same stamp when it arrives
-    /// within 50 ms (else the latest depth image; none yet: the frame is refused), stamped
-    /// with its `header.stamp` on `CLOCK_MONOTONIC`.
+    /// The latest colour image with the depth image paired by stamp ([`pair_depth`],
+    /// within `max_depth_skew_ms`; it is given 50 ms to arrive), stamped with its
+    /// `header.stamp` on `CLOCK_MONOTONIC`.
     ///
     /// # Errors
-    /// [`SourceError::Stamp`] for a refused stamp (this frame only), [`SourceError::Frame`]
-    /// for a bad image, [`SourceError::Failed`] when no image came within `timeout_s`.
+    /// [`SourceError::Stamp`] for a refused stamp and [`SourceError::Depth`] for a colour
+    /// image without a paired depth image (this frame only), [`SourceError::Frame`] for a
+    /// bad image, [`SourceError::Failed`] when no image came within `timeout_s`.
     fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
         let deadline = Instant::now() + self.timeout;
         let mut colour = None;
@@ -599,25 +770,16 @@ impl FrameSource for Ros2Source {
         let stamp = colour.header.stamp;
         let capture =
             ros_stamp_to_monotonic_ns(stamp.sec, stamp.nanosec, received, &self.topics.stamp)?;
-        // Give a depth image of the same stamp a moment to arrive.
+        // Give the depth image of this stamp a moment to arrive.
         let wait_depth = Instant::now() + Duration::from_millis(50);
-        while self
-            .latest_depth
-            .as_ref()
-            .is_none_or(|d| d.header.stamp != colour.header.stamp)
-            && Instant::now() < wait_depth
-        {
+        while self.paired_depth(&colour).is_err() && Instant::now() < wait_depth {
             std::thread::sleep(Duration::from_millis(1));
             self.drain_side_topics();
         }
-        // Without depth every box would be measured as a flat footprint on the table (a
-        // tall obstacle published 1 mm high): refuse the frame until depth arrives.
-        let Some(depth) = &self.latest_depth else {
-            return Err(SourceError::Frame(FrameError::BadDepth(format!(
-                "no depth image received yet on {}",
-                self.topics.depth
-            ))));
-        };
+        // Without depth of the same moment every new box would be measured against the
+        // table's old depth, a flat footprint (a tall obstacle published 1 mm high): refuse
+        // the frame until fresh depth arrives.
+        let depth = self.paired_depth(&colour).map_err(SourceError::Depth)?;
         let depth_m = Some(depth_from_msg(depth)?);
         self.sequence += 1;
         let bgr = colour_from_msg(&colour)?;
@@ -696,6 +858,71 @@ mod tests {
         let e = Ros2Topics::load(&p).unwrap_err().to_string();
         assert!(e.contains("max_age") && e.contains("t.toml"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// Issue 25 item 3: colour and depth are paired by stamp within the bound, never with
+    /// a depth image of another time.
+    #[test]
+    fn colour_pairs_with_the_nearest_depth_stamp_within_the_bound() {
+        let ms = 1_000_000i128;
+        let t0 = 1_700_000_000_000_000_000i128;
+        // The same stamp, and the nearest of several.
+        assert_eq!(
+            pair_depth(t0, [t0 - 33 * ms, t0, t0 + 17 * ms], 10 * ms),
+            Ok(1)
+        );
+        assert_eq!(pair_depth(t0, [t0 - 8 * ms, t0 + 3 * ms], 10 * ms), Ok(1));
+        assert_eq!(pair_depth(t0, [t0 + 10 * ms], 10 * ms), Ok(0));
+        // A stalled depth topic: only depth from 2 s ago.
+        assert_eq!(
+            pair_depth(t0, [t0 - 2_100 * ms, t0 - 2_000 * ms], 10 * ms),
+            Err(Some(2_000 * ms))
+        );
+        // Depth of the previous frame at 60 Hz is not this frame's.
+        assert_eq!(pair_depth(t0, [t0 - 17 * ms], 10 * ms), Err(Some(17 * ms)));
+        assert_eq!(pair_depth(t0, [], 10 * ms), Err(None));
+        // 0 ms: exact stamps only.
+        assert_eq!(pair_depth(t0, [t0 + 1], 0), Err(Some(1)));
+        assert_eq!(pair_depth(t0, [t0], 0), Ok(0));
+        assert_eq!(stamp_ns(Time { sec: 2, nanosec: 5 }), 2_000_000_005);
+    }
+
+    #[test]
+    fn a_request_for_ros2_security_is_refused_not_ignored() {
+        assert_eq!(check_ros_security(None), Ok(()));
+        assert_eq!(check_ros_security(Some("false")), Ok(()));
+        let e = check_ros_security(Some("true")).unwrap_err().to_string();
+        assert!(
+            e.contains("ROS_SECURITY_ENABLE=true") && e.contains("SROS2"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn domain_id_and_depth_skew_are_bounded() {
+        let t = Ros2Topics::default();
+        assert_eq!(t.domain_id, DEFAULT_DOMAIN_ID);
+        assert_eq!(t.max_depth_skew_ms, 10.0);
+        let parsed: Ros2Topics =
+            toml::from_str("colour = \"/c\"\ndepth = \"/d\"\ncamera_info = \"/i\"\n").unwrap();
+        assert_eq!(parsed.domain_id, DEFAULT_DOMAIN_ID);
+        assert_eq!(parsed.max_depth_skew_ms, 10.0);
+        for (field, value) in [
+            ("domain_id", "102"),
+            ("max_depth_skew_ms", "-1.0"),
+            ("max_depth_skew_ms", "100.5"),
+            ("max_depth_skew_ms", "nan"),
+            ("max_depth_skew_ms", "inf"),
+        ] {
+            let e = toml::from_str::<Ros2Topics>(&format!(
+                "colour = \"/c\"\ndepth = \"/d\"\ncamera_info = \"/i\"\n{field} = {value}\n"
+            ))
+            .unwrap()
+            .validate(NetworkAccess::LoopbackOnly)
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains(field), "{field} = {value}: {e}");
+        }
     }
 
     #[test]

@@ -54,6 +54,10 @@ pub enum SourceError {
     /// goes on.
     #[error("image refused: {0}")]
     Stamp(#[from] crate::stamp::StampError),
+    /// This colour image has no depth image of the same moment (none received, or only
+    /// stale ones: [`crate::ros2_source::pair_depth`]); the source goes on.
+    #[error("frame refused: {0}")]
+    Depth(#[from] crate::ros2_source::DepthPairError),
     /// A transport failure.
     #[error("source failed: {0}")]
     Failed(String),

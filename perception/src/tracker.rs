@@ -229,6 +229,15 @@ impl Tracker {
         changed
     }
 
+    /// The camera could not be trusted at `now_ns` (`CLOCK_MONOTONIC`; e.g. a frame refused
+    /// for a missing or stale depth image): the latest frame is no longer settled, and the
+    /// quiet time starts over from `now_ns`, so the next settled frame needs
+    /// `settle_quiet_ms` of good frames after it (what happened in between was not seen).
+    pub fn interrupt(&mut self, now_ns: u64) {
+        self.settled = false;
+        self.last_change_ns = Some(self.last_change_ns.map_or(now_ns, |t| t.max(now_ns)));
+    }
+
     /// The settle rule after a frame: `changed` (the reported set changed), any track
     /// created or removed (`motion` set by [`Tracker::match_and_report`]), or a measurement
     /// beyond `settle_motion_m` restarts the quiet time.
@@ -505,6 +514,28 @@ mod tests {
                 t.settled()
             })
             .collect()
+    }
+
+    /// Issue 25 item 3: frames refused for stale depth interrupt a settled scene; it settles
+    /// again only after the quiet time of good frames.
+    #[test]
+    fn an_interruption_unsettles_until_the_quiet_time_of_good_frames_passed() {
+        let mut t = Tracker::new(TrackerConfig::default()).unwrap();
+        let g1 = det(ObjectKind::Goal, [0.4, 0.2, 0.025], [0.05; 3]);
+        let mut k = 0;
+        let s = feed(&mut t, &mut k, 12, |_| vec![g1.clone()]);
+        assert!(s[11], "{s:?}");
+        // Frames k..k+30 refused (depth stalled for half a second), then good ones again.
+        t.interrupt(at_60hz(k + 30));
+        assert!(!t.settled());
+        k += 31;
+        let s = feed(&mut t, &mut k, 12, |_| vec![g1.clone()]);
+        // 100 ms after the last refused frame (6 frames at 60 Hz), not before.
+        assert_eq!(s.iter().position(|x| *x), Some(5), "{s:?}");
+        assert!(s[5..].iter().all(|x| *x), "{s:?}");
+        // An interruption stamped before the last change does not shorten the quiet time.
+        t.interrupt(0);
+        assert!(!t.settled());
     }
 
     /// The settle rule with the defaults at 60 Hz (issue 15): a frame is settled only once

@@ -3,7 +3,7 @@
 //! calibration and the tracker; changes are published as `DetectionFrame`s over iceoryx2.
 //! At the end (`--frames`, or a finite source) prints its counters as one JSON object
 //! ([`perception::pipeline::RunStats`]: `frames`, `published`, `bad_frames`, `failed`,
-//! `bad_stamps`, `truncated_frames`, `dropped_objects`, `goals_demoted`,
+//! `bad_stamps`, `unpaired_depth`, `truncated_frames`, `dropped_objects`, `goals_demoted`,
 //! `low_confidence_dropped`, `extra_goals`, `frames_dropped_behind_detector`).
 //!
 //! Frames are taken by a capture thread at `--rate`; the detector works on the newest one
