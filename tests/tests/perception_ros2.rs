@@ -7,8 +7,12 @@
 //! the frames carry that time on CLOCK_MONOTONIC, and unstamped images are refused, counted
 //! and logged naming `header.stamp`.
 //!
+//! A stalled depth topic (issue 25 item 3): colour images without a depth image of the same
+//! stamp are refused and counted (`unpaired_depth`), and no settled frame ever shows a new
+//! tall box as a flat one.
+//!
 //! DDS stays on loopback: both sides restrict rustdds to 127.0.0.1 (`with_only_networks`,
-//! perception's default), and the test runs inside a private network namespace
+//! perception's default) and use perception's own default domain (42, not ROS 2's 0), and the test runs inside a private network namespace
 //! (`unshare -n`, `lo` up with MULTICAST on, which rustdds' discovery needs) made by
 //! `run_in_private_netns`. Needs `cargo build --release -p perception` first.
 
@@ -110,7 +114,7 @@ fn ros2_camera_topics_become_detection_frames() {
     let depth: Vec<u8> = r.depth_m.iter().flat_map(|d| d.to_le_bytes()).collect();
     let k = cam.config.intrinsics;
     let camera = std::thread::spawn(move || {
-        let ctx = context(0, &topics.networks).unwrap();
+        let ctx = context(topics.domain_id, &topics.networks).unwrap();
         let mut n = node(&ctx, "fake_zed").unwrap();
         let colour_pub = image_publisher(&mut n, &topics.colour).unwrap();
         let depth_pub = image_publisher(&mut n, &topics.depth).unwrap();
@@ -298,7 +302,7 @@ fn ros2_frames_carry_the_camera_stamp_on_the_monotonic_clock_and_unstamped_image
     let first_stamped_mono_ns = Arc::new(std::sync::atomic::AtomicU64::new(0));
     let first2 = first_stamped_mono_ns.clone();
     let camera = std::thread::spawn(move || {
-        let ctx = context(0, &topics.networks).unwrap();
+        let ctx = context(topics.domain_id, &topics.networks).unwrap();
         let mut n = node(&ctx, "fake_zed").unwrap();
         let colour_pub = image_publisher(&mut n, &topics.colour).unwrap();
         let depth_pub = image_publisher(&mut n, &topics.depth).unwrap();
@@ -390,5 +394,193 @@ fn ros2_frames_carry_the_camera_stamp_on_the_monotonic_clock_and_unstamped_image
             f.capture_time_ns
         );
     }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The scene of [`SCENE`] with a tall box added (0.30 m high).
+const SCENE_TALL: &str = "[goal]\ncenter_m = [0.45, 0.20, 0.025]\nsize_m = 0.05\n[[obstacle]]\ncenter_m = [0.30, -0.10, 0.075]\nsize_m = [0.08, 0.06, 0.15]\n[[obstacle]]\ncenter_m = [0.46, -0.18, 0.15]\nsize_m = [0.07, 0.07, 0.30]\n";
+
+/// Issue 25 item 3. The camera publishes colour and depth (scene A) until perception has
+/// published a settled frame; then the depth publisher stops and a tall box appears in the
+/// colour images only (scene B) for 3 s; then depth comes back (scene B). While depth is
+/// stalled every frame is refused and counted (`unpaired_depth`); no settled frame ever
+/// holds the tall box lower than it is (before the fix: the old table depth measured it as
+/// a ~1 mm footprint, settled); once depth is fresh the box is published at its height.
+#[test]
+fn a_stalled_depth_topic_refuses_frames_and_never_settles_a_tall_box_as_flat() {
+    let name = "a_stalled_depth_topic_refuses_frames_and_never_settles_a_tall_box_as_flat";
+    if run_in_private_netns(name) == NetnsOutcome::RanInChild {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("foresight-perc-stall-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut cam =
+        SyntheticCamera::load(&foresight_tests::asset("perception/synthetic_camera.toml"))
+            .unwrap()
+            .config;
+    cam.intrinsics.fx_px /= 2.0;
+    cam.intrinsics.fy_px /= 2.0;
+    cam.intrinsics.cx_px /= 2.0;
+    cam.intrinsics.cy_px /= 2.0;
+    cam.intrinsics.width_px /= 2;
+    cam.intrinsics.height_px /= 2;
+    let cam = SyntheticCamera::new(cam).unwrap();
+    let scene_a = SceneFile::from_toml_str(SCENE, std::path::Path::new("<a>")).unwrap();
+    let scene_b = SceneFile::from_toml_str(SCENE_TALL, std::path::Path::new("<b>")).unwrap();
+    Calibration::new(CalibrationFile {
+        intrinsics: cam.config.intrinsics,
+        workspace: cam.workspace_for(&scene_a),
+        corners_px: cam.workspace_corners_px(&scene_a).unwrap(),
+        rectified_px_per_m: 1000.0,
+    })
+    .unwrap()
+    .save(&dir.join("calibration.toml"))
+    .unwrap();
+    let topics = Ros2Topics {
+        timeout_s: 5.0,
+        ..Ros2Topics::default()
+    };
+    std::fs::write(dir.join("topics.toml"), toml_of(&topics)).unwrap();
+
+    let prefix = unique_prefix("percstall");
+    let (ice, _) = services::create_node::<ipc::Service>("perception-stall-test").unwrap();
+    let sub = services::open_subscriber::<DetectionFrame, _>(&ice, &prefix).unwrap();
+    let mut p = ChildGuard::spawn(
+        "perception run --source ros2",
+        Command::new(bin_path("perception"))
+            .args(["run", "--source", "ros2", "--prefix", &prefix])
+            .args(["--rate", "10", "--frames", "200", "--persist-frames", "1"])
+            .arg("--ros2-topics")
+            .arg(dir.join("topics.toml"))
+            .arg("--calibration")
+            .arg(dir.join("calibration.toml"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped()),
+    );
+    let stderr = p.child.stderr.take().unwrap();
+    let log = std::thread::spawn(move || {
+        let mut all = String::new();
+        use std::io::Read;
+        let _ = std::io::BufReader::new(stderr).read_to_string(&mut all);
+        all
+    });
+
+    // 0: scene A with depth; 1: scene B colour only (depth stalled); 2: scene B with depth.
+    let phase = Arc::new(std::sync::atomic::AtomicU8::new(0));
+    let stop = Arc::new(AtomicBool::new(false));
+    let (phase2, stop2) = (phase.clone(), stop.clone());
+    let image = |r: &perception::synthetic::RenderedFrame| {
+        let bgra: Vec<u8> = r
+            .bgr
+            .chunks_exact(3)
+            .flat_map(|p| [p[0], p[1], p[2], 255])
+            .collect();
+        let depth: Vec<u8> = r.depth_m.iter().flat_map(|d| d.to_le_bytes()).collect();
+        (r.width_px as u32, r.height_px as u32, bgra, depth)
+    };
+    let (a, b) = (image(&cam.render(&scene_a)), image(&cam.render(&scene_b)));
+    let camera = std::thread::spawn(move || {
+        let ctx = context(topics.domain_id, &topics.networks).unwrap();
+        let mut n = node(&ctx, "fake_zed").unwrap();
+        let colour_pub = image_publisher(&mut n, &topics.colour).unwrap();
+        let depth_pub = image_publisher(&mut n, &topics.depth).unwrap();
+        while !stop2.load(Ordering::Relaxed) {
+            let ph = phase2.load(Ordering::Relaxed);
+            let (w, h, bgra, depth) = if ph == 0 { &a } else { &b };
+            let header = Header {
+                stamp: ros_time(0),
+                frame_id: "zed_left_camera_optical_frame".into(),
+            };
+            if ph != 1 {
+                let _ = depth_pub.publish(Image {
+                    header: header.clone(),
+                    height: *h,
+                    width: *w,
+                    encoding: "32FC1".into(),
+                    is_bigendian: 0,
+                    step: w * 4,
+                    data: depth.clone(),
+                });
+            }
+            let _ = colour_pub.publish(Image {
+                header,
+                height: *h,
+                width: *w,
+                encoding: "bgra8".into(),
+                is_bigendian: 0,
+                step: w * 4,
+                data: bgra.clone(),
+            });
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    });
+
+    let mut frames: Vec<DetectionFrame> = Vec::new();
+    let mut stalled_at = None;
+    let done = wait_for(Duration::from_secs(60), || {
+        while let Ok(Some(s)) = sub.receive() {
+            frames.push(*s.payload());
+        }
+        match phase.load(Ordering::Relaxed) {
+            0 if frames.iter().any(|f| f.settled() && f.count == 2) => {
+                phase.store(1, Ordering::Relaxed);
+                stalled_at = Some(std::time::Instant::now());
+            }
+            1 if stalled_at.is_some_and(|t| t.elapsed() > Duration::from_secs(3)) => {
+                phase.store(2, Ordering::Relaxed);
+            }
+            _ => {}
+        }
+        p.child.try_wait().unwrap()
+    });
+    while let Ok(Some(s)) = sub.receive() {
+        frames.push(*s.payload());
+    }
+    stop.store(true, Ordering::Relaxed);
+    camera.join().unwrap();
+    let log = log.join().unwrap();
+    assert!(
+        done.is_some_and(|s| s.success()),
+        "perception run failed or did not end:\n{log}"
+    );
+    assert_eq!(
+        phase.load(Ordering::Relaxed),
+        2,
+        "the depth stall was never reached (no settled frame of scene A):\n{log}"
+    );
+    let mut stdout = String::new();
+    use std::io::Read;
+    p.child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut stdout)
+        .unwrap();
+    let stats: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert!(
+        stats["unpaired_depth"].as_u64().is_some_and(|n| n >= 10),
+        "the stalled depth was not refused and counted: {stdout}\n{log}"
+    );
+    // The tall box, wherever it is reported: never lower than 0.25 m in a settled frame.
+    let near_tall = |o: &shm_schemas::DetectedObject| {
+        (o.center_m[0] - 0.46).abs() < 0.05 && (o.center_m[1] + 0.18).abs() < 0.05
+    };
+    for f in frames.iter().filter(|f| f.settled()) {
+        for o in f.objects().iter().filter(|o| near_tall(o)) {
+            assert!(
+                o.size_m[2] > 0.25,
+                "a settled frame holds the tall box as {:.3} m high: {f:?}",
+                o.size_m[2]
+            );
+        }
+    }
+    // Once depth is fresh again, the box is published at its height, settled.
+    assert!(
+        frames.iter().any(|f| f.settled()
+            && f.objects()
+                .iter()
+                .any(|o| near_tall(o) && (o.size_m[2] - 0.30).abs() < 0.03)),
+        "no settled frame with the tall box at its height after depth returned:\n{log}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
