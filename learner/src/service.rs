@@ -351,7 +351,7 @@ fn warm_start(
 /// `out_dir` (best/last checkpoints, metrics, plot). `on_iter` sees every iteration with the
 /// steps taken in this retraining; returning `false` cancels. Returns the run summary and
 /// the base policy's evaluation on the reported scene. With `settings.demonstrations`, the
-/// planner's path is found here ([`retrain_with`] takes one already found).
+/// feasibility check runs here for its path ([`retrain_with`] takes one already found).
 ///
 /// # Errors
 /// Checkpoint or configuration failures.
@@ -366,8 +366,18 @@ pub fn retrain(
     device: tch::Device,
     on_iter: impl FnMut(&IterStats, Option<&EvalResult>) -> bool,
 ) -> Result<(RunSummary, EvalResult), ServeError> {
+    // The path the service's feasibility check would hand over.
+    let verdict = settings.demonstrations.then(|| {
+        check_feasibility(
+            &env.env,
+            &scene,
+            &env.env.config().start.joints_rad,
+            settings.feasibility,
+        )
+    });
+    let path = verdict.as_ref().and_then(Feasibility::path);
     let o = retrain_with(
-        base, env, scene, None, settings, out_dir, eval_seed, device, on_iter,
+        base, env, scene, path, settings, out_dir, eval_seed, device, on_iter,
     )?;
     Ok((o.summary, o.before))
 }
@@ -838,6 +848,9 @@ mod tests {
         }
     }
 
+    /// Flipped to `false` by hand to see the test below fail without demonstrations.
+    const DEMOS: bool = true;
+
     #[test]
     fn retraining_from_demonstrations_learns_the_tall_box_the_base_policy_fails() {
         tch::set_num_threads(1);
@@ -859,23 +872,27 @@ mod tests {
             "the base policy solves it already"
         );
         let dir = std::env::temp_dir().join(format!("learner-demo-retrain-{}", std::process::id()));
+        let start = env.env.config().start.joints_rad;
+        let verdict = check_feasibility(&env.env, &scene, &start, FeasibilityConfig::default());
         let o = retrain_with(
             &base,
             &env,
             scene,
-            None,
-            &settings(true, 200_000),
+            verdict.path(),
+            // Within 49 152 steps: with demonstrations it converges at 12 288; from the base
+            // policy alone PPO needs 114 688 (demonstrations off fails this test).
+            &settings(DEMOS, 49_152),
             &dir,
             1,
             tch::Device::Cpu,
             |_, _| true,
         )
         .expect("retraining");
+        assert_eq!(o.summary.stop, StopReason::Converged, "{:?}", o.summary);
         let warm = o.warm_start.expect("warm start");
         assert!(warm.reported_scene, "{warm:?}");
         let bc = warm.bc.expect("cloned");
         assert!(bc.demo_loss_after < bc.demo_loss_before, "{bc:?}");
-        assert_eq!(o.summary.stop, StopReason::Converged, "{:?}", o.summary);
         let best = Checkpoint::load(&dir.join(checkpoint::BEST)).expect("best");
         let norm = ObsNormalizer::from_stats(&best.meta.obs_rms.to_rms(), best.meta.ppo.clip_obs);
         let net = best.network(tch::Device::Cpu).expect("net");
