@@ -7,13 +7,25 @@
 //! used. Only TCP links are built into this binary.
 //!
 //! Keys are `foresight/<link name>/<channel>`; two robots on one LAN use two link names.
+//!
+//! Every session is authenticated with Zenoh's `usrpwd` (the link credential of
+//! [`crate::keys`]): the relay that accepts a connection refuses one without the credential,
+//! so a stranger on the LAN gets no session. The size of a message Zenoh reassembles is capped
+//! at the largest valid relay message ([`crate::wire::MAX_MESSAGE_LEN`]) and the number of
+//! sessions and pending connections is small. There is no unauthenticated mode: without
+//! `--link-keys` a relay does not start.
 
+use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use zenoh::Wait;
 use zenoh::config::EndPoint;
 
-use crate::wire::Channel;
+use crate::keys::{KeyError, LinkKeys};
+use crate::wire::{Channel, MAX_MESSAGE_LEN, Side};
+
+/// Most Zenoh sessions a relay keeps (the other relay, and its reconnection).
+pub const MAX_SESSIONS: usize = 4;
 
 /// Where a relay listens and connects (shared by `zenoh-relay` and `foresight`).
 #[derive(Debug, Clone, Default, PartialEq, Eq, clap::Args)]
@@ -33,6 +45,11 @@ pub struct LinkArgs {
     /// talk to relays of the same name (one name per robot on a shared LAN).
     #[arg(long, default_value = "foresight")]
     pub link_name: String,
+    /// This host's keys folder, written by `zenoh-relay keygen --out DIR`: `DIR/robot-pc` on
+    /// the robot PC, `DIR/learner-host` on the learner host. Required: the relays
+    /// authenticate each other and sign every message.
+    #[arg(long, value_name = "DIR")]
+    pub link_keys: Option<PathBuf>,
 }
 
 /// Why the link settings are refused or the session could not be opened.
@@ -59,9 +76,18 @@ pub enum LinkError {
         "--link-name {0:?}: use 1–64 characters of letters, digits, `-` and `_` (it becomes part of the Zenoh keys)"
     )]
     LinkName(String),
+    /// The keys are missing or unusable (the message names the file).
+    #[error("{0}")]
+    Keys(String),
     /// Zenoh refused the configuration or could not open (e.g. the listen port is taken).
     #[error("zenoh: {0}")]
     Zenoh(String),
+}
+
+impl From<KeyError> for LinkError {
+    fn from(e: KeyError) -> Self {
+        Self::Keys(e.to_string())
+    }
 }
 
 fn check_endpoint(flag: &'static str, value: &str) -> Result<(), LinkError> {
@@ -110,7 +136,19 @@ impl LinkArgs {
         if !name_ok {
             return Err(LinkError::LinkName(self.link_name.clone()));
         }
+        if self.link_keys.is_none() {
+            return Err(KeyError::NoFolder.into());
+        }
         Ok(())
+    }
+
+    /// Validates the flags and loads `side`'s keys from `--link-keys`.
+    ///
+    /// # Errors
+    /// [`LinkError`] naming the flag, or the missing or unusable key file.
+    pub fn load_keys(&self, side: Side) -> Result<LinkKeys, LinkError> {
+        self.validate()?;
+        Ok(LinkKeys::load(self.link_keys.as_deref(), side)?)
     }
 
     /// The flags as a command line (for the launcher to pass on).
@@ -126,6 +164,9 @@ impl LinkArgs {
             out.push("--scout".to_owned());
         }
         out.extend(["--link-name".to_owned(), self.link_name.clone()]);
+        if let Some(k) = &self.link_keys {
+            out.extend(["--link-keys".to_owned(), k.display().to_string()]);
+        }
         out
     }
 
@@ -135,11 +176,12 @@ impl LinkArgs {
     }
 
     /// The Zenoh configuration: peer mode, exactly these endpoints, multicast scouting only
-    /// with `--scout`, and no shared memory transport.
+    /// with `--scout`, no shared memory transport, `usrpwd` authentication with `keys`'
+    /// credential, and bounded sessions and message sizes.
     ///
     /// # Errors
     /// [`LinkError`] (the settings are validated first).
-    pub fn zenoh_config(&self) -> Result<zenoh::Config, LinkError> {
+    pub fn zenoh_config(&self, keys: &LinkKeys) -> Result<zenoh::Config, LinkError> {
         self.validate()?;
         let mut c = zenoh::Config::default();
         let json = |v: &[String]| serde_json::to_string(v).unwrap_or_else(|_| "[]".into());
@@ -165,6 +207,22 @@ impl LinkArgs {
             "connect/retry",
             "{period_init_ms: 500, period_max_ms: 2000, period_increase_factor: 2}",
         )?;
+        set_usrpwd(&mut c, &keys.user, &keys.password, &keys.credential_file)?;
+        // Bounds: Zenoh reassembles nothing larger than the largest valid message (rounded
+        // up to whole 64 KiB batches), keeps few sessions and few half-open connections.
+        let max_message = MAX_MESSAGE_LEN.div_ceil(65_536) * 65_536;
+        set(
+            &mut c,
+            "transport/link/rx/max_message_size",
+            &max_message.to_string(),
+        )?;
+        set(
+            &mut c,
+            "transport/unicast/max_sessions",
+            &MAX_SESSIONS.to_string(),
+        )?;
+        set(&mut c, "transport/unicast/accept_pending", "8")?;
+        set(&mut c, "transport/unicast/accept_timeout", "5000")?;
         Ok(c)
     }
 
@@ -173,12 +231,32 @@ impl LinkArgs {
     ///
     /// # Errors
     /// [`LinkError`]: bad settings, or Zenoh could not open (e.g. a listen port in use).
-    pub fn open(&self) -> Result<zenoh::Session, LinkError> {
-        let config = self.zenoh_config()?;
+    pub fn open(&self, keys: &LinkKeys) -> Result<zenoh::Session, LinkError> {
+        let config = self.zenoh_config(keys)?;
         zenoh::open(config)
             .wait()
             .map_err(|e| LinkError::Zenoh(e.to_string()))
     }
+}
+
+/// Sets Zenoh's `usrpwd` authentication: this relay opens sessions as `user`/`password` and
+/// accepts only the users of `dictionary` (the credential file itself, `user:password`).
+///
+/// # Errors
+/// [`LinkError::Zenoh`] when Zenoh refuses the values.
+pub fn set_usrpwd(
+    c: &mut zenoh::Config,
+    user: &str,
+    password: &str,
+    dictionary: &Path,
+) -> Result<(), LinkError> {
+    let v = serde_json::json!({
+        "user": user,
+        "password": password,
+        "dictionary_file": dictionary.display().to_string(),
+    });
+    c.insert_json5("transport/auth/usrpwd", &v.to_string())
+        .map_err(|e| LinkError::Zenoh(format!("config transport/auth/usrpwd: {e}")))
 }
 
 #[cfg(test)]
@@ -192,7 +270,16 @@ mod tests {
             listen: listen.iter().map(|s| (*s).to_owned()).collect(),
             scout: false,
             link_name: "foresight".into(),
+            link_keys: Some("keys".into()),
         }
+    }
+
+    fn test_keys(tag: &str) -> (PathBuf, LinkKeys) {
+        let d = std::env::temp_dir().join(format!("zrelay-link-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        let g = crate::keys::generate(&d).unwrap();
+        let k = LinkKeys::load(Some(&g.robot_pc), Side::Controller).unwrap();
+        (d, k)
     }
 
     #[test]
@@ -216,12 +303,21 @@ mod tests {
         let mut l = link(&["tcp/10.0.0.2:7447"], &[]);
         l.link_name = "robot 1".into();
         assert!(matches!(l.validate(), Err(LinkError::LinkName(_))));
+        // No keys: refused, saying how to make them.
+        let mut l = link(&["tcp/10.0.0.2:7447"], &[]);
+        l.link_keys = None;
+        let e = l.validate().unwrap_err().to_string();
+        assert!(
+            e.contains("--link-keys") && e.contains("zenoh-relay keygen"),
+            "{e}"
+        );
     }
 
     #[test]
     fn the_zenoh_config_listens_and_connects_only_where_told_and_does_not_scout() {
+        let (dir, keys) = test_keys("cfg");
         let c = link(&["tcp/10.0.0.2:7447"], &["tcp/10.0.0.1:7447"])
-            .zenoh_config()
+            .zenoh_config(&keys)
             .unwrap();
         let get = |c: &zenoh::Config, k: &str| -> serde_json::Value {
             serde_json::from_str(&c.get_json(k).unwrap()).unwrap()
@@ -238,9 +334,24 @@ mod tests {
         assert_eq!(get(&c, "scouting/multicast/enabled"), false);
         let mut scout = link(&[], &[]);
         scout.scout = true;
-        let c = scout.zenoh_config().unwrap();
+        let c = scout.zenoh_config(&keys).unwrap();
         assert_eq!(get(&c, "scouting/multicast/enabled"), true);
         assert_eq!(get(&c, "listen/endpoints"), serde_json::json!([]));
+        // Authenticated and bounded.
+        assert_eq!(get(&c, "transport/auth/usrpwd/user"), keys.user.as_str());
+        assert_eq!(
+            get(&c, "transport/auth/usrpwd/dictionary_file"),
+            keys.credential_file.display().to_string()
+        );
+        let max = get(&c, "transport/link/rx/max_message_size")
+            .as_u64()
+            .unwrap();
+        assert!(
+            max as usize >= MAX_MESSAGE_LEN && max < 2 * MAX_MESSAGE_LEN as u64,
+            "{max}"
+        );
+        assert_eq!(get(&c, "transport/unicast/max_sessions"), MAX_SESSIONS);
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

@@ -6,7 +6,9 @@
 //! - `zenoh-relay learner-host --listen tcp/0.0.0.0:7447` on the GPU box: `learner serve`
 //!   plus the learner side of the relay;
 //! - `zenoh-relay learner --prefix P …`: the learner side alone, beside a `learner serve`
-//!   started by hand with the same prefix.
+//!   started by hand with the same prefix;
+//! - `zenoh-relay keygen --out DIR`: the link's keys, once (`DIR/robot-pc` for the robot PC,
+//!   `DIR/learner-host` for the GPU box; each side's `--link-keys`).
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -39,6 +41,13 @@ enum Cmd {
     Learner(SideArgs),
     /// The learner host: `learner serve` (supervised) plus the learner side of the relay.
     LearnerHost(LearnerHostArgs),
+    /// Make the link's keys: a shared credential and one signing key per host, in
+    /// `OUT/robot-pc` and `OUT/learner-host` (never overwrites).
+    Keygen {
+        /// Where to write the two folders.
+        #[arg(long)]
+        out: PathBuf,
+    },
 }
 
 #[derive(Debug, clap::Args)]
@@ -99,6 +108,10 @@ fn tie_to_parent() {
 }
 
 fn run_side(side: Side, a: SideArgs) -> Result<()> {
+    // The keys before anything else: no unauthenticated start.
+    a.link
+        .load_keys(side)
+        .with_context(|| format!("zenoh-relay {}", side_name(side)))?;
     tie_to_parent();
     let stop = stop_flag()?;
     let cfg = RelayConfig {
@@ -112,8 +125,18 @@ fn run_side(side: Side, a: SideArgs) -> Result<()> {
     Ok(())
 }
 
+fn side_name(side: Side) -> &'static str {
+    match side {
+        Side::Controller => "controller",
+        Side::Learner => "learner",
+    }
+}
+
 fn run_learner_host(a: LearnerHostArgs) -> Result<()> {
-    a.link.validate().context("zenoh-relay learner-host")?;
+    // The keys before the learner starts: no unauthenticated start.
+    a.link
+        .load_keys(Side::Learner)
+        .context("zenoh-relay learner-host")?;
     let hash = task_hash(&a.learner.task)?;
     let stop = stop_flag()?;
     let prefix = a
@@ -149,6 +172,18 @@ fn run_learner_host(a: LearnerHostArgs) -> Result<()> {
     Ok(())
 }
 
+fn keygen(out: &std::path::Path) -> Result<()> {
+    let g = zenoh_relay::keys::generate(out).context("zenoh-relay keygen")?;
+    println!(
+        "wrote the link keys:\n  {}  (robot PC: foresight --learner-host --link-keys {0})\n    this host's key {}\n  {}  (learner host: zenoh-relay learner-host --link-keys {2}; make learner-host LINK_KEYS=…)\n    this host's key {}\nCopy each folder to its host only (it holds that host's secret key and the link credential; mode 0600).",
+        g.robot_pc.display(),
+        g.controller_key,
+        g.learner_host.display(),
+        g.learner_key
+    );
+    Ok(())
+}
+
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -161,5 +196,6 @@ fn main() -> Result<()> {
         Cmd::Controller(a) => run_side(Side::Controller, a),
         Cmd::Learner(a) => run_side(Side::Learner, a),
         Cmd::LearnerHost(a) => run_learner_host(a),
+        Cmd::Keygen { out } => keygen(&out),
     }
 }

@@ -5,16 +5,27 @@
 //! - **Learner side** (learner host, beside `learner serve`): requests come in and are
 //!   published to the learner; its progress and policies go out.
 //!
-//! Everything that arrives is decoded and validated again ([`crate::wire`]); what fails is
-//! counted by reason and logged (at most once a second per reason), never forwarded. The
-//! delivery rules (re-send until answered, drop repeats) are [`crate::reliable`]. Each side
+//! Everything that arrives is size-checked, its signature verified with the other host's
+//! public key, decoded and validated again ([`crate::wire`]), and its sequence checked
+//! against the last accepted one ([`crate::reliable::SequenceGuard`], remembered across
+//! restarts in [`crate::keys::LinkState`]); what fails is counted by reason and logged (at
+//! most once a second per reason), never forwarded. The delivery rules (re-send until
+//! answered, drop repeats, bind answers to their request) are [`crate::reliable`]. Each side
 //! says hello once a second; a peer silent for [`PEER_SILENCE`] counts as a link loss.
+//!
+//! **Bounded.** Zenoh's callback only checks the size and queues the bytes, without blocking,
+//! in a bounded queue per channel ([`queue_len`]); a full queue drops the message and counts
+//! it (`flood`). The loop takes at most a queue's length from each channel per turn, so a
+//! flood on one channel neither starves another (a policy gets through a progress flood) nor
+//! stops the loop's own work (local services, re-sends, hellos, the status file). Sends never
+//! block: Zenoh drops what its queue cannot take, and the re-send rules send it again.
 //!
 //! Nothing of the real-time path crosses: no robot state, no detections, no verdicts.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc;
+use std::sync::{Arc, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
 use iceoryx2::port::publisher::Publisher;
@@ -25,22 +36,40 @@ use shm_schemas::services::{self, loan_zeroed};
 use shm_schemas::{PolicyBlob, RetrainPhase, RetrainProgress, RetrainRequest, ShmMessage};
 use zenoh::Wait;
 
+use crate::keys::{LinkState, fingerprint};
 use crate::link::{LinkArgs, LinkError};
 use crate::reliable::{
-    PolicyInbox, PolicyOutbox, ProgressAction, RequestAction, RequestInbox, RequestOutbox, is_final,
+    PolicyInbox, PolicyOutbox, ProgressAction, RequestAction, RequestInbox, RequestOutbox,
+    SequenceGuard, is_final,
 };
-use crate::status::{PeerStatus, RelayStatus, RequestStatus, host_name, unix_s};
+use crate::status::{AuthStatus, PeerStatus, RelayStatus, RequestStatus, host_name, unix_s};
 use crate::wire::{
-    self, Channel, Hello, PolicyAck, Side, WireError, decode_control, decode_message,
-    encode_control, encode_message,
+    self, Channel, Header, Hello, PolicyAck, RequestRef, Side, Signer, Verifier, WireError,
+    decode_control, decode_message, encode_control, encode_message,
 };
 
 /// A peer not heard from for this long is "lost" (hellos come once a second).
 pub const PEER_SILENCE: Duration = Duration::from_secs(3);
 const HELLO_EVERY: Duration = Duration::from_secs(1);
 const STATUS_EVERY: Duration = Duration::from_millis(250);
+/// How often the replay marks of hellos, progress and acks are saved (policies and requests
+/// save theirs before they are handed on).
+const STATE_EVERY: Duration = Duration::from_secs(5);
+/// How far above its last sent number a relay reserves sequence numbers in its state file
+/// (one write per 10 s of sending at most).
+pub const SEQUENCE_RESERVE_NS: u64 = 10_000_000_000;
 /// How long the loop sleeps waiting for the network between polls of the local services.
 const POLL: Duration = Duration::from_millis(1);
+
+/// How many received messages of `channel` may wait for the loop; more are dropped and
+/// counted (`flood`). The loop takes at most this many per channel per turn.
+pub const fn queue_len(channel: Channel) -> usize {
+    match channel {
+        Channel::Policy => 4,
+        Channel::RetrainRequest | Channel::PolicyAck | Channel::Hello => 16,
+        Channel::RetrainProgress => 64,
+    }
+}
 
 /// One relay's settings.
 #[derive(Debug, Clone)]
@@ -74,6 +103,9 @@ pub enum RelayError {
     /// The iceoryx2 side.
     #[error("iceoryx2: {0}")]
     Shm(String),
+    /// The replay state file cannot be read or written (the message names it).
+    #[error("replay state: {0}")]
+    State(String),
 }
 
 fn shm(e: impl std::fmt::Display) -> RelayError {
@@ -129,11 +161,40 @@ impl WarnLimit {
     }
 }
 
+/// Refusals noted by Zenoh's callbacks (size, full queue), collected by the loop.
+#[derive(Default)]
+struct CallbackRefusals {
+    counts: BTreeMap<&'static str, u64>,
+    last: Option<String>,
+}
+
+fn note(refusals: &Mutex<CallbackRefusals>, kind: &'static str, text: String) {
+    let mut r = refusals
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    *r.counts.entry(kind).or_default() += 1;
+    r.last = Some(text);
+}
+
+/// The incoming side of the link: a bounded queue per channel, filled by Zenoh's callbacks.
+struct Inbox {
+    queues: Vec<(Channel, mpsc::Receiver<Vec<u8>>)>,
+    doorbell: mpsc::Receiver<()>,
+    refusals: Arc<Mutex<CallbackRefusals>>,
+}
+
 /// The running relay.
 struct Relay {
     cfg: RelayConfig,
     instance: u64,
+    /// The last sequence sent (see [`crate::wire`]: never goes down).
     seq: u64,
+    signer: Signer,
+    verifier: Verifier,
+    guard: SequenceGuard,
+    state: LinkState,
+    state_path: PathBuf,
+    state_dirty: bool,
     session: zenoh::Session,
     ports: Ports,
     status: RelayStatus,
@@ -145,8 +206,9 @@ struct Relay {
     request_in: RequestInbox,
     policy_out: PolicyOutbox,
     policy_in: PolicyInbox,
-    /// The learner side's latest policy (re-sent until acknowledged).
-    latest_policy: Option<Box<PolicyBlob>>,
+    /// The learner side's latest policy and the request it answers (re-sent until
+    /// acknowledged).
+    latest_policy: Option<(Box<PolicyBlob>, RequestRef)>,
     /// The controller side's last forwarded progress (exact repeats are dropped).
     last_progress: Option<RetrainProgress>,
     /// Controller side: the task hash the learner host announced.
@@ -173,7 +235,15 @@ fn new_instance_id() -> u64 {
 /// [`RelayError`] when the link or the local services cannot be opened; failures while
 /// running are counted and logged.
 pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayError> {
-    cfg.link.validate()?;
+    let keys = cfg.link.load_keys(cfg.side)?;
+    let peer_fp = fingerprint(&keys.peer);
+    let state_path = keys.state_path();
+    let state =
+        LinkState::load(&state_path, &peer_fp).map_err(|e| RelayError::State(e.to_string()))?;
+    // Written at once: a relay that could not remember what it accepted does not start.
+    state
+        .write(&state_path)
+        .map_err(|e| RelayError::State(e.to_string()))?;
     let node_name = match cfg.side {
         Side::Controller => "zenoh-relay-controller",
         Side::Learner => "zenoh-relay-learner",
@@ -192,24 +262,56 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
             policies: services::open_subscriber(&node, p).map_err(shm)?,
         },
     };
-    let session = cfg.link.open()?;
-    let (tx, rx) = mpsc::channel::<(Channel, Vec<u8>)>();
+    let session = cfg.link.open(&keys)?;
     let incoming: &[Channel] = match cfg.side {
         Side::Controller => &[Channel::RetrainProgress, Channel::Policy, Channel::Hello],
         Side::Learner => &[Channel::RetrainRequest, Channel::PolicyAck, Channel::Hello],
     };
+    let (bell_tx, doorbell) = mpsc::sync_channel::<()>(1);
+    let refusals = Arc::new(Mutex::new(CallbackRefusals::default()));
+    let mut queues = Vec::new();
     let mut subscribers = Vec::new();
     for &channel in incoming {
-        let tx = tx.clone();
+        let (tx, rx) = mpsc::sync_channel::<Vec<u8>>(queue_len(channel));
+        let bell = bell_tx.clone();
+        let refused = Arc::clone(&refusals);
         let sub = session
             .declare_subscriber(cfg.link.key(channel))
+            // Not this session's own publications (hellos go both ways on one key).
+            .allowed_origin(zenoh::sample::Locality::Remote)
             .callback(move |sample| {
-                let _ = tx.send((channel, sample.payload().to_bytes().into_owned()));
+                // Never blocks Zenoh: the size first (unread), then a bounded queue.
+                let len = sample.payload().len();
+                if let Err(e) = wire::check_size(len, channel) {
+                    note(&refused, e.kind(), format!("{channel:?} refused: {e}"));
+                    return;
+                }
+                match tx.try_send(sample.payload().to_bytes().into_owned()) {
+                    Ok(()) => {
+                        let _ = bell.try_send(());
+                    }
+                    Err(mpsc::TrySendError::Full(_)) => note(
+                        &refused,
+                        "flood",
+                        format!(
+                            "{channel:?} dropped: {} messages already wait (a flood)",
+                            queue_len(channel)
+                        ),
+                    ),
+                    Err(mpsc::TrySendError::Disconnected(_)) => {}
+                }
             })
             .wait()
             .map_err(|e| LinkError::Zenoh(format!("subscribing {channel:?}: {e}")))?;
         subscribers.push(sub);
+        queues.push((channel, rx));
     }
+    drop(bell_tx);
+    let inbox = Inbox {
+        queues,
+        doorbell,
+        refusals,
+    };
     let status = RelayStatus {
         side: Some(cfg.side),
         host: host_name(),
@@ -218,6 +320,12 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
         peers: cfg.link.peers.clone(),
         listen: cfg.link.listen.clone(),
         started_unix_s: unix_s(),
+        auth: Some(AuthStatus {
+            keys_dir: keys.dir.display().to_string(),
+            own_key: fingerprint(&keys.signing.verifying_key()),
+            peer_key: peer_fp.clone(),
+            user: keys.user.clone(),
+        }),
         ..RelayStatus::default()
     };
     tracing::info!(
@@ -227,12 +335,23 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
         listen = ?cfg.link.listen,
         scout = cfg.link.scout,
         link = %cfg.link.link_name,
+        own_key = %fingerprint(&keys.signing.verifying_key()),
+        peer_key = %peer_fp,
         "relay up"
     );
+    let signer = Signer::new(keys.signing.clone(), &cfg.link.link_name);
+    let verifier = Verifier::new(keys.peer, &cfg.link.link_name);
     let mut relay = Relay {
-        cfg,
         instance: new_instance_id(),
-        seq: 0,
+        // Above every number an earlier run of this relay may have used.
+        seq: state.sent,
+        signer,
+        verifier,
+        guard: SequenceGuard::from_marks(&state.seen),
+        state,
+        state_path,
+        state_dirty: false,
+        cfg,
         session,
         ports,
         status,
@@ -251,16 +370,14 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
     };
     let mut next_hello = Instant::now();
     let mut next_status = Instant::now();
+    let mut next_state = Instant::now();
     let mut next_connections = Instant::now();
     while !stop.load(Ordering::Relaxed) {
-        match rx.recv_timeout(POLL) {
-            Ok((channel, bytes)) => relay.on_remote(channel, &bytes),
-            Err(mpsc::RecvTimeoutError::Timeout) => {}
+        match inbox.doorbell.recv_timeout(POLL) {
+            Ok(()) | Err(mpsc::RecvTimeoutError::Timeout) => {}
             Err(mpsc::RecvTimeoutError::Disconnected) => break,
         }
-        while let Ok((channel, bytes)) = rx.try_recv() {
-            relay.on_remote(channel, &bytes);
-        }
+        relay.take_remote(&inbox);
         relay.poll_local();
         let now = Instant::now();
         relay.resend_due(now);
@@ -277,7 +394,13 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
             relay.write_status();
             next_status = now + STATUS_EVERY;
         }
+        if relay.state_dirty && now >= next_state {
+            relay.save_state();
+            next_state = now + STATE_EVERY;
+        }
     }
+    relay.take_remote(&inbox);
+    relay.save_state();
     relay.write_status();
     drop(subscribers);
     let status = relay.status.clone();
@@ -287,17 +410,83 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
 }
 
 impl Relay {
+    /// The next sequence: the wall clock in ns, or one above the last sent, whichever is
+    /// larger. It never goes down for this key, across restarts too: the state file holds
+    /// a reservation [`SEQUENCE_RESERVE_NS`] above the last number sent, written before a
+    /// number beyond it is used, and a restarted relay starts above the reservation.
     fn next_seq(&mut self) -> u64 {
-        self.seq += 1;
+        let now_ns = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX));
+        self.seq = now_ns.max(self.seq.saturating_add(1));
+        if self.seq > self.state.sent {
+            self.state.sent = self.seq.saturating_add(SEQUENCE_RESERVE_NS);
+            self.state_dirty = true;
+            self.save_state();
+        }
         self.seq
     }
 
+    /// Writes the replay state when it changed; false when it could not be written.
+    fn save_state(&mut self) -> bool {
+        if !self.state_dirty {
+            return true;
+        }
+        self.state.seen = self.guard.marks();
+        match self.state.write(&self.state_path) {
+            Ok(()) => {
+                self.state_dirty = false;
+                true
+            }
+            Err(e) => {
+                if self.warn.allow("state", Instant::now()) {
+                    tracing::error!("{e}");
+                }
+                false
+            }
+        }
+    }
+
+    /// Takes what Zenoh's callbacks queued: at most a queue's length per channel, so one
+    /// channel's flood does not hold up another or the loop. Folds the callbacks' refusals
+    /// into the status.
+    fn take_remote(&mut self, inbox: &Inbox) {
+        for (channel, rx) in &inbox.queues {
+            for _ in 0..queue_len(*channel) {
+                match rx.try_recv() {
+                    Ok(bytes) => self.on_remote(*channel, &bytes),
+                    Err(_) => break,
+                }
+            }
+        }
+        let taken = {
+            let mut r = inbox
+                .refusals
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            std::mem::take(&mut *r)
+        };
+        if let Some(text) = taken.last {
+            let now = Instant::now();
+            for (kind, n) in taken.counts {
+                *self.status.rejected.entry(kind.to_owned()).or_default() += n;
+                if self.warn.allow(kind, now) {
+                    tracing::warn!("{text} ({n} this turn)");
+                }
+            }
+            self.status.last_rejection = Some(text);
+            self.status_dirty = true;
+        }
+    }
+
+    /// Sends without blocking: what Zenoh's queue cannot take is dropped there (requests and
+    /// policies are re-sent until answered, a lost ack brings the policy again).
     fn put(&mut self, channel: Channel, bytes: Vec<u8>) {
         let key = self.cfg.link.key(channel);
         let res = self
             .session
             .put(key, bytes)
-            .congestion_control(zenoh::qos::CongestionControl::Block)
+            .congestion_control(zenoh::qos::CongestionControl::Drop)
             .wait();
         match res {
             Ok(()) => {
@@ -313,13 +502,54 @@ impl Relay {
     }
 
     fn reject(&mut self, channel: Channel, e: &WireError) {
-        RelayStatus::count(&mut self.status.rejected, e.kind());
-        let text = format!("{channel:?} refused: {e}");
-        if self.warn.allow(e.kind(), Instant::now()) {
+        self.refuse(e.kind(), format!("{channel:?} refused: {e}"));
+    }
+
+    /// Counts a refusal by `kind` and keeps its words for the status file.
+    fn refuse(&mut self, kind: &'static str, text: String) {
+        RelayStatus::count(&mut self.status.rejected, kind);
+        if self.warn.allow(kind, Instant::now()) {
             tracing::warn!("{text}");
         }
         self.status.last_rejection = Some(text);
         self.status_dirty = true;
+    }
+
+    /// A message whose sequence is not above the last accepted on its channel is refused
+    /// (`replay`).
+    fn fresh(&mut self, h: &Header) -> bool {
+        match self.guard.accept(h.channel, h.sequence) {
+            Ok(()) => {
+                self.state_dirty = true;
+                true
+            }
+            Err(last) => {
+                self.refuse(
+                    "replay",
+                    format!(
+                        "{:?} refused: sequence {} is not above the last accepted ({last}): a replayed or old message",
+                        h.channel, h.sequence
+                    ),
+                );
+                false
+            }
+        }
+    }
+
+    /// Persists the replay state before a policy or a request is handed on; refused
+    /// (`state_not_saved`) if it cannot be, so a restart can never accept it again.
+    fn saved_before_forwarding(&mut self, channel: Channel) -> bool {
+        if self.save_state() {
+            return true;
+        }
+        self.refuse(
+            "state_not_saved",
+            format!(
+                "{channel:?} not handed on: the replay state {} could not be written",
+                self.state_path.display()
+            ),
+        );
+        false
     }
 
     fn accepted(&mut self, channel: Channel) {
@@ -327,42 +557,64 @@ impl Relay {
         self.status_dirty = true;
     }
 
-    /// A message from the other host.
+    /// A message from the other host (size already checked): signature, payload, sequence,
+    /// then the channel's rules.
     fn on_remote(&mut self, channel: Channel, bytes: &[u8]) {
+        let v = &self.verifier;
         let res = match channel {
-            Channel::Hello => match decode_control::<Hello>(bytes, channel) {
-                // Zenoh hands a session its own publications too.
-                Ok((h, _)) if h.sender_instance == self.instance => return,
-                Ok((h, m)) => {
-                    self.on_hello(h.sender_instance, &m);
-                    Ok(())
+            Channel::Hello => decode_control::<Hello>(bytes, channel, v).map(|(h, m)| {
+                // Zenoh does not hand a session its own publications (`Locality::Remote`);
+                // the instance check is a second guard.
+                let ok = h.sender_instance != self.instance && self.fresh(&h);
+                if ok {
+                    self.on_hello(&m);
                 }
-                Err(e) => Err(e),
-            },
-            Channel::RetrainRequest => decode_message::<RetrainRequest>(bytes, channel)
-                .map(|(h, r)| self.on_request(h.sender_instance, &r)),
+                ok
+            }),
+            Channel::RetrainRequest => {
+                decode_message::<RetrainRequest>(bytes, channel, v).map(|(h, r)| {
+                    let ok = self.fresh(&h);
+                    if ok {
+                        self.on_request(h.sender_instance, &r);
+                    }
+                    ok
+                })
+            }
             Channel::RetrainProgress => {
-                decode_message::<RetrainProgress>(bytes, channel).map(|(_, p)| self.on_progress(&p))
+                decode_message::<RetrainProgress>(bytes, channel, v).map(|(h, p)| {
+                    let ok = self.fresh(&h);
+                    if ok {
+                        self.on_progress(&p, h.request);
+                    }
+                    ok
+                })
             }
-            Channel::Policy => {
-                decode_message::<PolicyBlob>(bytes, channel).map(|(_, b)| self.on_policy(&b))
-            }
-            Channel::PolicyAck => decode_control::<PolicyAck>(bytes, channel).map(|(_, a)| {
-                if self.policy_out.on_ack(a.policy_id, a.checksum) {
+            Channel::Policy => decode_message::<PolicyBlob>(bytes, channel, v).map(|(h, b)| {
+                let ok = self.fresh(&h);
+                if ok {
+                    self.on_policy(&b, h.request);
+                }
+                ok
+            }),
+            Channel::PolicyAck => decode_control::<PolicyAck>(bytes, channel, v).map(|(h, a)| {
+                let ok = self.fresh(&h);
+                if ok && self.policy_out.on_ack(a.policy_id, a.checksum) {
                     tracing::info!(
                         policy_id = a.policy_id,
                         "policy acknowledged by the controller"
                     );
                 }
+                ok
             }),
         };
         match res {
-            Ok(()) => self.accepted(channel),
+            Ok(true) => self.accepted(channel),
+            Ok(false) => {}
             Err(e) => self.reject(channel, &e),
         }
     }
 
-    fn on_hello(&mut self, _instance: u64, hello: &Hello) {
+    fn on_hello(&mut self, hello: &Hello) {
         let now = Instant::now();
         let expected_side = match self.cfg.side {
             Side::Controller => Side::Learner,
@@ -407,7 +659,7 @@ impl Relay {
         self.status.link_down_s = self.down_before_s;
     }
 
-    /// Learner side: a request from the controller.
+    /// Learner side: a request from the controller (signature and sequence checked).
     fn on_request(&mut self, instance: u64, r: &RetrainRequest) {
         if !task_matches(self.cfg.task_hash, r.task_config_hash) {
             let text = format!(
@@ -424,6 +676,9 @@ impl Relay {
             self.status_dirty = true;
             return;
         }
+        if !self.saved_before_forwarding(Channel::RetrainRequest) {
+            return;
+        }
         match self.request_in.on_request(instance, r) {
             RequestAction::Forward => {
                 tracing::info!(
@@ -437,21 +692,27 @@ impl Relay {
                 }
             }
             RequestAction::Reanswer(p) => {
-                let seq = self.next_seq();
-                let bytes = encode_message(Channel::RetrainProgress, self.instance, seq, &p);
-                self.put(Channel::RetrainProgress, bytes);
+                self.send_progress(&p);
                 self.status.duplicates_dropped += 1;
             }
             RequestAction::Drop => self.status.duplicates_dropped += 1,
         }
     }
 
-    /// Controller side: progress from the learner host.
-    fn on_progress(&mut self, p: &RetrainProgress) {
+    /// Controller side: progress from the learner host, bound by it to request `bound`.
+    /// Only progress bound to the request in flight is forwarded: a late or replayed answer
+    /// to another request cannot end this one.
+    fn on_progress(&mut self, p: &RetrainProgress, bound: RequestRef) {
         let now = Instant::now();
-        match self.request_out.on_progress(p, now) {
+        match self.request_out.on_progress(p, bound, now) {
             ProgressAction::Stale => {
-                self.status.duplicates_dropped += 1;
+                self.status.stale_dropped += 1;
+                self.status_dirty = true;
+                tracing::debug!(
+                    request = p.request_id,
+                    bound_time_ns = bound.request_time_ns,
+                    "progress for another request than the one in flight: dropped"
+                );
                 return;
             }
             ProgressAction::Forward { answered } => {
@@ -466,6 +727,7 @@ impl Relay {
                         r.phase = Some(
                             match p.phase() {
                                 Ok(RetrainPhase::Published) => "published",
+                                Ok(RetrainPhase::Infeasible) => "infeasible",
                                 _ => "budget_exhausted",
                             }
                             .to_owned(),
@@ -492,10 +754,30 @@ impl Relay {
         }
     }
 
-    /// Controller side: a policy from the learner host (already validated).
-    fn on_policy(&mut self, blob: &PolicyBlob) {
+    /// Controller side: a policy from the learner host (signature, blob and sequence
+    /// checked), bound by it to request `bound`. It is handed to rt-core only when it is for
+    /// the request in flight, and only after the replay state is saved.
+    fn on_policy(&mut self, blob: &PolicyBlob, bound: RequestRef) {
         let (id, checksum) = (blob.policy_id, blob.checksum);
-        if self.policy_in.is_new(id, checksum) {
+        let current = self.request_out.current().map(RequestRef::of);
+        if current != Some(bound) {
+            // A genuine policy for a superseded (or unknown) request: acknowledged so the
+            // learner host stops sending it, never handed on.
+            self.status.stale_dropped += 1;
+            self.status_dirty = true;
+            if self.warn.allow("stale_policy", Instant::now()) {
+                tracing::info!(
+                    policy_id = id,
+                    for_request = bound.request_id,
+                    current = ?current.map(|c| c.request_id),
+                    "policy for another request than the one in flight: not handed to rt-core"
+                );
+            }
+        } else if self.policy_in.is_new(id, checksum) {
+            if !self.saved_before_forwarding(Channel::Policy) {
+                // Not acknowledged: sent again, and refused again until the state is saved.
+                return;
+            }
             let Ports::Controller { policies, .. } = &self.ports else {
                 return;
             };
@@ -527,8 +809,21 @@ impl Relay {
             policy_id: id,
             checksum,
         };
-        let bytes = encode_control(Channel::PolicyAck, self.instance, seq, &ack);
+        let bytes = encode_control(
+            &Header::new(Channel::PolicyAck, self.instance, seq),
+            &ack,
+            &self.signer,
+        );
         self.put(Channel::PolicyAck, bytes);
+    }
+
+    /// Learner side: one progress message to the controller, bound to its request.
+    fn send_progress(&mut self, p: &RetrainProgress) {
+        let seq = self.next_seq();
+        let header = Header::new(Channel::RetrainProgress, self.instance, seq)
+            .bound_to(self.request_in.binding(p.request_id));
+        let bytes = encode_message(&header, p, &self.signer);
+        self.put(Channel::RetrainProgress, bytes);
     }
 
     /// Takes what the local processes published and sends it over.
@@ -609,9 +904,7 @@ impl Relay {
                 continue;
             }
             self.request_in.on_local_progress(&p);
-            let seq = self.next_seq();
-            let bytes = encode_message(Channel::RetrainProgress, self.instance, seq, &p);
-            self.put(Channel::RetrainProgress, bytes);
+            self.send_progress(&p);
             if is_final(&p) {
                 tracing::info!(
                     request = p.request_id,
@@ -625,7 +918,7 @@ impl Relay {
                 Ok(()) => {
                     self.policy_out.submit(b.policy_id, b.checksum, now);
                     tracing::info!(policy_id = b.policy_id, "policy sent to the controller");
-                    self.latest_policy = Some(b);
+                    self.latest_policy = Some((b, self.request_in.current()));
                     self.send_policy();
                 }
                 Err(e) => tracing::warn!("local policy refused: {e}"),
@@ -654,7 +947,9 @@ impl Relay {
 
     fn send_request(&mut self, r: &RetrainRequest) {
         let seq = self.next_seq();
-        let bytes = encode_message(Channel::RetrainRequest, self.instance, seq, r);
+        let header =
+            Header::new(Channel::RetrainRequest, self.instance, seq).bound_to(RequestRef::of(r));
+        let bytes = encode_message(&header, r, &self.signer);
         self.put(Channel::RetrainRequest, bytes);
         if let Some(s) = self.status.requests.last_mut()
             && s.request_id == r.request_id
@@ -665,10 +960,11 @@ impl Relay {
 
     fn send_policy(&mut self) {
         let seq = self.next_seq();
-        let Some(b) = self.latest_policy.as_deref() else {
+        let Some((b, bound)) = self.latest_policy.as_ref() else {
             return;
         };
-        let bytes = encode_message(Channel::Policy, self.instance, seq, b);
+        let header = Header::new(Channel::Policy, self.instance, seq).bound_to(*bound);
+        let bytes = encode_message(&header, &**b, &self.signer);
         self.put(Channel::Policy, bytes);
     }
 
@@ -718,11 +1014,16 @@ impl Relay {
             task_hash: self.cfg.task_hash,
         };
         let seq = self.next_seq();
-        let bytes = encode_control(Channel::Hello, self.instance, seq, &hello);
+        let bytes = encode_control(
+            &Header::new(Channel::Hello, self.instance, seq),
+            &hello,
+            &self.signer,
+        );
         // Hellos are not counted as traffic.
         let _ = self
             .session
             .put(self.cfg.link.key(Channel::Hello), bytes)
+            .congestion_control(zenoh::qos::CongestionControl::Drop)
             .wait();
     }
 

@@ -4,9 +4,11 @@
 //! reliable TCP link covers a healthy connection; these rules cover the rest:
 //!
 //! - [`RequestOutbox`] (controller side): the latest retrain request is re-sent every
-//!   [`RESEND_INTERVAL`] of silence until the learner answers it for good (a `Published` or
-//!   `BudgetExhausted` progress for its id) or a newer request supersedes it. Stale progress
-//!   (for an older request) is not forwarded.
+//!   [`RESEND_INTERVAL`] of silence until the learner answers it for good (a `Published`,
+//!   `BudgetExhausted` or `Infeasible` progress for it) or a newer request supersedes it.
+//!   Progress counts only when the learner relay bound it to this very request (its id *and*
+//!   its time, [`RequestRef`]): a late answer to an older request, or to an earlier rt-core's
+//!   request with the same id, is not forwarded and cannot end the current one.
 //! - [`RequestInbox`] (learner side): a request is handed to the local learner once; a repeat
 //!   is answered with the final progress when there is one (so a lost answer is recovered)
 //!   and otherwise dropped; an older request of the same controller is dropped.
@@ -14,10 +16,16 @@
 //!   acknowledges it (a newer policy replaces it).
 //! - [`PolicyInbox`] (controller side): a policy is handed to rt-core once; a repeat is only
 //!   acknowledged again (one that could not be published is not acknowledged, so it comes again).
+//! - [`SequenceGuard`] (both sides): a message is accepted only with a sequence above the
+//!   last one accepted on its channel (replays and reordered old messages are refused).
 
 use std::time::{Duration, Instant};
 
+use std::collections::BTreeMap;
+
 use shm_schemas::{RetrainPhase, RetrainProgress, RetrainRequest};
+
+use crate::wire::{Channel, RequestRef};
 
 /// Silence after which an unanswered message is sent again.
 pub const RESEND_INTERVAL: Duration = Duration::from_secs(1);
@@ -89,19 +97,22 @@ impl RequestOutbox {
         self.pending.as_ref().is_some_and(|p| p.answered)
     }
 
-    /// A progress message from the learner host.
-    pub fn on_progress(&mut self, p: &RetrainProgress, now: Instant) -> ProgressAction {
+    /// A progress message from the learner host, bound by the learner relay to request
+    /// `bound` (the signed header's [`RequestRef`]).
+    pub fn on_progress(
+        &mut self,
+        p: &RetrainProgress,
+        bound: RequestRef,
+        now: Instant,
+    ) -> ProgressAction {
         let Some(pending) = self.pending.as_mut() else {
             // No request from this process yet: a learner host reporting on an earlier
             // controller's request. Nothing here is waiting for it.
             return ProgressAction::Stale;
         };
-        if p.request_id < pending.request.request_id {
-            return ProgressAction::Stale;
-        }
-        if p.request_id > pending.request.request_id {
-            // Ids are per controller process; a higher id is from an earlier controller
-            // whose counter ran further. Not ours.
+        // Ids are per rt-core process: the same id of an earlier rt-core, or an older or
+        // newer id, is not ours. The request time tells them apart.
+        if bound != RequestRef::of(&pending.request) || p.request_id != bound.request_id {
             return ProgressAction::Stale;
         }
         pending.last_activity = now;
@@ -167,6 +178,31 @@ impl RequestInbox {
                 RequestAction::Forward
             }
         }
+    }
+
+    /// The request a progress message of the local learner is about: the one handed on
+    /// when the ids match (time 0 otherwise: the robot side will not take it as an answer).
+    pub fn binding(&self, request_id: u64) -> RequestRef {
+        match self.last {
+            Some((_, id, t)) if id == request_id => RequestRef {
+                request_id,
+                request_time_ns: t,
+            },
+            _ => RequestRef {
+                request_id,
+                request_time_ns: 0,
+            },
+        }
+    }
+
+    /// The request last handed to the local learner (a policy it publishes answers it).
+    pub fn current(&self) -> RequestRef {
+        self.last
+            .map(|(_, id, t)| RequestRef {
+                request_id: id,
+                request_time_ns: t,
+            })
+            .unwrap_or_default()
     }
 
     /// Progress from the local learner (remembered when final for the current request).
@@ -241,6 +277,45 @@ impl PolicyInbox {
     }
 }
 
+/// The highest sequence accepted per channel from the other host's key.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct SequenceGuard {
+    seen: BTreeMap<Channel, u64>,
+}
+
+impl SequenceGuard {
+    /// From marks remembered across a restart (by channel key suffix).
+    pub fn from_marks(marks: &BTreeMap<String, u64>) -> Self {
+        let seen = Channel::ALL
+            .into_iter()
+            .filter_map(|c| marks.get(c.key_suffix()).map(|s| (c, *s)))
+            .collect();
+        Self { seen }
+    }
+
+    /// The marks to remember (by channel key suffix).
+    pub fn marks(&self) -> BTreeMap<String, u64> {
+        self.seen
+            .iter()
+            .map(|(c, s)| (c.key_suffix().to_owned(), *s))
+            .collect()
+    }
+
+    /// Accepts `sequence` on `channel` when it is above the last accepted (and remembers
+    /// it); `Err(last)` for a replay or an older message.
+    ///
+    /// # Errors
+    /// The last accepted sequence, which this one does not exceed.
+    pub fn accept(&mut self, channel: Channel, sequence: u64) -> Result<(), u64> {
+        let last = self.seen.entry(channel).or_default();
+        if sequence <= *last {
+            return Err(*last);
+        }
+        *last = sequence;
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
@@ -251,6 +326,13 @@ mod tests {
             request_id: id,
             request_time_ns: t,
             ..RetrainRequest::default()
+        }
+    }
+
+    fn at(request_id: u64, request_time_ns: u64) -> RequestRef {
+        RequestRef {
+            request_id,
+            request_time_ns,
         }
     }
 
@@ -278,7 +360,7 @@ mod tests {
         // Training progress keeps it quiet without answering it.
         let t = t0 + Duration::from_millis(2900);
         assert_eq!(
-            out.on_progress(&progress(1, RetrainPhase::Training), t),
+            out.on_progress(&progress(1, RetrainPhase::Training), at(1, 100), t),
             ProgressAction::Forward { answered: false }
         );
         assert_eq!(out.due(t + Duration::from_millis(999)), None);
@@ -286,7 +368,7 @@ mod tests {
         // The final answer ends the re-sending.
         let t = t + Duration::from_millis(1100);
         assert_eq!(
-            out.on_progress(&progress(1, RetrainPhase::BudgetExhausted), t),
+            out.on_progress(&progress(1, RetrainPhase::BudgetExhausted), at(1, 100), t),
             ProgressAction::Forward { answered: true }
         );
         assert!(out.answered());
@@ -298,14 +380,14 @@ mod tests {
         let t0 = Instant::now();
         let mut out = RequestOutbox::new();
         assert_eq!(
-            out.on_progress(&progress(1, RetrainPhase::Published), t0),
+            out.on_progress(&progress(1, RetrainPhase::Published), at(1, 100), t0),
             ProgressAction::Stale,
             "progress before any request of ours"
         );
         out.submit(request(1, 100), t0);
         out.submit(request(2, 200), t0);
         assert_eq!(
-            out.on_progress(&progress(1, RetrainPhase::Published), t0),
+            out.on_progress(&progress(1, RetrainPhase::Published), at(1, 100), t0),
             ProgressAction::Stale
         );
         assert!(
@@ -314,9 +396,59 @@ mod tests {
         );
         assert_eq!(out.due(t0 + RESEND_INTERVAL).map(|r| r.request_id), Some(2));
         assert_eq!(
-            out.on_progress(&progress(3, RetrainPhase::Published), t0),
+            out.on_progress(&progress(3, RetrainPhase::Published), at(3, 0), t0),
             ProgressAction::Stale
         );
+    }
+
+    #[test]
+    fn a_late_infeasible_answer_to_an_earlier_request_with_the_same_id_does_not_end_the_current_one()
+     {
+        let t0 = Instant::now();
+        let mut out = RequestOutbox::new();
+        out.submit(request(1, 500), t0);
+        // An earlier rt-core's request 1 (time 100) answered "infeasible", arriving late.
+        assert_eq!(
+            out.on_progress(&progress(1, RetrainPhase::Infeasible), at(1, 100), t0),
+            ProgressAction::Stale
+        );
+        // Bound to this request but naming another id in the payload.
+        assert_eq!(
+            out.on_progress(&progress(2, RetrainPhase::Infeasible), at(1, 500), t0),
+            ProgressAction::Stale
+        );
+        assert!(!out.answered(), "the current request is still open");
+        assert_eq!(out.due(t0 + RESEND_INTERVAL).map(|r| r.request_id), Some(1));
+        // Its own answer ends it.
+        assert_eq!(
+            out.on_progress(&progress(1, RetrainPhase::Infeasible), at(1, 500), t0),
+            ProgressAction::Forward { answered: true }
+        );
+        assert!(out.answered());
+    }
+
+    #[test]
+    fn the_learner_side_binds_progress_to_the_request_it_handed_on() {
+        let mut inbox = RequestInbox::default();
+        assert_eq!(inbox.current(), RequestRef::default());
+        inbox.on_request(7, &request(3, 300));
+        assert_eq!(inbox.binding(3), at(3, 300));
+        assert_eq!(inbox.binding(2), at(2, 0), "not the request handed on");
+        assert_eq!(inbox.current(), at(3, 300));
+    }
+
+    #[test]
+    fn a_sequence_is_accepted_once_and_only_above_the_last_on_its_channel() {
+        let mut g = SequenceGuard::default();
+        assert_eq!(g.accept(Channel::Policy, 10), Ok(()));
+        assert_eq!(g.accept(Channel::Policy, 10), Err(10), "a replay");
+        assert_eq!(g.accept(Channel::Policy, 9), Err(10), "an older message");
+        assert_eq!(g.accept(Channel::Hello, 5), Ok(()), "channels are separate");
+        assert_eq!(g.accept(Channel::Policy, 11), Ok(()));
+        // Remembered across a restart.
+        let mut back = SequenceGuard::from_marks(&g.marks());
+        assert_eq!(back, g);
+        assert_eq!(back.accept(Channel::Policy, 11), Err(11));
     }
 
     #[test]

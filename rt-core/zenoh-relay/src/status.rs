@@ -34,6 +34,20 @@ pub struct PeerStatus {
     pub last_seen_unix_s: f64,
 }
 
+/// The link's authentication, as this relay uses it.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct AuthStatus {
+    /// The keys folder.
+    pub keys_dir: String,
+    /// This host's public key (fingerprint).
+    pub own_key: String,
+    /// The other host's public key: the only signer accepted.
+    pub peer_key: String,
+    /// The Zenoh `usrpwd` user of the link credential.
+    pub user: String,
+}
+
 /// One retrain request as the controller's relay carried it.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -48,7 +62,7 @@ pub struct RequestStatus {
     pub first_progress_unix_s: Option<f64>,
     /// When its final answer arrived (Unix s).
     pub answered_unix_s: Option<f64>,
-    /// The final phase (`published`, `budget_exhausted`).
+    /// The final phase (`published`, `budget_exhausted`, `infeasible`).
     pub phase: Option<String>,
     /// The learner's own wall time for it (s), from the final progress.
     pub remote_wall_time_s: Option<f64>,
@@ -88,7 +102,10 @@ pub struct RelayStatus {
     pub sent: BTreeMap<String, u64>,
     /// Messages received and accepted, by channel.
     pub received: BTreeMap<String, u64>,
-    /// Messages refused, by reason (`schema_mismatch`, `invalid_payload`, `malformed`).
+    /// Messages refused, by reason: `bad_signature` (not signed by the other host's key),
+    /// `replay` (a sequence not above the last accepted), `oversize`, `flood` (dropped
+    /// because the channel's queue was full), `schema_mismatch`, `invalid_payload`,
+    /// `malformed`, `task_mismatch`, `state_not_saved`.
     pub rejected: BTreeMap<String, u64>,
     /// The last refusal, in words.
     pub last_rejection: Option<String>,
@@ -96,6 +113,11 @@ pub struct RelayStatus {
     pub resends: u64,
     /// Repeats dropped (requests, policies, progress).
     pub duplicates_dropped: u64,
+    /// Genuine but late messages dropped: progress or a policy bound to another request than
+    /// the one in flight (an older one, or an earlier rt-core's with the same id).
+    pub stale_dropped: u64,
+    /// Who this relay trusts (keys by fingerprint).
+    pub auth: Option<AuthStatus>,
     /// Retrain requests (controller side; newest last).
     pub requests: Vec<RequestStatus>,
     /// The learner host trains for another task than the robot's (its policies would be

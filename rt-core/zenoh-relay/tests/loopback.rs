@@ -1,5 +1,7 @@
 //! Two real relay processes on loopback, iceoryx2 on both ends: what crosses, what is
-//! re-sent after the other side restarts, and what is refused.
+//! re-sent after the other side restarts, and what is refused — a peer without the link
+//! credential, one without the learner host's key, replayed and late messages, a flood.
+//! Every loop is bounded by a deadline.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 use std::path::{Path, PathBuf};
@@ -13,8 +15,9 @@ use shm_schemas::{
     TwinVerdict,
 };
 use zenoh::Wait;
+use zenoh_relay::keys::LinkKeys;
 use zenoh_relay::status::RelayStatus;
-use zenoh_relay::wire::{self, Channel};
+use zenoh_relay::wire::{self, Channel, Header, RequestRef, Side, Signer};
 
 fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
@@ -32,10 +35,19 @@ impl Drop for Proc {
     }
 }
 
-fn relay(side: &str, prefix: &str, link: &[String], status: &Path, name: &str) -> Proc {
+fn relay(
+    side: &str,
+    prefix: &str,
+    link: &[String],
+    status: &Path,
+    name: &str,
+    keys: &Path,
+) -> Proc {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_zenoh-relay"));
     cmd.args([side, "--prefix", prefix, "--link-name", name, "--status"])
         .arg(status)
+        .arg("--link-keys")
+        .arg(keys)
         .args(link)
         .stdout(Stdio::null())
         .stderr(
@@ -61,7 +73,8 @@ fn tmp_dir(tag: &str) -> PathBuf {
     d
 }
 
-/// One link under test: its name, port, both hosts' service prefixes and status files.
+/// One link under test: its name, port, both hosts' service prefixes, status files and
+/// keys (made with `keygen`, as a user would).
 struct Link {
     dir: PathBuf,
     port: u16,
@@ -70,11 +83,20 @@ struct Link {
     pl: String,
     ctl_status: PathBuf,
     lrn_status: PathBuf,
+    ctl_keys: PathBuf,
+    lrn_keys: PathBuf,
 }
 
 impl Link {
     fn new(tag: &str) -> Self {
         let dir = tmp_dir(tag);
+        let out = Command::new(env!("CARGO_BIN_EXE_zenoh-relay"))
+            .arg("keygen")
+            .arg("--out")
+            .arg(dir.join("keys"))
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "keygen: {out:?}");
         Self {
             port: free_port(),
             name: unique(tag),
@@ -82,8 +104,41 @@ impl Link {
             pl: unique("lh"),
             ctl_status: dir.join("controller.json"),
             lrn_status: dir.join("learner.json"),
+            ctl_keys: dir.join("keys/robot-pc"),
+            lrn_keys: dir.join("keys/learner-host"),
             dir,
         }
+    }
+
+    /// The learner host's keys (a test acting as the learner host signs with them).
+    fn learner_keys(&self) -> LinkKeys {
+        LinkKeys::load(Some(&self.lrn_keys), Side::Learner).unwrap()
+    }
+
+    /// A Zenoh session of a third peer connecting to the controller relay: with the link
+    /// credential (`usrpwd`) or without.
+    fn third_peer(&self, with_credential: bool) -> zenoh::Session {
+        let mut config = zenoh::Config::default();
+        config
+            .insert_json5(
+                "connect/endpoints",
+                &format!("[\"tcp/127.0.0.1:{}\"]", self.port),
+            )
+            .unwrap();
+        config.insert_json5("listen/endpoints", "[]").unwrap();
+        config
+            .insert_json5("scouting/multicast/enabled", "false")
+            .unwrap();
+        if with_credential {
+            let k = self.learner_keys();
+            zenoh_relay::link::set_usrpwd(&mut config, &k.user, &k.password, &k.credential_file)
+                .unwrap();
+        }
+        zenoh::open(config).wait().unwrap()
+    }
+
+    fn key(&self, c: Channel) -> String {
+        format!("foresight/{}/{}", self.name, c.key_suffix())
     }
 
     /// The robot side's relay, listening on loopback.
@@ -95,6 +150,7 @@ impl Link {
             &listen,
             &self.ctl_status,
             &self.name,
+            &self.ctl_keys,
         )
     }
 
@@ -102,7 +158,14 @@ impl Link {
     fn learner(&self, extra: &[String]) -> Proc {
         let mut link = vec!["--peer".into(), format!("tcp/127.0.0.1:{}", self.port)];
         link.extend_from_slice(extra);
-        relay("learner", &self.pl, &link, &self.lrn_status, &self.name)
+        relay(
+            "learner",
+            &self.pl,
+            &link,
+            &self.lrn_status,
+            &self.name,
+            &self.lrn_keys,
+        )
     }
 
     fn wait_connected(&self) {
@@ -157,6 +220,26 @@ fn request(id: u64) -> RetrainRequest {
     };
     r.obstacle_count = 0;
     r
+}
+
+/// A sequence above anything sent so far (the relays use the wall clock in ns too).
+fn now_seq() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64
+}
+
+/// Waits until the third peer's session sees the controller relay (or `timeout`).
+fn peers_after(session: &zenoh::Session, timeout: Duration) -> usize {
+    let deadline = Instant::now() + timeout;
+    loop {
+        let n = session.info().peers_zid().wait().count();
+        if n > 0 || Instant::now() >= deadline {
+            return n;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
 }
 
 fn blob(id: u64) -> Box<PolicyBlob> {
@@ -302,29 +385,25 @@ fn messages_of_another_schema_or_malformed_ones_are_refused_counted_and_not_forw
         ctl_status.exists().then_some(())
     });
 
-    // A hostile or mismatched peer, straight on Zenoh.
-    let mut config = zenoh::Config::default();
-    config
-        .insert_json5("connect/endpoints", &format!("[\"tcp/127.0.0.1:{port}\"]"))
-        .unwrap();
-    config.insert_json5("listen/endpoints", "[]").unwrap();
-    config
-        .insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    let session = zenoh::open(config).wait().unwrap();
-    let key = |c: Channel| format!("foresight/{name}/{}", c.key_suffix());
+    // A mismatched peer with the credential and the learner host's key (another build, a
+    // bug there), straight on Zenoh.
+    let session = link.third_peer(true);
+    assert_eq!(peers_after(&session, Duration::from_secs(20)), 1);
+    let signer = Signer::new(link.learner_keys().signing, name);
+    let key = |c: Channel| link.key(c);
+    let _ = port;
     let progress = RetrainProgress {
         request_id: 1,
         phase: RetrainPhase::Training as u8,
         ..RetrainProgress::default()
     };
-    let mut other_schema = wire::encode_message(Channel::RetrainProgress, 9, 1, &progress);
-    other_schema[12..16].copy_from_slice(&(RetrainProgress::SCHEMA_VERSION + 1).to_le_bytes());
-    let mut bad_policy = wire::encode_message(Channel::Policy, 9, 2, &*blob(7));
-    let n = bad_policy.len();
-    bad_policy[wire::HEADER_LEN + 360 + 8] ^= 1;
-    let _ = n;
-    let garbage = b"hello, this is not a relay message at all".to_vec();
+    let mut other_schema_header = Header::new(Channel::RetrainProgress, 9, now_seq());
+    other_schema_header.schema_version = RetrainProgress::SCHEMA_VERSION + 1;
+    let other_schema = wire::encode_message(&other_schema_header, &progress, &signer);
+    let mut raw = shm_schemas::services::message_bytes(&*blob(7)).to_vec();
+    raw[360 + 8] ^= 1;
+    let bad_policy = wire::encode(&Header::new(Channel::Policy, 9, now_seq()), &raw, &signer);
+    let garbage = b"hello, this is not a relay message at all, not even signed: nothing".to_vec();
     let deadline = Instant::now() + Duration::from_secs(20);
     loop {
         session
@@ -349,7 +428,7 @@ fn messages_of_another_schema_or_malformed_ones_are_refused_counted_and_not_forw
             assert!(!st.received.contains_key("policy"));
             let last = st.last_rejection.unwrap();
             assert!(
-                last.contains("magic")
+                last.contains("shorter than")
                     || last.contains("schema_version")
                     || last.contains("checksum"),
                 "{last}"
@@ -412,4 +491,382 @@ fn a_learner_host_of_another_task_refuses_the_request_and_the_robot_side_says_wh
         || req_sub.receive().unwrap().map(|s| *s.payload()),
     );
     assert_eq!(got.request_id, 2);
+}
+
+/// Controller relay alone, rt-core's side on iceoryx2, and a request in flight.
+struct RobotSide {
+    _node: Node<ipc::Service>,
+    req_pub: iceoryx2::port::publisher::Publisher<ipc::Service, RetrainRequest, ()>,
+    prog_sub: iceoryx2::port::subscriber::Subscriber<ipc::Service, RetrainProgress, ()>,
+    pol_sub: iceoryx2::port::subscriber::Subscriber<ipc::Service, PolicyBlob, ()>,
+}
+
+impl RobotSide {
+    fn open(link: &Link, tag: &str) -> Self {
+        let (node, _) = services::create_node::<ipc::Service>(tag).unwrap();
+        Self {
+            req_pub: services::open_publisher::<RetrainRequest, _>(&node, &link.pc).unwrap(),
+            prog_sub: services::open_subscriber::<RetrainProgress, _>(&node, &link.pc).unwrap(),
+            pol_sub: services::open_subscriber::<PolicyBlob, _>(&node, &link.pc).unwrap(),
+            _node: node,
+        }
+    }
+
+    /// rt-core asks for `r` (again until the controller relay has it in flight: a relay that
+    /// just started may not be connected yet; it drops the repeats).
+    fn request(&self, link: &Link, r: RetrainRequest) {
+        wait_for_every(
+            "the request in the relay's status",
+            Duration::from_millis(200),
+            || {
+                self.req_pub.send_copy(r).unwrap();
+                status(&link.ctl_status)
+                    .requests
+                    .iter()
+                    .any(|s| s.request_id == r.request_id)
+                    .then_some(())
+            },
+        );
+    }
+}
+
+fn signed_policy(signer: &Signer, id: u64, bound: RequestRef, seq: u64) -> Vec<u8> {
+    wire::encode_message(
+        &Header::new(Channel::Policy, 77, seq).bound_to(bound),
+        &*blob(id),
+        signer,
+    )
+}
+
+fn infeasible(request_id: u64) -> RetrainProgress {
+    RetrainProgress {
+        request_id,
+        phase: RetrainPhase::Infeasible as u8,
+        infeasible_kind: shm_schemas::InfeasibleKind::OutOfReach as u8,
+        infeasible_by_m: 0.2,
+        ..RetrainProgress::default()
+    }
+}
+
+/// Puts `messages` every 100 ms until `done` says so (or 20 s).
+fn put_until<T>(
+    session: &zenoh::Session,
+    messages: &[(String, Vec<u8>)],
+    what: &str,
+    mut done: impl FnMut() -> Option<T>,
+) -> T {
+    wait_for_every(what, Duration::from_millis(100), || {
+        for (k, m) in messages {
+            session.put(k, m.clone()).wait().unwrap();
+        }
+        done()
+    })
+}
+
+fn wait_for_every<T>(what: &str, every: Duration, mut f: impl FnMut() -> Option<T>) -> T {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(every);
+    }
+}
+
+#[test]
+fn a_third_peer_without_the_credential_gets_no_session_and_one_without_the_key_is_refused() {
+    let link = Link::new("stranger");
+    let _ctl = link.controller();
+    let rt = RobotSide::open(&link, "relay-test-stranger");
+    let r = request(1);
+    rt.request(&link, r);
+    let bound = RequestRef::of(&r);
+    // A stranger's key, signing a false "infeasible" for the request in flight and a policy
+    // for it.
+    let stranger = Signer::new(
+        ed25519_dalek::SigningKey::from_bytes(&[0x5a; 32]),
+        &link.name,
+    );
+    let forged = |seq: u64| {
+        vec![
+            (
+                link.key(Channel::RetrainProgress),
+                wire::encode_message(
+                    &Header::new(Channel::RetrainProgress, 66, seq).bound_to(bound),
+                    &infeasible(1),
+                    &stranger,
+                ),
+            ),
+            (
+                link.key(Channel::Policy),
+                signed_policy(&stranger, 5, bound, seq),
+            ),
+        ]
+    };
+
+    // 1. No credential: Zenoh's usrpwd refuses the session; nothing it puts arrives.
+    let outsider = link.third_peer(false);
+    assert_eq!(
+        peers_after(&outsider, Duration::from_secs(3)),
+        0,
+        "a peer without the link credential got a session"
+    );
+    for _ in 0..10 {
+        for (k, m) in forged(now_seq()) {
+            outsider.put(k, m).wait().unwrap();
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let st = status(&link.ctl_status);
+    assert!(st.rejected.is_empty(), "{st:?}");
+    assert!(st.received.is_empty(), "{st:?}");
+    let _ = outsider.close().wait();
+
+    // 2. The credential but not the learner host's key: every message refused and counted.
+    let insider = link.third_peer(true);
+    assert_eq!(peers_after(&insider, Duration::from_secs(20)), 1);
+    let st = put_until(
+        &insider,
+        &forged(now_seq()),
+        "the refusals of the forged messages",
+        || {
+            let st = status(&link.ctl_status);
+            (st.rejected.get("bad_signature") >= Some(&2)).then_some(st)
+        },
+    );
+    let last = st.last_rejection.clone().unwrap();
+    assert!(
+        last.contains("signature") && last.contains("other host's public key"),
+        "{last}"
+    );
+    assert!(!st.received.contains_key("policy"), "{st:?}");
+    assert!(!st.received.contains_key("retrain_progress"), "{st:?}");
+    assert!(
+        st.requests[0].answered_unix_s.is_none(),
+        "a forged infeasible ended the request: {st:?}"
+    );
+    assert!(
+        rt.prog_sub.receive().unwrap().is_none(),
+        "forged progress forwarded"
+    );
+    assert!(
+        rt.pol_sub.receive().unwrap().is_none(),
+        "forged policy forwarded"
+    );
+    let _ = insider.close().wait();
+}
+
+#[test]
+fn a_replayed_or_older_policy_is_refused_also_after_the_robot_side_restarts() {
+    let link = Link::new("replay");
+    let mut ctl = link.controller();
+    let rt = RobotSide::open(&link, "relay-test-replay");
+    let r = request(1);
+    rt.request(&link, r);
+    let bound = RequestRef::of(&r);
+    // The test is the learner host here: its key, its credential.
+    let signer = Signer::new(link.learner_keys().signing, &link.name);
+    let peer = link.third_peer(true);
+    assert_eq!(peers_after(&peer, Duration::from_secs(20)), 1);
+    let seq = now_seq();
+    let recorded = signed_policy(&signer, 42, bound, seq);
+    let older = signed_policy(&signer, 43, bound, seq - 1);
+    let pk = link.key(Channel::Policy);
+
+    // The genuine policy reaches rt-core's side once.
+    let got = put_until(
+        &peer,
+        &[(pk.clone(), recorded.clone())],
+        "the genuine policy on rt-core's side",
+        || rt.pol_sub.receive().unwrap().map(|s| s.payload().policy_id),
+    );
+    assert_eq!(got, 42);
+    // Played back, and an older one (signed, never seen): refused as replays.
+    let st = put_until(
+        &peer,
+        &[(pk.clone(), recorded.clone()), (pk.clone(), older.clone())],
+        "the replays refused",
+        || {
+            let st = status(&link.ctl_status);
+            (st.rejected.get("replay") >= Some(&2)).then_some(st)
+        },
+    );
+    assert!(st.last_rejection.unwrap().contains("replayed or old"));
+    assert!(
+        rt.pol_sub.receive().unwrap().is_none(),
+        "a replay reached rt-core"
+    );
+    let _ = peer.close().wait();
+
+    // The robot side restarts (its policy inbox is empty again); the same request is in
+    // flight again. The replay is still refused: the mark was saved.
+    drop(ctl);
+    std::fs::remove_file(&link.ctl_status).unwrap();
+    ctl = link.controller();
+    rt.request(&link, r);
+    let peer = link.third_peer(true);
+    assert_eq!(peers_after(&peer, Duration::from_secs(20)), 1);
+    put_until(
+        &peer,
+        &[(pk.clone(), recorded.clone())],
+        "the replay refused after the restart",
+        || (status(&link.ctl_status).rejected.get("replay") >= Some(&1)).then_some(()),
+    );
+    assert!(
+        rt.pol_sub.receive().unwrap().is_none(),
+        "a replay reached rt-core after a restart"
+    );
+    // A new policy (a new sequence) still gets through.
+    let fresh = signed_policy(&signer, 44, bound, now_seq());
+    let got = put_until(
+        &peer,
+        &[(pk, fresh)],
+        "a new policy after the restart",
+        || rt.pol_sub.receive().unwrap().map(|s| s.payload().policy_id),
+    );
+    assert_eq!(got, 44);
+    let _ = peer.close().wait();
+    drop(ctl);
+}
+
+#[test]
+fn a_late_infeasible_answer_to_an_earlier_request_cannot_end_the_request_in_flight() {
+    let link = Link::new("late");
+    let _ctl = link.controller();
+    let rt = RobotSide::open(&link, "relay-test-late");
+    // An earlier rt-core asked request 1 at time 1001; this one asks request 1 at 5000.
+    let earlier = request(1);
+    let mut r = request(1);
+    r.request_time_ns = 5_000;
+    rt.request(&link, r);
+    let signer = Signer::new(link.learner_keys().signing, &link.name);
+    let peer = link.third_peer(true);
+    assert_eq!(peers_after(&peer, Duration::from_secs(20)), 1);
+    let key = link.key(Channel::RetrainProgress);
+    let late = wire::encode_message(
+        &Header::new(Channel::RetrainProgress, 77, now_seq()).bound_to(RequestRef::of(&earlier)),
+        &infeasible(1),
+        &signer,
+    );
+    let st = put_until(
+        &peer,
+        &[(key.clone(), late)],
+        "the late answer dropped",
+        || {
+            let st = status(&link.ctl_status);
+            (st.stale_dropped >= 1).then_some(st)
+        },
+    );
+    assert!(st.requests[0].answered_unix_s.is_none(), "{st:?}");
+    assert!(
+        rt.prog_sub.receive().unwrap().is_none(),
+        "the late answer was forwarded"
+    );
+    // The request in flight is still re-sent (not lost), and its own answer ends it.
+    wait_for("a re-send", Duration::from_secs(10), || {
+        (status(&link.ctl_status).requests[0].sends >= 2).then_some(())
+    });
+    let own = wire::encode_message(
+        &Header::new(Channel::RetrainProgress, 77, now_seq()).bound_to(RequestRef::of(&r)),
+        &infeasible(1),
+        &signer,
+    );
+    let got = put_until(&peer, &[(key, own)], "the answer forwarded", || {
+        rt.prog_sub.receive().unwrap().map(|s| *s.payload())
+    });
+    assert_eq!(got, infeasible(1));
+    wait_for("the request answered", Duration::from_secs(10), || {
+        (status(&link.ctl_status).requests[0].phase.as_deref() == Some("infeasible")).then_some(())
+    });
+    let _ = peer.close().wait();
+}
+
+#[test]
+fn a_flood_is_dropped_and_counted_and_a_real_policy_still_gets_through() {
+    let link = Link::new("flood");
+    let _ctl = link.controller();
+    let _lrn = link.learner(&[]);
+    let rt = RobotSide::open(&link, "relay-test-flood");
+    let (node, _) = services::create_node::<ipc::Service>("relay-test-flood-l").unwrap();
+    let req_sub = services::open_subscriber::<RetrainRequest, _>(&node, &link.pl).unwrap();
+    let pol_pub = services::open_publisher::<PolicyBlob, _>(&node, &link.pl).unwrap();
+    link.wait_connected();
+    rt.request(&link, request(1));
+    wait_for(
+        "the request on the learner host",
+        Duration::from_secs(20),
+        || req_sub.receive().unwrap().map(|_| ()),
+    );
+
+    // A peer with the credential (not the key) floods: small forged progress as fast as it
+    // can, oversize messages on the policy key, garbage hellos.
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flooder = {
+        let stop = std::sync::Arc::clone(&stop);
+        let session = link.third_peer(true);
+        assert_eq!(peers_after(&session, Duration::from_secs(20)), 1);
+        let (pk, polk, hk) = (
+            link.key(Channel::RetrainProgress),
+            link.key(Channel::Policy),
+            link.key(Channel::Hello),
+        );
+        let stranger = Signer::new(
+            ed25519_dalek::SigningKey::from_bytes(&[0x33; 32]),
+            &link.name,
+        );
+        std::thread::spawn(move || {
+            let oversize = vec![0u8; wire::MAX_MESSAGE_LEN + 1];
+            let deadline = Instant::now() + Duration::from_secs(30);
+            let mut n = 0u64;
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) && Instant::now() < deadline {
+                let m = wire::encode_message(
+                    &Header::new(Channel::RetrainProgress, 3, now_seq()),
+                    &infeasible(1),
+                    &stranger,
+                );
+                for _ in 0..200 {
+                    session.put(&pk, m.clone()).wait().unwrap();
+                }
+                if n % 20 == 0 {
+                    session.put(&polk, oversize.clone()).wait().unwrap();
+                    session.put(&hk, vec![1u8; 200]).wait().unwrap();
+                }
+                n += 1;
+            }
+            let _ = session.close().wait();
+        })
+    };
+    wait_for("the flood to be counted", Duration::from_secs(20), || {
+        let st = status(&link.ctl_status);
+        (st.rejected.get("flood") >= Some(&1) && st.rejected.get("oversize") >= Some(&1))
+            .then_some(())
+    });
+    // During the flood, the learner host publishes a policy: it reaches rt-core.
+    let b = blob(42);
+    let mut s = loan_zeroed(&pol_pub).unwrap();
+    s.payload_mut().copy_from(&b);
+    s.send().unwrap();
+    let got = wait_for(
+        "the real policy during the flood",
+        Duration::from_secs(20),
+        || rt.pol_sub.receive().unwrap().map(|s| s.payload().policy_id),
+    );
+    assert_eq!(got, 42);
+    // The relay kept up with its own work: the learner host is still connected.
+    let st = status(&link.ctl_status);
+    assert!(st.peer.as_ref().is_some_and(|p| p.connected), "{st:?}");
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    flooder.join().unwrap();
+    let st = status(&link.ctl_status);
+    println!(
+        "flood: refused {:?}, received {:?}",
+        st.rejected, st.received
+    );
+    assert!(!st.received.contains_key("retrain_progress"), "{st:?}");
+    assert!(
+        rt.prog_sub.receive().unwrap().is_none(),
+        "forged progress forwarded"
+    );
+    assert!(st.requests[0].answered_unix_s.is_none(), "{st:?}");
 }
