@@ -483,7 +483,8 @@ fn remote_learner_notes(
             .collect();
         notes.push(format!(
             "the learner host was never heard from over {}: is `zenoh-relay learner-host` running \
-             there with the same --link-name ({}), and is its TCP port open?",
+             there with the same --link-name ({}) and the other folder of the same `zenoh-relay \
+             keygen` (a session without the link credential is refused), and is its TCP port open?",
             via.join(", "),
             st.link_name
         ));
@@ -502,11 +503,27 @@ fn remote_learner_notes(
         notes.push(m.clone());
     }
     if remote.rejected > 0 {
+        let reasons: Vec<String> = remote
+            .rejected_by_reason
+            .iter()
+            .map(|(k, n)| format!("{k} {n}"))
+            .collect();
         notes.push(format!(
-            "{} message(s) from the learner host were refused; the last: {}",
+            "{} message(s) from the learner host were refused ({}); the last: {}",
             remote.rejected,
+            reasons.join(", "),
             remote.last_rejection.as_deref().unwrap_or("?")
         ));
+        if remote.rejected_by_reason.contains_key("bad_signature")
+            || remote.rejected_by_reason.contains_key("replay")
+        {
+            notes.push(
+                "messages not signed by the learner host's key, or replayed, reached the robot \
+                 PC's relay and were refused: someone holding the link credential is sending \
+                 them, or the two hosts use keys of different `zenoh-relay keygen` runs"
+                    .to_owned(),
+            );
+        }
     }
     notes
 }
@@ -702,7 +719,20 @@ mod tests {
         assert!(!notes.contains("never heard from"), "{notes}");
         assert!(notes.contains("task hash 0x1"), "{notes}");
         assert!(
-            notes.contains("3 message(s) from the learner host were refused"),
+            notes.contains("3 message(s) from the learner host were refused (task_mismatch 3)"),
+            "{notes}"
+        );
+        assert!(!notes.contains("signed"), "{notes}");
+        // Issue 25 item 1: refusals by the link's authentication are named.
+        st.rejected.insert("bad_signature".into(), 2);
+        let remote = report::RemoteLearner::from_status(&st);
+        let notes = remote_learner_notes(&remote, &st).join("\n");
+        assert!(
+            notes.contains("bad_signature 2, task_mismatch 3"),
+            "{notes}"
+        );
+        assert!(
+            notes.contains("not signed by the learner host's key"),
             "{notes}"
         );
     }

@@ -117,8 +117,11 @@ pub struct RemoteLearner {
     pub link_losses: u64,
     /// Total silence (s).
     pub link_down_s: f64,
-    /// Messages refused (schema mismatch, invalid, malformed).
+    /// Messages refused (schema mismatch, invalid, malformed, bad signature, replay,
+    /// oversize, flood, …).
     pub rejected: u64,
+    /// The same by reason (the relay's names: `bad_signature`, `replay`, `flood`, …).
+    pub rejected_by_reason: std::collections::BTreeMap<String, u64>,
     /// The last refusal, in words.
     pub last_rejection: Option<String>,
 }
@@ -146,6 +149,7 @@ impl RemoteLearner {
             link_losses: st.link_losses,
             link_down_s: st.link_down_s,
             rejected: st.rejected.values().sum(),
+            rejected_by_reason: st.rejected.clone(),
             last_rejection: st.last_rejection.clone(),
         }
     }
