@@ -18,16 +18,17 @@ ip link set "${r}v" netns "$r"; ip link set "${l}v" netns "$l"
 ip -n "$r" addr add 10.233.0.1/24 dev "${r}v"; ip -n "$l" addr add 10.233.0.2/24 dev "${l}v"
 for ns in "$r" "$l"; do ip -n "$ns" link set lo up; done
 ip -n "$r" link set "${r}v" up; ip -n "$l" link set "${l}v" up
+"$bin/zenoh-relay" keygen --out "$out/keys" > /dev/null  # the link's keys (issue 25)
 common=(--world assets/scenes/fast_world.toml --phase-timeout-s 60 --retrain-budget-s 40)
 for i in $(seq 1 "$n"); do
   "$bin/foresight" "${common[@]}" --out "$out/one/$i" > /dev/null 2>&1 || echo "one-host run $i failed"
   # A fresh learner host per run, as the one-host run starts a fresh learner: a learner host
   # that stays up resumes from its last converged policy and retrains the next run faster.
   ip netns exec "$l" "$bin/zenoh-relay" learner-host --listen tcp/10.233.0.2:7447 \
-    --out "$out/learner-runs/$i" --time-budget-s 40 > "$out/learner-host-$i.log" 2>&1 &
+    --link-keys "$out/keys/learner-host" --out "$out/learner-runs/$i" --time-budget-s 40 > "$out/learner-host-$i.log" 2>&1 &
   lh=$!
   ip netns exec "$r" "$bin/foresight" "${common[@]}" --learner-host --peer tcp/10.233.0.2:7447 \
-    --out "$out/two/$i" > /dev/null 2>&1 || echo "two-host run $i failed"
+    --link-keys "$out/keys/robot-pc" --out "$out/two/$i" > /dev/null 2>&1 || echo "two-host run $i failed"
   kill "$lh" 2>/dev/null || true; wait "$lh" 2>/dev/null || true
 done
 python3 - "$out" <<'PY'

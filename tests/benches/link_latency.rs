@@ -64,13 +64,30 @@ fn main() {
     std::fs::create_dir_all(&dir).unwrap();
     let (pc, pl) = (format!("fsbc{id}"), format!("fsbl{id}"));
     let endpoint = format!("tcp/{}:7447", hosts.learner_addr);
+    // The link's keys (issue 25): both relays authenticate and sign, as in production.
+    let keys = dir.join("keys");
+    let _ = std::fs::remove_dir_all(&keys);
+    let keygen = std::process::Command::new(bin_path("zenoh-relay"))
+        .arg("keygen")
+        .arg("--out")
+        .arg(&keys)
+        .output()
+        .unwrap();
+    assert!(keygen.status.success(), "zenoh-relay keygen: {keygen:?}");
     let relay = |ns: &str, side: &str, prefix: &str, link: [&str; 2], status: &str| {
+        let folder = if side == "controller" {
+            "robot-pc"
+        } else {
+            "learner-host"
+        };
         Proc(
             hosts
                 .exec(ns, &bin_path("zenoh-relay"))
                 .arg(side)
                 .args(["--prefix", prefix, "--link-name", "bench"])
                 .args(link)
+                .arg("--link-keys")
+                .arg(keys.join(folder))
                 .arg("--status")
                 .arg(dir.join(status))
                 .stdout(Stdio::null())

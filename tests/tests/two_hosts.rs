@@ -5,6 +5,9 @@
 //! listening on its veth address only. Shared memory is common to both namespaces, so the
 //! two sides use different iceoryx2 prefixes: the only way across is Zenoh over the veth.
 //!
+//! The two sides authenticate each other with keys made by `zenoh-relay keygen` (one folder
+//! per side); the run must see no refusal.
+//!
 //! The namespaces are made with `ip netns` as root and removed at the end; without the
 //! permission the tests say so and return (CI runs as root). Nothing leaves the machine:
 //! endpoints are the veth's private addresses and multicast scouting is off.
@@ -49,6 +52,15 @@ fn two_host_run(tag: &str, during_retraining: impl FnOnce(&TwoHosts)) -> Option<
         extra: vec![dir.join("learner-host.log")],
     };
     let port = "7447";
+    // The link's keys, made once as a user would; each side gets its own folder.
+    let keys = dir.join("keys");
+    let keygen = std::process::Command::new(bin_path("zenoh-relay"))
+        .arg("keygen")
+        .arg("--out")
+        .arg(&keys)
+        .output()
+        .expect("zenoh-relay keygen");
+    assert!(keygen.status.success(), "zenoh-relay keygen: {keygen:?}");
     let learner_log = std::fs::File::create(dir.join("learner-host.log")).expect("log file");
     let mut learner_cmd = hosts.exec(&hosts.learner_ns, &bin_path("zenoh-relay"));
     learner_cmd
@@ -56,6 +68,8 @@ fn two_host_run(tag: &str, during_retraining: impl FnOnce(&TwoHosts)) -> Option<
         .arg(format!("tcp/{}:{port}", hosts.learner_addr))
         .arg("--status")
         .arg(dir.join("learner-relay.json"))
+        .arg("--link-keys")
+        .arg(keys.join("learner-host"))
         .arg("--out")
         .arg(dir.join("learner-runs"))
         .args(["--time-budget-s", "40"])
@@ -71,6 +85,8 @@ fn two_host_run(tag: &str, during_retraining: impl FnOnce(&TwoHosts)) -> Option<
         .arg("--learner-host")
         .arg("--peer")
         .arg(format!("tcp/{}:{port}", hosts.learner_addr))
+        .arg("--link-keys")
+        .arg(keys.join("robot-pc"))
         .arg("--out")
         .arg(&out)
         .stdout(Stdio::null())
