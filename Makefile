@@ -76,10 +76,14 @@ bench: setup
 
 # The GPU box of a two-host setup (README, "Two hosts"): `learner serve` plus the learner
 # side of the relay. LEARNER_HOST_ARGS says where to listen (and any learner flags).
+# LINK_KEYS is the folder of `zenoh-relay keygen` (issue 25); made here on first use, then
+# copy $(LINK_KEYS)/robot-pc to the robot PC (`foresight --learner-host --link-keys …`).
 LEARNER_HOST_ARGS ?= --listen tcp/0.0.0.0:7447
+LINK_KEYS ?= link-keys
 learner-host: setup
 	$(MAKE) --no-print-directory _build
-	$(BIN)/zenoh-relay learner-host $(LEARNER_HOST_ARGS)
+	@[ -d "$(LINK_KEYS)/learner-host" ] || $(BIN)/zenoh-relay keygen --out "$(LINK_KEYS)"
+	$(BIN)/zenoh-relay learner-host --link-keys "$(LINK_KEYS)/learner-host" $(LEARNER_HOST_ARGS)
 
 # Host-to-host link latency (issue 16): two network namespaces joined by a veth pair (root).
 bench-link: setup
