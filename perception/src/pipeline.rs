@@ -796,6 +796,8 @@ mod tests {
         rendered: crate::synthetic::RenderedFrame,
         script: Vec<bool>,
         next: usize,
+        /// `CLOCK_MONOTONIC` of the last refusal.
+        last_refusal_ns: u64,
     }
 
     impl FrameSource for StallingDepth {
@@ -805,6 +807,7 @@ mod tests {
             };
             self.next += 1;
             if !good {
+                self.last_refusal_ns = crate::frame::monotonic_now_ns();
                 return Err(SourceError::Depth(
                     crate::ros2_source::DepthPairError::Stale {
                         topic: "/depth".into(),
@@ -827,12 +830,14 @@ mod tests {
     }
 
     /// Issue 25 item 3: frames refused for stale depth are counted, and the frames after
-    /// them are not settled until the quiet time (100 ms) of good frames has passed.
+    /// them are not settled until the quiet time (100 ms) of good frames has passed (the
+    /// colour detector takes a few ms a frame, so the 30 good frames after the stall span
+    /// more than that: the scene settles again).
     #[test]
     fn frames_refused_for_stale_depth_are_counted_and_unsettle_the_scene() {
         let prefix = format!("percstaledepth{}", std::process::id());
         let (rendered, mut pipeline) = small_scene_pipeline(&prefix);
-        // 1 kHz: 300 ms of good frames, 20 refused, 30 ms of good frames.
+        // 300 good frames, 20 refused, 30 good frames.
         let mut script = vec![true; 300];
         script.extend([false; 20]);
         script.extend([true; 30]);
@@ -840,13 +845,14 @@ mod tests {
             rendered,
             script,
             next: 0,
+            last_refusal_ns: 0,
         };
         let mut settled = Vec::new();
         let stats = run_with(
             &mut source,
             &mut |f, interrupted| {
                 let p = pipeline.process_after(f, interrupted)?;
-                settled.push(p.sent.settled());
+                settled.push((p.sent.settled(), f.capture_time_ns));
                 Ok(p)
             },
             1000.0,
@@ -862,11 +868,23 @@ mod tests {
         assert_eq!(stats.published, 330, "{stats:?}");
         // Settled before the stall (the last frames before it may already see the
         // interruption: the capture runs a frame or two ahead of the detector).
-        assert!(settled[250..298].iter().all(|s| *s), "{:?}", &settled[..300]);
         assert!(
-            settled[300..].iter().all(|s| !s),
-            "a settled frame within 100 ms of a refused one: {:?}",
-            &settled[300..]
+            settled[250..298].iter().all(|s| s.0),
+            "{:?}",
+            &settled[..300]
         );
+        let refused_ns = source.last_refusal_ns;
+        assert!(refused_ns > 0);
+        assert!(
+            !settled[300].0,
+            "the first frame after the stall is settled"
+        );
+        for (i, &(s, t)) in settled.iter().enumerate().skip(300) {
+            assert!(
+                !s || t >= refused_ns + 100_000_000,
+                "frame {i} settled {} ms after the last refused one",
+                t.saturating_sub(refused_ns) as f64 / 1e6
+            );
+        }
     }
 }

@@ -19,8 +19,9 @@
 //! ```
 //!
 //! Negative numbers reach the parser (and its clear error) only with clap's
-//! `allow_negative_numbers = true` on the flag; without it clap refuses `-1` itself, also
-//! naming the flag.
+//! `allow_negative_numbers = true` on the flag; without it clap takes `-1` for a flag of its
+//! own and says "unexpected argument '-1' found", which does not name the flag: every
+//! numeric flag sets it.
 
 use std::fmt::Display;
 use std::str::FromStr;
@@ -100,7 +101,7 @@ where
         })?;
         if v < min || v > max {
             return Err(CliBoundError::OutOfRange {
-                value: v.to_string(),
+                value: t.to_owned(),
                 min: min.to_string(),
                 max: max.to_string(),
             });
@@ -119,7 +120,7 @@ fn parse_f64(s: &str, min: f64, max: f64) -> Result<f64, CliBoundError> {
     }
     if !(min..=max).contains(&v) {
         return Err(CliBoundError::OutOfRange {
-            value: v.to_string(),
+            value: s.trim().to_owned(),
             min: min.to_string(),
             max: max.to_string(),
         });
@@ -146,6 +147,10 @@ mod tests {
         for bad in ["-1", "1e300", "100.0001"] {
             let e = p(bad).unwrap_err();
             assert!(matches!(e, CliBoundError::OutOfRange { .. }), "{bad}");
+            assert!(
+                e.to_string().starts_with(&format!("{bad} is out of range")),
+                "{e}"
+            );
             assert!(e.to_string().contains("0..=100"), "{e}");
         }
         assert!(matches!(p("ten"), Err(CliBoundError::NotANumber { .. })));

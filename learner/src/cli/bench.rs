@@ -14,13 +14,13 @@ use super::PpoArgs;
 #[derive(clap::Args)]
 pub struct BenchArgs {
     /// Environment steps.
-    #[arg(long, default_value_t = 200_000, value_parser = shm_schemas::cli_bounds::int_within(1u64, 10_000_000_000))]
+    #[arg(long, default_value_t = 200_000, value_parser = shm_schemas::cli_bounds::int_within(1u64, 10_000_000_000), allow_negative_numbers = true)]
     steps: u64,
     /// Task configuration.
     #[arg(long, default_value = "assets/task.toml")]
     task: PathBuf,
     /// Seed.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     seed: u64,
     #[command(flatten)]
     ppo: PpoArgs,

@@ -23,7 +23,7 @@ pub struct EvalArgs {
     #[arg(long)]
     scene: Option<PathBuf>,
     /// Episodes.
-    #[arg(long, default_value_t = 200, value_parser = shm_schemas::cli_bounds::int_within(1usize, 1_000_000))]
+    #[arg(long, default_value_t = 200, value_parser = shm_schemas::cli_bounds::int_within(1usize, 1_000_000), allow_negative_numbers = true)]
     episodes: usize,
     /// Task configuration.
     #[arg(long, default_value = "assets/task.toml")]

@@ -17,7 +17,7 @@ pub struct ExportArgs {
     #[arg(long)]
     out: PathBuf,
     /// Policy id (default: derived from the checkpoint's step count and task hash).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     policy_id: Option<u64>,
 }
 

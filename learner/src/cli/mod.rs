@@ -36,25 +36,25 @@ pub const EVAL_SEED: u64 = 0x00E0_A15E;
 #[derive(clap::Args, Clone)]
 pub struct PpoArgs {
     /// Parallel environments.
-    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(1usize, 65_536))]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(1usize, 65_536), allow_negative_numbers = true)]
     envs: Option<usize>,
     /// Rollout worker threads (0 = one per core).
-    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(0usize, 256))]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(0usize, 256), allow_negative_numbers = true)]
     workers: Option<usize>,
     /// Steps per environment per rollout.
-    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(1usize, 1_000_000))]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(1usize, 1_000_000), allow_negative_numbers = true)]
     n_steps: Option<usize>,
     /// Minibatch size.
-    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(1usize, 10_000_000))]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(1usize, 10_000_000), allow_negative_numbers = true)]
     batch: Option<usize>,
     /// Epochs per rollout.
-    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(1usize, 1000))]
+    #[arg(long, value_parser = shm_schemas::cli_bounds::int_within(1usize, 1000), allow_negative_numbers = true)]
     epochs: Option<usize>,
     /// Learning rate.
     #[arg(long, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
     lr: Option<f64>,
     /// Hidden layer widths, comma-separated (e.g. `128,128`; each ≤ 256).
-    #[arg(long, value_delimiter = ',', value_parser = shm_schemas::cli_bounds::int_within(1usize, 256))]
+    #[arg(long, value_delimiter = ',', value_parser = shm_schemas::cli_bounds::int_within(1usize, 256), allow_negative_numbers = true)]
     hidden: Option<Vec<usize>>,
     /// Entropy bonus coefficient.
     #[arg(long, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]

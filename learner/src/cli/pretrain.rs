@@ -20,10 +20,10 @@ pub struct PretrainArgs {
     #[arg(long, default_value = "assets/task.toml")]
     task: PathBuf,
     /// Environment steps.
-    #[arg(long, default_value_t = 1_000_000, value_parser = shm_schemas::cli_bounds::int_within(1u64, 100_000_000_000))]
+    #[arg(long, default_value_t = 1_000_000, value_parser = shm_schemas::cli_bounds::int_within(1u64, 100_000_000_000), allow_negative_numbers = true)]
     steps: u64,
     /// Seed.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     seed: u64,
     /// Output directory.
     #[arg(long)]
@@ -32,10 +32,10 @@ pub struct PretrainArgs {
     #[arg(long)]
     resume: bool,
     /// Evaluate and checkpoint every this many steps.
-    #[arg(long, default_value_t = 100_000, value_parser = shm_schemas::cli_bounds::int_within(1u64, 10_000_000_000))]
+    #[arg(long, default_value_t = 100_000, value_parser = shm_schemas::cli_bounds::int_within(1u64, 10_000_000_000), allow_negative_numbers = true)]
     eval_every: u64,
     /// Evaluation scenes (fixed set).
-    #[arg(long, default_value_t = 200, value_parser = shm_schemas::cli_bounds::int_within(1usize, 1_000_000))]
+    #[arg(long, default_value_t = 200, value_parser = shm_schemas::cli_bounds::int_within(1usize, 1_000_000), allow_negative_numbers = true)]
     eval_episodes: usize,
     /// Wall-time budget (s).
     #[arg(long, value_parser = shm_schemas::cli_bounds::f64_within(0.1, 1e7), allow_negative_numbers = true)]

@@ -30,10 +30,10 @@ pub struct RetrainArgs {
     scene: Option<PathBuf>,
     /// Instead of `--scene`: world number N (0-based) of the worlds `learner worlds --seed S`
     /// draws (the task's `[world]` generator), e.g. `--world-index 34 --world-seed 7`.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     world_index: Option<usize>,
     /// The generator seed of `--world-index`.
-    #[arg(long, default_value_t = 7)]
+    #[arg(long, default_value_t = 7, allow_negative_numbers = true)]
     world_seed: u64,
     #[command(flatten)]
     args: ServeArgs,

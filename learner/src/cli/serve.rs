@@ -25,16 +25,16 @@ pub struct ServeArgs {
     pub out: Option<PathBuf>,
     /// Step budget per request (the tall-box scene needs about 2e5–6e5 from the bundled
     /// policy, see the learner README).
-    #[arg(long, default_value_t = 600_000, value_parser = shm_schemas::cli_bounds::int_within(1u64, 10_000_000_000))]
+    #[arg(long, default_value_t = 600_000, value_parser = shm_schemas::cli_bounds::int_within(1u64, 10_000_000_000), allow_negative_numbers = true)]
     pub max_steps: u64,
     /// Wall-time budget per request (s).
     #[arg(long, default_value_t = 90.0, value_parser = shm_schemas::cli_bounds::f64_within(0.1, 86_400.0), allow_negative_numbers = true)]
     pub time_budget_s: f64,
     /// Evaluate every this many steps.
-    #[arg(long, default_value_t = 8_192, value_parser = shm_schemas::cli_bounds::int_within(1u64, 1_000_000_000))]
+    #[arg(long, default_value_t = 8_192, value_parser = shm_schemas::cli_bounds::int_within(1u64, 1_000_000_000), allow_negative_numbers = true)]
     pub eval_every: u64,
     /// Evaluation episodes (the reported scene and lightly jittered variants).
-    #[arg(long, default_value_t = 20, value_parser = shm_schemas::cli_bounds::int_within(1usize, 100_000))]
+    #[arg(long, default_value_t = 20, value_parser = shm_schemas::cli_bounds::int_within(1usize, 100_000), allow_negative_numbers = true)]
     pub eval_episodes: usize,
     /// Jitter of the evaluation variants as a fraction of the training jitter (2 cm, 10 %):
     /// 0 (default) evaluates the reported scene exactly as reported (the lookahead re-checks
@@ -49,7 +49,7 @@ pub struct ServeArgs {
     #[arg(long, default_value_t = 0.5, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
     pub old_share: f64,
     /// Exit after answering this many requests (0: serve forever).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub max_requests: u64,
     /// Raise the policy's standard deviation to at least this at the start of a retraining
     /// (a converged policy barely explores; 0 keeps it). 0.5 by default for the generalist
@@ -62,7 +62,7 @@ pub struct ServeArgs {
     #[arg(long, default_value_t = false, action = clap::ArgAction::Set)]
     pub freeze_stats: bool,
     /// Minibatch size during retraining (0: the checkpoint's).
-    #[arg(long, default_value_t = 0, value_parser = shm_schemas::cli_bounds::int_within(0usize, 1_000_000))]
+    #[arg(long, default_value_t = 0, value_parser = shm_schemas::cli_bounds::int_within(0usize, 1_000_000), allow_negative_numbers = true)]
     pub batch: usize,
     /// Learning rate during retraining (0: the checkpoint's).
     #[arg(long, default_value_t = 0.0, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
@@ -79,11 +79,11 @@ pub struct ServeArgs {
     #[arg(long, default_value_t = 0.3, value_parser = shm_schemas::cli_bounds::f32_within(0.0, 1.0), allow_negative_numbers = true)]
     pub height_start: f32,
     /// Rollout worker threads (0 = the checkpoint's setting).
-    #[arg(long, default_value_t = 0, value_parser = shm_schemas::cli_bounds::int_within(0usize, 256))]
+    #[arg(long, default_value_t = 0, value_parser = shm_schemas::cli_bounds::int_within(0usize, 256), allow_negative_numbers = true)]
     pub workers: usize,
     /// Pre-training scenes the base policy solves, evaluated with the reported scene: a
     /// retraining converges only when it still solves them with no contact (0 = off).
-    #[arg(long, default_value_t = 40, value_parser = shm_schemas::cli_bounds::int_within(0usize, 100_000))]
+    #[arg(long, default_value_t = 40, value_parser = shm_schemas::cli_bounds::int_within(0usize, 100_000), allow_negative_numbers = true)]
     pub kept_episodes: usize,
     /// Wall-time budget of the feasibility check's joint-space planner per request (s): a
     /// world whose safe goal postures it cannot connect to the start within it is answered
@@ -98,11 +98,11 @@ pub struct ServeArgs {
     pub demonstrations: OnOff,
     /// Jittered variants of the reported scene (±2 cm, ±10 %) demonstrated besides the
     /// scene itself, each planned on its own.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, allow_negative_numbers = true)]
     pub demo_variants: usize,
     /// Behaviour-cloning gradient steps (minibatches of 256, half demonstrations, half the
     /// policy's own actions on pre-training scenes).
-    #[arg(long, default_value_t = 300)]
+    #[arg(long, default_value_t = 300, allow_negative_numbers = true)]
     pub bc_steps: usize,
 }
 

@@ -30,17 +30,17 @@ use super::serve::ServeArgs;
 #[derive(clap::Args)]
 pub struct WorldsArgs {
     /// Worlds to draw.
-    #[arg(long, default_value_t = 40, value_parser = shm_schemas::cli_bounds::int_within(1usize, 100_000))]
+    #[arg(long, default_value_t = 40, value_parser = shm_schemas::cli_bounds::int_within(1usize, 100_000), allow_negative_numbers = true)]
     worlds: usize,
     /// Seed of the world generator (the seed of `foresight --runs N --seed S --worlds random`).
-    #[arg(long, default_value_t = 7)]
+    #[arg(long, default_value_t = 7, allow_negative_numbers = true)]
     seed: u64,
     /// Retrain on every feasible world the policy fails (as `learner serve` would).
     #[arg(long)]
     retrain: bool,
     /// Pre-training evaluation scenes (the fixed set `learner eval` uses) on which each
     /// retrained policy's success is measured afterwards ("kept").
-    #[arg(long, default_value_t = 200, value_parser = shm_schemas::cli_bounds::int_within(0usize, 1_000_000))]
+    #[arg(long, default_value_t = 200, value_parser = shm_schemas::cli_bounds::int_within(0usize, 1_000_000), allow_negative_numbers = true)]
     kept_eval_episodes: usize,
     /// The checkpoint, task, output folder (`--out`, required here) and the retraining
     /// settings, as `learner serve` takes them.

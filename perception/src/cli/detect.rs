@@ -42,7 +42,7 @@ pub struct DetectArgs {
     #[arg(long)]
     annotated: Option<PathBuf>,
     /// Run the detection this many times (after one warm-up) and print the per-frame timing.
-    #[arg(long, default_value_t = 1, value_parser = int_within(0u32, 1_000_000))]
+    #[arg(long, default_value_t = 1, value_parser = int_within(0u32, 1_000_000), allow_negative_numbers = true)]
     repeat: u32,
 }
 

@@ -49,7 +49,7 @@ pub struct RunArgs {
     #[arg(long)]
     camera: Option<PathBuf>,
     /// Stop after this many frames.
-    #[arg(long, value_parser = int_within(1u64, u64::MAX))]
+    #[arg(long, value_parser = int_within(1u64, u64::MAX), allow_negative_numbers = true)]
     frames: Option<u64>,
     /// Script time advances by 1/rate per frame instead of by wall-clock time.
     #[arg(long)]
@@ -61,15 +61,15 @@ pub struct RunArgs {
     #[command(flatten)]
     yolo: YoloArgs,
     /// Frames a change must persist before it is published.
-    #[arg(long, default_value_t = 3, value_parser = int_within(1u32, 1000))]
+    #[arg(long, default_value_t = 3, value_parser = int_within(1u32, 1000), allow_negative_numbers = true)]
     persist_frames: u32,
     /// Settled frames (`FRAME_SETTLED`, the only ones rt-core plans on): frames every object
     /// must have been confirmed with its box (1..=120).
-    #[arg(long, default_value_t = TrackerConfig::default().settle_frames, value_parser = int_within(1u32, 120))]
+    #[arg(long, default_value_t = TrackerConfig::default().settle_frames, value_parser = int_within(1u32, 120), allow_negative_numbers = true)]
     settle_frames: u32,
     /// Settled frames: capture time with nothing appearing, disappearing or moving (ms,
     /// 0..=2000; the default 100 delays a plan after a world change by 100–117 ms at 60 Hz).
-    #[arg(long, default_value_t = TrackerConfig::default().settle_quiet_ms, value_parser = int_within(0u32, 2000))]
+    #[arg(long, default_value_t = TrackerConfig::default().settle_quiet_ms, value_parser = int_within(0u32, 2000), allow_negative_numbers = true)]
     settle_quiet_ms: u32,
     /// Settled frames: a measurement this far from its object's reported box is motion (m,
     /// from the tracker's noise tolerance, 0.005, to its jump threshold, 0.05).
@@ -102,7 +102,7 @@ pub struct RunArgs {
     #[arg(long, value_parser = f32_within(0.0, 0.25), allow_negative_numbers = true)]
     min_obstacle_confidence: Option<f32>,
     /// Camera id written into each DetectionFrame.
-    #[arg(long, default_value_t = 0, value_parser = int_within(0u32, u32::MAX))]
+    #[arg(long, default_value_t = 0, value_parser = int_within(0u32, u32::MAX), allow_negative_numbers = true)]
     camera_id: u32,
 }
 

@@ -60,7 +60,7 @@ pub struct YoloArgs {
     #[arg(long, value_enum)]
     pub backend: Option<BackendChoice>,
     /// Inference threads (0: the cores this process may use).
-    #[arg(long, value_parser = int_within(0usize, 1024))]
+    #[arg(long, value_parser = int_within(0usize, 1024), allow_negative_numbers = true)]
     pub threads: Option<usize>,
     /// ONNX Runtime shared library (default: ORT_DYLIB_PATH, else the one `make setup`
     /// installed).

@@ -68,10 +68,10 @@ pub struct LaunchArgs {
     pub ros: bool,
     /// Randomised scenarios: run this many, each with a world drawn from the task's
     /// sampling ranges (a small obstacle, then a large one).
-    #[arg(long, default_value_t = 0, value_parser = int_within(0u32, 100_000))]
+    #[arg(long, default_value_t = 0, value_parser = int_within(0u32, 100_000), allow_negative_numbers = true)]
     pub runs: u32,
     /// Seed of the randomised scenarios.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     pub seed: u64,
     /// What the randomised scenarios (`--runs N`) draw: `pair` — a small obstacle, then a
     /// large one (the paper's setting); `random` — a small-obstacle warm-up, then an unseen
@@ -84,7 +84,7 @@ pub struct LaunchArgs {
     pub retrain_budget_s: f64,
     /// Retraining step budget per request (a request that runs out is answered with the
     /// best policy so far; the next request resumes where it stopped).
-    #[arg(long, default_value_t = 400_000, value_parser = int_within(1u64, 10_000_000_000))]
+    #[arg(long, default_value_t = 400_000, value_parser = int_within(1u64, 10_000_000_000), allow_negative_numbers = true)]
     pub retrain_steps: u64,
     /// Longest one scene may take (s, 0.1..=86400).
     #[arg(long, default_value_t = 90.0, value_parser = f64_within(0.1, 86_400.0), allow_negative_numbers = true)]

@@ -23,7 +23,7 @@ pub struct RosBridgeArgs {
     #[arg(long, default_value = "assets/xarm5.urdf")]
     urdf: PathBuf,
     /// DDS domain id (defaults to $ROS_DOMAIN_ID, else 0).
-    #[arg(long, env = "ROS_DOMAIN_ID", default_value_t = 0, value_parser = int_within(0u16, 232))]
+    #[arg(long, env = "ROS_DOMAIN_ID", default_value_t = 0, value_parser = int_within(0u16, 232), allow_negative_numbers = true)]
     domain_id: u16,
     /// Interface address DDS may use (repeatable). Default: loopback only. Pass the robot
     /// PC's address to be seen from other hosts.

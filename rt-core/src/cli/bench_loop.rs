@@ -41,7 +41,7 @@ pub struct BenchLoopArgs {
     #[command(flatten)]
     rt: super::RtArgs,
     /// Period of policy hot-swaps, ms (0 = none after the first).
-    #[arg(long, default_value_t = 50, value_parser = int_within(1u64, 3_600_000))]
+    #[arg(long, default_value_t = 50, value_parser = int_within(1u64, 3_600_000), allow_negative_numbers = true)]
     swap_every_ms: u64,
     /// Folder with runtime.toml, xarm5.urdf and task.toml.
     #[arg(long, default_value = "assets")]

@@ -61,7 +61,7 @@ pub fn main() -> ExitCode {
 #[derive(Debug, Clone, Copy, Args)]
 pub struct RtArgs {
     /// Pin the cycle thread to this CPU.
-    #[arg(long, value_parser = int_within(0usize, 4095))]
+    #[arg(long, value_parser = int_within(0usize, 4095), allow_negative_numbers = true)]
     cpu: Option<usize>,
     /// Ask for SCHED_FIFO at this priority for the cycle thread.
     #[arg(long, value_parser = int_within(1i32, 99), allow_negative_numbers = true)]

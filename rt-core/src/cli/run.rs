@@ -71,7 +71,7 @@ pub struct RunArgs {
     #[arg(long)]
     prefix: Option<String>,
     /// Report port of the arm for `--link xarm` (default: the real controller's 30003).
-    #[arg(long, value_parser = int_within(1u16, u16::MAX))]
+    #[arg(long, value_parser = int_within(1u16, u16::MAX), allow_negative_numbers = true)]
     report_port: Option<u16>,
     /// Operator action: clear the controller's error and warning at start before entering
     /// servo mode. Without it rt-core never sends CLEAN_ERROR: an error at start is

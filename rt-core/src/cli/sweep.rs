@@ -20,13 +20,13 @@ use shm_schemas::cli_bounds::{f64_within, int_within};
 #[derive(Debug, Args)]
 pub struct SweepArgs {
     /// Episodes to run.
-    #[arg(long, default_value_t = 100, value_parser = int_within(1u64, 100_000_000))]
+    #[arg(long, default_value_t = 100, value_parser = int_within(1u64, 100_000_000), allow_negative_numbers = true)]
     episodes: u64,
     /// Seed of the sweep.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     seed: u64,
     /// Index of the first episode (replay one with `--first-episode I --episodes 1`).
-    #[arg(long, default_value_t = 0, value_parser = int_within(0u64, 1_000_000_000_000))]
+    #[arg(long, default_value_t = 0, value_parser = int_within(0u64, 1_000_000_000_000), allow_negative_numbers = true)]
     first_episode: u64,
     /// Folder for summary.json.
     #[arg(long, default_value = "sweep-out")]
@@ -35,7 +35,7 @@ pub struct SweepArgs {
     #[arg(long, default_value = "assets")]
     assets: PathBuf,
     /// Worker threads (default: the available cores).
-    #[arg(long, value_parser = int_within(1usize, 1024))]
+    #[arg(long, value_parser = int_within(1usize, 1024), allow_negative_numbers = true)]
     jobs: Option<usize>,
     /// Longest episode, s.
     #[arg(long, default_value_t = 12.0, value_parser = f64_within(0.1, 3600.0), allow_negative_numbers = true)]

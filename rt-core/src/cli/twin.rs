@@ -68,7 +68,7 @@ pub struct IkArgs {
     #[arg(long, value_parser = parse_joints, allow_hyphen_values = true)]
     from: Option<Joints>,
     /// Iteration budget.
-    #[arg(long, default_value_t = 200, value_parser = int_within(1u32, 1_000_000))]
+    #[arg(long, default_value_t = 200, value_parser = int_within(1u32, 1_000_000), allow_negative_numbers = true)]
     iterations: u32,
     #[command(flatten)]
     model: ModelArgs,
@@ -94,10 +94,10 @@ pub struct RolloutArgs {
     #[arg(long)]
     scene: Option<PathBuf>,
     /// Number of episodes.
-    #[arg(long, default_value_t = 1, value_parser = int_within(1u32, 10_000_000))]
+    #[arg(long, default_value_t = 1, value_parser = int_within(1u32, 10_000_000), allow_negative_numbers = true)]
     episodes: u32,
     /// Seed of the scene sampling and of the action noise.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     seed: u64,
     /// Obstacle class of sampled scenes: small or large.
     #[arg(long, default_value = "small", value_parser = parse_class)]

@@ -34,7 +34,7 @@ pub struct ProbeArgs {
     #[arg(long)]
     addr: String,
     /// Report port (the 100 Hz "real" report; default 30003).
-    #[arg(long, default_value_t = 30003, value_parser = int_within(1u16, u16::MAX))]
+    #[arg(long, default_value_t = 30003, value_parser = int_within(1u16, u16::MAX), allow_negative_numbers = true)]
     report_port: u16,
     /// Stream a small J1 motion at 100 Hz and report round-trip timing.
     #[arg(long)]

@@ -36,25 +36,25 @@ struct Args {
     #[arg(long, default_value = "127.0.0.1")]
     bind: IpAddr,
     /// Added to every default port (502, 30000–30003, control 30010).
-    #[arg(long, default_value_t = 0, value_parser = int_within(0u16, 35_000))]
+    #[arg(long, default_value_t = 0, value_parser = int_within(0u16, 35_000), allow_negative_numbers = true)]
     port_offset: u16,
     /// Command port (overrides the offset).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     command_port: Option<u16>,
     /// Real-time report port (30000).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     report_rt_port: Option<u16>,
     /// Normal report port (30001).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     report_normal_port: Option<u16>,
     /// Rich report port (30002).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     report_rich_port: Option<u16>,
     /// Real report port (30003).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     report_real_port: Option<u16>,
     /// Control port (line-based: `scene <path>`, `status`, `shutdown`).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     control_port: Option<u16>,
     /// Ground-truth scene at start.
     #[arg(long)]

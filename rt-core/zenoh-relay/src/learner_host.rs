@@ -36,7 +36,7 @@ pub struct LearnerArgs {
     #[arg(long, default_value_t = 30.0, value_parser = f64_within(0.1, 86_400.0), allow_negative_numbers = true)]
     pub time_budget_s: f64,
     /// Retraining step budget per request, as `foresight --retrain-steps`.
-    #[arg(long, default_value_t = 400_000, value_parser = int_within(1u64, 10_000_000_000))]
+    #[arg(long, default_value_t = 400_000, value_parser = int_within(1u64, 10_000_000_000), allow_negative_numbers = true)]
     pub max_steps: u64,
     /// More `learner serve` flags, after `--`.
     #[arg(last = true)]
