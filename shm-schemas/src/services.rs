@@ -446,6 +446,14 @@ pub const ICEORYX2_CONFIG_FILE: &str = "assets/iceoryx2.toml";
 /// # Errors
 /// [`NodeCreateError::Config`] when the file is there but unreadable or malformed.
 pub fn global_config() -> Result<&'static Config, NodeCreateError> {
+    // Once per process, whichever thread comes first: iceoryx2 warns when two threads set
+    // up its global configuration at the same moment.
+    static LOADED: std::sync::OnceLock<Result<&'static Config, NodeCreateError>> =
+        std::sync::OnceLock::new();
+    *LOADED.get_or_init(load_global_config)
+}
+
+fn load_global_config() -> Result<&'static Config, NodeCreateError> {
     let file = std::env::var(ICEORYX2_CONFIG_ENV)
         .ok()
         .filter(|p| !p.is_empty())

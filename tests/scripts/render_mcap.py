@@ -7,6 +7,7 @@ with the `mcap` / `mcap-ros2-support` packages only (no Foresight code).
     render_mcap.py runs/latest/run.mcap docs/run-mcap.png
 """
 
+import os
 import sys
 
 import matplotlib
@@ -14,7 +15,6 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
-from matplotlib.ticker import EngFormatter  # noqa: E402
 from mcap.reader import make_reader  # noqa: E402
 from mcap_ros2.decoder import DecoderFactory  # noqa: E402
 
@@ -52,7 +52,8 @@ def main(path, out):
 
     fig = plt.figure(figsize=(13, 8.5), constrained_layout=True)
     grid = fig.add_gridspec(2, 3)
-    fig.suptitle(f"Run recording {path}: {len(js)} joint states, {len(verdicts)} verdicts")
+    run = os.path.basename(os.path.dirname(os.path.abspath(path)))
+    fig.suptitle(f"Run recording {run}/run.mcap: {len(js)} joint states, {len(verdicts)} verdict(s), {len(referee)} referee reports")
     for k, (ax_i, ay_i, name) in enumerate([(1, 2, "top view (x–y)"), (1, 3, "side view (x–z)")]):
         ax = fig.add_subplot(grid[0, k])
         for (ns, _), (p, s) in boxes.items():
@@ -97,7 +98,6 @@ def main(path, out):
     ax.set_title("Joints: measured (/joint_states, solid) and commanded (/joint_commands, dashed)")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("angle (rad)")
-    ax.xaxis.set_major_formatter(EngFormatter(unit="", sep=""))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, ncol=5, loc="upper right")
     fig.savefig(out, dpi=90)
