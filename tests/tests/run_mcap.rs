@@ -5,7 +5,8 @@
 //! log time never going back (`tests/scripts/check_mcap.py`). A launcher killed with
 //! SIGKILL leaves a file readable up to its last chunk.
 //!
-//! The world is one scene (`assets/scenes/small_box.toml`): the shortest whole run. Needs
+//! The recorded run is one scene (`assets/scenes/small_box.toml`): the shortest whole run;
+//! the killed one is `assets/scenes/fast_world.toml` (long enough to kill mid-run). Needs
 //! the workspace's binaries built and `make setup` done.
 
 use std::path::{Path, PathBuf};
@@ -58,8 +59,8 @@ fn one_scene_world(dir: &Path) -> PathBuf {
     world
 }
 
-fn launch(out: &Path) -> ChildGuard {
-    let world = one_scene_world(out);
+/// `foresight` on `world` from the repository root, run folders under `out`.
+fn launch(out: &Path, world: &Path) -> ChildGuard {
     let mut cmd = Command::new(bin_path("foresight"));
     cmd.current_dir(repo_root())
         .arg("--world")
@@ -101,7 +102,7 @@ fn a_run_leaves_an_mcap_file_that_an_independent_reader_validates() {
         runs: out.clone(),
         extra: Vec::new(),
     };
-    let mut guard = launch(&out);
+    let mut guard = launch(&out, &one_scene_world(&out));
     let code = guard.wait_exit(Duration::from_secs(240));
     let run = newest_run(&out).expect("a run folder");
     assert_eq!(code, 0, "foresight exit code");
@@ -151,7 +152,8 @@ fn a_killed_launcher_leaves_a_recording_readable_up_to_its_last_chunk() {
         runs: out.clone(),
         extra: Vec::new(),
     };
-    let mut guard = launch(&out);
+    // The two-scene world (retraining in the middle): long enough to be killed mid-run.
+    let mut guard = launch(&out, &repo_root().join("assets/scenes/fast_world.toml"));
     // Wait until the recording holds a few seconds of the arm (chunks reach the disk at
     // least once a second), then kill the launcher without a chance to close the file.
     let deadline = Instant::now() + Duration::from_secs(120);
