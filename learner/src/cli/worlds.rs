@@ -849,7 +849,7 @@ fn plot_adaptation(path: &Path, tables: &[GeneratorTable]) -> Result<()> {
             t.worlds.iter().filter_map(move |r| {
                 r.retrained
                     .as_ref()
-                    .map(|re| (format!("{} {}", t.generator, r.index), re))
+                    .map(|re| (format!("{}{}", &t.generator[..1], r.index), re))
             })
         })
         .collect();
@@ -859,7 +859,7 @@ fn plot_adaptation(path: &Path, tables: &[GeneratorTable]) -> Result<()> {
     root.fill(&WHITE).map_err(|e| err(&e))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
-            "Adaptation: world change → learned policy (green learned, red not learned)",
+            "Retraining per failed world (t task, u uniform, c cluttered, a adversarial; green learned, red not)",
             ("sans-serif", 20),
         )
         .margin(15)
