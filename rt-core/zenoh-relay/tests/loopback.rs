@@ -828,7 +828,7 @@ fn a_flood_is_dropped_and_counted_and_a_real_policy_still_gets_through() {
                 for _ in 0..200 {
                     session.put(&pk, m.clone()).wait().unwrap();
                 }
-                if n % 20 == 0 {
+                if n.is_multiple_of(20) {
                     session.put(&polk, oversize.clone()).wait().unwrap();
                     session.put(&hk, vec![1u8; 200]).wait().unwrap();
                 }
