@@ -110,6 +110,7 @@ fn table() -> Vec<Cmd> {
                 ("--retrain-budget-s", F),
                 ("--retrain-steps", I),
                 ("--phase-timeout-s", F),
+                ("--record-max-mib", I),
             ],
         },
         Cmd {

@@ -72,7 +72,7 @@ struct Args {
     #[arg(long, default_value_t = 0.0, value_parser = f64_within(0.0, 0.5), allow_negative_numbers = true)]
     contact_margin_m: f64,
     /// Initial joints, 5 comma-separated values (rad); default: the model's home posture.
-    #[arg(long, value_delimiter = ',', num_args = 5, value_parser = f64_within(-7.0, 7.0), allow_negative_numbers = true)]
+    #[arg(long, value_delimiter = ',', num_args = 5, value_parser = f64_within(-7.0, 7.0), allow_hyphen_values = true)]
     q0_rad: Option<Vec<f64>>,
     /// Protective fault: joint speed limit (rad/s) a servo_j target may ask for.
     #[arg(long, default_value_t = xarm_sim::controller::MAX_JOINT_SPEED_RAD_S, value_parser = f64_within(0.001, 100.0), allow_negative_numbers = true)]
