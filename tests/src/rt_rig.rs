@@ -100,6 +100,11 @@ impl Rig {
 
     /// A rig whose `rt-core run` gets `extra` arguments (e.g. `--link xarm --robot …`).
     pub fn start_with(test: &str, extra: &[String]) -> Self {
+        Self::start_with_bin(test, &bin_path("rt-core"), extra)
+    }
+
+    /// [`Rig::start_with`] with the `rt-core` binary at `rt_core` (e.g. the deploy build).
+    pub fn start_with_bin(test: &str, rt_core: &std::path::Path, extra: &[String]) -> Self {
         let prefix = unique_prefix(test);
         let dir = std::env::temp_dir().join(&prefix);
         std::fs::create_dir_all(&dir).expect("temp dir");
@@ -122,7 +127,7 @@ impl Rig {
         let states = open_subscriber::<RobotState, _>(&node, &prefix).expect("states");
         let rt = ChildGuard::spawn(
             "rt-core run",
-            Command::new(bin_path("rt-core"))
+            Command::new(rt_core)
                 .arg("run")
                 .arg("--config")
                 .arg(&cfg_path)
