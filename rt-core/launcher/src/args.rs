@@ -100,14 +100,6 @@ pub struct LaunchArgs {
     /// Largest run recording (MiB, 1..=1048576); recording stops there, with a note.
     #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u64).range(1..=1_048_576), allow_negative_numbers = true)]
     pub record_max_mib: u64,
-    /// Do not record the run. By default every run is recorded to `<run folder>/run.mcap`
-    /// (ROS 2 messages with their schemas: `ros2 bag info`, `ros2 bag play` and Foxglove
-    /// open it).
-    #[arg(long)]
-    pub no_record: bool,
-    /// Largest run recording (MiB, 1..=1048576); recording stops there, with a note.
-    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u64).range(1..=1_048_576), allow_negative_numbers = true)]
-    pub record_max_mib: u64,
     /// The learner runs on another host (a GPU box): start no learner here, but the
     /// controller side of `zenoh-relay`, which carries retrain requests there and policies
     /// back over Zenoh. The other host runs `zenoh-relay learner-host --listen
