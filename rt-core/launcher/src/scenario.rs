@@ -14,7 +14,9 @@
 use nalgebra::Vector3;
 use serde::Serialize;
 use shm_schemas::scene_file::SceneFile;
-use shm_schemas::{RetrainPhase, RetrainProgress, RetrainRequest, RobotState, TwinVerdict};
+use shm_schemas::{
+    Executor, PhaseCode, RetrainPhase, RetrainProgress, RetrainRequest, RobotState, TwinVerdict,
+};
 
 use super::observer::{Observations, SeenScene};
 use super::report::{Outcome, PathSample, Summary};
@@ -250,9 +252,13 @@ impl Director {
 
     /// A lookahead verdict: logged; the first after a change marks the prediction.
     fn on_verdict(&mut self, t_s: f64, v: &TwinVerdict, scene: usize) {
+        let by = match v.executor() {
+            Ok(Executor::Planner) => "planner".to_owned(),
+            _ => format!("policy {}", v.policy_id),
+        };
         let text = format!(
-            "policy {}: task_ok={} safe={} min_distance={:.3} m steps={} plan_approved={} ({} µs)",
-            v.policy_id,
+            "{by} [{}]: task_ok={} safe={} min_distance={:.3} m steps={} plan_approved={} ({} µs)",
+            v.phase().map_or("?", PhaseCode::name),
             v.is_task_ok(),
             v.is_safe(),
             v.min_distance_m,
