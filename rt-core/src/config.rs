@@ -215,6 +215,38 @@ pub struct RuntimeConfig {
     /// What is accepted from perception.
     #[serde(default)]
     pub intake: IntakeConfig,
+    /// The planner fallback (off by default).
+    #[serde(default)]
+    pub planner_fallback: PlannerFallbackConfig,
+}
+
+/// The planner fallback: when no policy passes the lookahead, the twin's feasibility
+/// planner's collision-free path moves the arm — smoothed, checked by the shield and for
+/// reaching the goal like a policy's plan, re-verified on every scene change — while the
+/// learner retrains. Off, the arm holds until a policy passes (the paper's pure-RL
+/// behaviour).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlannerFallbackConfig {
+    /// Use the planner's path when no policy passes.
+    #[serde(default)]
+    pub enabled: bool,
+    /// Longest search per planning, s (the twin thread waits for it).
+    #[serde(default = "default_planner_budget_s")]
+    pub budget_s: f64,
+}
+
+impl Default for PlannerFallbackConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            budget_s: default_planner_budget_s(),
+        }
+    }
+}
+
+fn default_planner_budget_s() -> f64 {
+    1.0
 }
 
 fn default_rate_hz() -> f64 {
@@ -295,6 +327,10 @@ impl RuntimeConfig {
         }
         if !(self.dwell_at_goal_s.is_finite() && (0.0..=60.0).contains(&self.dwell_at_goal_s)) {
             return bad("dwell_at_goal_s", "must be within 0..=60 s");
+        }
+        let budget_s = self.planner_fallback.budget_s;
+        if !(budget_s.is_finite() && (0.05..=10.0).contains(&budget_s)) {
+            return bad("planner_fallback.budget_s", "must be within 0.05..=10 s");
         }
         self.validate_limits()?;
         self.validate_shield()?;
@@ -550,6 +586,8 @@ mod tests {
             ),
             ("min_distance_m", "-1.0", "shield.min_distance_m"),
             ("dwell_at_goal_s", "-0.5", "dwell_at_goal_s"),
+            ("budget_s", "0.0", "planner_fallback.budget_s"),
+            ("budget_s", "nan", "planner_fallback.budget_s"),
             (
                 "max_jerk_rad_s3",
                 "[40.0, 40.0, 0.0, 40.0, 40.0]",

@@ -13,6 +13,7 @@ use crate::cycle::plan::{JoinPoint, Plan};
 use crate::cycle::shield::{Shield, ShieldModel, ShieldViolation};
 use crate::twin_thread::smoother::{PlanSmoother, SmoothError};
 
+use super::policy_library::FallbackPlanner;
 use super::{GoalApproach, Lookahead, Verdict};
 
 /// Why a smoothed plan was not approved.
@@ -61,6 +62,8 @@ impl PlanRejection {
 pub enum GoalCheck<'a, L: Lookahead> {
     /// A policy's episode plan (lookahead gate on): the lookahead, for that policy.
     Policy(&'a L::Policy),
+    /// The planner fallback's plan: the planner, by the same rule.
+    Planner(&'a mut dyn FallbackPlanner<L::Scene>),
     /// The way home, or no gate: no goal check.
     None,
 }
@@ -121,7 +124,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> Approver<L, M> {
     /// the shield in `scene` (what every plan passes before it reaches the cycle); unless
     /// [`GoalCheck::None`], also that the smoothed path's TCP comes within the task's
     /// tolerance of the goal target — the plan the arm follows must reach the goal the
-    /// lookahead declared reached, not only its waypoints.
+    /// lookahead (or planner) declared reached, not only its waypoints.
     ///
     /// # Errors
     /// The [`PlanRejection`].
@@ -151,6 +154,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> Approver<L, M> {
             .map_err(|(index, violation)| PlanRejection::Shield { index, violation })?;
         let approach = match goal {
             GoalCheck::Policy(policy) => self.la.goal_approach(policy, scene, &plan.q_rad),
+            GoalCheck::Planner(planner) => planner.goal_approach(scene, &plan.q_rad),
             GoalCheck::None => return Ok(plan),
         };
         if !approach.reached() {

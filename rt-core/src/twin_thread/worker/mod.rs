@@ -9,7 +9,8 @@
 //! - [`phase`]: the worker's state — [`Phase`] (episode, dwell at goal, returning home,
 //!   holding after a refused return) and [`Planning`] (idle, due, back-off);
 //! - [`scene_view`]: the scene and its gates ([`SceneView::ready`] → [`Hold`]);
-//! - [`policy_library`]: the candidates the lookahead tries in order (current, base);
+//! - [`policy_library`]: the candidates tried in order (current policy, base policy, and
+//!   the planner fallback when installed: [`FallbackPlanner`]);
 //! - [`path_recorder`]: the executed path and the way home;
 //! - [`approve`]: lookahead → smoothing → shield → goal check, or a [`PlanRejection`];
 //! - [`verdict`]: the [`Lookahead`] trait and its [`Verdict`]; [`event`]: [`TwinEvent`].
@@ -35,6 +36,7 @@ pub mod verdict;
 pub use approve::PlanRejection;
 pub use event::{TwinEvent, VerdictSource};
 pub use phase::{Phase, Planning, Transition};
+pub use policy_library::{FallbackPlanner, PLANNER_POLICY_ID};
 pub use scene_view::{Hold, SceneView};
 pub use verdict::{GoalApproach, Lookahead, Verdict};
 
@@ -126,6 +128,14 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             joined: None,
             next_request_id: 1,
         }
+    }
+
+    /// Installs the planner fallback (`planner_fallback`): when no policy passes, the
+    /// planner's collision-free path is smoothed, checked like a policy's plan (shield,
+    /// goal reached) and executed while the learner retrains; a policy that passes
+    /// replaces it at the next planning. Without the lookahead gate it is never used.
+    pub fn set_fallback_planner(&mut self, planner: Box<dyn FallbackPlanner<L::Scene>>) {
+        self.library.set_planner(planner);
     }
 
     /// Turns the lookahead gate off (`rt-core run --no-lookahead`, the demonstration of
@@ -505,16 +515,95 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let Some((verdict, lookahead_unsafe)) = first_failure else {
             return;
         };
+        if self.gate && self.library.planner_mut().is_some() {
+            // No policy passes: retraining is asked for as always, and the planner's path,
+            // when it passes the same checks, moves the arm meanwhile.
+            self.ask_retrain(verdict, scene, events);
+            if self.try_planner(&start, join, scene, events) {
+                return;
+            }
+        }
         if lookahead_unsafe && self.sent.as_ref().is_some_and(|(_, s)| *s != scene) {
             self.revoke_under_way(events);
         }
-        if self.gate && self.library.should_ask_retrain(verdict.policy_id, scene) {
+        if self.gate {
+            self.ask_retrain(verdict, scene, events);
+        }
+    }
+
+    /// Asks for retraining after `verdict` failed in `scene` (once per policy and scene).
+    fn ask_retrain(
+        &mut self,
+        verdict: Verdict,
+        scene: L::Scene,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) {
+        if self.library.should_ask_retrain(verdict.policy_id, scene) {
             events.push(TwinEvent::Retrain {
                 request_id: self.next_request_id,
                 verdict,
                 scene,
             });
             self.next_request_id += 1;
+        }
+    }
+
+    /// The planner fallback: its path from `start`, smoothed and checked like a policy's
+    /// plan (the shield on every sample, the smoothed path reaching the goal) and sent;
+    /// true when a plan was sent (or the arm is at the goal already).
+    fn try_planner(
+        &mut self,
+        start: &MotionState,
+        join: Option<JoinPoint>,
+        scene: L::Scene,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) -> bool {
+        let source = VerdictSource {
+            phase: self.phase_code(),
+            executor: Executor::Planner,
+        };
+        let Some(planner) = self.library.planner_mut() else {
+            return false;
+        };
+        let t0 = std::time::Instant::now();
+        let verdict = planner.plan(&scene, &start.q_rad, &mut self.approver.waypoints);
+        events.push(TwinEvent::Verdict {
+            verdict,
+            scene,
+            elapsed_s: t0.elapsed().as_secs_f64(),
+            source,
+        });
+        if !(verdict.task_ok && verdict.safe) {
+            return false;
+        }
+        if self.approver.waypoints.is_empty() {
+            return true;
+        }
+        let checked = self.approver.smoothed_checked_plan(
+            start,
+            join,
+            PLANNER_POLICY_ID,
+            &scene,
+            GoalCheck::Planner(planner),
+        );
+        match checked {
+            Ok(plan) => {
+                self.send_approved(plan, start, join, scene, events);
+                true
+            }
+            Err(why) => {
+                events.push(TwinEvent::PlanRejected {
+                    policy_id: PLANNER_POLICY_ID,
+                    why,
+                });
+                events.push(TwinEvent::Verdict {
+                    verdict: why.failed_verdict(verdict),
+                    scene,
+                    elapsed_s: t0.elapsed().as_secs_f64(),
+                    source,
+                });
+                false
+            }
         }
     }
 
@@ -586,10 +675,24 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 };
             }
         };
-        let plan_id = plan.id;
+        self.send_approved(plan, start, join, scene, events);
+        Tried::Done
+    }
+
+    /// Sends an approved episode plan (a policy's or the planner's) and records it on the
+    /// executed path; when the hand-over slot is full, planning is due again.
+    fn send_approved(
+        &mut self,
+        plan: Plan,
+        start: &MotionState,
+        join: Option<JoinPoint>,
+        scene: L::Scene,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) {
+        let (plan_id, policy_id) = (plan.id, plan.policy_id);
         if !self.send_plan(plan, scene) {
             self.planning.request();
-            return Tried::Done;
+            return;
         }
         if let Some((sent, _)) = self.sent.as_ref() {
             self.path
@@ -598,9 +701,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         }
         events.push(TwinEvent::PlanApproved {
             plan_id,
-            policy_id: verdict.policy_id,
+            policy_id,
             joins: join.is_some(),
         });
-        Tried::Done
     }
 }
