@@ -249,7 +249,7 @@ pub fn serve<L: RobotLink + 'static>(
     let task_hash = task.hash();
     let table_height_m = task.sampling.table_height_m;
     let planner = (cfg.planner_fallback.enabled && !opts.no_lookahead)
-        .then(|| TwinPathPlanner::new(model.clone(), task, cfg.planner_fallback.budget_s));
+        .then(|| TwinPathPlanner::new(model.clone(), task, cfg));
     let mut lookahead = TwinLookahead::new(model.clone(), task, LookaheadActions::Policy);
     lookahead.blind = opts.no_lookahead;
     let (twin_io, cycle_io, log_drain) = cycle::wire::<Scene>();
