@@ -231,7 +231,9 @@ pub struct PlannerFallbackConfig {
     /// Use the planner's path when no policy passes.
     #[serde(default)]
     pub enabled: bool,
-    /// Longest search per planning, s (the twin thread waits for it).
+    /// Longest search per planning, s. The twin thread waits for it and forwards no
+    /// detection meanwhile, so it must stay below `stale.max_detection_age_s` (or the cycle
+    /// would stop the arm for stale detections).
     #[serde(default = "default_planner_budget_s")]
     pub budget_s: f64,
 }
@@ -246,7 +248,7 @@ impl Default for PlannerFallbackConfig {
 }
 
 fn default_planner_budget_s() -> f64 {
-    1.0
+    0.25
 }
 
 fn default_rate_hz() -> f64 {
@@ -331,6 +333,13 @@ impl RuntimeConfig {
         let budget_s = self.planner_fallback.budget_s;
         if !(budget_s.is_finite() && (0.05..=10.0).contains(&budget_s)) {
             return bad("planner_fallback.budget_s", "must be within 0.05..=10 s");
+        }
+        if budget_s >= self.stale.max_detection_age_s {
+            return bad(
+                "planner_fallback.budget_s",
+                "must be below stale.max_detection_age_s (the twin thread forwards no \
+                 detection while it plans)",
+            );
         }
         self.validate_limits()?;
         self.validate_shield()?;
@@ -588,6 +597,7 @@ mod tests {
             ("dwell_at_goal_s", "-0.5", "dwell_at_goal_s"),
             ("budget_s", "0.0", "planner_fallback.budget_s"),
             ("budget_s", "nan", "planner_fallback.budget_s"),
+            ("budget_s", "0.6", "planner_fallback.budget_s"),
             (
                 "max_jerk_rad_s3",
                 "[40.0, 40.0, 0.0, 40.0, 40.0]",
