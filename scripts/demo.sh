@@ -2,6 +2,10 @@
 # The main job (`make demo`): the self-improving loop on the simulated arm.
 # Usage: scripts/demo.sh <bin-dir> [foresight options...]
 #   e.g. make demo ARGS="--no-lookahead"   or   make demo ARGS="--runs 20 --seed 7"
+#   The planner fallback is off by default (the paper's story: collision predicted,
+#   retraining, swap); on, the planner's checked path moves the arm while the learner
+#   retrains, and the retrained policy replaces it:
+#   make demo ARGS="--planner-fallback on"
 set -euo pipefail
 bin=${1:?usage: demo.sh <bin-dir> [foresight options]}
 shift

@@ -254,6 +254,40 @@ pub struct RuntimeConfig {
     /// The check that the arm follows its commands.
     #[serde(default)]
     pub tracking: TrackingConfig,
+    /// The planner fallback (off by default).
+    #[serde(default)]
+    pub planner_fallback: PlannerFallbackConfig,
+}
+
+/// The planner fallback: when no policy passes the lookahead, the twin's feasibility
+/// planner's collision-free path moves the arm — smoothed, checked by the shield and for
+/// reaching the goal like a policy's plan, re-verified on every scene change — while the
+/// learner retrains. Off, the arm holds until a policy passes (the paper's pure-RL
+/// behaviour).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlannerFallbackConfig {
+    /// Use the planner's path when no policy passes.
+    #[serde(default)]
+    pub enabled: bool,
+    /// Longest search per planning, s. The twin thread waits for it and forwards no
+    /// detection meanwhile, so it must stay below `stale.max_detection_age_s` (or the cycle
+    /// would stop the arm for stale detections).
+    #[serde(default = "default_planner_budget_s")]
+    pub budget_s: f64,
+}
+
+impl Default for PlannerFallbackConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            budget_s: default_planner_budget_s(),
+        }
+    }
+}
+
+fn default_planner_budget_s() -> f64 {
+    0.25
 }
 
 fn default_rate_hz() -> f64 {
@@ -334,6 +368,17 @@ impl RuntimeConfig {
         }
         if !(self.dwell_at_goal_s.is_finite() && (0.0..=60.0).contains(&self.dwell_at_goal_s)) {
             return bad("dwell_at_goal_s", "must be within 0..=60 s");
+        }
+        let budget_s = self.planner_fallback.budget_s;
+        if !(budget_s.is_finite() && (0.05..=10.0).contains(&budget_s)) {
+            return bad("planner_fallback.budget_s", "must be within 0.05..=10 s");
+        }
+        if budget_s >= self.stale.max_detection_age_s {
+            return bad(
+                "planner_fallback.budget_s",
+                "must be below stale.max_detection_age_s (the twin thread forwards no \
+                 detection while it plans)",
+            );
         }
         self.validate_limits()?;
         self.validate_shield()?;
@@ -604,6 +649,9 @@ mod tests {
             ),
             ("min_distance_m", "-1.0", "shield.min_distance_m"),
             ("dwell_at_goal_s", "-0.5", "dwell_at_goal_s"),
+            ("budget_s", "0.0", "planner_fallback.budget_s"),
+            ("budget_s", "nan", "planner_fallback.budget_s"),
+            ("budget_s", "0.6", "planner_fallback.budget_s"),
             (
                 "max_jerk_rad_s3",
                 "[40.0, 40.0, 0.0, 40.0, 40.0]",

@@ -54,4 +54,4 @@ pub use retrain::{
 };
 pub use robot_state::{N_JOINTS, RobotState, StopReason};
 pub use services::{ShmMessage, ShmOpenError, loan_zeroed, open_publisher, open_subscriber};
-pub use verdict::{EpisodeEnd, TwinVerdict};
+pub use verdict::{EpisodeEnd, Executor, PhaseCode, TwinVerdict};

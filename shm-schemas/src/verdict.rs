@@ -42,11 +42,104 @@ impl TryFrom<u8> for EpisodeEnd {
     }
 }
 
+/// The twin worker's phase when a verdict was produced (diagnostics: why the arm moves or
+/// holds). Stored as a `u8`; convert with `try_from`. 0 is "not told" (a producer without a
+/// worker, e.g. a test stand-in).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[repr(u8)]
+pub enum PhaseCode {
+    /// Not told.
+    #[default]
+    Unknown = 0,
+    /// An episode: the arm follows (or waits for) an episode plan.
+    Episode = 1,
+    /// The controller refused a plan; planning waits out a pause.
+    BackOff = 2,
+    /// The episode ended at its goal; the arm rests there before returning home.
+    DwellAtGoal = 3,
+    /// The arm returns home along its executed path.
+    ReturningHome = 4,
+    /// The way home was unsafe in the scene then in force; the arm holds.
+    HoldingAfterRefusedReturn = 5,
+}
+
+impl PhaseCode {
+    /// Lower-case name (reports, timelines).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Unknown => "unknown",
+            Self::Episode => "episode",
+            Self::BackOff => "back-off",
+            Self::DwellAtGoal => "dwell-at-goal",
+            Self::ReturningHome => "returning-home",
+            Self::HoldingAfterRefusedReturn => "holding-after-refused-return",
+        }
+    }
+}
+
+impl TryFrom<u8> for PhaseCode {
+    type Error = SchemaError;
+    fn try_from(value: u8) -> Result<Self, SchemaError> {
+        match value {
+            0 => Ok(Self::Unknown),
+            1 => Ok(Self::Episode),
+            2 => Ok(Self::BackOff),
+            3 => Ok(Self::DwellAtGoal),
+            4 => Ok(Self::ReturningHome),
+            5 => Ok(Self::HoldingAfterRefusedReturn),
+            _ => Err(SchemaError::BadEnum {
+                field: "phase",
+                value: u32::from(value),
+            }),
+        }
+    }
+}
+
+/// What would move the arm on the verdict's plan. Stored as a `u8`; convert with
+/// `try_from`. 0 is "not told".
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[repr(u8)]
+pub enum Executor {
+    /// Not told.
+    #[default]
+    Unknown = 0,
+    /// A learned policy (its lookahead episode).
+    Policy = 1,
+    /// The feasibility planner's collision-free path (the fallback when no policy passes).
+    Planner = 2,
+}
+
+impl Executor {
+    /// Lower-case name (reports, summaries).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Unknown => "unknown",
+            Self::Policy => "policy",
+            Self::Planner => "planner",
+        }
+    }
+}
+
+impl TryFrom<u8> for Executor {
+    type Error = SchemaError;
+    fn try_from(value: u8) -> Result<Self, SchemaError> {
+        match value {
+            0 => Ok(Self::Unknown),
+            1 => Ok(Self::Policy),
+            2 => Ok(Self::Planner),
+            _ => Err(SchemaError::BadEnum {
+                field: "executor",
+                value: u32::from(value),
+            }),
+        }
+    }
+}
+
 /// The outcome of one lookahead. Flags are `u8` 0/1 (a `bool` in shared memory would make
 /// any other byte undefined behaviour); use the `is_*` accessors.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("foresight::TwinVerdict.v2")]
+#[type_name("foresight::TwinVerdict.v3")]
 pub struct TwinVerdict {
     /// Increases by one per verdict of one rt-core process.
     pub verdict_id: u64,
@@ -73,15 +166,20 @@ pub struct TwinVerdict {
     pub plan_approved: u8,
     /// [`EpisodeEnd`] as a byte.
     pub episode_end: u8,
+    /// The worker's [`PhaseCode`] as a byte.
+    pub phase: u8,
+    /// The [`Executor`] of the verdict's plan as a byte.
+    pub executor: u8,
     /// Reserved, zero.
-    pub reserved: [u8; 4],
+    pub reserved: [u8; 2],
 }
 
 const _: () = assert!(size_of::<TwinVerdict>() == 64);
 
 impl TwinVerdict {
-    /// Schema version carried as a service attribute.
-    pub const SCHEMA_VERSION: u32 = 2;
+    /// Schema version carried as a service attribute (3: `phase` and `executor` took two
+    /// reserved bytes).
+    pub const SCHEMA_VERSION: u32 = 3;
 
     /// Sets the three flags from bools.
     pub fn set_flags(&mut self, task_ok: bool, safe: bool, plan_approved: bool) {
@@ -113,7 +211,23 @@ impl TwinVerdict {
         EpisodeEnd::try_from(self.episode_end)
     }
 
-    /// Checks flags, the episode-end byte and finite numbers.
+    /// The worker's phase, checked.
+    ///
+    /// # Errors
+    /// [`SchemaError::BadEnum`] for an unknown byte.
+    pub fn phase(&self) -> Result<PhaseCode, SchemaError> {
+        PhaseCode::try_from(self.phase)
+    }
+
+    /// The executor, checked.
+    ///
+    /// # Errors
+    /// [`SchemaError::BadEnum`] for an unknown byte.
+    pub fn executor(&self) -> Result<Executor, SchemaError> {
+        Executor::try_from(self.executor)
+    }
+
+    /// Checks flags, the episode-end, phase and executor bytes, and finite numbers.
     ///
     /// # Errors
     /// The first [`SchemaError`] found.
@@ -122,6 +236,8 @@ impl TwinVerdict {
         flag("safe", self.safe)?;
         flag("plan_approved", self.plan_approved)?;
         self.episode_end()?;
+        self.phase()?;
+        self.executor()?;
         finite_f64("min_distance_m", &[self.min_distance_m])?;
         finite_f64("episode_return", &[self.episode_return])?;
         if self.is_plan_approved() && !(self.is_task_ok() && self.is_safe()) {

@@ -55,6 +55,11 @@ pub struct LaunchArgs {
     /// address (127.0.0.0/8, ::1, localhost).
     #[arg(long)]
     pub no_lookahead: bool,
+    /// Planner fallback: when no policy passes the lookahead, rt-core moves the arm along
+    /// the feasibility planner's checked path while the learner retrains (`off`: the arm
+    /// holds until a retrained policy passes, the paper's behaviour).
+    #[arg(long, value_enum, default_value_t = OnOff::Off)]
+    pub planner_fallback: OnOff,
     /// Compute and log every command but send none to the arm.
     #[arg(long)]
     pub dry_run: bool,
@@ -120,6 +125,25 @@ pub enum LearnerHostError {
     /// The link settings are refused.
     #[error("--learner-host: {0}")]
     Link(#[from] LinkError),
+}
+
+/// `on` or `off`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum OnOff {
+    /// On.
+    On,
+    /// Off.
+    Off,
+}
+
+impl OnOff {
+    /// The word on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::On => "on",
+            Self::Off => "off",
+        }
+    }
 }
 
 /// What `--runs N` draws (`--worlds`).

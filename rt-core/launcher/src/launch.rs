@@ -449,6 +449,7 @@ fn finish(
     let mut summary = director.summary(collisions, p999, restarts, args.seed);
     summary.arm_rejected_commands = arm_rejected_commands;
     summary.detector = args.detector.name().to_owned();
+    summary.planner_fallback = args.planner_fallback == crate::args::OnOff::On;
     summary.cycle_p99_us = p99.or(summary.cycle_p99_us);
     summary.notes.extend(notes);
     if args.learner_host {

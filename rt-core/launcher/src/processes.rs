@@ -302,6 +302,10 @@ fn start_rt_core(
     if args.no_lookahead {
         rt_args.push("--no-lookahead".into());
     }
+    rt_args.extend([
+        "--planner-fallback".into(),
+        args.planner_fallback.name().into(),
+    ]);
     if args.clear_errors {
         rt_args.push("--clear-errors".into());
     }

@@ -49,6 +49,14 @@ pub struct Summary {
     pub cycle_p999_us: Option<f64>,
     /// Whether the lookahead gate was on (`--no-lookahead` turns it off).
     pub lookahead: bool,
+    /// Whether the planner fallback was on (`--planner-fallback`).
+    #[serde(default)]
+    pub planner_fallback: bool,
+    /// What moved the arm on the last scene: `policy`, `planner`, `planner, then policy`
+    /// (the planner's path first, a retrained policy's plan replacing it), or empty when
+    /// nothing did.
+    #[serde(default)]
+    pub executor: String,
     /// Perception's detector (`--detector`: `colour` or `yolo`); empty in summaries written
     /// before the option existed.
     #[serde(default)]
@@ -544,6 +552,10 @@ pub fn plot_reward_curves(
     root.present().map_err(|e| err(e.to_string()))
 }
 
+fn on_off(b: bool) -> &'static str {
+    if b { "on" } else { "off" }
+}
+
 fn fmt_opt(v: Option<f64>, unit: &str) -> String {
     v.map_or_else(|| "—".to_owned(), |x| format!("{x:.3} {unit}"))
 }
@@ -593,6 +605,11 @@ pub fn write_markdown(
             summary.collision_predicted_before_motion.to_string(),
         ),
         ("policy swaps", summary.policy_swaps.to_string()),
+        (
+            "planner fallback",
+            on_off(summary.planner_fallback).to_owned(),
+        ),
+        ("moved by (executor)", summary.executor.clone()),
         (
             "world change → detection",
             fmt_opt(summary.world_change_to_detection_s, "s"),

@@ -14,7 +14,9 @@
 use nalgebra::Vector3;
 use serde::Serialize;
 use shm_schemas::scene_file::SceneFile;
-use shm_schemas::{RetrainPhase, RetrainProgress, RetrainRequest, RobotState, TwinVerdict};
+use shm_schemas::{
+    Executor, PhaseCode, RetrainPhase, RetrainProgress, RetrainRequest, RobotState, TwinVerdict,
+};
 
 use super::observer::{Observations, SeenScene};
 use super::report::{Outcome, PathSample, Summary};
@@ -104,6 +106,9 @@ pub struct Director {
     refused_verdicts: Vec<u32>,
     /// Per scene: whether the first verdict after the scene was seen approved a plan.
     zero_shot: Vec<Option<bool>>,
+    /// Per scene: what moved the arm under an approved plan (a policy, the planner), in the
+    /// order they first did.
+    moved_by: Vec<Vec<Executor>>,
     /// Per scene: the arm's closest TCP approach to the goal target seen, m.
     closest_m: Vec<f64>,
     p99_us: Option<f64>,
@@ -142,6 +147,7 @@ impl Director {
             budgets_exhausted: vec![0; n],
             refused_verdicts: vec![0; n],
             zero_shot: vec![None; n],
+            moved_by: vec![Vec::new(); n],
             closest_m: vec![f64::INFINITY; n],
             p99_us: None,
             last_progress_print_s: f64::NEG_INFINITY,
@@ -250,9 +256,13 @@ impl Director {
 
     /// A lookahead verdict: logged; the first after a change marks the prediction.
     fn on_verdict(&mut self, t_s: f64, v: &TwinVerdict, scene: usize) {
+        let by = match v.executor() {
+            Ok(Executor::Planner) => "planner".to_owned(),
+            _ => format!("policy {}", v.policy_id),
+        };
         let text = format!(
-            "policy {}: task_ok={} safe={} min_distance={:.3} m steps={} plan_approved={} ({} µs)",
-            v.policy_id,
+            "{by} [{}]: task_ok={} safe={} min_distance={:.3} m steps={} plan_approved={} ({} µs)",
+            v.phase().map_or("?", PhaseCode::name),
             v.is_task_ok(),
             v.is_safe(),
             v.min_distance_m,
@@ -271,7 +281,16 @@ impl Director {
         // with a policy already there — the current one or the library's base — before any
         // retraining was asked for it (a retrain request marks the scene not zero-shot).
         let seen = self.change_s.is_none() || self.detect_s.is_some();
-        if seen && v.is_plan_approved() && self.zero_shot[scene].is_none() {
+        let executor = v.executor().unwrap_or_default();
+        if seen && v.is_plan_approved() && !self.moved_by[scene].contains(&executor) {
+            self.moved_by[scene].push(executor);
+        }
+        // The planner's path is not the policy solving the world.
+        if seen
+            && v.is_plan_approved()
+            && executor != Executor::Planner
+            && self.zero_shot[scene].is_none()
+        {
             self.zero_shot[scene] = Some(true);
         }
         if self.detect_s.is_some() && self.verdict_s.is_none() {
@@ -585,6 +604,16 @@ impl Director {
             outcome,
             outcome_reason,
             zero_shot: self.zero_shot.last().copied().flatten(),
+            executor: self.moved_by.last().map_or(String::new(), |m| {
+                m.iter()
+                    .map(|e| match e {
+                        Executor::Planner => "planner",
+                        _ => "policy",
+                    })
+                    .collect::<Vec<_>>()
+                    .join(", then ")
+            }),
+            planner_fallback: false,
             collisions,
             collision_predicted_before_motion: self.predicted_before_motion,
             policy_swaps: self.policy_swaps,

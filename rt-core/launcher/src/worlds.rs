@@ -35,6 +35,8 @@ pub struct WorldRun {
     pub retrain_s: Option<f64>,
     /// Collisions the arm reported.
     pub collisions: u64,
+    /// What moved the arm (`policy`, `planner`, `planner, then policy`; empty: nothing).
+    pub executor: String,
     /// The run's folder.
     pub run_dir: PathBuf,
     /// The world.
@@ -58,6 +60,7 @@ impl WorldRun {
             change_to_motion_s: s.world_change_to_motion_s,
             retrain_s: s.retrain_s,
             collisions: s.collisions,
+            executor: s.executor.clone(),
             run_dir,
             scene: scene.clone(),
         }
@@ -143,17 +146,22 @@ pub fn table(seed: u64, rows: &[WorldRun]) -> String {
         secs(a.change_to_motion_p95_s),
         secs(a.retrain_median_s),
     );
-    md += "| # | boxes | tallest (m) | outcome | zero-shot | change → motion (s) | retraining (s) | collisions | reason |\n";
-    md += "|---|---|---|---|---|---|---|---|---|\n";
+    md += "| # | boxes | tallest (m) | outcome | zero-shot | moved by | change → motion (s) | retraining (s) | collisions | reason |\n";
+    md += "|---|---|---|---|---|---|---|---|---|---|\n";
     for r in rows {
         let _ = writeln!(
             md,
-            "| {} | {} | {:.2} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {} |",
             r.index,
             r.boxes,
             r.tallest_box_m,
             r.outcome.name(),
             r.zero_shot.map_or("–", |z| if z { "yes" } else { "no" }),
+            if r.executor.is_empty() {
+                "–"
+            } else {
+                &r.executor
+            },
             secs(r.change_to_motion_s),
             secs(r.retrain_s),
             r.collisions,
@@ -259,6 +267,7 @@ mod tests {
             change_to_motion_s: motion,
             retrain_s: (!zero).then_some(3.0),
             collisions: 0,
+            executor: "policy".into(),
             run_dir: PathBuf::new(),
             scene: SceneFile {
                 name: format!("world {i}"),

@@ -115,6 +115,20 @@ pub struct RunArgs {
     /// file it was not asked for.
     #[arg(long)]
     record: Option<PathBuf>,
+    /// When no policy passes the lookahead, move the arm along the feasibility planner's
+    /// checked path while the learner retrains (overrides the config's
+    /// `planner_fallback.enabled`).
+    #[arg(long, value_enum)]
+    planner_fallback: Option<Switch>,
+}
+
+/// `on` or `off`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Switch {
+    /// On.
+    On,
+    /// Off.
+    Off,
 }
 
 /// How long a panic (deploy build, `panic = "abort"`) waits for the cycle to brake the arm
@@ -194,7 +208,10 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
     {
         check_auto_resume_target(host)?;
     }
-    let (cfg, model, task) = load_assets(&args.assets, None, Some(&args.config))?;
+    let (mut cfg, model, task) = load_assets(&args.assets, None, Some(&args.config))?;
+    if let Some(switch) = args.planner_fallback {
+        cfg.planner_fallback.enabled = switch == Switch::On;
+    }
     let opts = ServeOptions {
         prefix: args
             .prefix

@@ -4,6 +4,8 @@
 
 use twin::Joints;
 
+use crate::cycle::brake::MotionState;
+
 /// Where a replacement plan joins the running one: its first sample equals sample
 /// `index` of plan `plan_id`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -62,6 +64,19 @@ impl Plan {
         self.q_rad.push(q);
         self.dq_rad_s.push(dq);
         self.ddq_rad_s2.push(ddq);
+    }
+
+    /// Sample `k` as a motion state (position, velocity, acceleration): where a plan
+    /// joining this one at `k` starts.
+    ///
+    /// # Panics
+    /// When `k >= self.len()`.
+    pub fn sample(&self, k: usize) -> MotionState {
+        MotionState {
+            q_rad: self.q_rad[k],
+            dq_rad_s: self.dq_rad_s[k],
+            ddq_rad_s2: self.ddq_rad_s2[k],
+        }
     }
 
     /// Duration, s.

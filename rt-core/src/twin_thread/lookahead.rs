@@ -194,17 +194,28 @@ impl Lookahead for TwinLookahead {
         scene: &Scene,
         path_q_rad: &[Joints],
     ) -> GoalApproach {
-        let success = self.env.config().success;
-        let target_m = scene.goal_target_m(success.goal_hover_m);
-        let model = self.env.model();
-        let closest_m = path_q_rad
-            .iter()
-            .map(|q| (model.fk(q).tcp_m() - target_m).norm())
-            .fold(f64::INFINITY, f64::min);
-        GoalApproach {
-            closest_m,
-            tolerance_m: success.tolerance_m,
-        }
+        tcp_goal_approach(&self.env, scene, path_q_rad)
+    }
+}
+
+/// The TCP's closest approach to `scene.goal_target_m(success.goal_hover_m)` along
+/// `path_q_rad`, against `success.tolerance_m`, on `env`'s model: "goal reached" as
+/// `twin::TwinEnv::step`'s `task_done` means it (the lookahead's and the planner
+/// fallback's goal check).
+///
+/// # Performance
+/// One forward kinematics per sample; no allocation.
+pub fn tcp_goal_approach(env: &TwinEnv, scene: &Scene, path_q_rad: &[Joints]) -> GoalApproach {
+    let success = env.config().success;
+    let target_m = scene.goal_target_m(success.goal_hover_m);
+    let model = env.model();
+    let closest_m = path_q_rad
+        .iter()
+        .map(|q| (model.fk(q).tcp_m() - target_m).norm())
+        .fold(f64::INFINITY, f64::min);
+    GoalApproach {
+        closest_m,
+        tolerance_m: success.tolerance_m,
     }
 }
 

@@ -31,7 +31,7 @@ use crate::rt::histogram::{Histogram, Summary};
 use crate::rt::rt_setup;
 use crate::twin_thread::intake::{IntakeCounters, SceneIntake};
 use crate::twin_thread::lookahead::TwinLookahead;
-use crate::twin_thread::{TwinEvent, TwinWorker, Verdict};
+use crate::twin_thread::{TwinEvent, TwinWorker, Verdict, VerdictSource};
 
 /// The production twin worker.
 pub type ProductionWorker = TwinWorker<TwinLookahead, TwinModel>;
@@ -309,8 +309,11 @@ impl TwinNode {
         for e in events.drain(..) {
             match e {
                 TwinEvent::Verdict {
-                    verdict, elapsed_s, ..
-                } => self.publish_verdict(&verdict, elapsed_s, now_ns)?,
+                    verdict,
+                    elapsed_s,
+                    source,
+                    ..
+                } => self.publish_verdict(&verdict, elapsed_s, source, now_ns)?,
                 TwinEvent::Retrain {
                     request_id,
                     verdict,
@@ -327,10 +330,11 @@ impl TwinNode {
         &mut self,
         verdict: &Verdict,
         elapsed_s: f64,
+        source: VerdictSource,
         now_ns: u64,
     ) -> Result<(), TwinNodeError> {
         self.verdict_id += 1;
-        let v = twin_verdict(
+        let mut v = twin_verdict(
             verdict,
             self.verdict_id,
             self.scene_seq,
@@ -338,8 +342,12 @@ impl TwinNode {
             elapsed_s,
             self.gate,
         );
+        v.phase = source.phase as u8;
+        v.executor = source.executor as u8;
         tracing::info!(
             policy_id = verdict.policy_id,
+            phase = source.phase.name(),
+            executor = source.executor.name(),
             task_ok = verdict.task_ok,
             safe = verdict.safe,
             steps = verdict.steps,
@@ -522,19 +530,9 @@ fn log_event(e: &TwinEvent<Scene>, rate_hz: f64) {
             policy_id,
             joins,
         } => tracing::info!(plan_id, policy_id, joins, "plan approved"),
-        TwinEvent::PlanRejected {
-            policy_id,
-            smooth,
-            shield,
-            goal,
-        } => tracing::warn!(
-            policy_id,
-            ?smooth,
-            ?shield,
-            goal_closest_m = goal.map(|g| g.closest_m),
-            goal_tolerance_m = goal.map(|g| g.tolerance_m),
-            "plan rejected after the lookahead"
-        ),
+        TwinEvent::PlanRejected { policy_id, why } => {
+            tracing::warn!(policy_id, ?why, "plan rejected after the lookahead");
+        }
         TwinEvent::AwaitingSettledScene { stamp_ns } => tracing::info!(
             stamp_ns,
             "scene not settled (perception still confirming a change): planning waits"
@@ -550,9 +548,8 @@ fn log_event(e: &TwinEvent<Scene>, rate_hz: f64) {
             duration_s = *samples as f64 / rate_hz,
             "goal reached: returning home along the executed path"
         ),
-        TwinEvent::ReturnHomeRefused { shield, smooth } => tracing::warn!(
-            ?shield,
-            ?smooth,
+        TwinEvent::ReturnHomeRefused { why } => tracing::warn!(
+            ?why,
             "the way home is unsafe in the current scene: holding; the lookahead takes over"
         ),
         TwinEvent::Verdict { .. } | TwinEvent::Retrain { .. } | TwinEvent::NoGoal { .. } => {}

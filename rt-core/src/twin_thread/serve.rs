@@ -33,6 +33,7 @@ use crate::twin_thread::command_log::{CommandLog, CommandLogError};
 use crate::twin_thread::intake::{FrameRefusal, IntakeCounters, SceneIntake};
 use crate::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
 use crate::twin_thread::node::{ProductionWorker, TwinNode, TwinNodeError};
+use crate::twin_thread::path_planner::TwinPathPlanner;
 use crate::twin_thread::{TwinEvent, TwinWorker};
 
 /// How the twin thread polls between events.
@@ -247,6 +248,8 @@ pub fn serve<L: RobotLink + 'static>(
     }
     let task_hash = task.hash();
     let table_height_m = task.sampling.table_height_m;
+    let planner = (cfg.planner_fallback.enabled && !opts.no_lookahead)
+        .then(|| TwinPathPlanner::new(model.clone(), task, cfg));
     let mut lookahead = TwinLookahead::new(model.clone(), task, LookaheadActions::Policy);
     lookahead.blind = opts.no_lookahead;
     let (twin_io, cycle_io, log_drain) = cycle::wire::<Scene>();
@@ -267,6 +270,13 @@ pub fn serve<L: RobotLink + 'static>(
     );
     if opts.no_lookahead {
         twin.disable_lookahead_gate();
+    }
+    if let Some(planner) = planner {
+        tracing::info!(
+            budget_s = cfg.planner_fallback.budget_s,
+            "planner fallback on: when no policy passes, the planner's checked path moves the arm"
+        );
+        twin.set_fallback_planner(Box::new(planner));
     }
     let mut command_log = match (&opts.command_log, opts.dry_run) {
         (Some(p), _) => Some(CommandLog::create(p)?),

@@ -19,6 +19,7 @@ use rt_core::rt::clock::{Clock, ManualClock};
 use rt_core::testing::toy::{ToyArm, ToyPolicy, ToyScene, toy_closest_approach_m};
 use rt_core::twin_thread::smoother::PlanSmoother;
 use rt_core::twin_thread::{GoalApproach, Lookahead, TwinEvent, TwinWorker, Verdict};
+use rt_core::twin_thread::worker::PlanRejection;
 use twin::{DOF, Joints};
 
 use crate::common::{START, TARGET_A};
@@ -185,9 +186,7 @@ fn a_plan_whose_smoothed_path_misses_the_goal_is_not_approved_and_asks_for_retra
         .iter()
         .find_map(|e| match e {
             TwinEvent::PlanRejected {
-                goal: Some(g),
-                smooth: None,
-                shield: None,
+                why: PlanRejection::MissesGoal(g),
                 ..
             } => Some(*g),
             _ => None,

@@ -2,7 +2,8 @@
 //! (`cycle`), its safety paths (`safety`), the shield on the real twin model (`shield_twin`) and the `rt-core twin` CLI
 //! (`twin_cli`), who may drive the arm and whether the twin matches it (`arm_owner`), plans
 //! only on settled scenes (`settled_scene`) and only when the smoothed path reaches the goal
-//! (`goal_reach`), and the policy library's fallback to the base policy (`policy_library`).
+//! (`goal_reach`), the policy library's fallback to the base policy (`policy_library`), and the
+//! planner fallback (`planner_fallback`), and the worker's phase along an excursion (`phase`).
 
 #![allow(missing_docs, clippy::unwrap_used)]
 
@@ -17,6 +18,8 @@ mod arm_owner;
 mod cycle;
 mod goal_reach;
 mod limits;
+mod phase;
+mod planner_fallback;
 mod policy_library;
 mod safety;
 mod settled_scene;

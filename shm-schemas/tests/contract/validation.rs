@@ -140,6 +140,24 @@ fn verdict_rejects_bad_input() {
         })
     );
     let mut v = verdict();
+    v.phase = 6;
+    assert_eq!(
+        v.validate(),
+        Err(SchemaError::BadEnum {
+            field: "phase",
+            value: 6
+        })
+    );
+    let mut v = verdict();
+    v.executor = 3;
+    assert_eq!(
+        v.validate(),
+        Err(SchemaError::BadEnum {
+            field: "executor",
+            value: 3
+        })
+    );
+    let mut v = verdict();
     v.plan_approved = 1; // approved although the task failed
     assert_eq!(
         v.validate(),

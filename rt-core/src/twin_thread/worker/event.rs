@@ -1,0 +1,96 @@
+//! [`TwinEvent`]: what the worker did that the outside should know — published (verdicts,
+//! retrain requests), logged, counted by the sweep, asserted on by tests.
+
+use shm_schemas::{Executor, PhaseCode};
+
+use super::Verdict;
+use super::approve::PlanRejection;
+
+/// Who produced a verdict, and the worker's phase then (diagnostics of the published
+/// verdict and the run timeline).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct VerdictSource {
+    /// The worker's phase.
+    pub phase: PhaseCode,
+    /// A policy's lookahead or the planner fallback.
+    pub executor: Executor,
+}
+
+/// Something the twin did that the outside should know (publish, log, assert on).
+#[derive(Debug, Clone, PartialEq)]
+pub enum TwinEvent<S> {
+    /// A lookahead ran.
+    Verdict {
+        /// Its result.
+        verdict: Verdict,
+        /// The scene it ran in.
+        scene: S,
+        /// How long it took, s.
+        elapsed_s: f64,
+        /// Who made it, in which phase of the worker.
+        source: VerdictSource,
+    },
+    /// A plan was approved and handed to the cycle.
+    PlanApproved {
+        /// Plan id.
+        plan_id: u64,
+        /// Policy id.
+        policy_id: u64,
+        /// Whether it joins a running plan.
+        joins: bool,
+    },
+    /// The lookahead passed but the smoothed plan did not (smoothing, shield, or its path
+    /// misses the goal).
+    PlanRejected {
+        /// Policy id.
+        policy_id: u64,
+        /// Why.
+        why: PlanRejection,
+    },
+    /// The running plan became unsafe in the new scene and was revoked.
+    Revoked {
+        /// Plan id.
+        plan_id: u64,
+        /// The first unsafe sample.
+        at_index: usize,
+    },
+    /// The policy failed the lookahead: retraining is requested for this scene.
+    Retrain {
+        /// Request id (increasing).
+        request_id: u64,
+        /// The failed verdict.
+        verdict: Verdict,
+        /// The scene.
+        scene: S,
+    },
+    /// The arm returns to where its episode began along its executed path.
+    ReturningHome {
+        /// Plan id.
+        plan_id: u64,
+        /// Samples in the plan.
+        samples: usize,
+    },
+    /// The way home is unsafe in the scene now in force; the arm holds.
+    ReturnHomeRefused {
+        /// Why.
+        why: PlanRejection,
+    },
+    /// A new policy was swapped in.
+    PolicySwapped {
+        /// Its id.
+        policy_id: u64,
+    },
+    /// A plan is due but the latest detection frame has no goal: nothing is planned, the
+    /// arm holds (reported once per stretch without a goal).
+    NoGoal {
+        /// The current policy, 0 for none.
+        policy_id: u64,
+    },
+    /// A plan is due but the latest detection frame is not settled (the world is changing):
+    /// nothing is planned until a settled frame arrives (reported once per unsettled
+    /// stretch).
+    AwaitingSettledScene {
+        /// Capture time of that frame (cycle clock), ns.
+        stamp_ns: u64,
+    },
+}
