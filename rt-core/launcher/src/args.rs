@@ -65,7 +65,7 @@ pub struct LaunchArgs {
     pub dry_run: bool,
     /// Operator action: let rt-core clear the controller's error and warning at start
     /// (it never does on its own). Acknowledge a protective stop while running with
-    /// `kill -USR1 <rt-core pid>`.
+    /// `rt-core ack --robot HOST` (it signals only the rt-core that owns that arm).
     #[arg(long)]
     pub clear_errors: bool,
     /// Also publish to ROS 2 (starts the `ros-bridge` process).

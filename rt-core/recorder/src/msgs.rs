@@ -439,6 +439,10 @@ impl RosMessage for TwinVerdictMsg {
             &v.episode_end()
                 .map_or_else(|_| "unknown".to_owned(), |e| format!("{e:?}")),
         );
+        w.u8(v.phase);
+        w.string(v.phase().map_or("invalid", |p| p.name()));
+        w.u8(v.executor);
+        w.string(v.executor().map_or("invalid", |e| e.name()));
     }
 }
 

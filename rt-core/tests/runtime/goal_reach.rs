@@ -18,8 +18,8 @@ use rt_core::cycle::{self, Cycle, CycleConfig, Mode};
 use rt_core::rt::clock::{Clock, ManualClock};
 use rt_core::testing::toy::{ToyArm, ToyPolicy, ToyScene, toy_closest_approach_m};
 use rt_core::twin_thread::smoother::PlanSmoother;
-use rt_core::twin_thread::{GoalApproach, Lookahead, TwinEvent, TwinWorker, Verdict};
 use rt_core::twin_thread::worker::PlanRejection;
+use rt_core::twin_thread::{GoalApproach, Lookahead, TwinEvent, TwinWorker, Verdict};
 use twin::{DOF, Joints};
 
 use crate::common::{START, TARGET_A};
