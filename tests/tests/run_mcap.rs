@@ -64,7 +64,7 @@ fn launch(out: &Path, world: &Path) -> ChildGuard {
     let mut cmd = Command::new(bin_path("foresight"));
     cmd.current_dir(repo_root())
         .arg("--world")
-        .arg(&world)
+        .arg(world)
         .args(["--phase-timeout-s", "60"])
         .arg("--out")
         .arg(out)
