@@ -68,7 +68,19 @@ pub fn f32_within(
     min: f32,
     max: f32,
 ) -> impl Fn(&str) -> Result<f32, CliBoundError> + Clone + Send + Sync + 'static {
-    move |s: &str| parse_f64(s, f64::from(min), f64::from(max)).map(|v| v as f32)
+    // Compared as f32 and shown as f32: `0.05` is the bound the user reads and may type
+    // (as f64 it would be 0.05000000074505806, refusing its own "0.05").
+    move |s: &str| {
+        let v = parse_f64(s, f64::MIN, f64::MAX)? as f32;
+        if !(min..=max).contains(&v) {
+            return Err(CliBoundError::OutOfRange {
+                value: s.trim().to_owned(),
+                min: min.to_string(),
+                max: max.to_string(),
+            });
+        }
+        Ok(v)
+    }
 }
 
 /// A parser of comma-separated lists of finite `f64` values, each within `min..=max`.
@@ -156,6 +168,10 @@ mod tests {
         assert!(matches!(p("ten"), Err(CliBoundError::NotANumber { .. })));
         assert_eq!(f32_within(0.0, 1.0)("0.5"), Ok(0.5));
         assert!(f32_within(0.0, 1.0)("1e40").is_err());
+        // f32 bounds are shown and compared as f32: the shown minimum itself is accepted.
+        assert_eq!(f32_within(0.05, 1.0)("0.05"), Ok(0.05));
+        let e = f32_within(0.05, 1.0)("1.5").unwrap_err().to_string();
+        assert!(e.contains("0.05..=1"), "{e}");
         let l = f64_list_within(-1.0, 1.0);
         assert_eq!(l("0.1,-0.2"), Ok(vec![0.1, -0.2]));
         assert!(l("0.1,NaN").is_err());

@@ -244,7 +244,8 @@ fn bad_confidence_floors_are_refused_at_start_naming_the_field() {
         )
     };
     let (ok, err) = run(&["--min-goal-confidence", "1.5"]);
-    assert!(!ok && err.contains("min_goal_confidence"), "{err}");
+    // Refused by the flag's own bound (issue 25 item 13), which names the flag.
+    assert!(!ok && err.contains("--min-goal-confidence"), "{err}");
     let (ok, err) = run(&["--min-obstacle-confidence", "0.9"]);
     assert!(!ok && err.contains("min_obstacle_confidence"), "{err}");
     let cfg = dir.join("selection.toml");

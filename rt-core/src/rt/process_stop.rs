@@ -211,8 +211,16 @@ fn wait_for_cycles(wait: Duration) -> bool {
         }
         std::thread::sleep(Duration::from_millis(2));
     }
+    // The cycle's last events (the stop, at rest) sit in its log ring until the non-RT drain
+    // thread (every 20 ms) writes them: give it a few periods before the abort, so the
+    // operator's log tells how the arm stopped.
+    std::thread::sleep(LOG_DRAIN_GRACE);
     true
 }
+
+/// How long the panic hook lets the cycle's log drain run after the cycle ended (several
+/// of the drain's 20 ms periods).
+const LOG_DRAIN_GRACE: Duration = Duration::from_millis(100);
 
 #[cfg(test)]
 mod tests {
