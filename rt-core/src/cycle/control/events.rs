@@ -1,0 +1,177 @@
+//! What the cycle says about itself: its [`Mode`], the typed [`CycleEvent`]s it logs through
+//! the log ring (formatted only by the thread that drains it), and the [`StopReason`] of the
+//! last controlled stop. All `Copy`, so the cycle logs and reports them without allocating.
+
+use crate::cycle::link::LinkError;
+use crate::cycle::shield::ShieldViolation;
+
+/// What the cycle is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[repr(u8)]
+pub enum Mode {
+    /// At rest, waiting for a first plan.
+    #[default]
+    Idle = 0,
+    /// Streaming an approved plan.
+    Following = 1,
+    /// Braking to zero velocity.
+    Stopping = 2,
+    /// At rest after a controlled stop; waits for a fresh plan.
+    Stopped = 3,
+}
+
+/// What the cycle logs: typed and `Copy` (ids stay `u64`), formatted only on the thread
+/// that drains the log ring.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CycleEvent {
+    /// The cycle started.
+    Started {
+        /// The cycle period, ns.
+        period_ns: u64,
+    },
+    /// A new plan was adopted.
+    PlanAdopted {
+        /// Plan id.
+        plan_id: u64,
+        /// Policy id.
+        policy_id: u64,
+    },
+    /// A plan was scheduled to take over the running one at a join index.
+    PlanScheduled {
+        /// Plan id.
+        plan_id: u64,
+        /// Sample of the running plan where it takes over.
+        join_index: usize,
+    },
+    /// A plan was refused (discontinuous, late, or while stopping).
+    PlanRefused {
+        /// Plan id.
+        plan_id: u64,
+    },
+    /// A plan was completed.
+    PlanFinished {
+        /// Plan id.
+        plan_id: u64,
+    },
+    /// The twin revoked the running plan.
+    PlanRevoked {
+        /// Plan id.
+        plan_id: u64,
+    },
+    /// A controlled stop began.
+    StopBegun {
+        /// Why.
+        reason: StopReason,
+    },
+    /// The arm stands still after a controlled stop.
+    Stopped,
+    /// The link refused a command or is lost.
+    LinkError {
+        /// The link's error.
+        error: LinkError,
+    },
+    /// A command failed the check and was not sent.
+    CommandRefused {
+        /// Why.
+        violation: ShieldViolation,
+    },
+    /// The controller reports an error; the cycle is latched until acknowledged.
+    ArmError {
+        /// The controller's error code.
+        code: u16,
+    },
+    /// The twin's TCP and the controller's differ: a controlled stop, latched at rest.
+    ModelMismatch {
+        /// The distance between the two TCPs, m.
+        gap_m: f64,
+    },
+    /// The link returned while stopping: the stop ends at the measured joints.
+    SnappedToMeasured,
+    /// The controller left its ready state without the cycle asking (the pendant's stop,
+    /// the SDK, `SET_STATE` from another client): latched until acknowledged.
+    ControllerStopped {
+        /// The controller's state (3 paused, 4 stopped, …).
+        state: u8,
+    },
+    /// The measured joints stopped following the commands sent (a frozen or blocked arm):
+    /// a stop, latched until acknowledged.
+    TrackingLost {
+        /// The largest joint gap between the last command sent and the measured joints,
+        /// rad.
+        error_rad: f64,
+    },
+    /// An acknowledgement arrived while the link was down or the arm was still stopping:
+    /// dropped (an operator acknowledges an arm at rest they can see; a new one is needed).
+    AcknowledgementDropped,
+    /// An operator acknowledged the protective stop; motion was re-enabled.
+    Acknowledged,
+    /// An acknowledgement could not be passed to the controller.
+    AcknowledgeFailed {
+        /// The link's error.
+        error: LinkError,
+    },
+    /// The cycle stopped.
+    Finished,
+}
+
+/// Why the last controlled stop happened.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum StopReason {
+    /// No stop so far.
+    #[default]
+    None,
+    /// The shield refused a command.
+    Shield(ShieldViolation),
+    /// The latest detection is older than allowed (or none arrived).
+    StaleDetection,
+    /// The latest robot state is older than allowed.
+    StaleRobotState,
+    /// The robot link is lost.
+    LinkLost,
+    /// The twin revoked the running plan (the lookahead found it unsafe).
+    Revoked,
+    /// The controller reports an error (the code is in the report).
+    ArmError(u16),
+    /// The process is shutting down (signal, time limit, error, panic).
+    Shutdown,
+    /// The twin refused the latest detection frame (it does not fit, its stamp is not
+    /// fresh, an object lies outside the calibrated workspace, a second publisher): the
+    /// scene cannot be trusted until a good frame arrives.
+    DetectionRefused,
+    /// The twin's TCP of the measured joints and the TCP the controller reports differ by
+    /// more than the link's tolerance (a wrong model or base calibration): latched, like an
+    /// arm error, once the arm is at rest, until an operator acknowledges.
+    ModelMismatch,
+    /// The controller left its ready state without the cycle asking (the pendant's stop,
+    /// the SDK, `SET_STATE 4` from another client): latched like an arm error, until an
+    /// operator acknowledges.
+    ControllerStopped {
+        /// The controller's state when it was seen (3 paused, 4 stopped, …).
+        state: u8,
+    },
+    /// The measured joints did not follow the commands sent for
+    /// [`CycleConfig::tracking_error_cycles`](super::CycleConfig::tracking_error_cycles) periods in a row (more than
+    /// [`CycleConfig::max_tracking_error_rad`](super::CycleConfig::max_tracking_error_rad) apart): a frozen or blocked arm. Stopped and
+    /// latched until an operator acknowledges.
+    TrackingLost,
+}
+
+impl StopReason {
+    /// A numeric code for logs and telemetry.
+    pub fn code(self) -> u8 {
+        match self {
+            StopReason::None => 0,
+            StopReason::Shield(v) => 10 + v.code(),
+            StopReason::StaleDetection => 2,
+            StopReason::StaleRobotState => 3,
+            StopReason::LinkLost => 4,
+            StopReason::Revoked => 5,
+            StopReason::ArmError(_) => 6,
+            StopReason::Shutdown => 7,
+            StopReason::DetectionRefused => 8,
+            StopReason::ModelMismatch => 9,
+            StopReason::ControllerStopped { .. } => 20,
+            StopReason::TrackingLost => 21,
+        }
+    }
+}

@@ -1,0 +1,143 @@
+//! The cycle's hand-overs with the rest of the process: the [`SceneUpdate`]s and plans it
+//! takes, the [`CycleControl`] flags it shares (revocation, progress, shutdown,
+//! acknowledgement), the two ends [`CycleIo`] (the cycle's) and [`TwinIo`] (the twin's), and
+//! [`wire`], which makes them with the cycle's log ring. Everything here is lock-free.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+
+use super::{CycleEvent, CycleReport};
+use crate::cycle::plan::Plan;
+use crate::rt::handoff::{self, BoxReceiver, BoxSender, LatestReceiver, LatestSender};
+use crate::rt::process_stop;
+use crate::rt::rt_log::{self, RtLogDrain, RtLogger};
+
+/// A scene snapshot handed to the cycle with the capture time of its detection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SceneUpdate<S> {
+    /// The scene.
+    pub scene: S,
+    /// Capture time of the detection, on the cycle's clock, ns.
+    pub stamp_ns: u64,
+    /// The latest frame was refused: `scene` is the last trusted one (kept for the
+    /// shield's clearance while stopping), but it is not fresh — the cycle stops.
+    pub refused: bool,
+}
+
+/// Control flags shared by the cycle, the twin thread and the process (relaxed atomics).
+#[derive(Debug, Default)]
+pub struct CycleControl {
+    /// Every plan with an id up to this one is revoked (0 = none).
+    revoked_up_to: AtomicU64,
+    /// Plan id (upper 40 bits) and next sample index (lower 24 bits) of the plan the cycle
+    /// is following, written every cycle: the twin re-verifies from here.
+    pub(super) progress: AtomicU64,
+    /// A controlled stop of the whole process was requested.
+    shutdown: Arc<AtomicBool>,
+    /// Operator acknowledgements so far.
+    acks: AtomicU64,
+}
+
+/// Bits of the sample index in [`CycleControl`]'s progress word.
+const PROGRESS_INDEX_BITS: u32 = 24;
+
+impl CycleControl {
+    /// Revokes every plan with an id up to `plan_id` (running and pending).
+    pub fn revoke_up_to(&self, plan_id: u64) {
+        self.revoked_up_to.fetch_max(plan_id, Ordering::AcqRel);
+    }
+
+    /// The highest revoked plan id.
+    pub fn revoked_up_to(&self) -> u64 {
+        self.revoked_up_to.load(Ordering::Acquire)
+    }
+
+    /// The plan the cycle follows and its next sample, as of the last cycle (`None` when
+    /// not following).
+    pub fn progress(&self) -> Option<(u64, usize)> {
+        let w = self.progress.load(Ordering::Acquire);
+        (w != 0).then_some((
+            w >> PROGRESS_INDEX_BITS,
+            (w & ((1 << PROGRESS_INDEX_BITS) - 1)) as usize,
+        ))
+    }
+
+    pub(super) fn set_progress(&self, plan_id: u64, next_index: usize) {
+        let index = (next_index as u64).min((1 << PROGRESS_INDEX_BITS) - 1);
+        self.progress
+            .store((plan_id << PROGRESS_INDEX_BITS) | index, Ordering::Release);
+    }
+
+    /// Asks for a controlled stop of the whole process: the cycle stops the arm, takes no
+    /// plan, and reports `shutdown_complete` once at rest.
+    pub fn request_shutdown(&self) {
+        self.shutdown.store(true, Ordering::Release);
+    }
+
+    /// Whether a shutdown was requested: through [`CycleControl::request_shutdown`] or
+    /// the shutdown flag, or process-wide by a signal or a panic
+    /// ([`crate::rt::process_stop::stop_requested`]).
+    pub fn shutdown_requested(&self) -> bool {
+        self.shutdown.load(Ordering::Acquire) || process_stop::stop_requested()
+    }
+
+    /// The shutdown flag itself (for signal handlers).
+    pub fn shutdown_flag(&self) -> Arc<AtomicBool> {
+        self.shutdown.clone()
+    }
+
+    /// An operator acknowledges a protective stop (controller error, lost link).
+    pub fn acknowledge(&self) {
+        self.acks.fetch_add(1, Ordering::AcqRel);
+    }
+
+    pub(super) fn acks(&self) -> u64 {
+        self.acks.load(Ordering::Acquire)
+    }
+}
+
+/// The cycle's ends of the hand-overs.
+pub struct CycleIo<S: Copy + Send + 'static> {
+    pub(super) plans: BoxReceiver<Plan>,
+    pub(super) scenes: LatestReceiver<SceneUpdate<S>>,
+    pub(super) control: Arc<CycleControl>,
+    pub(super) reports: LatestSender<CycleReport>,
+    pub(super) log: RtLogger<CycleEvent>,
+}
+
+/// The twin's ends of the hand-overs.
+pub struct TwinIo<S: Copy + Send + 'static> {
+    /// Approved plans to the cycle (and back, for freeing).
+    pub plans: BoxSender<Plan>,
+    /// Scene snapshots to the cycle.
+    pub scenes: LatestSender<SceneUpdate<S>>,
+    /// Revocation, the cycle's progress, shutdown and acknowledgement.
+    pub control: Arc<CycleControl>,
+    /// The cycle's reports.
+    pub reports: LatestReceiver<CycleReport>,
+}
+
+/// Makes the hand-overs between a twin worker and a cycle, and the cycle's log ring.
+pub fn wire<S: Copy + Send + 'static>() -> (TwinIo<S>, CycleIo<S>, RtLogDrain<CycleEvent>) {
+    let (plan_tx, plan_rx) = handoff::channel();
+    let (scene_tx, scene_rx) = handoff::latest();
+    let (rep_tx, rep_rx) = handoff::latest();
+    let (log, drain) = rt_log::ring();
+    let control = Arc::new(CycleControl::default());
+    (
+        TwinIo {
+            plans: plan_tx,
+            scenes: scene_tx,
+            control: control.clone(),
+            reports: rep_rx,
+        },
+        CycleIo {
+            plans: plan_rx,
+            scenes: scene_rx,
+            control,
+            reports: rep_tx,
+            log,
+        },
+        drain,
+    )
+}
