@@ -39,7 +39,7 @@ fn bench(c: &mut Criterion) {
     let cam = SyntheticCamera::load(&assets.join("synthetic_camera.toml")).unwrap();
     let scene = SceneFile::from_toml_str(SCENE, Path::new("<bench>")).unwrap();
     let rendered = cam.render(&scene);
-    let frame = Frame::from_rendered(&rendered, 1, perception::frame::monotonic_now_ns()).unwrap();
+    let frame = Frame::from_rendered(&rendered, 1, shm_schemas::clock::monotonic_now_ns()).unwrap();
     let calibration = Calibration::new(CalibrationFile {
         intrinsics: cam.config.intrinsics,
         workspace: cam.workspace_for(&scene),

@@ -88,7 +88,7 @@ fn bench(c: &mut Criterion) {
     let frame = Frame::from_rendered(
         &cam.render(&scene),
         1,
-        perception::frame::monotonic_now_ns(),
+        shm_schemas::clock::monotonic_now_ns(),
     )
     .unwrap();
     let threads = default_threads();

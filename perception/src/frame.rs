@@ -44,34 +44,6 @@ pub struct Frame {
     pub depth_m: Option<Mat>,
 }
 
-/// `CLOCK_MONOTONIC` now (ns), the clock every Foresight process on the machine shares.
-/// 0 only if the clock cannot be read (never on Linux); a publisher refuses such a stamp.
-pub fn monotonic_now_ns() -> u64 {
-    clock_now_ns(libc::CLOCK_MONOTONIC)
-}
-
-/// `CLOCK_REALTIME` now (ns since the Unix epoch): the clock ROS 2 header stamps use. Only
-/// for converting such stamps to `CLOCK_MONOTONIC` ([`crate::stamp`]).
-pub fn realtime_now_ns() -> u64 {
-    clock_now_ns(libc::CLOCK_REALTIME)
-}
-
-fn clock_now_ns(clock: libc::clockid_t) -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; CLOCK_MONOTONIC and CLOCK_REALTIME are
-    // always supported on Linux.
-    let rc = unsafe { libc::clock_gettime(clock, &mut ts) };
-    if rc != 0 {
-        return 0;
-    }
-    (ts.tv_sec as u64)
-        .saturating_mul(1_000_000_000)
-        .saturating_add(ts.tv_nsec as u64)
-}
-
 impl Frame {
     /// Checks types and sizes.
     ///

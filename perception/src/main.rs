@@ -4,6 +4,8 @@
 //! (workspace corners → calibration file), `detect` (one image → JSON) and `run` (frames →
 //! `DetectionFrame`s over iceoryx2). See perception/README.md for the workflow.
 
+#![forbid(unsafe_code)]
+
 mod cli;
 
 fn main() -> anyhow::Result<()> {

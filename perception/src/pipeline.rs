@@ -36,7 +36,7 @@ use shm_schemas::{DetectionFrame, MAX_DETECTIONS};
 use crate::calibration::Calibration;
 use crate::color_detector::{ColourDetector, DetectError};
 use crate::detection::Detection;
-use crate::frame::{Frame, monotonic_now_ns};
+use crate::frame::Frame;
 use crate::handoff::{ConsumerGuard, Handoff, Popped, ProducerGuard};
 use crate::log_limit::LogLimiter;
 use crate::publisher::{DetectionPublisher, PublishError};
@@ -44,6 +44,7 @@ use crate::selection::{FloorTally, SelectionConfig, apply_confidence_floors};
 use crate::source::{FrameSource, SourceError};
 use crate::tracker::Tracker;
 use crate::yolo::YoloDetector;
+use shm_schemas::clock::monotonic_now_ns;
 
 /// Either detector.
 pub enum Detector {
@@ -760,7 +761,7 @@ mod tests {
     fn refused_stamps_and_truncated_frames_are_counted() {
         let prefix = format!("percpipetest{}", std::process::id());
         let (rendered, mut pipeline) = scene_pipeline(&crowded(), &prefix);
-        let frame = |seq| Frame::from_rendered(&rendered, seq, crate::frame::monotonic_now_ns());
+        let frame = |seq| Frame::from_rendered(&rendered, seq, monotonic_now_ns());
         let mut source = Scripted(vec![
             Err(SourceError::Stamp(StampError::Zero)),
             Ok(Some(frame(1).unwrap())),
@@ -807,7 +808,7 @@ mod tests {
             };
             self.next += 1;
             if !good {
-                self.last_refusal_ns = crate::frame::monotonic_now_ns();
+                self.last_refusal_ns = monotonic_now_ns();
                 return Err(SourceError::Depth(
                     crate::ros2_source::DepthPairError::Stale {
                         topic: "/depth".into(),
@@ -816,7 +817,7 @@ mod tests {
                     },
                 ));
             }
-            let now = crate::frame::monotonic_now_ns();
+            let now = monotonic_now_ns();
             Ok(Some(Frame::from_rendered(
                 &self.rendered,
                 self.next as u64,

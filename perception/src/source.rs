@@ -9,8 +9,9 @@ use std::time::Instant;
 use opencv::prelude::*;
 use shm_schemas::scene_file::{SceneFile, WorldScript};
 
-use crate::frame::{Frame, FrameError, monotonic_now_ns, read_colour, read_depth};
+use crate::frame::{Frame, FrameError, read_colour, read_depth};
 use crate::synthetic::{ScriptedCamera, SyntheticCamera};
+use shm_schemas::clock::monotonic_now_ns;
 
 /// Where frames come from, as given on the command line.
 #[derive(Debug, Clone, PartialEq)]

@@ -25,7 +25,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::frame::{monotonic_now_ns, realtime_now_ns};
+use shm_schemas::clock::{monotonic_now_ns, realtime_now_ns};
 
 const NS_PER_S: i128 = 1_000_000_000;
 

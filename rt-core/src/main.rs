@@ -4,6 +4,8 @@
 //! stdout), and, as they land, `run` (the real-time runtime), `bench-loop` (latency and
 //! jitter harness) and `xarm` (driver tools such as `probe`).
 
+#![forbid(unsafe_code)]
+
 mod cli;
 
 /// Counts allocations of threads that opt in (the cycle thread of `run` and `bench-loop`);

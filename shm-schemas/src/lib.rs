@@ -31,10 +31,12 @@
 
 pub mod checksum;
 pub mod cli_bounds;
+pub mod clock;
 pub mod detection;
 pub mod error;
 pub mod policy_blob;
 pub mod policy_builder;
+pub mod process_ties;
 pub mod retrain;
 pub mod robot_state;
 pub mod scene_file;

@@ -3,6 +3,8 @@
 //! running a test body inside a private network namespace (for DDS and real xArm ports), and
 //! the launcher's run folders ([`runs`]).
 
+#![forbid(unsafe_code)]
+
 pub mod rt_rig;
 pub mod runs;
 pub mod sim_proc;

@@ -152,7 +152,7 @@ impl Rig {
                 seq += 1;
                 let mut frame = DetectionFrame {
                     sequence: seq,
-                    capture_time_ns: rt_core::rt::rt_setup::monotonic_now_ns(),
+                    capture_time_ns: shm_schemas::clock::monotonic_now_ns(),
                     camera_id: 1,
                     flags: DetectionFrame::FRAME_SETTLED,
                     ..DetectionFrame::default()

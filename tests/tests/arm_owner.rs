@@ -142,7 +142,7 @@ fn killing_rt_core_s_parent_with_sigkill_brakes_the_arm_and_ends_rt_core() {
             seq += 1;
             let mut frame = DetectionFrame {
                 sequence: seq,
-                capture_time_ns: rt_core::rt::rt_setup::monotonic_now_ns(),
+                capture_time_ns: shm_schemas::clock::monotonic_now_ns(),
                 camera_id: 1,
                 flags: DetectionFrame::FRAME_SETTLED,
                 ..DetectionFrame::default()

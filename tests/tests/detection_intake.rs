@@ -27,7 +27,7 @@ fn a_second_detection_publisher_is_refused_until_it_is_gone() {
         open_publisher::<DetectionFrame, _>(&intruder_node, &rig.prefix).expect("publisher");
     let mut frame = DetectionFrame {
         sequence: 1_000_000,
-        capture_time_ns: rt_core::rt::rt_setup::monotonic_now_ns(),
+        capture_time_ns: shm_schemas::clock::monotonic_now_ns(),
         camera_id: 1,
         ..DetectionFrame::default()
     };

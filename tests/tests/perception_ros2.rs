@@ -26,12 +26,12 @@ use foresight_tests::{
 };
 use iceoryx2::prelude::*;
 use perception::calibration::{Calibration, CalibrationFile};
-use perception::frame::monotonic_now_ns;
 use perception::ros2_source::{
     CameraInfo, Header, Image, Ros2Topics, Time, camera_info_publisher, context, image_publisher,
     node,
 };
 use perception::synthetic::SyntheticCamera;
+use shm_schemas::clock::monotonic_now_ns;
 use shm_schemas::scene_file::SceneFile;
 use shm_schemas::{DetectionFrame, ObjectClass, services};
 

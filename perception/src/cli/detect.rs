@@ -13,10 +13,11 @@ use clap::Args;
 use perception::annotate::{annotate, write_image};
 use perception::calibration::Calibration;
 use perception::detection::Detection;
-use perception::frame::{Frame, monotonic_now_ns, read_colour, read_depth};
+use perception::frame::{Frame, read_colour, read_depth};
 use perception::pipeline::Detector;
 use serde::Serialize;
 use shm_schemas::cli_bounds::int_within;
+use shm_schemas::clock::monotonic_now_ns;
 
 use super::shared::{YoloArgs, load_detector};
 

@@ -11,6 +11,8 @@
 //!   [`runtime_view`]: what the launcher reads of rt-core's configuration; [`recording`]:
 //!   the run's MCAP recording (`runs/<run>/run.mcap`).
 
+#![forbid(unsafe_code)]
+
 pub mod args;
 pub mod launch;
 pub mod observer;

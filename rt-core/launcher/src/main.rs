@@ -6,6 +6,8 @@
 //! The logic lives in the `launcher` library ([`launcher::launch`]); this file parses the
 //! command line and maps the outcome to an exit code.
 
+#![forbid(unsafe_code)]
+
 use std::process::ExitCode;
 
 use clap::Parser;

@@ -12,10 +12,11 @@
 //! the launcher's main thread, whose end is the launcher's.
 
 use std::fs::File;
-use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
+
+use shm_schemas::process_ties::{self, ChildTies};
 
 /// What to start.
 #[derive(Debug, Clone)]
@@ -106,57 +107,19 @@ fn spawn(spec: &ProcessSpec, log_dir: &Path) -> Result<Child, SuperviseError> {
     for (k, v) in &spec.env {
         cmd.env(k, v);
     }
-    let launcher_pid = std::process::id();
-    // SAFETY: the closure runs in the child between fork and exec, where only
-    // async-signal-safe calls are allowed: `tie_to_launcher` makes only setpgid, prctl and
-    // getppid calls and allocates nothing (its errors are raw OS errors).
-    unsafe {
-        cmd.pre_exec(move || tie_to_launcher(launcher_pid));
-    }
+    process_ties::tie_child(
+        &mut cmd,
+        ChildTies {
+            own_process_group: true,
+            refuse_if_orphaned: true,
+        },
+    );
     cmd.spawn().map_err(err)
-}
-
-/// In the child, before exec: its own process group, and SIGTERM when the launcher dies.
-/// Fails (the child never runs) when the launcher died before the request took effect.
-fn tie_to_launcher(launcher_pid: u32) -> std::io::Result<()> {
-    // SAFETY: setpgid(0, 0) makes the calling process the leader of a new group; it takes
-    // plain integers and touches no memory.
-    if unsafe { libc::setpgid(0, 0) } != 0 {
-        return Err(std::io::Error::last_os_error());
-    }
-    // SAFETY: PR_SET_PDEATHSIG takes one integer argument (a signal number) and touches no
-    // memory of ours; the unused arguments are zero as prctl(2) asks.
-    let rc = unsafe {
-        libc::prctl(
-            libc::PR_SET_PDEATHSIG,
-            libc::SIGTERM as libc::c_ulong,
-            0 as libc::c_ulong,
-            0 as libc::c_ulong,
-            0 as libc::c_ulong,
-        )
-    };
-    if rc != 0 {
-        return Err(std::io::Error::last_os_error());
-    }
-    // The launcher may have died between the fork and the prctl: the child was then
-    // re-parented and would never get the signal.
-    if std::os::unix::process::parent_id() != launcher_pid {
-        return Err(std::io::Error::from_raw_os_error(libc::ESRCH));
-    }
-    Ok(())
 }
 
 /// Sends `signal` to the process group `pgid` (a child and whatever it started).
 fn signal_group(pgid: u32, signal: libc::c_int) -> bool {
-    let Ok(pgid) = libc::pid_t::try_from(pgid) else {
-        return false;
-    };
-    if pgid <= 1 {
-        return false;
-    }
-    // SAFETY: kill(2) with a negative pid signals that process group; it takes plain
-    // integers and touches no memory.
-    unsafe { libc::kill(-pgid, signal) == 0 }
+    process_ties::signal_process_group(pgid, signal).is_ok()
 }
 
 impl Supervisor {
@@ -308,7 +271,7 @@ pub fn send_signal(pid: u32, signal: &str) -> bool {
 }
 
 fn stop_child(child: &mut Child, grace: Duration) -> Option<ExitStatus> {
-    // The child leads its own group (see `tie_to_launcher`): the group is signalled, so
+    // The child leads its own group (see `spawn`'s `ChildTies`): the group is signalled, so
     // what the child started goes too.
     let pgid = child.id();
     if let Ok(Some(s)) = child.try_wait() {

@@ -31,6 +31,8 @@
 //! println!("{} messages", stats.total());
 //! ```
 
+#![forbid(unsafe_code)]
+
 pub mod cdr;
 pub mod markers;
 pub mod mcap_file;

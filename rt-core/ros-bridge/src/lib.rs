@@ -17,6 +17,8 @@
 //! robot PC's address to reach other hosts. rustdds also announces itself to same-host peers
 //! over unicast, so processes on one machine match even where `lo` has no MULTICAST flag.
 
+#![forbid(unsafe_code)]
+
 pub mod msgs;
 
 use std::collections::VecDeque;

@@ -1,6 +1,8 @@
 //! `ros-bridge`: republishes a run's robot state, scene and verdicts over ROS 2 (DDS) for
 //! RViz and other ROS 2 tools (`foresight --ros` starts it). See the `ros_bridge` library.
 
+#![forbid(unsafe_code)]
+
 use std::net::IpAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;

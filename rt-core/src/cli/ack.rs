@@ -48,14 +48,9 @@ fn acknowledge(robot: &str) -> anyhow::Result<String> {
         );
     }
     let pid = libc::pid_t::try_from(owner.pid)?;
-    // SAFETY: kill(2) takes two integers and touches no memory of ours; the pid is the
-    // owner the kernel's lock table names, checked to be an rt-core just above.
-    let rc = unsafe { libc::kill(pid, libc::SIGUSR1) };
-    if rc != 0 {
-        anyhow::bail!(
-            "sending SIGUSR1 to rt-core pid {pid}: {}",
-            std::io::Error::last_os_error()
-        );
+    // The pid is the owner the kernel's lock table names, checked to be an rt-core above.
+    if let Err(e) = shm_schemas::process_ties::signal_process(owner.pid, libc::SIGUSR1) {
+        anyhow::bail!("sending SIGUSR1 to rt-core pid {pid}: {e}");
     }
     Ok(format!(
         "acknowledgement sent to rt-core pid {pid}, the owner of the xArm at {robot} ({})",

@@ -161,22 +161,8 @@ pub fn run(args: RunArgs) -> ExitCode {
 /// get the signal).
 fn stop_with_parent() -> anyhow::Result<()> {
     let parent = std::os::unix::process::parent_id();
-    // SAFETY: PR_SET_PDEATHSIG takes one integer argument (a signal number) and touches no
-    // memory of ours; the unused arguments are zero as prctl(2) asks.
-    let rc = unsafe {
-        libc::prctl(
-            libc::PR_SET_PDEATHSIG,
-            libc::SIGTERM as libc::c_ulong,
-            0 as libc::c_ulong,
-            0 as libc::c_ulong,
-            0 as libc::c_ulong,
-        )
-    };
-    if rc != 0 {
-        anyhow::bail!(
-            "prctl(PR_SET_PDEATHSIG): {}",
-            std::io::Error::last_os_error()
-        );
+    if let Err(e) = shm_schemas::process_ties::stop_with_parent() {
+        anyhow::bail!("prctl(PR_SET_PDEATHSIG): {e}");
     }
     let now = std::os::unix::process::parent_id();
     if now != parent {

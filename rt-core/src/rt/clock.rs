@@ -6,6 +6,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::rt::rt_setup;
+use shm_schemas::clock::monotonic_now_ns;
 
 /// A source of monotonic time in nanoseconds with an absolute sleep.
 pub trait Clock: Send + Sync {
@@ -26,7 +27,7 @@ impl MonotonicClock {
     /// A clock whose origin is now.
     pub fn new() -> Self {
         Self {
-            origin_ns: rt_setup::monotonic_now_ns(),
+            origin_ns: monotonic_now_ns(),
         }
     }
 
@@ -45,7 +46,7 @@ impl Default for MonotonicClock {
 
 impl Clock for MonotonicClock {
     fn now_ns(&self) -> u64 {
-        rt_setup::monotonic_now_ns().saturating_sub(self.origin_ns)
+        monotonic_now_ns().saturating_sub(self.origin_ns)
     }
 
     fn sleep_until_ns(&self, deadline_ns: u64) {

@@ -1,11 +1,14 @@
 //! Real-time set-up of the process and the cycle thread, and the few OS calls the runtime
 //! needs: pinning (`sched_setaffinity`), `SCHED_FIFO` (`sched_setscheduler`), memory locking
-//! (`mlockall`) with a pre-faulted stack, and the monotonic clock with absolute sleeps.
+//! (`mlockall`) with a pre-faulted stack, and absolute sleeps on the monotonic clock (read
+//! with the contract's [`shm_schemas::clock::monotonic_now_ns`]).
 //!
 //! Every refusal of the OS (no privilege, a container, a CPU that does not exist) is
 //! reported once, clearly, through `tracing::warn!` and in the returned [`RtSetupReport`],
-//! and the program runs on without it. This is the runtime's only module with `unsafe`
-//! OS calls (the counting allocator of [`super::alloc_count`] is the other `unsafe`).
+//! and the program runs on without it. This is the runtime's module of `unsafe` OS calls
+//! for real-time set-up (the others: the counting allocator of [`super::alloc_count`] and the
+//! signal counters of [`super::process_stop`]; the clock is read with
+//! [`shm_schemas::clock`], process ties are [`shm_schemas::process_ties`]).
 
 use std::hint::black_box;
 
@@ -165,19 +168,6 @@ pub fn prefault_stack() {
     black_box(&buf);
 }
 
-/// `CLOCK_MONOTONIC` in nanoseconds.
-pub fn monotonic_now_ns() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; CLOCK_MONOTONIC always exists on Linux.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    (ts.tv_sec as u64)
-        .saturating_mul(1_000_000_000)
-        .saturating_add(ts.tv_nsec as u64)
-}
-
 /// Sleeps until the absolute `CLOCK_MONOTONIC` time `deadline_ns` (retries on EINTR).
 pub fn sleep_until_monotonic_ns(deadline_ns: u64) {
     let ts = libc::timespec {
@@ -225,8 +215,8 @@ mod tests {
 
     #[test]
     fn monotonic_time_advances() {
-        let a = monotonic_now_ns();
+        let a = shm_schemas::clock::monotonic_now_ns();
         sleep_until_monotonic_ns(a + 1_000_000);
-        assert!(monotonic_now_ns() >= a + 1_000_000);
+        assert!(shm_schemas::clock::monotonic_now_ns() >= a + 1_000_000);
     }
 }

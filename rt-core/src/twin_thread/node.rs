@@ -28,7 +28,6 @@ use crate::cycle::shield::ShieldModel;
 use crate::cycle::twin_model::TwinModel;
 use crate::cycle::{CycleReport, LoopShared, Mode, StopReason};
 use crate::rt::histogram::{Histogram, Summary};
-use crate::rt::rt_setup;
 use crate::twin_thread::intake::{IntakeCounters, SceneIntake};
 use crate::twin_thread::lookahead::TwinLookahead;
 use crate::twin_thread::{TwinEvent, TwinWorker, Verdict, VerdictSource};
@@ -245,7 +244,7 @@ impl TwinNode {
             let frame = *sample.payload();
             drop(sample);
             let publishers = self.det_service.dynamic_config().number_of_publishers();
-            let mono_now_ns = rt_setup::monotonic_now_ns();
+            let mono_now_ns = shm_schemas::clock::monotonic_now_ns();
             match self
                 .intake
                 .deliver(&frame, mono_now_ns, publishers, twin, events)

@@ -12,6 +12,8 @@
 //! sockets and runs the threads; [`world::World`] is the ground truth, judged by
 //! [`referee::Referee`].
 
+#![forbid(unsafe_code)]
+
 pub mod controller;
 pub mod referee;
 pub mod server;

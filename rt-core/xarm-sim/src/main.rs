@@ -13,6 +13,8 @@
 //!          --swap-scene-at 10s assets/scenes/tall_box.toml
 //! ```
 
+#![forbid(unsafe_code)]
+
 use std::net::IpAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -11,6 +11,7 @@ use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 use shm_schemas::cli_bounds::{f64_within, int_within};
+use shm_schemas::process_ties::{self, ChildTies};
 
 /// How long `learner serve` gets to exit after SIGTERM.
 pub const LEARNER_STOP_GRACE: Duration = Duration::from_secs(5);
@@ -109,19 +110,15 @@ impl LearnerChild {
     }
 
     fn spawn(&mut self) -> std::io::Result<()> {
-        use std::os::unix::process::CommandExt;
         let mut cmd = Command::new(&self.program);
         cmd.args(&self.args);
-        // SAFETY: the closure runs in the forked child before exec and only calls
-        // prctl(2), which is async-signal-safe and touches no memory of the parent.
-        unsafe {
-            cmd.pre_exec(|| {
-                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
-                Ok(())
-            });
-        }
+        process_ties::tie_child(
+            &mut cmd,
+            ChildTies {
+                own_process_group: false,
+                refuse_if_orphaned: false,
+            },
+        );
         let child = cmd.spawn().map_err(|e| {
             std::io::Error::new(
                 e.kind(),
@@ -159,12 +156,8 @@ impl LearnerChild {
         let Some(mut child) = self.child.take() else {
             return;
         };
-        if let Ok(pid) = i32::try_from(child.id()) {
-            // SAFETY: kill(2) with a pid of our own child (not yet reaped) and a valid signal.
-            unsafe {
-                libc::kill(pid, libc::SIGTERM);
-            }
-        }
+        // Our own child, not yet reaped: the pid is still its.
+        let _ = process_ties::signal_process(child.id(), libc::SIGTERM);
         let deadline = Instant::now() + LEARNER_STOP_GRACE;
         while Instant::now() < deadline {
             if let Ok(Some(_)) = child.try_wait() {

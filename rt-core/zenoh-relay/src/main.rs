@@ -10,6 +10,8 @@
 //! - `zenoh-relay keygen --out DIR`: the link's keys, once (`DIR/robot-pc` for the robot PC,
 //!   `DIR/learner-host` for the GPU box; each side's `--link-keys`).
 
+#![forbid(unsafe_code)]
+
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -97,13 +99,8 @@ fn stop_flag() -> Result<Arc<AtomicBool>> {
 }
 
 fn tie_to_parent() {
-    // SAFETY: prctl(PR_SET_PDEATHSIG) takes one integer argument and touches no memory.
-    let rc = unsafe { libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) };
-    if rc != 0 {
-        tracing::warn!(
-            "prctl(PR_SET_PDEATHSIG): {}",
-            std::io::Error::last_os_error()
-        );
+    if let Err(e) = shm_schemas::process_ties::stop_with_parent() {
+        tracing::warn!("prctl(PR_SET_PDEATHSIG): {e}");
     }
 }
 
