@@ -2,7 +2,7 @@
 //! the shield's limits and margins, stale-input ages and the iceoryx2 service prefix. Loaded
 //! with serde and validated once at load; the cycle then uses plain `Copy` values.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
@@ -15,10 +15,10 @@ pub const SHIPPED_RUNTIME_TOML: &str = include_str!("../../assets/runtime.toml")
 #[derive(Debug, thiserror::Error)]
 pub enum RuntimeConfigError {
     /// The file could not be read.
-    #[error("cannot read {path}: {source}")]
+    #[error("cannot read {}: {source}", path.display())]
     Read {
         /// The file.
-        path: String,
+        path: PathBuf,
         /// The I/O error.
         source: std::io::Error,
     },
@@ -314,7 +314,7 @@ impl RuntimeConfig {
     /// [`RuntimeConfigError`] when unreadable, malformed or out of range.
     pub fn load(path: &Path) -> Result<Self, RuntimeConfigError> {
         let text = std::fs::read_to_string(path).map_err(|source| RuntimeConfigError::Read {
-            path: path.display().to_string(),
+            path: path.to_path_buf(),
             source,
         })?;
         Self::from_toml(&text)

@@ -2,7 +2,7 @@
 //! retrain requests out. [`TwinNode`] holds the ports and the counters of what crossed
 //! them; every incoming sample is validated before the worker sees it.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
@@ -77,26 +77,26 @@ pub enum TwinNodeError {
         cause: SendError,
     },
     /// The start policy file could not be read.
-    #[error("reading policy {path}: {cause}")]
+    #[error("reading policy {}: {cause}", path.display())]
     PolicyRead {
         /// The file.
-        path: String,
+        path: PathBuf,
         /// The I/O error.
         cause: std::io::Error,
     },
     /// The start policy file is not a valid blob.
-    #[error("policy {path} is invalid: {cause}")]
+    #[error("policy {} is invalid: {cause}", path.display())]
     PolicyInvalid {
         /// The file.
-        path: String,
+        path: PathBuf,
         /// The first schema error.
         cause: SchemaError,
     },
     /// The start policy is valid but not for this task.
-    #[error("policy {path} rejected: {reason:?}")]
+    #[error("policy {} rejected: {reason:?}", path.display())]
     PolicyRejected {
         /// The file.
-        path: String,
+        path: PathBuf,
         /// Why.
         reason: PolicyRejectReason,
     },
@@ -203,25 +203,24 @@ impl TwinNode {
         twin: &mut ProductionWorker,
         events: &mut Vec<TwinEvent<Scene>>,
     ) -> Result<(), TwinNodeError> {
-        let shown = path.display().to_string();
         let blob = policy::read_policy_file(path).map_err(|e| TwinNodeError::PolicyRead {
-            path: shown.clone(),
+            path: path.to_path_buf(),
             cause: e.into(),
         })?;
         // The field-level reason for the operator; the loader checks again and counts.
         blob.validate()
             .map_err(|cause| TwinNodeError::PolicyInvalid {
-                path: shown.clone(),
+                path: path.to_path_buf(),
                 cause,
             })?;
         let policy =
             self.loader
                 .prepare(&blob)
                 .map_err(|reason| TwinNodeError::PolicyRejected {
-                    path: shown.clone(),
+                    path: path.to_path_buf(),
                     reason,
                 })?;
-        tracing::info!(policy_id = policy.policy_id(), path = %shown, "start policy loaded; it must pass the lookahead");
+        tracing::info!(policy_id = policy.policy_id(), path = %path.display(), "start policy loaded; it must pass the lookahead");
         twin.on_policy(Box::new(policy), events);
         Ok(())
     }

@@ -57,17 +57,27 @@ pub enum InjectedFault {
     },
 }
 
+/// Why an `--inject-fault` value was refused (the command line shows the value itself).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum InjectedFaultParseError {
+    /// Not a fault this build knows.
+    #[error("unknown fault (known: twin-panic:MS)")]
+    Unknown,
+    /// `twin-panic:MS` with an `MS` that is not a whole number of milliseconds.
+    #[error("twin-panic:MS: bad MS: {0}")]
+    BadAfterMs(#[from] std::num::ParseIntError),
+}
+
 impl std::str::FromStr for InjectedFault {
-    type Err = String;
+    type Err = InjectedFaultParseError;
 
     /// `twin-panic:MS`.
-    fn from_str(s: &str) -> Result<Self, String> {
+    fn from_str(s: &str) -> Result<Self, InjectedFaultParseError> {
         match s.split_once(':') {
-            Some(("twin-panic", ms)) => ms
-                .parse()
-                .map(|after_ms| InjectedFault::TwinPanic { after_ms })
-                .map_err(|e| format!("twin-panic:MS: bad MS {ms:?}: {e}")),
-            _ => Err(format!("unknown fault {s:?} (known: twin-panic:MS)")),
+            Some(("twin-panic", ms)) => Ok(InjectedFault::TwinPanic {
+                after_ms: ms.parse()?,
+            }),
+            _ => Err(InjectedFaultParseError::Unknown),
         }
     }
 }
