@@ -6,6 +6,9 @@
 //!
 //! `scripts/cargo.sh bench -p perception --bench colour_path`
 
+// Benchmarks: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::Path;
 
 use criterion::{Criterion, criterion_group, criterion_main};

@@ -11,6 +11,9 @@
 //!
 //! `scripts/cargo.sh bench -p perception --bench yolo`
 
+// Benchmarks: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

@@ -17,6 +17,10 @@
 //! `--scenes accuracy-test --val-fraction 1` writes instead the scenes of perception's accuracy
 //! test (no object more than 3 % hidden) as a val-only set, to check a trained model on them.
 //! `DIR/complete.txt` is written last (the arguments), so a caller can tell a finished dataset.
+
+// A developer tool over test fixtures: a failed unwrap or expect ends the run with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;

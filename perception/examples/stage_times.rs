@@ -1,5 +1,9 @@
 //! Prints median times of the colour path's stages on one core (a profiling aid).
 //! `scripts/cargo.sh run --release -p perception --example stage_times`
+
+// A developer tool over test fixtures: a failed unwrap or expect ends the run with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::Path;
 use std::time::Instant;
 

@@ -20,7 +20,6 @@
 //! the task), `policy` (allocation-free inference), `xarm` (the controller protocol and
 //! driver) and `shm-schemas` (the contract with the other processes).
 
-#![deny(clippy::unwrap_used)]
 pub mod config;
 pub mod cycle;
 pub mod rt;

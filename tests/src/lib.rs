@@ -4,6 +4,8 @@
 //! the launcher's run folders ([`runs`]).
 
 #![forbid(unsafe_code)]
+// Test rigs: a failed unwrap or expect here is a failed test, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
 
 pub mod rt_rig;
 pub mod runs;

@@ -8,6 +8,9 @@
 //!
 //! Needs the workspace's binaries built (`cargo build --workspace --bins`, same profile).
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::sync::Arc;

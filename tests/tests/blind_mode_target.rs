@@ -9,6 +9,9 @@
 //! would be accepted there, and the test sees it. Needs `unshare` and `ip`, and the
 //! binaries built (`scripts/cargo.sh build --release -p rt-core -p launcher --bins`).
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::net::TcpListener;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};

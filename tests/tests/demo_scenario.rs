@@ -7,6 +7,9 @@
 //! Each test writes its run folder under a fresh temporary directory and reads the report.
 //! Needs the workspace's binaries built (`cargo build --release --workspace --bins`).
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

@@ -3,6 +3,9 @@
 //! `rt-core run`: every frame is refused while it is connected (nothing is planned, the
 //! arm would stop), and planning resumes once it is gone.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::time::Duration;
 
 use foresight_tests::rt_rig::{Rig, Seen, first_state_with_policy, straight_line_blob, task};

@@ -9,6 +9,9 @@
 //! and a SIGUSR1 sent before the runtime listens for acknowledgements do not end the run.
 //! Needs the workspace's binaries built (`cargo build --release --workspace --bins`).
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::process::Command;
 use std::time::{Duration, Instant};
 

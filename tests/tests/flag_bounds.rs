@@ -12,6 +12,9 @@
 //! binaries built (`scripts/cargo.sh build --release -p launcher -p rt-core -p learner
 //! -p perception -p xarm-sim -p zenoh-relay -p ros-bridge --bins`).
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};

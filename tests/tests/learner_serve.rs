@@ -6,6 +6,9 @@
 //! Budgets are tiny (a few thousand steps, seconds): this checks the hand-over, not the
 //! quality of the retrained policy (that is measured by `learner retrain`, see the README).
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::process::{Command, Stdio};
 use std::time::Duration;
 

@@ -7,6 +7,9 @@
 //!
 //! Needs `cargo build --release -p perception` (the binary) first.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::io::Read;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};

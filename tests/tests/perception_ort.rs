@@ -10,6 +10,9 @@
 //! Each case runs in its own process: a process loads one ONNX Runtime library for good.
 //! Needs `cargo build --release -p perception` (the binary) first.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

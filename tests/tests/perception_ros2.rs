@@ -16,6 +16,9 @@
 //! (`unshare -n`, `lo` up with MULTICAST on, which rustdds' discovery needs) made by
 //! `run_in_private_netns`. Needs `cargo build --release -p perception` first.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};

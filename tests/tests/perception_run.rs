@@ -5,6 +5,9 @@
 //!
 //! Needs `cargo build --release -p perception` (the binary) first.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;

@@ -12,6 +12,9 @@
 //! its summary (`connections`) shows. Needs `unshare`, `ip` and the binaries built
 //! (`scripts/cargo.sh build --release -p launcher -p rt-core -p xarm-sim --bins`).
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 

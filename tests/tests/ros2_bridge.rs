@@ -5,6 +5,9 @@
 //! Everything runs inside a private network namespace (`unshare -n`) with `lo` up and
 //! multicast enabled on it, so DDS discovery works and no packet leaves the namespace.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::net::{IpAddr, Ipv4Addr};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};

@@ -9,6 +9,9 @@
 //! the killed one is `assets/scenes/fast_world.toml` (long enough to kill mid-run). Needs
 //! the workspace's binaries built and `make setup` done.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::{Mutex, MutexGuard};

@@ -7,6 +7,9 @@
 //! straight-line reach (so it passes the lookahead in a free scene and fails it when a tall
 //! box stands in the way).
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::time::{Duration, Instant};
 
 use foresight_tests::rt_rig::{

@@ -4,6 +4,9 @@
 //! evaluates it; a corrupted blob is rejected and counted while the running policy stays.
 //! Detections travel the same way. (The two-process test is the runtime's.)
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use iceoryx2::prelude::*;
 use policy::{MlpPolicy, PolicyExpectation, PolicyLoader, PolicyRejectReason};
 use shm_schemas::services::{self, create_node};

@@ -12,6 +12,9 @@
 //! permission the tests say so and return (CI runs as root). Nothing leaves the machine:
 //! endpoints are the veth's private addresses and multicast scouting is off.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::Path;
 use std::process::Stdio;
 use std::sync::{Mutex, MutexGuard};

@@ -10,6 +10,9 @@
 //!
 //! Outcomes are asserted, not times. Needs the workspace's binaries built.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::{Mutex, MutexGuard};

@@ -4,6 +4,9 @@
 //! the cycle streams hold targets to the new controller again, and nothing in the cycle
 //! allocated. Needs the workspace's binaries built (`cargo build --release --workspace --bins`).
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;

@@ -9,6 +9,9 @@
 //! Needs: `python3` with `venv`, `unshare` and `ip`, and `xarm-sim` built
 //! (`scripts/cargo.sh build --release -p rt-core --bins`).
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Command, Stdio};

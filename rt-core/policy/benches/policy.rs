@@ -4,6 +4,9 @@
 //!
 //! `scripts/cargo.sh bench --release -p rt-core --bench policy`
 
+// Benchmarks: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};

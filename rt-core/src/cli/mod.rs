@@ -1,6 +1,10 @@
 //! Command-line parsing and dispatch of the `rt-core` binary. Each subcommand is one module
 //! that owns its arguments (`clap::Args`) and a `run` function returning an exit code.
 
+// The command line: set-up and tools around the runtime (the bench's wall time, the
+// driver tools' waits), never the cycle's own code.
+#![allow(clippy::disallowed_methods)]
+
 use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand};

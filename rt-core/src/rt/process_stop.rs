@@ -194,6 +194,8 @@ pub fn brake_before_abort(wait: Duration) -> bool {
     wait_for_cycles(wait)
 }
 
+// The panic path, off the cycle: waits in wall time for the cycle to brake.
+#[allow(clippy::disallowed_methods)]
 fn wait_for_cycles(wait: Duration) -> bool {
     if ON_CYCLE_THREAD.try_with(Cell::get).unwrap_or(false) {
         eprintln!("rt-core: panic on the cycle thread: no controlled stop is possible; aborting");
@@ -223,6 +225,8 @@ fn wait_for_cycles(wait: Duration) -> bool {
 const LOG_DRAIN_GRACE: Duration = Duration::from_millis(100);
 
 #[cfg(test)]
+// The tests wait in wall time (a helper thread ends after a sleep); they are not the cycle.
+#[allow(clippy::disallowed_methods)]
 mod tests {
     use super::*;
 

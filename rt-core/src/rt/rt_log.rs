@@ -87,6 +87,8 @@ impl<E: Copy + Send + std::fmt::Debug + 'static> RtLogDrain<E> {
 
     /// Spawns a thread draining into `tracing` every `period` until `stop` is set (a final
     /// drain follows).
+    // The drain is a non-real-time thread: it sleeps between drains.
+    #[allow(clippy::disallowed_methods)]
     pub fn spawn(
         mut self,
         period: Duration,

@@ -678,6 +678,8 @@ impl SweepTally {
 /// Runs the sweep on `settings.jobs` threads; `progress` is called (on the calling thread)
 /// after each episode with the tally so far. Episodes are independent: the figures do not
 /// depend on the number of threads.
+// Wall time of the sweep, for its summary only; never fed to the cycle or the worker.
+#[allow(clippy::disallowed_methods)]
 pub fn run_sweep(
     assets: &SweepAssets,
     settings: &SweepSettings,

@@ -2,6 +2,9 @@
 //! (written by the twin thread; the cycle only fills its report). Lines are whole; the file
 //! is flushed at least every 100 ms and at the end.
 
+// The log writer runs on the twin thread (not real-time): it flushes by wall time.
+#![allow(clippy::disallowed_methods)]
+
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};

@@ -128,7 +128,8 @@ impl FallbackPlanner<Scene> for TwinPathPlanner {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
+// The tests time the planner in wall time (figures printed, never fed to a cycle).
+#[allow(clippy::unwrap_used, clippy::disallowed_methods)]
 mod tests {
     use std::path::PathBuf;
 

@@ -11,6 +11,9 @@
 //! [`SHUTDOWN_TIMEOUT`] and returns the error, if any (the binary then exits non-zero).
 //! SIGUSR1 is the operator's acknowledgement of a protective stop.
 
+// Set-up and supervision of the process (not the cycle): watchdog, time limit, shutdown wait.
+#![allow(clippy::disallowed_methods)]
+
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};

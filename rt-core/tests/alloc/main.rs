@@ -4,7 +4,10 @@
 //! moving on `xarm-sim`. One test binary, so the allocator
 //! is global only here; measurements are serialised, since the counter is process-wide.
 
-#![allow(missing_docs, clippy::unwrap_used)]
+#![allow(missing_docs, clippy::unwrap_used, clippy::expect_used)]
+// The tests drive the runtime from threads of their own and wait in wall time; the bans of
+// rt-core/clippy.toml (Instant::now, thread::sleep, Mutex) are for the runtime's own code.
+#![allow(clippy::disallowed_methods, clippy::disallowed_types)]
 
 #[path = "../common/rig.rs"]
 mod common;

@@ -5,6 +5,9 @@
 //! Run: `scripts/cargo.sh bench -p rt-core --bench twin`. Targets on the 2-core dev
 //! machine: IK ≤ 10 µs, distance ≤ 5 µs, step ≤ 20 µs, episode ≤ 4 ms.
 
+// Benchmarks: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::hint::black_box;
 use std::path::PathBuf;
 

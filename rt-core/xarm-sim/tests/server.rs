@@ -1,6 +1,9 @@
 //! The `xarm-sim` binary: starts on ephemeral ports, applies a `--swap-scene-at` schedule,
 //! takes scene changes over its control port, and prints a JSON summary on SIGINT.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::io::{BufRead, BufReader, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};

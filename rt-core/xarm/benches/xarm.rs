@@ -2,6 +2,9 @@
 //! driver's per-call cost while streaming at 250 Hz against `xarm-sim` (printed as
 //! percentiles, since criterion reports means).
 
+// Benchmarks: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::hint::black_box;
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};

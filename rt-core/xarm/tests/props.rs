@@ -1,6 +1,9 @@
 //! Property tests of the xArm codec: every decoder of controller (or client) bytes returns
 //! a value or a typed error on any input, never panics; encode → decode round-trips.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use proptest::prelude::*;
 use xarm::codec::{
     self, JointTarget, MAX_FRAME_LEN, Request, Response, SERVOJ_FRAME_LEN, VersionInfo,

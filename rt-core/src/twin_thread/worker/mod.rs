@@ -551,6 +551,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// The planner fallback: its path from `start`, smoothed and checked like a policy's
     /// plan (the shield on every sample, the smoothed path reaching the goal) and sent;
     /// true when a plan was sent (or the arm is at the goal already).
+    // The planner's own compute time for its verdict (the twin thread is not real-time).
+    #[allow(clippy::disallowed_methods)]
     fn try_planner(
         &mut self,
         start: &MotionState,
@@ -609,6 +611,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
 
     /// One policy of the library: its lookahead, then (when it passes) its smoothed,
     /// shield-checked plan, sent to the cycle.
+    // The lookahead's own compute time for its verdict (the twin thread is not real-time).
+    #[allow(clippy::disallowed_methods)]
     fn try_policy(
         &mut self,
         candidate: Candidate,

@@ -3,6 +3,9 @@
 //! lives with the one counting allocator in rt-core's `alloc` tests; the `rt-core twin`
 //! CLI's tests with the binary.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 mod common;
 mod determinism;
 mod feasibility;

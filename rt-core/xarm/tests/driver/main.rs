@@ -2,6 +2,9 @@
 //! session, 250 Hz streaming with no dropped command, report rate, client-side limits,
 //! collision, reconnection, zero allocation on the cycle path, and bad controller bytes.
 
+// Integration tests: a failed unwrap or expect is a failed run, with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 
