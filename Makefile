@@ -91,11 +91,11 @@ bench-link: setup
 	$(CARGO) bench -p foresight-tests --bench link_latency
 
 # The adversarial sweep's long run (issue 14): the real twin worker and cycle through
-# randomised, adversarial scenes; exits non-zero on any unsafe command. `rt-core sweep` is
-# built with the `testing` feature only (it is not part of the production binary).
+# randomised, adversarial scenes; exits non-zero on any unsafe command. The `sweep` binary
+# is a crate of its own (rt-core/sweep), not part of the production rt-core binary.
 SWEEP_ARGS ?= --episodes 10000 --seed 1 --out runs/sweep
 sweep: setup
-	$(CARGO) run --release -p rt-core --features testing -- sweep $(or $(ARGS),$(SWEEP_ARGS))
+	$(CARGO) run --release -p sweep -- $(or $(ARGS),$(SWEEP_ARGS))
 
 clean:
 	$(CARGO) clean

@@ -14,8 +14,6 @@ use shm_schemas::cli_bounds::int_within;
 mod ack;
 mod bench_loop;
 mod run;
-#[cfg(feature = "testing")]
-mod sweep;
 mod twin;
 mod xarm;
 
@@ -42,9 +40,6 @@ enum Command {
     /// xArm driver tools (`probe`).
     #[command(subcommand)]
     Xarm(xarm::XarmCommand),
-    /// The adversarial sweep of the twin worker and the cycle (feature `testing`).
-    #[cfg(feature = "testing")]
-    Sweep(sweep::SweepArgs),
 }
 
 /// Parses the command line and runs the chosen subcommand.
@@ -56,8 +51,6 @@ pub fn main() -> ExitCode {
         Command::Run(args) => run::run(args),
         Command::Xarm(cmd) => xarm::run(cmd),
         Command::Ack(args) => ack::run(args),
-        #[cfg(feature = "testing")]
-        Command::Sweep(args) => sweep::run(args),
     }
 }
 

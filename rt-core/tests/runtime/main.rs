@@ -27,6 +27,5 @@ mod policy_library;
 mod safety;
 mod settled_scene;
 mod shield_twin;
-mod sweep;
 mod twin_cli;
 mod xarm_paths;

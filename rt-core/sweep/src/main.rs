@@ -1,24 +1,28 @@
-//! `rt-core sweep`: the adversarial sweep of the production twin worker and cycle
-//! (`rt_core::testing::sweep`), checked by the independent oracle. Prints progress, a
-//! summary table, and writes `summary.json` (atomically: a temporary file renamed) into
-//! `--out`. Exit code 1 when any hard count is non-zero, 2 on an error.
+//! `sweep`: the adversarial sweep of the production twin worker and cycle (the `sweep`
+//! library), checked by the independent oracle. Prints progress, a summary table, and
+//! writes `summary.json` (atomically: a temporary file renamed) into `--out`. Exit code 1
+//! when any hard count is non-zero, 2 on an error.
 //!
-//! Built with the `testing` feature (the sweep uses test stand-ins, which the production
-//! binary leaves out): `cargo run --release -p rt-core --features testing -- sweep`.
+//! ```text
+//! cargo run --release -p sweep -- --episodes 10000 --seed 1 --out runs/sweep
+//! ```
+
+#![forbid(unsafe_code)]
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
-use clap::Args;
+use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
-use rt_core::testing::sweep::{SweepAssets, SweepSettings, SweepSummary, run_sweep};
 use shm_schemas::cli_bounds::{f64_within, int_within};
+use sweep::{SweepAssets, SweepSettings, SweepSummary, run_sweep};
 
-/// Arguments of `sweep`.
-#[derive(Debug, Args)]
-pub struct SweepArgs {
+/// The adversarial sweep of rt-core's twin worker and cycle, checked by an independent oracle.
+#[derive(Debug, Parser)]
+#[command(name = "sweep", version, about)]
+struct SweepArgs {
     /// Episodes to run.
     #[arg(long, default_value_t = 100, value_parser = int_within(1u64, 100_000_000), allow_negative_numbers = true)]
     episodes: u64,
@@ -42,9 +46,9 @@ pub struct SweepArgs {
     max_episode_s: f64,
 }
 
-/// Runs the sweep.
-pub fn run(args: SweepArgs) -> ExitCode {
-    match sweep(&args) {
+fn main() -> ExitCode {
+    let args = SweepArgs::parse();
+    match run(&args) {
         Ok(code) => code,
         Err(e) => {
             eprintln!("sweep: {e:#}");
@@ -53,7 +57,7 @@ pub fn run(args: SweepArgs) -> ExitCode {
     }
 }
 
-fn sweep(args: &SweepArgs) -> anyhow::Result<ExitCode> {
+fn run(args: &SweepArgs) -> anyhow::Result<ExitCode> {
     let assets = SweepAssets::load(&args.assets)
         .with_context(|| format!("loading assets from {}", args.assets.display()))?;
     let settings = SweepSettings {

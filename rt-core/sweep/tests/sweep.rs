@@ -1,15 +1,17 @@
-//! The adversarial sweep (`rt_core::testing::sweep`) on the production twin worker and
+//! The adversarial sweep (the `sweep` crate) on the production twin worker and
 //! cycle: a short run with every twist made likely, whose hard counts must be zero and whose
 //! adversarial paths must have been taken; and the oracle shown able to fail, against
 //! hand-computed distances.
 
+#![allow(missing_docs, clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::PathBuf;
 
-use rt_core::testing::oracle::{OracleBox, segment_box_distance_m};
-use rt_core::testing::sweep::{SweepAssets, SweepSettings, TwistRates, run_sweep};
+use sweep::oracle::{OracleBox, segment_box_distance_m};
+use sweep::{SweepAssets, SweepSettings, TwistRates, run_sweep};
 
 fn assets() -> SweepAssets {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets");
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets");
     SweepAssets::load(&dir).expect("assets")
 }
 

@@ -1,49 +1,7 @@
-//! The project's own adversarial sweep: the production twin worker
-//! ([`ProductionWorker`]: the real lookahead on the task of `assets/task.toml`, the real
-//! plan shield and smoother) and the production cycle ([`Cycle`] with
-//! [`serve::cycle_shield`], [`Brake`] and the in-process arm) stepped together in one
-//! thread on a [`ManualClock`], episode after episode, in randomised and hostile worlds.
-//! Every command the cycle sends through the link is checked by the independent
-//! [`super::oracle`] against the *ground truth* (the world the sweep made up, not the scene
-//! the runtime believes).
-//!
-//! # An episode
-//! A seeded world (a scene as the task samples it, a goal alone, or clutter; sometimes a goal
-//! near the base), a policy (the bundled blob, random weights, a goal-seeker that drives
-//! straight at the goal through anything, or random weights × 1e6 that saturate), and some
-//! adversarial twists, each drawn with its own probability ([`TwistRates`]):
-//! - a box injected `k` ∈ 0..=200 cycles ahead of the arm on its running plan: the episode
-//!   is first *rehearsed* without the box (everything is deterministic), the box is put
-//!   where the rehearsal's arm was `k` cycles after the injection time (at its TCP, wrist,
-//!   elbow or a point of a link axis), then the episode runs for real; 5 mm boxes among them;
-//! - detection frames with a zero, future, stale or pre-start stamp, a repeated sequence, an
-//!   object outside the calibrated workspace, more obstacles than a frame holds
-//!   (`dropped_count > 0`), a dropout (no frames), a goal below the confidence floor;
-//! - the link cut in the middle of a stop (a refused frame starts one), restored later,
-//!   with the operator's acknowledgement or the cycle's auto-resume;
-//! - a policy swapped in mid-episode.
-//!
-//! Frames go through the production intake ([`SceneIntake::accept`]) and then to the worker
-//! through the same hand-off as `TwinNode::receive` (`SceneIntake::deliver`).
-//!
-//! # What is counted
-//! Hard counts (must be zero): commanded poses that penetrate (nominal geometry, see the
-//! oracle) a box the runtime has known for at least one braking horizon, or the table;
-//! joint steps over one period at the velocity limit (+ [`STEP_TOLERANCE`]); TCP speeds over
-//! `max_tcp_speed_m_s`; commands outside the joint limits; non-finite commands.
-//!
-//! A box is *known* from the delivery of the first detection frame that carries it (accepted
-//! or refused: a refused frame stops the arm). The *braking horizon* ([`BrakingHorizon`]) is
-//! the time the cycle needs to stop from the velocity limit: the longer of the per-joint
-//! brake (simulated from every joint at its velocity limit) and the stop along the plan
-//! ([`PathStop::duration_s`]), plus one period for the cycle to act. A penetration of a box
-//! known for less than that (or not yet known) is an *unavoidable intrusion*: counted
-//! apart, with its depth. An arm caught inside a box that way may stay there (holds, sent
-//! without a scene or while the box keeps every move refused): a later pose inside a known
-//! box counts as hard only when it is *deeper* than the command before (by more than
-//! 1 µm) or newly inside; otherwise it is counted as held inside. The table counts always.
-//!
-//! [`STEP_TOLERANCE`]: crate::cycle::shield::STEP_TOLERANCE
+//! The sweep itself: the assets and settings of a run, one episode (world, policy, twists,
+//! the worker and the cycle stepped together, every command checked by the [`oracle`]),
+//! the tally and its summary, and [`run_sweep`] over worker threads. What an episode is and
+//! what it counts: the crate's documentation.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -59,22 +17,23 @@ use shm_schemas::{
 };
 use twin::{DOF, Joints, ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
 
-use crate::config::RuntimeConfig;
-use crate::cycle::brake::{Brake, MotionState, PathStop};
-use crate::cycle::link::{InProcessArm, LinkError, LinkState, RobotLink};
-use crate::cycle::twin_model::TwinModel;
-use crate::cycle::{self, Cycle, CycleConfig, CycleEvent, Mode, StopReason};
-use crate::rt::clock::{Clock, ManualClock};
-use crate::rt::rt_log::RtLogDrain;
-use crate::testing::oracle::{
+use rt_core::config::RuntimeConfig;
+use rt_core::cycle::brake::{Brake, MotionState, PathStop};
+use rt_core::cycle::link::{InProcessArm, LinkError, LinkState, RobotLink};
+use rt_core::cycle::twin_model::TwinModel;
+use rt_core::cycle::{self, Cycle, CycleConfig, CycleEvent, Mode, StopReason};
+use rt_core::rt::clock::{Clock, ManualClock};
+use rt_core::rt::rt_log::RtLogDrain;
+use rt_core::twin_thread::TwinEvent;
+use rt_core::twin_thread::intake::{FrameRefusal, SceneIntake};
+use rt_core::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
+use rt_core::twin_thread::node::ProductionWorker;
+use rt_core::twin_thread::serve;
+
+use crate::oracle::{
     CommandLimits, DistanceOracle, OracleBox, OracleBuildError, Point, TWIN_PADDING_M,
     segment_box_distance_m,
 };
-use crate::twin_thread::TwinEvent;
-use crate::twin_thread::intake::{FrameRefusal, SceneIntake};
-use crate::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
-use crate::twin_thread::node::ProductionWorker;
-use crate::twin_thread::serve;
 
 /// `CLOCK_MONOTONIC` at the cycle clock's origin in the sweep, ns (any value well above the
 /// largest stamp offset works).
@@ -88,7 +47,7 @@ pub const MAX_INJECT_AHEAD_CYCLES: u64 = 200;
 pub enum SweepAssetsError {
     /// `runtime.toml`.
     #[error("runtime.toml: {0}")]
-    Config(#[from] crate::config::RuntimeConfigError),
+    Config(#[from] rt_core::config::RuntimeConfigError),
     /// `xarm5.urdf`.
     #[error("xarm5.urdf: {0}")]
     Model(#[from] twin::UrdfLoadError),
@@ -246,7 +205,7 @@ impl PolicyKind {
 /// Probabilities of each twist per episode, and the policy mix.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct TwistRates {
-    /// Weights of [`PolicyKind::ALL`] (bundled, random, goal-seeking, huge).
+    /// Weights of `PolicyKind::ALL` (bundled, random, goal-seeking, huge).
     pub policy_weights: [f64; 4],
     /// A box injected ahead of the arm.
     pub inject: f64,

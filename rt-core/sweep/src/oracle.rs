@@ -1,4 +1,4 @@
-//! An independent check of every command the sweep sees sent ([`super::sweep`]): its own
+//! An independent check of every command the sweep sees sent ([`crate::run_sweep`]): its own
 //! signed distances in `f64` — segment to axis-aligned box, segment to the table plane —
 //! between the arm's *nominal* collision capsules and the *ground-truth* boxes, and the
 //! motion limits (joint range, joint step per period, TCP speed, finiteness).
@@ -16,7 +16,7 @@
 //! its midpoint.
 //!
 //! ```
-//! use rt_core::testing::oracle::{OracleBox, segment_box_distance_m};
+//! use sweep::oracle::{OracleBox, segment_box_distance_m};
 //! let unit = OracleBox::new([0.0; 3], [1.0; 3]);
 //! // A vertical segment ending 0.25 m above the top face.
 //! let d = segment_box_distance_m(&[0.0, 0.0, 0.75], &[0.0, 0.0, 2.0], &unit);
@@ -26,7 +26,7 @@
 use nalgebra::Point3;
 use twin::{DOF, Joints, LinkCapsule, RobotModel};
 
-use crate::cycle::shield::STEP_TOLERANCE;
+use rt_core::cycle::shield::STEP_TOLERANCE;
 
 /// A point in the base frame, m.
 pub type Point = [f64; 3];
@@ -90,7 +90,7 @@ fn norm(v: &Point) -> f64 {
 
 /// The smallest signed distance between the segment `a`–`b` and the box, m: positive is
 /// the gap, negative the depth of the deepest segment point inside the box. Exact to
-/// ~1e-15 m within [`FAR_M`] of the box; beyond it a lower bound that is still beyond it.
+/// ~1e-15 m within `FAR_M` of the box; beyond it a lower bound that is still beyond it.
 pub fn segment_box_distance_m(a: &Point, b: &Point, bx: &OracleBox) -> f64 {
     let half_len = norm(&[b[0] - a[0], b[1] - a[1], b[2] - a[2]]) / 2.0;
     let mid = lerp(a, b, 0.5);
