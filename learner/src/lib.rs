@@ -35,6 +35,7 @@ pub mod adam;
 pub mod chart;
 pub mod checkpoint;
 pub mod demonstrations;
+pub mod distil;
 pub mod env;
 pub mod export;
 pub mod metrics;

@@ -194,6 +194,22 @@ fn table() -> Vec<Cmd> {
             ]),
         },
         Cmd {
+            bin: "learner",
+            args: &["distil", "--out", "out"],
+            flags: &[
+                ("--worlds", I),
+                ("--harder-share", F),
+                ("--iterations", I),
+                ("--bc-steps", I),
+                ("--bc-lr", F),
+                ("--noise-std", F),
+                ("--margin-m", F),
+                ("--eval-episodes", I),
+                ("--seed", I),
+                ("--threads", I),
+            ],
+        },
+        Cmd {
             bin: "perception",
             args: &["run", "--source", "ros2"],
             flags: &[
