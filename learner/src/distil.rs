@@ -32,6 +32,8 @@ use twin::{
 };
 
 use crate::demonstrations::{PathExpert, demonstrate};
+use crate::env::SceneSampler;
+use crate::twin_env::{CurriculumSampler, TwinTask};
 use crate::net::ActorCritic;
 use crate::normalize::ObsNormalizer;
 use crate::ppo::bc::{BcConfig, BcReport, BcSet, behaviour_clone};
@@ -130,6 +132,43 @@ pub fn harder_world_envs(env: &TwinEnv) -> Option<[TwinEnv; 2]> {
         w.footprint_m = [w.footprint_m[0], w.footprint_m[1].max(0.14)];
     });
     Some([crowded, tall])
+}
+
+/// The distillation's world distribution: the task's pre-training sampler, and with
+/// probability `harder_share` one of the [`harder_world_envs`] (each half of that share).
+/// Also what `learner pretrain --harder-share` fine-tunes on.
+#[derive(Debug, Clone)]
+pub struct DistilWorlds {
+    base: CurriculumSampler,
+    harder: Option<[TwinEnv; 2]>,
+    harder_share: f64,
+}
+
+impl DistilWorlds {
+    /// The mix for `task` (the task's sampler alone when it has no `[world]` or the share
+    /// is 0).
+    pub fn new(task: &TwinTask, harder_share: f64) -> Self {
+        Self {
+            base: CurriculumSampler::pretraining(task),
+            harder: harder_world_envs(&task.env),
+            harder_share: harder_share.clamp(0.0, 1.0),
+        }
+    }
+}
+
+impl SceneSampler<Scene> for DistilWorlds {
+    fn sample(&self, rng: &mut ChaCha8Rng) -> Scene {
+        match &self.harder {
+            Some([crowded, tall]) if rng.random::<f64>() < self.harder_share => {
+                if rng.random::<bool>() {
+                    crowded.sample_world(rng)
+                } else {
+                    tall.sample_world(rng)
+                }
+            }
+            _ => self.base.sample(rng),
+        }
+    }
 }
 
 /// `scene` with every box grown by `margin_m` on each side and on top (its bottom stays on
@@ -516,7 +555,6 @@ mod tests {
 
     use super::*;
     use crate::checkpoint::Checkpoint;
-    use crate::twin_env::TwinTask;
     use shm_schemas::scene_file::SceneFile;
 
     fn assets() -> PathBuf {

@@ -156,6 +156,7 @@ fn table() -> Vec<Cmd> {
                     ("--eval-episodes", I),
                     ("--time-budget-s", F),
                     ("--lr-final", F),
+                    ("--harder-share", F),
                 ],
                 &PPO,
             ]),

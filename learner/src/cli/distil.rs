@@ -11,11 +11,11 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use learner::checkpoint::{self, Checkpoint};
-use learner::distil::{DistilConfig, DistilIter, LessonCounts, distil, harder_world_envs, lessons};
+use learner::distil::{DistilConfig, DistilIter, DistilWorlds, LessonCounts, distil, lessons};
 use learner::ppo::{EvalResult, Trainer};
 use learner::run::better;
 use learner::twin_env::{CurriculumSampler, TwinTask, fixed_scenes};
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use twin::{FeasibilityConfig, Scene};
@@ -138,19 +138,8 @@ pub fn run(args: DistilArgs, device: tch::Device) -> Result<()> {
     let before = trainer.evaluate(&eval_scenes);
 
     let mut rng = ChaCha8Rng::seed_from_u64(WORLD_SEED_BASE ^ args.seed);
-    let harder = harder_world_envs(&env.env);
-    let worlds: Vec<Scene> = (0..args.worlds)
-        .map(|_| match &harder {
-            Some([crowded, tall]) if rng.random::<f64>() < args.harder_share => {
-                if rng.random::<bool>() {
-                    crowded.sample_world(&mut rng)
-                } else {
-                    tall.sample_world(&mut rng)
-                }
-            }
-            _ => sampler.sample(&mut rng),
-        })
-        .collect();
+    let mix = DistilWorlds::new(&env, args.harder_share);
+    let worlds: Vec<Scene> = (0..args.worlds).map(|_| mix.sample(&mut rng)).collect();
     let spinner = ProgressBar::new_spinner().with_message(format!(
         "finding a teacher for each of {} worlds",
         worlds.len()
