@@ -5,6 +5,8 @@
 //! (deterministic), and a table listing each generator with the policy and straight-line
 //! columns.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
