@@ -126,7 +126,10 @@ fn zero_shot_by_generator(checkpoint: &str, worlds: usize, seed: u64) -> Vec<(St
         .arg(&out)
         .status()
         .expect("learner runs");
-    assert!(status.success(), "learner worlds --checkpoint {checkpoint} failed: {status}");
+    assert!(
+        status.success(),
+        "learner worlds --checkpoint {checkpoint} failed: {status}"
+    );
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("worlds.json")).expect("worlds.json"))
             .expect("JSON");
