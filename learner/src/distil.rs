@@ -33,11 +33,11 @@ use twin::{
 
 use crate::demonstrations::{PathExpert, demonstrate};
 use crate::env::SceneSampler;
-use crate::twin_env::{CurriculumSampler, TwinTask};
 use crate::net::ActorCritic;
 use crate::normalize::ObsNormalizer;
 use crate::ppo::bc::{BcConfig, BcReport, BcSet, behaviour_clone};
 use crate::random::randn;
+use crate::twin_env::{CurriculumSampler, TwinTask};
 
 /// Planner paths tried per world before it is skipped ([`demonstrate`]).
 const PATH_TRIES: usize = 6;
@@ -184,18 +184,27 @@ pub fn inflated(scene: &Scene, margin_m: f64) -> Scene {
     s
 }
 
+/// Why a world gets no teacher.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Untaught {
+    /// The feasibility check found no safe way.
+    Infeasible,
+    /// No via-point route and no planner path that re-tracks cleanly.
+    NoCleanPath,
+}
+
 /// The teacher of `scene`, planned with the boxes grown by `margin_m` (so that a student a
 /// little off the teacher's way is still clear), or without the margin when the grown world
-/// has no teacher. `Err(true)`: infeasible; `Err(false)`: no clean path.
+/// has no teacher; whether the margin was kept.
 fn lesson(
     env: &TwinEnv,
     scene: &Scene,
     cfg: FeasibilityConfig,
     obs_dim: usize,
     margin_m: f64,
-) -> Result<(Lesson, bool), bool> {
+) -> Result<(Lesson, bool), Untaught> {
     let grown = inflated(scene, margin_m);
-    let mut last = Err(true);
+    let mut last = Err(Untaught::Infeasible);
     for (plan_in, with_margin) in [(&grown, true), (scene, false)] {
         if !with_margin && margin_m == 0.0 {
             break;
@@ -210,15 +219,14 @@ fn lesson(
                     with_margin,
                 ));
             }
-            Err(infeasible) => last = Err(infeasible),
+            Err(why) => last = Err(why),
         }
     }
     last
 }
 
 /// The straight line if it is clean in `scene`, else the shortest clean route through one
-/// via point, else a planner path that re-tracks cleanly (`Err(true)`: the feasibility check
-/// found no safe way; `Err(false)`: no teacher). The via-point routes come before the
+/// via point, else a planner path that re-tracks cleanly. The via-point routes come before the
 /// planner's paths because they label alike worlds alike (the randomised planner's paths
 /// go around either side), which the student can imitate (adversarial worlds 85 % instead
 /// of 75 % zero-shot, README).
@@ -227,7 +235,7 @@ fn teacher(
     scene: &Scene,
     cfg: FeasibilityConfig,
     obs_dim: usize,
-) -> Result<Teacher, bool> {
+) -> Result<Teacher, Untaught> {
     let mut tw = env.clone();
     let line = tw.straight_line_policy();
     let straight = rollout(&mut tw, scene, |o| line.act(o), None);
@@ -243,10 +251,10 @@ fn teacher(
     let start = env.config().start.joints_rad;
     let verdict = check_feasibility(env, scene, &start, cfg);
     if !verdict.is_feasible() {
-        return Err(true);
+        return Err(Untaught::Infeasible);
     }
     let out = demonstrate(env, scene, verdict.path(), cfg, PATH_TRIES, obs_dim);
-    let demo = out.demonstration.ok_or(false)?;
+    let demo = out.demonstration.ok_or(Untaught::NoCleanPath)?;
     Ok(Teacher::Path(PathExpert::new(env, &demo.path, goal_m)))
 }
 
@@ -316,7 +324,7 @@ pub fn lessons(
     let obs_dim = env.config().obs_dim();
     let threads = threads.max(1);
     let chunk = scenes.len().div_ceil(threads).max(1);
-    let results: Vec<Vec<Result<(Lesson, bool), bool>>> = std::thread::scope(|s| {
+    let results: Vec<Vec<Result<(Lesson, bool), Untaught>>> = std::thread::scope(|s| {
         let handles: Vec<_> = scenes
             .chunks(chunk)
             .map(|part| {
@@ -348,8 +356,8 @@ pub fn lessons(
                 }
                 out.push(l);
             }
-            Err(true) => counts.infeasible += 1,
-            Err(false) => counts.no_clean_path += 1,
+            Err(Untaught::Infeasible) => counts.infeasible += 1,
+            Err(Untaught::NoCleanPath) => counts.no_clean_path += 1,
         }
     }
     (out, counts)
