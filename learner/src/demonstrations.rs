@@ -118,6 +118,32 @@ impl PathExpert {
         }
     }
 
+    /// The expert along the polyline through `points_m` (TCP points, m), densified at
+    /// `step_m`, with the goal target `goal_m` after its last point.
+    pub fn through_points(
+        points_m: &[[f64; 3]],
+        goal_m: [f64; 3],
+        scale_m: f64,
+        step_m: f64,
+    ) -> Self {
+        let mut dense = Vec::new();
+        for w in points_m.windows(2) {
+            let n = (dist_m(&w[0], &w[1]) / step_m.max(1e-4)).ceil().max(1.0) as usize;
+            dense.extend((0..n).map(|k| {
+                let f = k as f64 / n as f64;
+                std::array::from_fn(|c| w[0][c] + f * (w[1][c] - w[0][c]))
+            }));
+        }
+        dense.extend(points_m.last().copied());
+        Self {
+            points_m: dense,
+            goal_m,
+            scale_m,
+            lookahead_m: LOOKAHEAD_STEPS * scale_m,
+            i: 0,
+        }
+    }
+
     /// Back to the path's start.
     pub fn restart(&mut self) {
         self.i = 0;

@@ -19,7 +19,8 @@
 //! - [`export`]: checkpoint → `PolicyBlob` and the blob file format;
 //! - [`service`]: the iceoryx2 retraining service behind `learner serve`;
 //!   [`demonstrations`]: the feasibility planner's path re-tracked into the task's actions
-//!   (what a retraining imitates first, [`ppo::bc`]).
+//!   (what a retraining imitates first, [`ppo::bc`]); [`distil`]: the planner distilled
+//!   into the generalist by DAgger over a broad world mix (`learner distil`).
 //!
 //! The `learner` binary (`main.rs`, one module per subcommand under `cli/`) is a thin layer
 //! over these modules.
@@ -35,6 +36,7 @@ pub mod adam;
 pub mod chart;
 pub mod checkpoint;
 pub mod demonstrations;
+pub mod distil;
 pub mod env;
 pub mod export;
 pub mod metrics;

@@ -37,6 +37,10 @@ enum Cmd {
     /// (with --retrain) retraining on random worlds of the task's [world]; table and
     /// worlds.json / worlds.md in --out.
     Worlds(cli::worlds::WorldsArgs),
+    /// Distil the feasibility planner (and the straight line where it suffices) into a
+    /// checkpoint's policy: DAgger over worlds of the task's [world]; best.ckpt, last.ckpt
+    /// and distil.json in --out (then `pretrain --resume` for PPO).
+    Distil(cli::distil::DistilArgs),
 }
 
 fn main() -> Result<()> {
@@ -57,6 +61,7 @@ fn main() -> Result<()> {
         Cmd::Serve(a) => cli::serve::run(a, device),
         Cmd::Retrain(a) => cli::retrain::run(a, device),
         Cmd::Worlds(a) => cli::worlds::run(a, device),
+        Cmd::Distil(a) => cli::distil::run(a, device),
     }
 }
 

@@ -1,6 +1,8 @@
 //! Integration tests of the learner library: checkpoints (round trip, atomicity, exact
 //! resume) and a training run on the toy task through the run driver.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::PathBuf;
 
 use learner::checkpoint::{self, Checkpoint};

@@ -9,12 +9,14 @@
 //! - [`export`]: a checkpoint's policy as a `PolicyBlob` file;
 //! - [`serve`]: the retraining service over iceoryx2 (also owns the retraining flags);
 //! - [`retrain`]: one retraining offline, as `serve` does for one request;
-//! - [`worlds`]: the offline unseen-worlds benchmark.
+//! - [`worlds`]: the offline unseen-worlds benchmark;
+//! - [`distil`]: the planner distilled into a policy (DAgger).
 //!
 //! Shared here: the PPO flags of `pretrain` and `bench` ([`PpoArgs`]), the seed of the fixed
 //! evaluation scenes and scene-file loading.
 
 pub mod bench;
+pub mod distil;
 pub mod eval;
 pub mod export;
 pub mod pretrain;

@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use learner::checkpoint::{self, Checkpoint};
+use learner::distil::DistilWorlds;
 use learner::ppo::Trainer;
 use learner::run::{RunOptions, train};
 use learner::twin_env::{CurriculumSampler, TwinTask, fixed_scenes};
@@ -43,6 +44,11 @@ pub struct PretrainArgs {
     /// Anneal the learning rate linearly from `--lr` (or the default) to this by `--steps`.
     #[arg(long, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
     lr_final: Option<f64>,
+    /// Share of the episodes drawn from the harder variants of `[world]` (crowded, tall:
+    /// `learner::distil::DistilWorlds`); 0 = the task's `[world]` alone. Used to fine-tune a
+    /// `learner distil` result with PPO on the distribution it was distilled on.
+    #[arg(long, default_value_t = 0.0, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
+    harder_share: f64,
     #[command(flatten)]
     ppo: PpoArgs,
 }
@@ -60,8 +66,13 @@ pub fn run(args: PretrainArgs, device: tch::Device) -> Result<()> {
     {
         bail!("--lr-final must be in (0, 1] (got {lr})");
     }
-    let sampler = CurriculumSampler::pretraining(&env);
-    let eval_scenes = fixed_scenes(&sampler, args.eval_episodes, EVAL_SEED);
+    // The evaluation (and so best.ckpt) stays on the task's own distribution.
+    let eval_scenes = fixed_scenes(
+        &CurriculumSampler::pretraining(&env),
+        args.eval_episodes,
+        EVAL_SEED,
+    );
+    let sampler = DistilWorlds::new(&env, args.harder_share);
     let mut trainer = Trainer::new(args.ppo.config(), env, args.seed, device)?;
     if args.resume {
         trainer = resumed(&args, hash, device)?;

@@ -1,6 +1,8 @@
 //! The generators: deterministic, within their documented ranges, every world proven
 //! feasible and its path re-tracked, and no code shared with (or used by) training.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::path::{Path, PathBuf};
 
 use twin::{FeasibilityConfig, RobotModel, Scene, TaskConfig, TwinEnv};
