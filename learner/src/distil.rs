@@ -17,8 +17,9 @@
 //! all of it ([`crate::ppo::bc::behaviour_clone`]). The policy thus learns the corrections
 //! from the states its own mistakes lead to, not only the teacher's states.
 //!
-//! Measured on generators that share no code with this one (`worldgen`, `learner worlds
-//! --generator all`); figures in the README ("Independent world generators").
+//! Measured on generators that share no code with this one (the benchmark's, under
+//! `tests/`: `learner worlds --generator all`); figures in the README ("Independent world
+//! generators").
 //!
 //! Training code: it allocates and is not for the real-time cycle.
 
@@ -108,8 +109,8 @@ pub struct LessonCounts {
 /// footprints up to 0.14 m. In both, boxes placed "anywhere" may also stand beside and
 /// just in front of the base (x from 0, |y| up to 0.55 m), where a tall box meets the
 /// arm's links rather than its TCP. Both keep the task's placements (on the path, beside
-/// the goal, walls, anywhere); nothing here comes from the benchmark's generators
-/// (`worldgen`).
+/// the goal, walls, anywhere); nothing here comes from the benchmark's generators under
+/// `tests/`.
 /// `None` when the task has no `[world]`.
 pub fn harder_world_envs(env: &TwinEnv) -> Option<[TwinEnv; 2]> {
     let world = env.config().world?;

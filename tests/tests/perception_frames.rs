@@ -250,7 +250,7 @@ fn bad_confidence_floors_are_refused_at_start_naming_the_field() {
     // Refused by the flag's own bound (issue 25 item 13), which names the flag.
     assert!(!ok && err.contains("--min-goal-confidence"), "{err}");
     let (ok, err) = run(&["--min-obstacle-confidence", "0.9"]);
-    assert!(!ok && err.contains("min_obstacle_confidence"), "{err}");
+    assert!(!ok && err.contains("--min-obstacle-confidence"), "{err}");
     let cfg = dir.join("selection.toml");
     std::fs::write(&cfg, "min_obstacle_confidence = -0.5\n").unwrap();
     let (ok, err) = run(&["--selection-config", cfg.to_str().unwrap()]);
