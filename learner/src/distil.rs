@@ -160,7 +160,11 @@ impl DistilWorlds {
 impl SceneSampler<Scene> for DistilWorlds {
     fn sample(&self, rng: &mut ChaCha8Rng) -> Scene {
         match &self.harder {
-            Some([crowded, tall]) if rng.random::<f64>() < self.harder_share => {
+            // No draw at all without a harder share, so that `learner pretrain` without
+            // `--harder-share` sees the very scenes it saw before the mix existed.
+            Some([crowded, tall])
+                if self.harder_share > 0.0 && rng.random::<f64>() < self.harder_share =>
+            {
                 if rng.random::<bool>() {
                     crowded.sample_world(rng)
                 } else {
@@ -338,7 +342,7 @@ pub fn lessons(
             .collect();
         handles
             .into_iter()
-            .map(|h| h.join().unwrap_or_default())
+            .map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
             .collect()
     });
     let mut counts = LessonCounts {
@@ -447,9 +451,9 @@ pub fn dagger_pairs(
         let mut alive: Vec<usize> = (0..group.len()).collect();
         let mut x = Vec::with_capacity(group.len() * d);
         let mut means = vec![0.0f32; group.len() * ACT_DIM];
+        let mut row = vec![0.0f32; d];
         while !alive.is_empty() {
             x.clear();
-            let mut row = vec![0.0f32; d];
             for &i in &alive {
                 norm.apply(&obs[i][..d], &mut row);
                 x.extend_from_slice(&row);
@@ -594,6 +598,33 @@ mod tests {
             }
         }
         (false, env.config().episode.max_steps as usize)
+    }
+
+    #[test]
+    fn without_a_harder_share_the_mix_is_the_tasks_own_sampler_draw_for_draw() {
+        let t = task();
+        let own = CurriculumSampler::pretraining(&t);
+        let mix = DistilWorlds::new(&t, 0.0);
+        let (mut a, mut b) = (ChaCha8Rng::seed_from_u64(9), ChaCha8Rng::seed_from_u64(9));
+        for _ in 0..20 {
+            let (x, y) = (own.sample(&mut a), mix.sample(&mut b));
+            assert_eq!(x.goal, y.goal);
+            assert_eq!(x.obstacles.len(), y.obstacles.len());
+            for (p, q) in x.obstacles.iter().zip(y.obstacles.iter()) {
+                assert_eq!((p.center_m, p.size_m), (q.center_m, q.size_m));
+            }
+        }
+        // With the share, some worlds come from the harder variants (3 boxes or taller).
+        let harder = DistilWorlds::new(&t, 1.0);
+        let mut c = ChaCha8Rng::seed_from_u64(9);
+        let tall = (0..20)
+            .map(|_| harder.sample(&mut c))
+            .filter(|w| w.obstacles.iter().any(|o| o.height_m() >= 0.15))
+            .count();
+        assert!(
+            tall >= 15,
+            "{tall} of 20 harder worlds have a box of 0.15 m or more"
+        );
     }
 
     #[test]
