@@ -123,6 +123,7 @@ fn random_scene(cam: &SyntheticCamera, rng: &mut ChaCha8Rng) -> SceneFile {
                 scene.obstacles.push(BoxSpec {
                     center_m: [p[0], p[1], table + size[2] / 2.0],
                     size_m: size,
+                    path: Default::default(),
                 });
             }
         }

@@ -7,7 +7,8 @@ use std::str::FromStr;
 use std::time::Instant;
 
 use opencv::prelude::*;
-use shm_schemas::scene_file::{SceneFile, WorldScript};
+use shm_schemas::scene_file::live::seconds_since;
+use shm_schemas::scene_file::{LiveScene, WorldScript};
 
 use crate::frame::{Frame, FrameError, read_colour, read_depth};
 use crate::synthetic::{ScriptedCamera, SyntheticCamera};
@@ -111,6 +112,10 @@ pub struct SyntheticSource {
     /// A single scene file watched for changes: path and last seen modification time. The
     /// launcher drives the world this way (it replaces the file atomically).
     live: Option<(PathBuf, Option<std::time::SystemTime>)>,
+    /// When the live scene came into force (`CLOCK_MONOTONIC`, ns): the file's
+    /// `in_force_since_monotonic_ns`, else when it was loaded. Its moving boxes are drawn at
+    /// each frame's capture time counted from here, as the simulated arm places them.
+    live_since_ns: u64,
     /// Bumped on every reload of the live scene file.
     generation: u64,
 }
@@ -127,12 +132,14 @@ impl SyntheticSource {
     pub fn open(camera: &Path, world: &Path) -> Result<Self, SourceError> {
         let cam = SyntheticCamera::load(camera).map_err(|e| SourceError::Open(e.to_string()))?;
         let mut live = None;
+        let mut live_since_ns = 0;
         let script = match WorldScript::load(world) {
             Ok(s) => s,
-            Err(script_err) => match SceneFile::load(world) {
+            Err(script_err) => match LiveScene::load(world) {
                 Ok(scene) => {
                     live = Some((world.to_path_buf(), modified(world)));
-                    WorldScript::single(scene)
+                    live_since_ns = scene.in_force_since_or(monotonic_now_ns());
+                    WorldScript::single(scene.scene)
                 }
                 Err(_) => return Err(SourceError::Open(script_err.to_string())),
             },
@@ -148,6 +155,7 @@ impl SyntheticSource {
             last_step: 0,
             cache: None,
             live,
+            live_since_ns,
             generation: 0,
         })
     }
@@ -164,10 +172,11 @@ impl SyntheticSource {
             return;
         }
         *seen = now;
-        match SceneFile::load(path) {
-            Ok(scene) => {
-                tracing::info!(scene = %scene.name, "scene file changed; rendering the new scene");
-                self.scripted.script = WorldScript::single(scene);
+        match LiveScene::load(path) {
+            Ok(live) => {
+                tracing::info!(scene = %live.scene.name, "scene file changed; rendering the new scene");
+                self.live_since_ns = live.in_force_since_or(monotonic_now_ns());
+                self.scripted.script = WorldScript::single(live.scene);
                 self.generation += 1;
             }
             Err(e) => {
@@ -199,7 +208,14 @@ impl FrameSource for SyntheticSource {
         let capture = monotonic_now_ns();
         let (step, scene) = self.scripted.script.scene_at(t_s);
         let key = (self.generation, step);
-        if self.cache.as_ref().is_none_or(|(k, _)| *k != key) {
+        if scene.is_moving() {
+            // Boxes on the move: every frame as the world stands at its capture time.
+            let scene_t_s = match (&self.live, self.fixed_step_s) {
+                (Some(_), None) => seconds_since(self.live_since_ns, capture),
+                _ => t_s - self.scripted.script.steps.get(step).map_or(0.0, |s| s.0),
+            };
+            self.cache = Some((key, self.scripted.camera.render_at(scene, scene_t_s)));
+        } else if self.cache.as_ref().is_none_or(|(k, _)| *k != key) {
             self.cache = Some((key, self.scripted.camera.render(scene)));
         }
         self.last_step = step;
@@ -367,6 +383,51 @@ impl FrameSource for FileSource {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use shm_schemas::scene_file::SceneFile;
+
+    /// The label the last frame's render gives the top face's centre of a 0.10 m box at `c`.
+    fn label_at_top(src: &SyntheticSource, c: [f64; 3]) -> u8 {
+        let cam = &src.scripted.camera;
+        let (px, _) = cam.model.project([c[0], c[1], c[2] + 0.05]).unwrap();
+        let (u, v) = (px[0].round() as usize, px[1].round() as usize);
+        let f = &src.cache.as_ref().unwrap().1;
+        f.label[v * f.width_px + u]
+    }
+
+    #[test]
+    fn a_live_moving_box_is_drawn_at_the_capture_time_from_the_files_time_origin() {
+        use crate::synthetic::{LABEL_OBSTACLE0, LABEL_TABLE};
+        let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
+        let dir = std::env::temp_dir().join(format!("foresight-moving-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let live = dir.join("live.toml");
+        let scene = SceneFile::from_toml_str(
+            "[goal]\ncenter_m = [0.40, 0.20, 0.025]\nsize_m = 0.05\n[[obstacle]]\n\
+             center_m = [0.35, -0.2, 0.05]\nsize_m = [0.06, 0.06, 0.10]\n\
+             path = [ { at_s = 30.0, center_m = [0.35, -0.2, 0.05] }, \
+                      { at_s = 31.0, center_m = [0.35, 0.0, 0.05] } ]\n",
+            Path::new("<inline>"),
+        )
+        .unwrap();
+        let (start, end) = ([0.35, -0.2, 0.05], [0.35, 0.0, 0.05]);
+        let camera = assets.join("perception/synthetic_camera.toml");
+        // No time origin in the file: time counts from the load, the box has not set off.
+        std::fs::write(&live, scene.to_toml_string()).unwrap();
+        let mut src = SyntheticSource::open(&camera, &live).unwrap();
+        src.next_frame().unwrap().unwrap();
+        assert_eq!(label_at_top(&src, start), LABEL_OBSTACLE0);
+        assert_eq!(label_at_top(&src, end), LABEL_TABLE);
+        // In force since 100 s ago: every frame shows it at the end of its path.
+        let since = monotonic_now_ns().saturating_sub(100_000_000_000);
+        std::fs::write(&live, LiveScene::new(scene, since).to_toml_string()).unwrap();
+        let mut src = SyntheticSource::open(&camera, &live).unwrap();
+        for _ in 0..2 {
+            src.next_frame().unwrap().unwrap();
+            assert_eq!(label_at_top(&src, end), LABEL_OBSTACLE0);
+            assert_eq!(label_at_top(&src, start), LABEL_TABLE);
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     #[test]
     fn a_live_scene_file_is_reloaded_when_it_changes() {

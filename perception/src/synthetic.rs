@@ -3,6 +3,13 @@
 //! and pose, plus a per-pixel label image as exact ground truth. It follows a world script
 //! (a timeline of scenes) for the demo.
 //!
+//! Boxes with paths move: [`SyntheticCamera::render_at`] draws every box where its path puts
+//! it `t_s` seconds after the scene came into force. The live source
+//! ([`crate::source::SyntheticSource`]) renders each frame at its capture time on
+//! `CLOCK_MONOTONIC`, counted from the live scene file's `in_force_since_monotonic_ns` (the
+//! origin the simulated arm uses too: [`shm_schemas::scene_file::live`]); a world script
+//! counts from its step's `at_s`.
+//!
 //! The renderer casts one ray per pixel centre against the table plane and the axis-aligned
 //! boxes, so depth is exact to floating-point precision; faces get flat Lambertian-like
 //! shading so the image looks three-dimensional while each object keeps its hue.
@@ -255,8 +262,9 @@ impl SyntheticCamera {
         Some(out)
     }
 
-    /// The goal cube and the obstacle boxes of `scene` as labelled, coloured solids.
-    fn solids(&self, scene: &SceneFile) -> Vec<Solid> {
+    /// The goal cube and the obstacle boxes of `scene` as labelled, coloured solids, every
+    /// box where its path puts it `t_s` seconds after the scene came into force.
+    fn solids(&self, scene: &SceneFile, t_s: f64) -> Vec<Solid> {
         let pal = self.config.palette;
         let mut solids = Vec::with_capacity(1 + scene.obstacles.len());
         let g = &scene.goal;
@@ -268,11 +276,12 @@ impl SyntheticCamera {
             bgr: pal.goal_bgr,
         });
         for (i, b) in scene.obstacles.iter().enumerate() {
+            let center_m = b.center_at(t_s);
             let mut min = [0.0; 3];
             let mut max = [0.0; 3];
             for a in 0..3 {
-                min[a] = b.center_m[a] - b.size_m[a] / 2.0;
-                max[a] = b.center_m[a] + b.size_m[a] / 2.0;
+                min[a] = center_m[a] - b.size_m[a] / 2.0;
+                max[a] = center_m[a] + b.size_m[a] / 2.0;
             }
             solids.push(Solid {
                 min,
@@ -301,11 +310,18 @@ impl SyntheticCamera {
         }
     }
 
-    /// Renders `scene`.
+    /// Renders `scene` as it stands when it comes into force (a moving box at the start of
+    /// its path: [`SyntheticCamera::render_at`] at 0 s).
     pub fn render(&self, scene: &SceneFile) -> RenderedFrame {
+        self.render_at(scene, 0.0)
+    }
+
+    /// Renders `scene` as it stands `t_s` seconds after it came into force: every box where
+    /// its path puts it ([`shm_schemas::scene_file::BoxSpec::center_at`]).
+    pub fn render_at(&self, scene: &SceneFile, t_s: f64) -> RenderedFrame {
         let k = self.config.intrinsics;
         let (w, h) = (k.width_px as usize, k.height_px as usize);
-        let solids = self.solids(scene);
+        let solids = self.solids(scene, t_s);
         let table = self.table_top(scene);
         let background = self.config.palette.background_bgr;
 
@@ -464,11 +480,13 @@ pub struct ScriptedCamera {
 }
 
 impl ScriptedCamera {
-    /// Renders the scene in force `t_s` seconds after the script's start; returns the
-    /// step index too, so callers can report scene changes.
+    /// Renders the scene in force `t_s` seconds after the script's start, its boxes where
+    /// their paths put them (time counted from the step's `at_s`); returns the step index
+    /// too, so callers can report scene changes.
     pub fn render_at(&self, t_s: f64) -> (usize, &SceneFile, RenderedFrame) {
         let (idx, scene) = self.script.scene_at(t_s);
-        (idx, scene, self.camera.render(scene))
+        let since_s = self.script.steps.get(idx).map_or(0.0, |(at_s, _)| *at_s);
+        (idx, scene, self.camera.render_at(scene, t_s - since_s))
     }
 }
 
@@ -544,6 +562,53 @@ mod tests {
         tall.obstacles[0].size_m[2] = 0.3;
         tall.obstacles[0].center_m[2] = 0.15;
         assert!(cam.render(&tall).count(LABEL_OBSTACLE0) > f.count(LABEL_OBSTACLE0) * 2);
+    }
+
+    /// The label of the pixel that sees the top face's centre of a box centred at `c`
+    /// (0.10 m tall, on the table).
+    fn label_at_top(cam: &SyntheticCamera, f: &RenderedFrame, c: [f64; 3]) -> u8 {
+        let (px, _) = cam.model.project([c[0], c[1], c[2] + 0.05]).unwrap();
+        let (u, v) = (px[0].round() as usize, px[1].round() as usize);
+        f.label[v * f.width_px + u]
+    }
+
+    #[test]
+    fn a_moving_box_is_drawn_where_its_path_puts_it() {
+        let cam = camera();
+        let s = SceneFile::from_toml_str(
+            "[goal]\ncenter_m = [0.40, 0.20, 0.025]\nsize_m = 0.05\n[[obstacle]]\n\
+             center_m = [0.35, -0.2, 0.05]\nsize_m = [0.06, 0.06, 0.10]\n\
+             path = [ { at_s = 1.0, center_m = [0.35, -0.2, 0.05] }, \
+                      { at_s = 2.0, center_m = [0.35, 0.0, 0.05] } ]\n",
+            Path::new("<inline>"),
+        )
+        .unwrap();
+        let (start, end) = ([0.35, -0.2, 0.05], [0.35, 0.0, 0.05]);
+        // Before its path starts (and in a plain render) it stands at the first keyframe.
+        for f in [cam.render(&s), cam.render_at(&s, 0.5)] {
+            assert_eq!(label_at_top(&cam, &f, start), LABEL_OBSTACLE0);
+            assert_eq!(label_at_top(&cam, &f, end), LABEL_TABLE);
+        }
+        // Half way, and after the last keyframe.
+        let mid = cam.render_at(&s, 1.5);
+        assert_eq!(
+            label_at_top(&cam, &mid, [0.35, -0.1, 0.05]),
+            LABEL_OBSTACLE0
+        );
+        assert_eq!(label_at_top(&cam, &mid, start), LABEL_TABLE);
+        let late = cam.render_at(&s, 9.0);
+        assert_eq!(label_at_top(&cam, &late, end), LABEL_OBSTACLE0);
+        assert_eq!(label_at_top(&cam, &late, start), LABEL_TABLE);
+        // A world script counts from the step's at_s.
+        let scripted = ScriptedCamera {
+            camera: cam.clone(),
+            script: shm_schemas::scene_file::WorldScript {
+                steps: vec![(0.0, scene()), (10.0, s)],
+            },
+        };
+        let (step, _, f) = scripted.render_at(11.5);
+        assert_eq!(step, 1);
+        assert_eq!(label_at_top(&cam, &f, [0.35, -0.1, 0.05]), LABEL_OBSTACLE0);
     }
 
     #[test]

@@ -116,6 +116,7 @@ impl RetrainRequest {
                 .map(|o| BoxSpec {
                     center_m: o.center_m,
                     size_m: o.size_m,
+                    path: Default::default(),
                 })
                 .collect(),
         }

@@ -88,6 +88,7 @@ pub fn random_scene(cam: &SyntheticCamera, rng: &mut ChaCha8Rng) -> SceneFile {
             scene.obstacles.push(BoxSpec {
                 center_m: [p[0], p[1], size[2] / 2.0],
                 size_m: size,
+                path: Default::default(),
             });
         }
         let fp = footprints(&scene);

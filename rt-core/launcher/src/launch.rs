@@ -12,7 +12,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use rand::SeedableRng;
-use shm_schemas::scene_file::{SceneFile, WorldScript};
+use shm_schemas::clock::monotonic_now_ns;
+use shm_schemas::scene_file::{LiveScene, SceneFile, WorldScript};
 use twin::{ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
 
 use crate::args::{LaunchArgs, WorldsChoice};
@@ -131,16 +132,24 @@ fn event_line(args: &LaunchArgs, e: &TimelineEvent) -> String {
     }
 }
 
-/// One run's folder, world files and service prefix.
+/// One run's folder, live scene file and service prefix.
 struct RunSetup {
     run: RunDir,
     prefix: String,
     live: PathBuf,
-    scene_paths: Vec<PathBuf>,
+}
+
+/// Puts `scene` in force now: writes it to the live scene file with the moment it comes
+/// into force (`in_force_since_monotonic_ns`, `CLOCK_MONOTONIC`), the origin of its moving
+/// boxes' paths for every process that reads the file (the synthetic camera, the simulated
+/// arm): [`shm_schemas::scene_file::live`].
+fn write_live_scene(live: &Path, scene: &SceneFile) -> std::io::Result<()> {
+    let text = LiveScene::new(scene.clone(), monotonic_now_ns()).to_toml_string();
+    write_atomic(live, text.as_bytes())
 }
 
 /// Creates the run folder and saves the world: every scene, and the one in force in
-/// `world/live.toml`.
+/// `world/live.toml` (in force from now).
 fn set_up_run(args: &LaunchArgs, world: &[(f64, SceneFile)]) -> Result<RunSetup> {
     let run = RunDir::create(&args.out).context("creating the run folder")?;
     let prefix = format!(
@@ -155,20 +164,13 @@ fn set_up_run(args: &LaunchArgs, world: &[(f64, SceneFile)]) -> Result<RunSetup>
         "foresight: run folder {}, service prefix {prefix}",
         run.path.display()
     );
-    let mut scene_paths = Vec::new();
     for (i, (_, scene)) in world.iter().enumerate() {
         let p = run.file(&format!("world/scene_{i}.toml"))?;
         write_atomic(&p, scene.to_toml_string().as_bytes())?;
-        scene_paths.push(p);
     }
     let live = run.file("world/live.toml")?;
-    write_atomic(&live, world[0].1.to_toml_string().as_bytes())?;
-    Ok(RunSetup {
-        run,
-        prefix,
-        live,
-        scene_paths,
-    })
+    write_live_scene(&live, &world[0].1)?;
+    Ok(RunSetup { run, prefix, live })
 }
 
 /// Subscribes to the run's services (they appear as the processes come up).
@@ -385,16 +387,14 @@ impl Watch<'_> {
     }
 
     /// Carries out the director's action: a scene change reaches the camera's world and
-    /// the simulated arm's ground truth.
+    /// the simulated arm's ground truth, both from the same live file (so both count its
+    /// moving boxes' time from the same moment).
     fn apply(&mut self, action: Action) -> Result<()> {
         match action {
             Action::SwitchScene(k) => {
-                write_atomic(
-                    &self.setup.live,
-                    self.world[k].1.to_toml_string().as_bytes(),
-                )?;
+                write_live_scene(&self.setup.live, &self.world[k].1)?;
                 if let Some(sim) = self.started.sim {
-                    let line = format!("scene {}", self.setup.scene_paths[k].display());
+                    let line = format!("scene {}", self.setup.live.display());
                     let reply = sim_control(sim.control, &line)?;
                     if reply != "ok" {
                         bail!("xarm-sim refused the scene change: {reply}");
@@ -736,5 +736,27 @@ mod tests {
             notes.contains("not signed by the learner host's key"),
             "{notes}"
         );
+    }
+
+    #[test]
+    fn the_live_scene_file_says_when_its_scene_came_into_force() {
+        let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/scenes");
+        let scene = SceneFile::load(&scenes.join("crossing_box.toml")).unwrap();
+        let dir = std::env::temp_dir().join(format!("foresight-live-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let live = dir.join("live.toml");
+        let before = monotonic_now_ns();
+        write_live_scene(&live, &scene).unwrap();
+        let after = monotonic_now_ns();
+        let read = LiveScene::load(&live).unwrap();
+        assert_eq!(read.scene, scene, "the scene, paths included");
+        let since = read.in_force_since_monotonic_ns.unwrap();
+        assert!(
+            since >= before && since <= after,
+            "{before} ≤ {since} ≤ {after}"
+        );
+        // Every plain scene reader still takes the file.
+        assert_eq!(SceneFile::load(&live).unwrap(), scene);
+        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -202,8 +202,13 @@ impl RemoteLearner {
 #[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
 #[serde(default)]
 pub struct RefereeFigures {
-    /// Contacts the referee called (each raised the controller's collision error).
+    /// Contacts the referee called (each raised the controller's collision error):
+    /// `contacts_while_moving + contacts_at_rest`.
     pub contacts: u64,
+    /// Contacts that began while the arm was moving: the controller's failure.
+    pub contacts_while_moving: u64,
+    /// Contacts that began with the arm at rest: a moving box walked into it.
+    pub contacts_at_rest: u64,
     /// Motion steps it judged.
     pub steps: u64,
     /// The smallest clearance it saw (m); ≤ 0 is contact.
@@ -672,6 +677,7 @@ mod tests {
             obstacles: vec![BoxSpec {
                 center_m: [0.35, 0.0, h / 2.0],
                 size_m: [0.06, 0.06, h],
+                path: Default::default(),
             }],
         }
     }
@@ -792,6 +798,10 @@ mod tests {
             serde_json::from_str(&summary_json(&summary, Some(&r))).unwrap();
         assert_eq!(json["referee"]["min_link"], "link4");
         assert_eq!(json["referee"]["min_clearance_m"], 0.0234);
+        // Contacts while moving and at rest reach summary.json apart (0 when a simulator
+        // too old to tell them apart does not say).
+        assert_eq!(json["referee"]["contacts_while_moving"], 0);
+        assert_eq!(json["referee"]["contacts_at_rest"], 0);
         assert_eq!(
             json["goal_reached"], true,
             "the summary's own fields stay flat"
@@ -800,6 +810,20 @@ mod tests {
         assert_eq!(back, summary);
         let plain: serde_json::Value = serde_json::from_str(&summary_json(&summary, None)).unwrap();
         assert!(plain.get("referee").is_none());
+        let split = RefereeFigures::from_sim_status(&serde_json::json!({"referee": {
+            "contacts": 3, "contacts_while_moving": 1, "contacts_at_rest": 2
+        }}))
+        .unwrap();
+        let json: serde_json::Value =
+            serde_json::from_str(&summary_json(&summary, Some(&split))).unwrap();
+        assert_eq!(
+            (
+                &json["referee"]["contacts"],
+                &json["referee"]["contacts_while_moving"],
+                &json["referee"]["contacts_at_rest"]
+            ),
+            (&3.into(), &1.into(), &2.into())
+        );
 
         let dir = std::env::temp_dir().join(format!("foresight-referee-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();

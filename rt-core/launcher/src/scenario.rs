@@ -652,6 +652,7 @@ mod tests {
             obstacles: vec![BoxSpec {
                 center_m: [0.35, 0.0, h / 2.0],
                 size_m: [0.06, 0.06, h],
+                path: Default::default(),
             }],
         }
     }

@@ -495,6 +495,7 @@ mod tests {
             obstacles: vec![shm_schemas::scene_file::BoxSpec {
                 center_m: b.center_m,
                 size_m: b.size_m,
+                path: Default::default(),
             }],
         };
         file.validate().unwrap();

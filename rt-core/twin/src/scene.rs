@@ -203,6 +203,7 @@ impl Scene {
                 .map(|b| BoxSpec {
                     center_m: b.center_m,
                     size_m: b.size_m,
+                    path: Default::default(),
                 })
                 .collect(),
         }

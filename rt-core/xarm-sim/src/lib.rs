@@ -3,7 +3,11 @@
 //! limits and 180°/s, and checks the arm against a ground-truth scene with an independent
 //! referee (its own kinematics, link shapes and distance code, not the twin's: a contact
 //! with a box, the table or itself raises error 31 and stops the arm, like the real
-//! controller; the smallest clearance of the run goes into the summary). In
+//! controller; the smallest clearance of the run goes into the summary). Boxes with paths
+//! move: every physics tick places them where their paths put them, time counted from the
+//! moment their scene came into force ([`world`]); a box that walks into the arm at rest
+//! raises error 31 too (a real xArm's collision detection trips when a stopped arm is
+//! pushed), and the summary counts contacts while moving and at rest apart. In
 //! servo mode it raises the controller's protective faults: a `servo_j` target that would
 //! move a joint or the TCP too fast in one servo period is refused with error 24 (joint
 //! speed) or 60 (linear speed) and stops the arm ([`controller::ProtectiveLimits`]).

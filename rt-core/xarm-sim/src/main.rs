@@ -25,7 +25,7 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use clap::Parser;
 use shm_schemas::cli_bounds::{f64_within, int_within};
-use shm_schemas::scene_file::{SceneFile, WorldScript};
+use shm_schemas::scene_file::{LiveScene, SceneFile, WorldScript};
 use xarm_sim::server::default_urdf;
 use xarm_sim::world::World;
 use xarm_sim::{ProtectiveLimits, SimOptions, SimPorts, SimServer};
@@ -58,7 +58,8 @@ struct Args {
     /// Control port (line-based: `scene <path>`, `status`, `shutdown`).
     #[arg(long, allow_negative_numbers = true)]
     control_port: Option<u16>,
-    /// Ground-truth scene at start.
+    /// Ground-truth scene at start (a live scene file's `in_force_since_monotonic_ns` is the
+    /// origin of its boxes' paths; without it, the simulator's start).
     #[arg(long)]
     scene: Option<PathBuf>,
     /// World script (timeline of scenes); combined with `--scene` and `--swap-scene-at`.
@@ -123,15 +124,17 @@ fn options(a: &Args) -> Result<SimOptions> {
     set(&mut ports.report_real, a.report_real_port);
     set(&mut ports.control, a.control_port);
     let mut scenes: Vec<(f64, SceneFile)> = Vec::new();
+    let mut first_scene_in_force_since_ns = None;
     if let Some(w) = &a.world {
         let script =
             WorldScript::load(w).with_context(|| format!("world script {}", w.display()))?;
         scenes.extend(script.steps);
     }
     if let Some(s) = &a.scene {
-        let scene = SceneFile::load(s).with_context(|| format!("scene {}", s.display()))?;
+        let live = LiveScene::load(s).with_context(|| format!("scene {}", s.display()))?;
         scenes.retain(|(at, _)| *at > 0.0);
-        scenes.push((0.0, scene));
+        scenes.push((0.0, live.scene));
+        first_scene_in_force_since_ns = live.in_force_since_monotonic_ns;
     }
     for pair in a.swap_scene_at.chunks(2) {
         let [t, path] = pair else {
@@ -172,6 +175,7 @@ fn options(a: &Args) -> Result<SimOptions> {
         ports,
         urdf,
         scenes,
+        first_scene_in_force_since_ns,
         contact_margin_m: a.contact_margin_m,
         q0_rad,
         protective,

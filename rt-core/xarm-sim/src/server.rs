@@ -1,9 +1,12 @@
 //! The simulator's sockets and threads: the command port (request/response), the four report
 //! ports (streamed at their real rates), a physics thread (250 Hz integration, ground-truth
-//! contact check, scheduled scene swaps) and a line-based control port.
+//! contact check with every moving box placed at the tick's time, scheduled scene swaps) and
+//! a line-based control port.
 //!
 //! Control port protocol (one command per line, one reply line each):
-//! `scene <path>` swaps the scene now (`ok` / `error: …`), `status` prints the summary JSON,
+//! `scene <path>` swaps the scene now (`ok` / `error: …`; a live scene file's
+//! `in_force_since_monotonic_ns` is the origin of its boxes' paths, else the moment the file
+//! was read: [`shm_schemas::scene_file::live`]), `status` prints the summary JSON,
 //! `error <code>` raises a controller error now (e.g. `error 31`, a collision; `ok` /
 //! `error: …`), `state <s>` sends `SET_STATE(s)` as another client would (the pendant's
 //! stop is `state 4`), `freeze on|off` freezes the arm (targets accepted, joints still: a
@@ -17,7 +20,8 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use shm_schemas::scene_file::SceneFile;
+use shm_schemas::clock::monotonic_now_ns;
+use shm_schemas::scene_file::{LiveScene, SceneFile};
 
 use super::controller::{
     Controller, ControllerCounters, ProtectiveFault, ProtectiveLimits, ProtectiveLimitsError,
@@ -94,8 +98,12 @@ pub struct SimOptions {
     pub ports: SimPorts,
     /// Robot model for FK and contact.
     pub urdf: PathBuf,
-    /// Scene timeline: `(at_s, scene)` from the start, ascending. Empty: no obstacles.
+    /// Scene timeline: `(at_s, scene)` from the start, ascending. Empty: no obstacles. A
+    /// scene's boxes count time on their paths from its `at_s`.
     pub scenes: Vec<(f64, SceneFile)>,
+    /// When the scene at 0 s came into force (`CLOCK_MONOTONIC`, ns: a live scene file's
+    /// `in_force_since_monotonic_ns`); `None`: when the simulator starts.
+    pub first_scene_in_force_since_ns: Option<u64>,
     /// Contact margin (m); 0 is touching.
     pub contact_margin_m: f64,
     /// Initial joints (rad).
@@ -111,6 +119,7 @@ impl Default for SimOptions {
             ports: SimPorts::with_offset(0),
             urdf: default_urdf(),
             scenes: Vec::new(),
+            first_scene_in_force_since_ns: None,
             contact_margin_m: 0.0,
             q0_rad: [0.0; 5],
             protective: ProtectiveLimits::default(),
@@ -204,13 +213,16 @@ pub struct SimSummary {
 struct Shared {
     controller: Mutex<Controller>,
     world: Mutex<World>,
-    pending_scene: Mutex<Option<SceneFile>>,
+    /// A scene to swap in at the next tick, with when it came into force (ns).
+    pending_scene: Mutex<Option<(SceneFile, u64)>>,
     shutdown: AtomicBool,
     shutdown_requested: AtomicBool,
     reports_sent: [AtomicU64; 4],
     scene_swaps: AtomicU64,
     connections: AtomicU64,
     start: Instant,
+    /// `start` on `CLOCK_MONOTONIC` (ns): the origin of the scene timeline.
+    start_ns: u64,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -264,12 +276,16 @@ impl SimServer {
     pub fn start(opts: SimOptions) -> Result<Self, SimError> {
         opts.protective.validate()?;
         let mut world = World::load(&opts.urdf, opts.contact_margin_m)?;
+        let (start, start_ns) = (Instant::now(), monotonic_now_ns());
         let mut schedule = opts.scenes.clone();
         schedule.sort_by(|a, b| a.0.total_cmp(&b.0));
         if let Some((at, first)) = schedule.first()
             && *at <= 0.0
         {
-            world.set_scene(first)?;
+            world.set_scene_since(
+                first,
+                opts.first_scene_in_force_since_ns.unwrap_or(start_ns),
+            )?;
             schedule.remove(0);
         }
         let mut controller = Controller::new(opts.q0_rad);
@@ -285,7 +301,8 @@ impl SimServer {
             reports_sent: Default::default(),
             scene_swaps: AtomicU64::new(0),
             connections: AtomicU64::new(0),
-            start: Instant::now(),
+            start,
+            start_ns,
         });
         let ip = opts.bind;
         let (cmd_l, command) = bind(ip, opts.ports.command)?;
@@ -349,9 +366,16 @@ impl SimServer {
         self.shared.shutdown_requested.load(Ordering::Relaxed)
     }
 
-    /// Queues a scene swap (applied by the physics thread within one tick).
+    /// Queues a scene swap (applied by the physics thread within one tick), in force from
+    /// now.
     pub fn set_scene(&self, scene: SceneFile) {
-        *lock(&self.shared.pending_scene) = Some(scene);
+        self.set_scene_since(scene, monotonic_now_ns());
+    }
+
+    /// Queues a scene swap (applied by the physics thread within one tick), in force since
+    /// `in_force_since_ns` (`CLOCK_MONOTONIC`): the origin of its boxes' paths.
+    pub fn set_scene_since(&self, scene: SceneFile, in_force_since_ns: u64) {
+        *lock(&self.shared.pending_scene) = Some((scene, in_force_since_ns));
     }
 
     /// Raises a controller error now, as the arm does (e.g. [`ControllerError::Collision`]):
@@ -421,8 +445,8 @@ fn summary(s: &Shared) -> SimSummary {
     }
 }
 
-fn apply_scene(s: &Shared, scene: &SceneFile) {
-    match lock(&s.world).set_scene(scene) {
+fn apply_scene(s: &Shared, scene: &SceneFile, in_force_since_ns: u64) {
+    match lock(&s.world).set_scene_since(scene, in_force_since_ns) {
         Ok(()) => {
             s.scene_swaps.fetch_add(1, Ordering::Relaxed);
             tracing::info!(scene = %scene.name, "scene swapped");
@@ -437,23 +461,34 @@ fn physics_loop(s: &Shared, mut schedule: Vec<(f64, SceneFile)>) {
     while !s.shutdown.load(Ordering::Relaxed) {
         let now_s = s.now_s();
         while schedule.first().is_some_and(|(at, _)| *at <= now_s) {
-            let (_, scene) = schedule.remove(0);
-            apply_scene(s, &scene);
+            let (at_s, scene) = schedule.remove(0);
+            // In force since its scheduled time, however late this tick applies it.
+            let since_ns = s.start_ns.saturating_add((at_s.max(0.0) * 1e9) as u64);
+            apply_scene(s, &scene, since_ns);
         }
-        if let Some(scene) = lock(&s.pending_scene).take() {
-            apply_scene(s, &scene);
+        let pending = lock(&s.pending_scene).take();
+        if let Some((scene, since_ns)) = pending {
+            apply_scene(s, &scene, since_ns);
         }
         let q = {
             let mut c = lock(&s.controller);
             c.step(now_s);
             c.q_rad()
         };
-        let check = lock(&s.world).check(&q);
+        let check = lock(&s.world).check_at(&q, monotonic_now_ns());
         {
             let mut c = lock(&s.controller);
             c.set_tcp_pose(check.tcp_pose);
             if check.new_contact {
-                tracing::warn!(?q, clearance = ?check.clearance, "collision (referee)");
+                // Raised whether the arm moved into the box or a box walked into the arm at
+                // rest, as a real xArm's collision detection trips when a stopped arm is
+                // pushed; the referee's summary tells the two apart.
+                tracing::warn!(
+                    ?q,
+                    clearance = ?check.clearance,
+                    arm_moving = check.arm_moving,
+                    "collision (referee)"
+                );
                 c.raise_error(ControllerError::Collision);
             }
         }
@@ -641,9 +676,10 @@ fn serve_control(s: &Shared, stream: TcpStream) {
 fn control_command(s: &Shared, cmd: &str) -> String {
     let (verb, arg) = cmd.split_once(' ').unwrap_or((cmd, ""));
     match verb {
-        "scene" => match SceneFile::load(Path::new(arg.trim())) {
-            Ok(scene) => {
-                *lock(&s.pending_scene) = Some(scene);
+        "scene" => match LiveScene::load(Path::new(arg.trim())) {
+            Ok(live) => {
+                let since_ns = live.in_force_since_or(monotonic_now_ns());
+                *lock(&s.pending_scene) = Some((live.scene, since_ns));
                 "ok".into()
             }
             Err(e) => format!("error: {e}"),

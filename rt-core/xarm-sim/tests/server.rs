@@ -463,6 +463,7 @@ fn scene_file(boxes: &[([f64; 3], [f64; 3])]) -> shm_schemas::scene_file::SceneF
             .map(|(center_m, size_m)| BoxSpec {
                 center_m: *center_m,
                 size_m: *size_m,
+                path: Default::default(),
             })
             .collect(),
     }
@@ -499,6 +500,11 @@ fn a_box_only_the_referee_sees_raises_error_31_and_the_summary_names_it() {
     assert_eq!((s.collisions, s.error_code), (1, 31), "{s:?}");
     let r = &s.referee;
     assert_eq!(r.contacts, 1, "{r:?}");
+    assert_eq!(
+        (r.contacts_at_rest, r.contacts_while_moving),
+        (1, 0),
+        "the arm never moved: {r:?}"
+    );
     assert!(r.steps > 0 && r.evaluations >= 2 * r.steps, "{r:?}");
     assert_eq!(
         (r.min_link.as_deref(), r.min_other.as_deref()),
@@ -546,6 +552,11 @@ fn folding_the_elbow_into_the_shoulder_is_a_collision_and_the_arm_stops() {
     assert_eq!((s.collisions, s.error_code, s.state), (1, 31, 4), "{s:?}");
     let r = &s.referee;
     assert_eq!(r.contacts, 1, "{r:?}");
+    assert_eq!(
+        (r.contacts_while_moving, r.contacts_at_rest),
+        (1, 0),
+        "the arm ran into itself: {r:?}"
+    );
     assert!(r.min_clearance_m.is_some_and(|m| m <= 0.0), "{r:?}");
     let other = r.min_other.as_deref().unwrap_or("");
     assert!(other.starts_with("link"), "a self-collision: {r:?}");
@@ -553,4 +564,71 @@ fn folding_the_elbow_into_the_shoulder_is_a_collision_and_the_arm_stops() {
     let at = c.joints();
     assert!(f64::from(at[2]) < 0.19, "{at:?}");
     sim.shutdown();
+}
+
+/// A live scene file: a 6 cm box beside the flange of the task's start posture that waits
+/// until `wait_s` after the scene came into force, then slides into the arm within 1 s.
+fn write_sliding_box(path: &Path, in_force_since_ns: Option<u64>, wait_s: f64) {
+    use shm_schemas::scene_file::{BoxPath, BoxSpec, Keyframe, LiveScene};
+    let mut scene = scene_file(&[]);
+    scene.name = "sliding".into();
+    let at = |at_s, y| Keyframe {
+        at_s,
+        center_m: [0.30, y, 0.20],
+    };
+    scene.obstacles.push(BoxSpec {
+        path: BoxPath::new(&[at(wait_s, 0.40), at(wait_s + 1.0, 0.0)]).unwrap(),
+        ..BoxSpec::fixed([0.30, 0.40, 0.20], [0.06, 0.06, 0.40])
+    });
+    let live = LiveScene {
+        scene,
+        in_force_since_monotonic_ns: in_force_since_ns,
+    };
+    std::fs::write(path, live.to_toml_string()).unwrap();
+}
+
+#[test]
+fn a_moving_box_follows_its_path_from_the_live_files_time_origin_and_hits_the_arm_at_rest() {
+    let start_q = [0.0, -0.383, -0.371, 0.855, 0.0];
+    let sim = SimServer::start(SimOptions {
+        ports: SimPorts::ephemeral(),
+        urdf: asset("xarm5.urdf"),
+        q0_rad: start_q,
+        ..SimOptions::default()
+    })
+    .expect("sim starts");
+    let ctl = sim.ports().control;
+    let dir = std::env::temp_dir().join(format!("xarm-sim-moving-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let live = dir.join("live.toml");
+    // Without a time origin the path starts when the file is read: the box waits 30 s.
+    write_sliding_box(&live, None, 30.0);
+    assert_eq!(control(ctl, &format!("scene {}", live.display())), "ok");
+    std::thread::sleep(Duration::from_millis(300));
+    let s = sim.summary();
+    assert_eq!((s.scene.as_str(), s.collisions), ("sliding", 0), "{s:?}");
+    // The same box, in force since 40 s ago: it already stands in the arm.
+    let now = shm_schemas::clock::monotonic_now_ns();
+    write_sliding_box(&live, Some(now.saturating_sub(40_000_000_000)), 30.0);
+    assert_eq!(control(ctl, &format!("scene {}", live.display())), "ok");
+    let s = summary_when(&sim, |s| s.collisions > 0);
+    assert_eq!((s.collisions, s.error_code), (1, 31), "{s:?}");
+    let r = &s.referee;
+    assert_eq!(
+        (r.contacts, r.contacts_at_rest, r.contacts_while_moving),
+        (1, 1, 0),
+        "a box walked into the arm at rest: {r:?}"
+    );
+    assert_eq!(r.min_other.as_deref(), Some("obstacle 0"), "{r:?}");
+    let v = serde_json::to_value(&s).expect("json");
+    assert_eq!(v["referee"]["contacts_at_rest"], 1);
+    assert_eq!(v["referee"]["contacts_while_moving"], 0);
+    assert!(
+        v["referee"]["clearance_m"]
+            .as_f64()
+            .is_some_and(|m| m <= 0.0),
+        "{v}"
+    );
+    sim.shutdown();
+    std::fs::remove_dir_all(&dir).ok();
 }

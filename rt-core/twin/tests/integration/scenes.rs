@@ -146,6 +146,7 @@ fn a_scene_holds_max_obstacles_boxes_and_refuses_one_more() {
         .map(|k| BoxSpec {
             center_m: [0.2 + 0.02 * k as f64, -0.3, 0.03],
             size_m: [0.01, 0.04, 0.06],
+            path: Default::default(),
         })
         .collect();
     let full = Scene::from_file(&file).unwrap();

@@ -182,6 +182,7 @@ fn collision_with_the_ground_truth_scene_raises_error_31_and_stops() {
         obstacles: vec![BoxSpec {
             center_m: [tcp.x, tcp.y, tcp.z],
             size_m: [size, size, size],
+            path: Default::default(),
         }],
     };
     let s = sim(vec![(0.0, scene)]);
