@@ -1,8 +1,10 @@
 //! The perception pipeline: frame → detector → confidence floors → tracker → published
 //! `DetectionFrame`, and the loop `perception run` drives ([`run`]). A bad frame is logged
 //! and skipped; the loop keeps serving the next ones. Each frame carries the tracker's
-//! settled state (`FRAME_SETTLED`, see [`crate::tracker`]); the moment a scene settles is
-//! logged.
+//! settled state (`FRAME_SETTLED`, see [`crate::tracker`]: never while an object moves), and
+//! each object the tracker's velocity estimate of its centre with its 1-sigma uncertainty
+//! (`velocity_m_s`, `velocity_sigma_m_s`; zero with 2 m/s for an object just confirmed); the
+//! moment a scene settles is logged.
 //!
 //! The detector is off the capture path: a capture thread takes frames from the source at
 //! the frame rate and hands them to the detector through a one-frame hand-off
@@ -789,6 +791,67 @@ mod tests {
                 unpaired_depth: 0,
             }
         );
+    }
+
+    /// Issue 33 item 3: the published objects carry the tracker's velocity over iceoryx2: a
+    /// box moving at 0.5 m/s arrives unknown (zero, 2 m/s sigma) on its first confirmed
+    /// frames, then with its velocity and a small sigma, in frames never settled; once it
+    /// stops, with zero velocity in settled frames. Every frame validates.
+    #[test]
+    fn published_objects_carry_the_tracked_velocity_and_a_moving_box_never_settles() {
+        use crate::detection::ObjectKind;
+        use shm_schemas::detection::UNKNOWN_VELOCITY_SIGMA_M_S;
+        let prefix = format!("percvelocity{}", std::process::id());
+        let (node, _) =
+            shm_schemas::services::create_node::<ipc::Service>("pipeline-velocity").unwrap();
+        let sub =
+            shm_schemas::services::open_subscriber::<DetectionFrame, _>(&node, &prefix).unwrap();
+        let mut publisher = DetectionPublisher::open(&prefix, 0).unwrap();
+        let mut tracker = Tracker::new(TrackerConfig::default()).unwrap();
+        let stamp_ns = |k: u64| 7_000_000_000 + k * 16_666_667;
+        let mut received = Vec::new();
+        for k in 0..70u64 {
+            // Moving along +y at 0.5 m/s for 40 frames, then still.
+            let t_s = (stamp_ns(k.min(39)) - stamp_ns(0)) as f64 * 1e-9;
+            let box_at = Detection {
+                kind: ObjectKind::Obstacle,
+                confidence: 0.9,
+                bbox_px: [0, 0, 1, 1],
+                position_m: [0.35, -0.2 + 0.5 * t_s, 0.05],
+                size_m: [0.06, 0.06, 0.1],
+            };
+            tracker.update(&[box_at], stamp_ns(k));
+            publisher
+                .publish(stamp_ns(k), &tracker.objects(), tracker.settled())
+                .unwrap();
+            let frame = *sub.receive().unwrap().expect("a frame").payload();
+            frame.validate().unwrap();
+            received.push(frame);
+        }
+        let unknown = [0.0, 0.0, 0.0, UNKNOWN_VELOCITY_SIGMA_M_S];
+        let v = |f: &DetectionFrame| {
+            let o = f.objects()[0];
+            [
+                o.velocity_m_s[0],
+                o.velocity_m_s[1],
+                o.velocity_m_s[2],
+                o.velocity_sigma_m_s,
+            ]
+        };
+        assert_eq!(received[1].count, 0, "not confirmed yet");
+        assert_eq!((v(&received[2]), v(&received[3])), (unknown, unknown));
+        for f in &received[7..40] {
+            let [vx, vy, vz, sigma] = v(f);
+            assert!(
+                vx.abs() < 1e-3 && (vy - 0.5).abs() < 0.01 && vz.abs() < 1e-3,
+                "{f:?}"
+            );
+            assert!(sigma > 0.0 && sigma < 0.02, "{f:?}");
+        }
+        assert!(received[..40].iter().all(|f| !f.settled()));
+        let last = received[69];
+        assert!(last.settled());
+        assert_eq!(v(&last)[..3], [0.0; 3]);
     }
 
     /// A camera whose frames are stamped when taken, with colour images refused for want of

@@ -80,17 +80,23 @@ pub fn to_frame(
     f.set_settled(settled);
     let selection = select(objects);
     for o in &selection.objects {
-        f.push(DetectedObject::new(
-            o.id,
-            class_of(o.kind),
-            if o.confidence.is_finite() {
-                o.confidence.clamp(0.0, 1.0)
-            } else {
-                0.0
-            },
-            o.position_m.map(|v| v as f32),
-            o.size_m.map(|v| (v as f32).max(0.001)),
-        ));
+        f.push(
+            DetectedObject::new(
+                o.id,
+                class_of(o.kind),
+                if o.confidence.is_finite() {
+                    o.confidence.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                },
+                o.position_m.map(|v| v as f32),
+                o.size_m.map(|v| (v as f32).max(0.001)),
+            )
+            .with_velocity(
+                o.velocity_m_s.map(|v| v as f32),
+                o.velocity_sigma_m_s as f32,
+            ),
+        );
     }
     BuiltFrame {
         frame: f,
@@ -190,6 +196,8 @@ mod tests {
             confidence: 0.8,
             position_m: [x_m, 0.0, 0.05],
             size_m: [0.06, 0.06, 0.1],
+            velocity_m_s: [0.0; 3],
+            velocity_sigma_m_s: 0.0,
         }
     }
 
@@ -202,6 +210,8 @@ mod tests {
                 confidence: 1.2,
                 position_m: [0.4, 0.2, 0.025],
                 size_m: [0.05, 0.05, 0.0],
+                velocity_m_s: [0.0; 3],
+                velocity_sigma_m_s: 0.0,
             },
             obstacle(9, 0.35),
         ];
@@ -235,6 +245,8 @@ mod tests {
             confidence: 0.9,
             position_m: [0.6, 0.3, 0.025],
             size_m: [0.05; 3],
+            velocity_m_s: [0.0; 3],
+            velocity_sigma_m_s: 0.0,
         });
         let f = to_frame(1, 5, 0, &objs, false).frame;
         assert_eq!(f.count as usize, MAX_DETECTIONS);
@@ -265,6 +277,8 @@ mod tests {
             confidence,
             position_m: [x_m, 0.2, 0.025],
             size_m: [0.05; 3],
+            velocity_m_s: [0.0; 3],
+            velocity_sigma_m_s: 0.0,
         };
         let b = to_frame(
             1,

@@ -288,6 +288,8 @@ mod tests {
             confidence,
             position_m: p,
             size_m: [0.05, 0.05, 0.05],
+            velocity_m_s: [0.0; 3],
+            velocity_sigma_m_s: 0.0,
         }
     }
 
