@@ -186,6 +186,11 @@ impl<M: ShieldModel> Shield<M> {
     }
 
     /// The model.
+    pub fn model(&self) -> &M {
+        &self.model
+    }
+
+    /// The model, mutably.
     pub fn model_mut(&mut self) -> &mut M {
         &mut self.model
     }

@@ -69,8 +69,15 @@ impl<T: Send + 'static> BoxSender<T> {
 
     /// Frees the values the receiver has returned; returns how many.
     pub fn collect_returned(&mut self) -> usize {
+        self.collect_returned_with(|_| {})
+    }
+
+    /// Frees the values the receiver has returned, showing each to `seen` first (which
+    /// values the receiver no longer holds); returns how many.
+    pub fn collect_returned_with(&mut self, mut seen: impl FnMut(&T)) -> usize {
         let mut n = 0;
         while let Some(v) = self.returned.dequeue() {
+            seen(&v);
             drop(v);
             n += 1;
         }

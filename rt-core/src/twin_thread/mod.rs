@@ -7,6 +7,9 @@
 //! - [`path_planner`]: the planner fallback on the twin (`twin::feasibility`'s path);
 //! - [`smoother`]: Ruckig smoothing of approved waypoints into a plan the cycle streams;
 //! - [`intake`]: detection frames → the twin's scene;
+//! - [`scene_path`]: an accepted scene to the cycle's shield and to the [`plan_guard`],
+//!   which re-verifies every plan the cycle holds against it (on the intake thread,
+//!   [`intake_thread`], in `rt-core run`);
 //! - [`node`]: the thread's iceoryx2 ends (detections and policies in; robot state,
 //!   verdicts and retrain requests out);
 //! - [`command_log`]: the CSV of computed commands (dry runs);
@@ -15,9 +18,12 @@
 
 pub mod command_log;
 pub mod intake;
+pub mod intake_thread;
 pub mod lookahead;
 pub mod node;
 pub mod path_planner;
+pub mod plan_guard;
+pub mod scene_path;
 pub mod serve;
 pub mod smoother;
 pub mod worker;

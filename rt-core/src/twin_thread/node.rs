@@ -7,6 +7,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
+use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use iceoryx2::node::CleanupState;
@@ -15,23 +16,19 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::port::{LoanError, ReceiveError, SendError};
 use iceoryx2::prelude::*;
-use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 use policy::{PolicyExpectation, PolicyLoader, PolicyRejectReason};
 use shm_schemas::services::{
-    NodeCreateError, ShmOpenError, create_node, loan_zeroed, open_publisher, open_service,
-    open_subscriber,
+    NodeCreateError, ShmOpenError, create_node, loan_zeroed, open_publisher, open_subscriber,
 };
 use shm_schemas::{
-    DetectionFrame, EpisodeEnd, ObstacleBox, PolicyBlob, RetrainRequest, RobotState, SchemaError,
-    TwinVerdict,
+    EpisodeEnd, ObstacleBox, PolicyBlob, RetrainRequest, RobotState, SchemaError, TwinVerdict,
 };
 use twin::Scene;
 
 use crate::cycle::shield::ShieldModel;
 use crate::cycle::twin_model::TwinModel;
 use crate::cycle::{CycleReport, LoopShared, Mode, StopReason};
-use crate::rt::histogram::{Histogram, Summary};
-use crate::twin_thread::intake::{IntakeCounters, SceneIntake};
+use crate::twin_thread::intake_thread::FrameNote;
 use crate::twin_thread::lookahead::TwinLookahead;
 use crate::twin_thread::{TwinEvent, TwinWorker, Verdict, VerdictSource};
 
@@ -95,6 +92,15 @@ pub enum TwinNodeError {
         /// The first schema error.
         cause: SchemaError,
     },
+    /// The intake thread could not be started.
+    #[error("starting the intake thread: {0}")]
+    IntakeSpawn(std::io::ErrorKind),
+    /// The intake thread ended without opening its ports (its error was returned at start).
+    #[error("the intake thread did not start")]
+    IntakeNotStarted,
+    /// The intake thread panicked.
+    #[error("the intake thread panicked")]
+    IntakePanicked,
     /// The start policy is valid but not for this task.
     #[error("policy {} rejected: {reason:?}", path.display())]
     PolicyRejected {
@@ -108,9 +114,8 @@ pub enum TwinNodeError {
 /// The twin thread's ports and what crossed them.
 pub struct TwinNode {
     _node: Node<ipc::Service>,
-    /// The detection service, to count its publishers (one expected).
-    det_service: PubSubFactory<ipc::Service, DetectionFrame, ()>,
-    det_sub: Subscriber<ipc::Service, DetectionFrame, ()>,
+    /// What the intake thread has handed to the cycle and the plan guard, for planning.
+    frames: mpsc::Receiver<FrameNote>,
     pol_sub: Subscriber<ipc::Service, PolicyBlob, ()>,
     state_pub: Publisher<ipc::Service, RobotState, ()>,
     verdict_pub: Publisher<ipc::Service, TwinVerdict, ()>,
@@ -119,47 +124,29 @@ pub struct TwinNode {
     task_hash: u64,
     /// `false` with `--no-lookahead`: every verdict reads approved.
     gate: bool,
-    intake: SceneIntake,
-    /// Refusals logged so far (the first ones of each stretch are logged, then every
-    /// 100th: a refusing stream must not flood the log).
-    refusals_in_a_row: u64,
     scene_seq: u64,
     verdict_id: u64,
     last_verdict: Option<TwinVerdict>,
     last_state_ns: u64,
     last_cycles: u64,
     last_connections_update: Instant,
-    detection_age: Histogram,
 }
 
 impl TwinNode {
-    /// Creates the node and opens every service under `prefix`; policies must meet
-    /// `expected` (the task hash and observation length); detection frames pass
-    /// `intake` before the worker sees them.
+    /// Creates the node and opens every service under `prefix` but the detections (the
+    /// intake thread's, `twin_thread::intake_thread`, which sends what it handled to
+    /// `frames`); policies must meet `expected` (the task hash and observation length).
     ///
     /// # Errors
     /// [`TwinNodeError::NodeCreate`], [`TwinNodeError::Open`].
     pub fn open(
         prefix: &str,
         expected: PolicyExpectation,
-        intake: SceneIntake,
+        frames: mpsc::Receiver<FrameNote>,
         gate: bool,
     ) -> Result<(Self, CleanupState), TwinNodeError> {
         let (node, cleanup) = create_node::<ipc::Service>("rt-core")?;
         let open = |service| move |cause| TwinNodeError::Open { service, cause };
-        let det_service =
-            open_service::<DetectionFrame, _>(&node, prefix).map_err(open("detections"))?;
-        let det_sub =
-            det_service
-                .subscriber_builder()
-                .create()
-                .map_err(|error| TwinNodeError::Open {
-                    service: "detections",
-                    cause: ShmOpenError::Subscriber {
-                        service: "detections",
-                        error,
-                    },
-                })?;
         let pol_sub = open_subscriber::<PolicyBlob, _>(&node, prefix).map_err(open("policies"))?;
         let state_pub =
             open_publisher::<RobotState, _>(&node, prefix).map_err(open("robot state"))?;
@@ -169,8 +156,7 @@ impl TwinNode {
             open_publisher::<RetrainRequest, _>(&node, prefix).map_err(open("retrain requests"))?;
         let node_ends = Self {
             _node: node,
-            det_service,
-            det_sub,
+            frames,
             pol_sub,
             state_pub,
             verdict_pub,
@@ -178,15 +164,12 @@ impl TwinNode {
             loader: PolicyLoader::new(expected),
             task_hash: expected.task_config_hash,
             gate,
-            intake,
-            refusals_in_a_row: 0,
             scene_seq: 0,
             verdict_id: 0,
             last_verdict: None,
             last_state_ns: 0,
             last_cycles: 0,
             last_connections_update: Instant::now(),
-            detection_age: Histogram::new(),
         };
         Ok((node_ends, cleanup))
     }
@@ -228,9 +211,9 @@ impl TwinNode {
         Ok(())
     }
 
-    /// Hands every new detection frame (through the scene intake: a refused frame stops
-    /// the arm) and policy blob (validated; bad ones are logged, counted and dropped) to
-    /// the worker.
+    /// Notes every frame the intake thread handled (already with the cycle and the plan
+    /// guard) and hands every policy blob (validated; bad ones are logged, counted and
+    /// dropped) to the worker.
     ///
     /// # Errors
     /// [`TwinNodeError::Receive`].
@@ -240,34 +223,19 @@ impl TwinNode {
         events: &mut Vec<TwinEvent<Scene>>,
     ) -> Result<(), TwinNodeError> {
         let recv_err = |service| move |cause| TwinNodeError::Receive { service, cause };
-        while let Some(sample) = self.det_sub.receive().map_err(recv_err("detections"))? {
-            // Copied out of shared memory before it is checked (the publisher can still
-            // write the sample).
-            let frame = *sample.payload();
-            drop(sample);
-            let publishers = self.det_service.dynamic_config().number_of_publishers();
-            let mono_now_ns = shm_schemas::clock::monotonic_now_ns();
-            match self
-                .intake
-                .deliver(&frame, mono_now_ns, publishers, twin, events)
-            {
-                Ok(_) => {
-                    self.refusals_in_a_row = 0;
-                    self.scene_seq = frame.sequence;
-                    self.detection_age
-                        .record_ns(mono_now_ns.saturating_sub(frame.capture_time_ns));
+        while let Ok(note) = self.frames.try_recv() {
+            match note {
+                FrameNote::Accepted { frame, sequence } => {
+                    self.scene_seq = sequence;
+                    twin.note_detection(
+                        frame.scene,
+                        frame.stamp_ns,
+                        frame.goal_seen,
+                        frame.settled,
+                        events,
+                    );
                 }
-                Err(refusal) => {
-                    if self.refusals_in_a_row.is_multiple_of(100) {
-                        tracing::warn!(
-                            sequence = frame.sequence,
-                            camera_id = frame.camera_id,
-                            refused_total = self.intake.counters().total_refused(),
-                            "detection frame refused, the arm stops: {refusal}"
-                        );
-                    }
-                    self.refusals_in_a_row += 1;
-                }
+                FrameNote::Refused => twin.note_refused_detection(),
             }
         }
         while let Some(sample) = self.pol_sub.receive().map_err(recv_err("policies"))? {
@@ -492,16 +460,6 @@ impl TwinNode {
             cause,
         })?;
         Ok(())
-    }
-
-    /// Capture → visible in the twin thread, over every frame accepted so far.
-    pub fn detection_age(&self) -> Summary {
-        self.detection_age.summary()
-    }
-
-    /// What the scene intake accepted and refused so far.
-    pub fn intake_counters(&self) -> IntakeCounters {
-        *self.intake.counters()
     }
 }
 

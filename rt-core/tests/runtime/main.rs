@@ -3,7 +3,8 @@
 //! (`twin_cli`), who may drive the arm and whether the twin matches it (`arm_owner`), plans
 //! only on settled scenes (`settled_scene`) and only when the smoothed path reaches the goal
 //! (`goal_reach`), the policy library's fallback to the base policy (`policy_library`), and the
-//! planner fallback (`planner_fallback`), and the worker's phase along an excursion (`phase`).
+//! planner fallback (`planner_fallback`), the worker's phase along an excursion (`phase`), and
+//! the re-verification of every live plan on the scene path (`plan_guard`).
 
 #![allow(missing_docs, clippy::unwrap_used, clippy::expect_used)]
 // The tests drive the runtime from threads of their own and wait in wall time; the bans of
@@ -22,6 +23,7 @@ mod cycle;
 mod goal_reach;
 mod limits;
 mod phase;
+mod plan_guard;
 mod planner_fallback;
 mod policy_library;
 mod safety;

@@ -32,6 +32,9 @@ pub struct CycleControl {
     /// Plan id (upper 40 bits) and next sample index (lower 24 bits) of the plan the cycle
     /// is following, written every cycle: the twin re-verifies from here.
     pub(super) progress: AtomicU64,
+    /// The newest plan id the cycle has adopted (started from rest or switched to at its
+    /// join point), 0 for none: a plan from rest with a higher id has not run yet.
+    adopted_up_to: AtomicU64,
     /// A controlled stop of the whole process was requested.
     shutdown: Arc<AtomicBool>,
     /// Operator acknowledgements so far.
@@ -50,6 +53,15 @@ impl CycleControl {
     /// The highest revoked plan id.
     pub fn revoked_up_to(&self) -> u64 {
         self.revoked_up_to.load(Ordering::Acquire)
+    }
+
+    /// The newest plan id the cycle has adopted (0 for none).
+    pub fn adopted_up_to(&self) -> u64 {
+        self.adopted_up_to.load(Ordering::Acquire)
+    }
+
+    pub(super) fn note_adopted(&self, plan_id: u64) {
+        self.adopted_up_to.fetch_max(plan_id, Ordering::AcqRel);
     }
 
     /// The plan the cycle follows and its next sample, as of the last cycle (`None` when

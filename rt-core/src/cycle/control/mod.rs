@@ -374,6 +374,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                     self.mode = Mode::Following;
                     self.report.plans_taken += 1;
                     let (id, pol) = self.plan.as_ref().map_or((0, 0), |p| (p.id, p.policy_id));
+                    self.io.control.note_adopted(id);
                     self.io.log.log(
                         now_ns,
                         CycleEvent::PlanAdopted {
@@ -698,6 +699,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             && let Some(p) = self.pending.take()
         {
             self.report.plans_taken += 1;
+            self.io.control.note_adopted(p.id);
             self.io.log.log(
                 now_ns,
                 CycleEvent::PlanAdopted {

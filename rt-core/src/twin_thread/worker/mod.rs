@@ -1,9 +1,12 @@
-//! The twin thread's logic (not real-time; it may allocate): keeps the scene in sync with
-//! detections (forwarding each one to the cycle at once), re-verifies the running plan when
-//! the scene changes (revoking it when it has become unsafe), runs the lookahead whenever
-//! the scene or the policy changes or the cycle waits for a plan, and then either approves
-//! a smoothed, checked plan or asks for retraining. A new policy is swapped in with one
-//! step; the cycle never sees a policy's plan before its lookahead has passed.
+//! The twin thread's logic (not real-time; it may allocate): keeps its view of the scene
+//! from the detections (each accepted frame has reached the cycle and the plan guard before
+//! the worker sees it: [`crate::twin_thread::scene_path`]), runs the lookahead whenever the
+//! scene or the policy changes or the cycle waits for a plan, and then either approves a
+//! smoothed, checked plan or asks for retraining. Every plan it hands over is registered
+//! with the plan guard ([`crate::twin_thread::plan_guard`]) first, which re-verifies all
+//! plans the cycle holds against every accepted scene; which plan runs is read from the
+//! cycle's report, never assumed from what was sent last. A new policy is swapped in with
+//! one step; the cycle never sees a policy's plan before its lookahead has passed.
 //!
 //! Where things live:
 //! - [`phase`]: the worker's state — [`Phase`] (episode, dwell at goal, returning home,
@@ -40,19 +43,28 @@ pub use policy_library::{FallbackPlanner, PLANNER_POLICY_ID};
 pub use scene_view::{Hold, SceneView};
 pub use verdict::{GoalApproach, Lookahead, Verdict};
 
+use std::sync::Arc;
+
 use shm_schemas::{Executor, PhaseCode};
 
 use crate::config::RuntimeConfig;
 use crate::cycle::brake::MotionState;
 use crate::cycle::plan::{JoinPoint, Plan};
 use crate::cycle::shield::{Shield, ShieldModel};
-use crate::cycle::{CycleReport, Mode, SceneUpdate, TwinIo};
+use crate::cycle::{CycleControl, CycleReport, Mode, TwinIo};
+use crate::rt::handoff::{BoxSender, LatestReceiver};
+use crate::twin_thread::plan_guard::PlanGuard;
+use crate::twin_thread::scene_path::{ScenePath, SharedGuard, lock_guard, share_guard};
 use approve::{Approver, GoalCheck};
 use path_recorder::PathRecorder;
 use policy_library::{Candidate, PolicyLibrary};
 
 /// Pause after the cycle refused a plan before planning again, ns.
 const REFUSAL_BACKOFF_NS: u64 = 500_000_000;
+
+/// Live plans the worker keeps at most (a cycle holds a running, a pending and a few
+/// queued plans).
+const MAX_LIVE_PLANS: usize = 16;
 
 /// What one candidate of the library did in [`TwinWorker::plan_from`].
 enum Tried {
@@ -79,10 +91,23 @@ struct HomeSettings {
     dwell_ns: u64,
 }
 
+/// The worker's ends of the hand-overs with the cycle (the scene hand-over is the
+/// [`ScenePath`]'s).
+struct WorkerIo {
+    plans: BoxSender<Plan>,
+    control: Arc<CycleControl>,
+    reports: LatestReceiver<CycleReport>,
+}
+
 /// The twin thread's state.
 pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     approver: Approver<L, M>,
-    io: TwinIo<L::Scene>,
+    io: WorkerIo,
+    /// The plan guard, shared with the scene path.
+    guard: SharedGuard<M>,
+    /// The scene path, while it runs inline (it is taken for the intake thread in
+    /// `rt-core run`: [`TwinWorker::take_scene_path`]).
+    scene_path: Option<ScenePath<M>>,
     library: PolicyLibrary<L::Policy, L::Scene>,
     scene: SceneView<L::Scene>,
     path: PathRecorder,
@@ -96,20 +121,42 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     report: Option<CycleReport>,
     last_mode: Mode,
     refused_seen: u64,
-    /// The plan sent last, and the scene it was approved in.
-    sent: Option<(Plan, L::Scene)>,
-    /// The plan `sent` joins (still running until the join point), if `sent` is a join.
-    joined: Option<Plan>,
+    /// Plans handed to the cycle and not handed back yet, each with the scene it was
+    /// approved in (oldest first). Which one runs is read from the cycle's report.
+    live: Vec<(Arc<Plan>, L::Scene)>,
+    /// The newest plan id handed to the cycle.
+    newest_sent_id: u64,
     next_request_id: u64,
 }
 
 impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
-    /// A worker over a lookahead and a shield model, talking to a cycle through `io`.
-    pub fn new(cfg: &RuntimeConfig, la: L, shield: Shield<M>, io: TwinIo<L::Scene>) -> Self {
+    /// A worker over a lookahead and a shield model, talking to a cycle through `io`. The
+    /// plan guard checks with a copy of `shield`.
+    pub fn new(cfg: &RuntimeConfig, la: L, shield: Shield<M>, io: TwinIo<L::Scene>) -> Self
+    where
+        M: Clone,
+    {
         let period_s = 1.0 / cfg.rate_hz;
+        let guard = share_guard(PlanGuard::new(
+            Shield::new(shield.model().clone(), *shield.limits()),
+            period_s,
+            io.control.clone(),
+        ));
+        let TwinIo {
+            plans,
+            scenes,
+            control,
+            reports,
+        } = io;
         Self {
             approver: Approver::new(cfg, la, shield),
-            io,
+            io: WorkerIo {
+                plans,
+                control,
+                reports,
+            },
+            scene_path: Some(ScenePath::new(scenes, guard.clone())),
+            guard,
             library: PolicyLibrary::default(),
             scene: SceneView::default(),
             path: PathRecorder::default(),
@@ -124,8 +171,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             report: None,
             last_mode: Mode::Idle,
             refused_seen: 0,
-            sent: None,
-            joined: None,
+            live: Vec::new(),
+            newest_sent_id: 0,
             next_request_id: 1,
         }
     }
@@ -145,10 +192,17 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         self.gate = false;
     }
 
+    /// The scene path, for the intake thread (`rt-core run`): from then on the caller hands
+    /// each frame's scene to the cycle and the plan guard itself, and tells the worker with
+    /// [`TwinWorker::note_detection`] / [`TwinWorker::note_refused_detection`].
+    pub fn take_scene_path(&mut self) -> Option<ScenePath<M>> {
+        self.scene_path.take()
+    }
+
     /// An accepted detection arrived (captured at `stamp_ns` on the cycle's clock; with a
-    /// goal or without one; `settled` or not): forwards it to the cycle at once and marks a
-    /// scene change. Without a goal, or not settled, the obstacles count (the running plan is
-    /// re-verified against them and revoked when unsafe) but nothing new is planned.
+    /// goal or without one; `settled` or not): through the scene path (while inline) to the
+    /// cycle and the plan guard at once — every live plan is re-verified against it and
+    /// revoked when unsafe — then noted for planning ([`TwinWorker::note_detection`]).
     pub fn on_detection(
         &mut self,
         scene: L::Scene,
@@ -157,33 +211,62 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         settled: bool,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) {
-        self.io.scenes.send(SceneUpdate {
-            scene,
-            stamp_ns,
-            refused: false,
-        });
+        if let Some(path) = self.scene_path.as_mut() {
+            path.accepted(scene, stamp_ns);
+        }
+        self.note_detection(scene, stamp_ns, goal_seen, settled, events);
+    }
+
+    /// An accepted detection that the scene path has already handed to the cycle and the
+    /// plan guard: marks a scene change for planning. Without a goal, or not settled, nothing
+    /// new is planned (the guard still re-verified the live plans against its obstacles).
+    pub fn note_detection(
+        &mut self,
+        scene: L::Scene,
+        stamp_ns: u64,
+        goal_seen: bool,
+        settled: bool,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) {
         let change = self.scene.accept(scene, stamp_ns, goal_seen, settled);
         if change.plan_due {
             self.planning.request();
         }
-        if change.scene_changed {
-            self.reverify_running(events);
+        self.take_revocations(events);
+    }
+
+    /// A detection frame was refused (see `twin_thread::intake`): through the scene path
+    /// (while inline) the cycle is told at once (it stops the arm, keeping the last trusted
+    /// scene for the shield), then noted ([`TwinWorker::note_refused_detection`]).
+    pub fn on_refused_detection(&mut self) {
+        if let Some(path) = self.scene_path.as_mut() {
+            path.refused();
+        }
+        self.note_refused_detection();
+    }
+
+    /// A refused frame the scene path has already told the cycle of: nothing is planned
+    /// until an accepted frame arrives.
+    pub fn note_refused_detection(&mut self) {
+        self.scene.refuse();
+        self.planning.request();
+    }
+
+    /// The plan guard's revocations since the last look, as events; planning is due again.
+    fn take_revocations(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
+        let revocations = lock_guard(&self.guard).take_revocations();
+        for r in revocations {
+            self.planning.request();
+            events.push(TwinEvent::Revoked {
+                plan_id: r.plan_id,
+                at_index: r.at_index,
+            });
         }
     }
 
-    /// A detection frame was refused (see `twin_thread::intake`): the cycle is told at once
-    /// (it stops the arm, keeping the last trusted scene for the shield) and nothing is
-    /// planned until an accepted frame arrives.
-    pub fn on_refused_detection(&mut self) {
-        self.scene.refuse();
-        self.planning.request();
-        if let Some(scene) = self.scene.scene() {
-            self.io.scenes.send(SceneUpdate {
-                scene,
-                stamp_ns: self.scene.stamp_ns(),
-                refused: true,
-            });
-        }
+    /// The plan handed to the cycle with id `plan_id`, if the cycle has not handed it back.
+    fn live_plan(&self, plan_id: u64) -> Option<&(Arc<Plan>, L::Scene)> {
+        self.live.iter().find(|(p, _)| p.id == plan_id)
     }
 
     /// A validated, prepared policy arrived: swapped in with one step as the current
@@ -244,6 +327,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// appended to `events`.
     pub fn step(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
         self.take_reports();
+        self.take_revocations(events);
         match self.scene.ready() {
             Err(Hold::Refused | Hold::NoScene) => return,
             Err(Hold::Unsettled) => {
@@ -275,7 +359,15 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
 
     /// Takes the cycle's newest report and frees returned plans (no planning).
     pub fn take_reports(&mut self) {
-        self.io.plans.collect_returned();
+        let mut returned = Vec::new();
+        self.io.plans.collect_returned_with(|p| returned.push(p.id));
+        if !returned.is_empty() {
+            self.live.retain(|(p, _)| !returned.contains(&p.id));
+            let mut guard = lock_guard(&self.guard);
+            for id in returned {
+                guard.returned(id);
+            }
+        }
         if let Some(r) = self.io.reports.latest() {
             if r.mode == Mode::Stopped && self.last_mode != Mode::Stopped {
                 self.planning.request();
@@ -291,49 +383,6 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         }
     }
 
-    /// Re-verifies, against the scene now in force, the plan the cycle is following — from
-    /// the sample the cycle will send next (its own progress word, not the last report) —
-    /// and the plan scheduled to join it, if any. A failure revokes both.
-    fn reverify_running(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
-        let Some(scene) = self.scene.scene() else {
-            return;
-        };
-        let Some((running_id, next)) = self.io.control.progress() else {
-            return;
-        };
-        let (running, pending) = match (self.sent.as_ref().map(|s| &s.0), self.joined.as_ref()) {
-            (Some(s), _) if s.id == running_id => (s, None),
-            (Some(s), Some(j)) if j.id == running_id => (j, Some(s)),
-            _ => return,
-        };
-        let mut first_bad: Option<(u64, usize)> = None;
-        if next < running.len() {
-            let prev = running.q_rad[next.saturating_sub(1)];
-            if let Some(i) = self
-                .approver
-                .first_unsafe(&prev, &running.q_rad[next..], &scene)
-            {
-                first_bad = Some((running.id, next + i));
-            }
-        }
-        if first_bad.is_none()
-            && let Some(p) = pending
-            && let Some(j) = p.join
-            && j.index < running.len()
-            && let Some(i) = self
-                .approver
-                .first_unsafe(&running.q_rad[j.index], &p.q_rad, &scene)
-        {
-            first_bad = Some((p.id, i));
-        }
-        if let Some((plan_id, at_index)) = first_bad {
-            let newest = pending.map_or(running.id, |p| p.id);
-            self.io.control.revoke_up_to(newest);
-            self.planning.request();
-            events.push(TwinEvent::Revoked { plan_id, at_index });
-        }
-    }
-
     /// A lookahead run after a scene change found the policy's continuation unsafe while
     /// a plan is under way: the running and any pending plan are revoked too (the cycle
     /// stops along the checked path).
@@ -341,10 +390,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let Some((running_id, next)) = self.io.control.progress() else {
             return;
         };
-        let newest = self
-            .sent
-            .as_ref()
-            .map_or(running_id, |(s, _)| s.id.max(running_id));
+        let newest = self.newest_sent_id.max(running_id);
         if newest <= self.io.control.revoked_up_to() {
             return;
         }
@@ -376,8 +422,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let (start, join) = match r.mode {
             Mode::Stopping => return,
             Mode::Idle | Mode::Stopped => (MotionState::at_rest(r.cmd.q_rad), None),
-            Mode::Following => match self.sent.as_ref() {
-                Some((s, _)) if s.id == r.plan_id && r.next_index + self.join_ahead < s.len() => {
+            Mode::Following => match self.live_plan(r.plan_id) {
+                Some((s, _)) if r.next_index + self.join_ahead < s.len() => {
                     let index = r.next_index + self.join_ahead;
                     let join = JoinPoint {
                         plan_id: s.id,
@@ -396,11 +442,18 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// Whether the way home is in hand this iteration (planned now, or waiting out the
     /// dwell at the goal or a back-off); the ordinary planning waits meanwhile.
     fn return_home_due(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) -> bool {
-        let (Some(r), Some((sent, _))) = (self.report, self.sent.as_ref()) else {
+        // The plan the cycle ran last, from its report; not while a newer one is on its way.
+        let Some(r) = self.report else {
             return false;
         };
+        let Some((sent, _)) = self.live_plan(r.plan_id) else {
+            return false;
+        };
+        if self.live.iter().any(|(p, _)| p.id > r.plan_id) {
+            return false;
+        }
         let (sent_id, policy_id, sent_len) = (sent.id, sent.policy_id, sent.len());
-        let at_end = r.mode == Mode::Idle && r.plan_id == sent_id && r.next_index >= sent_len;
+        let at_end = r.mode == Mode::Idle && r.next_index >= sent_len;
         let stopped = r.mode == Mode::Stopped && self.planning.is_due();
         if !at_end && !stopped {
             return false;
@@ -471,16 +524,22 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         true
     }
 
-    /// Hands a checked plan to the cycle and keeps a copy as the sent plan; false when the
-    /// hand-over slot is full.
+    /// Hands a checked plan to the cycle, registered with the plan guard first (so a frame
+    /// that arrived since its approval is checked against it, and none can fall between),
+    /// and keeps a copy among the live plans; false when the hand-over slot is full.
     fn send_plan(&mut self, plan: Plan, scene: L::Scene) -> bool {
-        let copy = plan.clone();
-        let joins = plan.join.is_some();
+        let copy = Arc::new(plan.clone());
+        lock_guard(&self.guard).sent(copy.clone(), scene);
         if self.io.plans.send(Box::new(plan)).is_err() {
+            lock_guard(&self.guard).returned(copy.id);
             return false;
         }
-        let previous = self.sent.replace((copy, scene));
-        self.joined = if joins { previous.map(|p| p.0) } else { None };
+        self.newest_sent_id = copy.id;
+        if self.live.len() == MAX_LIVE_PLANS {
+            // Boxes leaked rather than returned (a full return queue): forget the oldest.
+            self.live.remove(0);
+        }
+        self.live.push((copy, scene));
         true
     }
 
@@ -523,7 +582,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 return;
             }
         }
-        if lookahead_unsafe && self.sent.as_ref().is_some_and(|(_, s)| *s != scene) {
+        if lookahead_unsafe && self.live.iter().any(|(_, s)| *s != scene) {
             self.revoke_under_way(events);
         }
         if self.gate {
@@ -698,7 +757,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             self.planning.request();
             return;
         }
-        if let Some((sent, _)) = self.sent.as_ref() {
+        if let Some((sent, _)) = self.live.last() {
             self.path
                 .record_episode_plan(start, join, self.phase.returning(), sent);
             self.phase = self.phase.next(Transition::EpisodePlanSent);

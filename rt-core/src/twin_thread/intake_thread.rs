@@ -1,0 +1,198 @@
+//! The intake thread of `rt-core run`: detection frames in, through the scene intake, and
+//! out on the [`ScenePath`] — the cycle's shield has an accepted frame's scene within one
+//! cycle, and the plan guard has re-verified every live plan against it — whatever the twin
+//! thread is doing meanwhile (a planner search, a lookahead, a policy hand-over). The twin
+//! thread learns of each frame afterwards through a channel ([`FrameNote`]), for planning.
+//!
+//! The thread has an iceoryx2 node of its own (ports stay on the thread that made them). It
+//! polls its subscriber every [`POLL_PERIOD`] and ends when `stop` is set, returning what it
+//! counted ([`IntakeFigures`]).
+
+// A non-real-time thread: it polls its subscriber with a relative sleep and reads wall time
+// for the logs' throttling only.
+#![allow(clippy::disallowed_methods)]
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use iceoryx2::prelude::*;
+use shm_schemas::DetectionFrame;
+use shm_schemas::services::{ShmOpenError, create_node, open_service};
+
+use crate::cycle::twin_model::TwinModel;
+use crate::rt::histogram::{Histogram, Summary};
+use crate::twin_thread::intake::{AcceptedFrame, IntakeCounters, SceneIntake};
+use crate::twin_thread::node::TwinNodeError;
+use crate::twin_thread::scene_path::ScenePath;
+
+/// How often the thread looks for new frames.
+pub const POLL_PERIOD: Duration = Duration::from_micros(100);
+
+/// What the twin thread is told of each frame, after the scene path has handled it.
+// Sent by value (a scene is a few hundred bytes): boxing would allocate once per frame.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, Copy)]
+pub enum FrameNote {
+    /// Accepted: its scene is with the cycle and the plan guard already.
+    Accepted {
+        /// The checked frame.
+        frame: AcceptedFrame,
+        /// Its sequence number (verdicts name the scene they were computed on).
+        sequence: u64,
+    },
+    /// Refused: the cycle has been told (it stops the arm).
+    Refused,
+}
+
+/// What the intake thread counted.
+#[derive(Debug, Clone, Copy)]
+pub struct IntakeFigures {
+    /// Frames accepted and refused (per reason).
+    pub counters: IntakeCounters,
+    /// Capture → checked and handed to the cycle, µs.
+    pub detection_age: Summary,
+}
+
+/// The running intake thread.
+pub struct IntakeThread {
+    handle: JoinHandle<Result<IntakeFigures, TwinNodeError>>,
+}
+
+impl IntakeThread {
+    /// Waits for the thread to end (set its `stop` first) and returns its figures.
+    ///
+    /// # Errors
+    /// The thread's iceoryx2 error; a panic of the thread is returned as
+    /// [`TwinNodeError::IntakePanicked`].
+    pub fn join(self) -> Result<IntakeFigures, TwinNodeError> {
+        self.handle
+            .join()
+            .unwrap_or(Err(TwinNodeError::IntakePanicked))
+    }
+
+    /// Whether the thread has ended (an error, a panic, or `stop`).
+    pub fn is_finished(&self) -> bool {
+        self.handle.is_finished()
+    }
+}
+
+/// Starts the intake thread on the detection service under `prefix`: every frame through
+/// `intake`, accepted scenes and refusals onto `path`, then a [`FrameNote`] to `notes`.
+/// Returns once the thread's subscriber is open.
+///
+/// # Errors
+/// [`TwinNodeError::NodeCreate`] / [`TwinNodeError::Open`] when the node or the service
+/// cannot be opened; [`TwinNodeError::IntakeSpawn`] when the thread cannot start.
+pub fn spawn_intake_thread(
+    prefix: &str,
+    intake: SceneIntake,
+    path: ScenePath<TwinModel>,
+    notes: mpsc::Sender<FrameNote>,
+    stop: Arc<AtomicBool>,
+) -> Result<IntakeThread, TwinNodeError> {
+    let prefix = prefix.to_owned();
+    let (ready_tx, ready_rx) = mpsc::sync_channel::<Result<(), TwinNodeError>>(1);
+    let handle = std::thread::Builder::new()
+        .name("rt-intake".into())
+        .spawn(move || run(&prefix, intake, path, &notes, &stop, &ready_tx))
+        .map_err(|e| TwinNodeError::IntakeSpawn(e.kind()))?;
+    match ready_rx.recv() {
+        Ok(Ok(())) => Ok(IntakeThread { handle }),
+        Ok(Err(e)) => Err(e),
+        // The thread ended before it said anything: its own result says why.
+        Err(_) => Err(IntakeThread { handle }
+            .join()
+            .err()
+            .unwrap_or(TwinNodeError::IntakePanicked)),
+    }
+}
+
+fn run(
+    prefix: &str,
+    mut intake: SceneIntake,
+    mut path: ScenePath<TwinModel>,
+    notes: &mpsc::Sender<FrameNote>,
+    stop: &AtomicBool,
+    ready: &mpsc::SyncSender<Result<(), TwinNodeError>>,
+) -> Result<IntakeFigures, TwinNodeError> {
+    let opened = (|| {
+        let (node, _) = create_node::<ipc::Service>("rt-core-intake")?;
+        let service = open_service::<DetectionFrame, _>(&node, prefix).map_err(|cause| {
+            TwinNodeError::Open {
+                service: "detections",
+                cause,
+            }
+        })?;
+        let sub = service
+            .subscriber_builder()
+            .create()
+            .map_err(|error| TwinNodeError::Open {
+                service: "detections",
+                cause: ShmOpenError::Subscriber {
+                    service: "detections",
+                    error,
+                },
+            })?;
+        Ok::<_, TwinNodeError>((node, service, sub))
+    })();
+    let (_node, service, sub) = match opened {
+        Ok(ends) => {
+            let _ = ready.send(Ok(()));
+            ends
+        }
+        Err(e) => {
+            let _ = ready.send(Err(e));
+            return Err(TwinNodeError::IntakeNotStarted);
+        }
+    };
+    let mut age = Histogram::new();
+    let mut refusals_in_a_row = 0u64;
+    while !stop.load(Ordering::Acquire) {
+        while let Some(sample) = sub.receive().map_err(|cause| TwinNodeError::Receive {
+            service: "detections",
+            cause,
+        })? {
+            // Copied out of shared memory before it is checked (the publisher can still
+            // write the sample).
+            let frame = *sample.payload();
+            drop(sample);
+            let publishers = service.dynamic_config().number_of_publishers();
+            let mono_now_ns = shm_schemas::clock::monotonic_now_ns();
+            match intake.accept(&frame, mono_now_ns, publishers) {
+                Ok(accepted) => {
+                    path.accepted(accepted.scene, accepted.stamp_ns);
+                    age.record_ns(
+                        shm_schemas::clock::monotonic_now_ns()
+                            .saturating_sub(frame.capture_time_ns),
+                    );
+                    refusals_in_a_row = 0;
+                    let _ = notes.send(FrameNote::Accepted {
+                        frame: accepted,
+                        sequence: frame.sequence,
+                    });
+                }
+                Err(refusal) => {
+                    path.refused();
+                    if refusals_in_a_row.is_multiple_of(100) {
+                        tracing::warn!(
+                            sequence = frame.sequence,
+                            camera_id = frame.camera_id,
+                            refused_total = intake.counters().total_refused(),
+                            "detection frame refused, the arm stops: {refusal}"
+                        );
+                    }
+                    refusals_in_a_row += 1;
+                    let _ = notes.send(FrameNote::Refused);
+                }
+            }
+        }
+        std::thread::sleep(POLL_PERIOD);
+    }
+    Ok(IntakeFigures {
+        counters: *intake.counters(),
+        detection_age: age.summary(),
+    })
+}
