@@ -144,6 +144,20 @@ pub struct IntakeConfig {
     /// 0.7 m).
     #[serde(default = "default_goal_max_radius_m")]
     pub goal_max_radius_m: f64,
+    /// How far ahead of a frame's capture a moving obstacle's occupancy is predicted, s: a
+    /// frame that is not settled has each obstacle swept along its velocity over this time
+    /// and grown by its velocity's uncertainty (`twin_thread::intake::predicted_occupancy`).
+    /// It covers the frame's way to the cycle, the frames until the next one, and the arm's
+    /// stop (default 0.25 s: two 60 Hz frames, a cycle, and a stop from the plan's speed).
+    #[serde(default = "default_prediction_horizon_s")]
+    pub prediction_horizon_s: f64,
+    /// Sigmas of a velocity's uncertainty the predicted occupancy is grown by.
+    #[serde(default = "default_uncertainty_sigmas")]
+    pub uncertainty_sigmas: f64,
+    /// The assumed speed of an intruder whose velocity is not known yet (ISO/TS 15066's
+    /// hand-arm speed, 1.6 m/s), m/s: the largest velocity uncertainty counted.
+    #[serde(default = "default_intruder_speed_m_s")]
+    pub intruder_speed_m_s: f64,
 }
 
 impl Default for IntakeConfig {
@@ -154,8 +168,21 @@ impl Default for IntakeConfig {
             calibrated_max_m: default_calibrated_max_m(),
             goal_min_radius_m: default_goal_min_radius_m(),
             goal_max_radius_m: default_goal_max_radius_m(),
+            prediction_horizon_s: default_prediction_horizon_s(),
+            uncertainty_sigmas: default_uncertainty_sigmas(),
+            intruder_speed_m_s: default_intruder_speed_m_s(),
         }
     }
+}
+
+fn default_prediction_horizon_s() -> f64 {
+    0.25
+}
+fn default_uncertainty_sigmas() -> f64 {
+    2.0
+}
+fn default_intruder_speed_m_s() -> f64 {
+    1.6
 }
 
 fn default_min_goal_confidence() -> f32 {
@@ -270,9 +297,11 @@ pub struct PlannerFallbackConfig {
     /// Use the planner's path when no policy passes.
     #[serde(default)]
     pub enabled: bool,
-    /// Longest search per planning, s. The twin thread waits for it and forwards no
-    /// detection meanwhile, so it must stay below `stale.max_detection_age_s` (or the cycle
-    /// would stop the arm for stale detections).
+    /// Longest search per planning, s. Detections reach the cycle and the plan guard on the
+    /// intake thread meanwhile (`twin_thread::intake_thread`), and a path found in a scene
+    /// that has changed since is verified against the newest one before the cycle may take
+    /// it (`twin_thread::plan_guard`), so the budget is bounded only by how long a user
+    /// would wait for a first motion.
     #[serde(default = "default_planner_budget_s")]
     pub budget_s: f64,
 }
@@ -372,13 +401,6 @@ impl RuntimeConfig {
         let budget_s = self.planner_fallback.budget_s;
         if !(budget_s.is_finite() && (0.05..=10.0).contains(&budget_s)) {
             return bad("planner_fallback.budget_s", "must be within 0.05..=10 s");
-        }
-        if budget_s >= self.stale.max_detection_age_s {
-            return bad(
-                "planner_fallback.budget_s",
-                "must be below stale.max_detection_age_s (the twin thread forwards no \
-                 detection while it plans)",
-            );
         }
         self.validate_limits()?;
         self.validate_shield()?;
@@ -517,6 +539,15 @@ impl RuntimeConfig {
                 "must exceed goal_min_radius_m and be at most the xArm5's reach, 0.7 m",
             );
         }
+        if !(i.prediction_horizon_s.is_finite() && (0.0..=1.0).contains(&i.prediction_horizon_s)) {
+            return bad("intake.prediction_horizon_s", "must be within 0..=1 s");
+        }
+        if !(i.uncertainty_sigmas.is_finite() && (0.0..=5.0).contains(&i.uncertainty_sigmas)) {
+            return bad("intake.uncertainty_sigmas", "must be within 0..=5");
+        }
+        if !(i.intruder_speed_m_s.is_finite() && (0.1..=5.0).contains(&i.intruder_speed_m_s)) {
+            return bad("intake.intruder_speed_m_s", "must be within 0.1..=5 m/s");
+        }
         Ok(())
     }
 
@@ -651,7 +682,7 @@ mod tests {
             ("dwell_at_goal_s", "-0.5", "dwell_at_goal_s"),
             ("budget_s", "0.0", "planner_fallback.budget_s"),
             ("budget_s", "nan", "planner_fallback.budget_s"),
-            ("budget_s", "0.6", "planner_fallback.budget_s"),
+            ("budget_s", "11.0", "planner_fallback.budget_s"),
             (
                 "max_jerk_rad_s3",
                 "[40.0, 40.0, 0.0, 40.0, 40.0]",
@@ -693,6 +724,14 @@ mod tests {
                 "intake.calibrated_min_m",
             ),
             ("goal_max_radius_m", "3.0", "intake.goal_max_radius_m"),
+            (
+                "prediction_horizon_s",
+                "-0.1",
+                "intake.prediction_horizon_s",
+            ),
+            ("prediction_horizon_s", "nan", "intake.prediction_horizon_s"),
+            ("uncertainty_sigmas", "9.0", "intake.uncertainty_sigmas"),
+            ("intruder_speed_m_s", "0.0", "intake.intruder_speed_m_s"),
             ("max_tcp_gap_m", "0.5", "shield.max_tcp_gap_m"),
         ];
         for (key, value, field) in cases {

@@ -19,7 +19,7 @@
 //! changing world) is accepted and re-verified against, but no plan is approved on it: the
 //! worker waits for a settled frame.
 
-use shm_schemas::{DetectionFrame, ObjectClass, SchemaError};
+use shm_schemas::{DetectedObject, DetectionFrame, ObjectClass, SchemaError};
 use twin::{BoxObstacle, Goal, Scene};
 
 use crate::config::IntakeConfig;
@@ -384,13 +384,19 @@ impl SceneIntake {
         let table_height_m = self.table_height_m;
         let mut scene = Scene::empty(table_height_m, self.last_goal);
         let mut goal_seen = false;
+        let settled = frame.settled();
         for o in frame.objects() {
+            let (o_center_m, o_size_m) = if settled {
+                (o.center_m, o.size_m)
+            } else {
+                predicted_occupancy(o, &self.cfg)
+            };
             let center_m = [
-                snap(o.center_m[0]),
-                snap(o.center_m[1]),
-                snap(o.center_m[2]),
+                snap(o_center_m[0]),
+                snap(o_center_m[1]),
+                snap(o_center_m[2]),
             ];
-            let size_m = [snap(o.size_m[0]), snap(o.size_m[1]), snap(o.size_m[2])];
+            let size_m = [snap(o_size_m[0]), snap(o_size_m[1]), snap(o_size_m[2])];
             match o.class() {
                 Ok(ObjectClass::Goal) if o.confidence >= self.cfg.min_goal_confidence => {
                     self.last_goal = Goal {
@@ -406,8 +412,8 @@ impl SceneIntake {
                     // Snap the top and the bottom (not the centre and the height): a box
                     // standing on the table must not reach below it after rounding, or the
                     // learner would refuse the scene of a retrain request.
-                    let top = snap(o.center_m[2] + o.size_m[2] / 2.0);
-                    let bottom = snap(o.center_m[2] - o.size_m[2] / 2.0).max(table_height_m);
+                    let top = snap(o_center_m[2] + o_size_m[2] / 2.0);
+                    let bottom = snap(o_center_m[2] - o_size_m[2] / 2.0).max(table_height_m);
                     let height = (top - bottom).max(SNAP_GRID_M);
                     // Cannot fail: a valid frame carries at most MAX_DETECTIONS objects and
                     // the scene holds as many obstacles (one capacity, asserted in
@@ -429,12 +435,39 @@ impl SceneIntake {
     }
 }
 
+/// Where an obstacle of a frame that is not settled may be over the prediction horizon
+/// `h` = [`IntakeConfig::prediction_horizon_s`] from its capture: its box swept along its
+/// velocity `v` (the box from `c` to `c + v·h`, per axis), grown on every side by the
+/// distance its velocity's uncertainty allows, `k·σ·h` with `k` =
+/// [`IntakeConfig::uncertainty_sigmas`] (σ capped at the assumed intruder speed
+/// [`IntakeConfig::intruder_speed_m_s`]: an object of unknown velocity may be anywhere
+/// a hand can reach in that time). Returns the centre and the full extents, m.
+///
+/// A settled frame (perception saw nothing move) is taken as measured. The goal is swept
+/// too, but only obstacles count for clearance.
+pub fn predicted_occupancy(o: &DetectedObject, cfg: &IntakeConfig) -> ([f32; 3], [f32; 3]) {
+    let h = cfg.prediction_horizon_s as f32;
+    let sigma = o
+        .velocity_sigma_m_s
+        .min(cfg.intruder_speed_m_s as f32)
+        .max(0.0);
+    let grow_m = cfg.uncertainty_sigmas as f32 * sigma * h;
+    let mut center_m = o.center_m;
+    let mut size_m = o.size_m;
+    for k in 0..3 {
+        let travel_m = o.velocity_m_s[k] * h;
+        center_m[k] += travel_m / 2.0;
+        size_m[k] += travel_m.abs() + 2.0 * grow_m;
+    }
+    (center_m, size_m)
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+    use shm_schemas::MAX_DETECTIONS;
     use shm_schemas::scene_file::SceneFile;
-    use shm_schemas::{DetectedObject, MAX_DETECTIONS};
 
     const ORIGIN_NS: u64 = 1_000_000_000_000;
     const MAX_AGE_NS: u64 = 500_000_000;
@@ -583,6 +616,50 @@ mod tests {
                 value: 0x100
             }))
         );
+    }
+
+    /// Issue 33 item 4: a moving obstacle counts where it will be over the prediction
+    /// horizon, grown by its velocity's uncertainty, in a frame that is not settled; a
+    /// settled frame's boxes are taken as measured.
+    #[test]
+    fn an_unsettled_frame_counts_each_obstacle_where_it_may_be_over_the_horizon() {
+        let now = ORIGIN_NS + 1_000_000_000;
+        let cfg = IntakeConfig::default();
+        let h = cfg.prediction_horizon_s;
+        let moving = obstacle(2, [0.30, 0.00, 0.10], [0.10, 0.10, 0.20])
+            .with_velocity([0.0, 1.0, 0.0], 0.05);
+        let mut k = intake();
+        let mut f = frame(1, now, &[goal([0.3, 0.2, 0.025]), moving]);
+        let scene = k.accept(&f, now, 1).unwrap().scene;
+        let b = scene.obstacles[0];
+        let grow_m = 2.0 * cfg.uncertainty_sigmas * 0.05 * h;
+        // Swept along +y by 1 m/s · h, grown by 2σh on both sides (to the 5 mm grid).
+        assert!(
+            (b.size_m[1] - (0.10 + h + grow_m)).abs() <= SNAP_GRID_M,
+            "{b:?}"
+        );
+        assert!((b.center_m[1] - h / 2.0).abs() <= SNAP_GRID_M, "{b:?}");
+        assert!(
+            (b.size_m[0] - (0.10 + grow_m)).abs() <= SNAP_GRID_M,
+            "{b:?}"
+        );
+        // An object whose velocity is unknown may be anywhere a hand reaches meanwhile (σ
+        // capped at the assumed intruder speed).
+        f.sequence = 2;
+        f.objects[1] = obstacle(3, [0.30, 0.00, 0.10], [0.10, 0.10, 0.20])
+            .with_velocity([0.0; 3], shm_schemas::detection::UNKNOWN_VELOCITY_SIGMA_M_S);
+        let b = k.accept(&f, now, 1).unwrap().scene.obstacles[0];
+        let unknown_grow_m = 2.0 * cfg.uncertainty_sigmas * cfg.intruder_speed_m_s * h;
+        assert!(
+            (b.size_m[0] - (0.10 + unknown_grow_m)).abs() <= SNAP_GRID_M,
+            "{b:?}"
+        );
+        // Settled: as measured.
+        f.sequence = 3;
+        f.objects[1] = moving;
+        f.set_settled(true);
+        let b = k.accept(&f, now, 1).unwrap().scene.obstacles[0];
+        assert_eq!((b.center_m[1], b.size_m[1]), (0.0, 0.10));
     }
 
     /// Issue 14, item 3: zero, future, old and pre-start stamps looked fresh.

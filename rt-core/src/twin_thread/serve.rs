@@ -34,6 +34,7 @@ use crate::rt::histogram::Summary;
 use crate::rt::rt_setup::{self, RtRequest, RtSetupReport};
 use crate::twin_thread::command_log::{CommandLog, CommandLogError};
 use crate::twin_thread::intake::{FrameRefusal, IntakeCounters, SceneIntake};
+use crate::twin_thread::intake_thread::{IntakeThread, spawn_intake_thread};
 use crate::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
 use crate::twin_thread::node::{ProductionWorker, TwinNode, TwinNodeError};
 use crate::twin_thread::path_planner::TwinPathPlanner;
@@ -120,7 +121,7 @@ pub struct ServeSummary {
     pub rt: RtSetupReport,
     /// Allocations made on the cycle thread after start-up.
     pub allocations_in_cycle: u64,
-    /// Detection capture → visible in the twin thread.
+    /// Detection capture → checked and handed to the cycle's shield (the intake thread).
     pub detection_to_twin: Summary,
     /// Command lines logged.
     pub commands_logged: u64,
@@ -169,6 +170,7 @@ impl ServeSummary {
             "missed_deadlines": c.missed_deadlines,
             "compute_overruns": c.compute_overruns,
             "allocations_in_cycle": self.allocations_in_cycle,
+            "rt": self.rt,
             "wakeup_latency_us": h(&c.wakeup_latency_us),
             "cycle_compute_us": h(&c.cycle_compute_us),
             "detection_to_twin_us": {"p50": age.p50_us, "p99": age.p99_us, "max": age.max_us},
@@ -219,6 +221,9 @@ pub enum ServeError {
     /// The twin loop panicked (the arm was stopped first).
     #[error("the twin thread panicked: {0}")]
     TwinPanicked(String),
+    /// The intake thread ended while the runtime ran (its error is in the log).
+    #[error("the intake thread ended: no detection reaches the cycle; planning stopped")]
+    IntakeEnded,
     /// The watchdog saw the cycle thread stall or end.
     #[error("watchdog: the cycle thread {0}; planning stopped")]
     CycleStalled(&'static str),
@@ -318,10 +323,24 @@ pub fn serve<L: RobotLink + 'static>(
         table_height_m,
         clock.origin_ns(),
     );
+    // Detections go their own way: the intake thread hands each accepted scene to the
+    // cycle and the plan guard, then notes it to the twin thread for planning.
+    let (frame_notes, frames) = std::sync::mpsc::channel();
+    let scene_path = twin
+        .take_scene_path()
+        .ok_or(ServeError::CycleStalled("scene path already taken"))?;
+    let intake_stop = Arc::new(AtomicBool::new(false));
+    let intake_thread = spawn_intake_thread(
+        &opts.prefix,
+        intake,
+        scene_path,
+        frame_notes,
+        intake_stop.clone(),
+    )?;
     let (mut node, cleanup) = TwinNode::open(
         &opts.prefix,
         PolicyExpectation::for_task_obs(task_hash, task.obs_dim()),
-        intake,
+        frames,
         !opts.no_lookahead,
     )?;
     tracing::info!(?cleanup, prefix = opts.prefix, "iceoryx2 node up");
@@ -344,6 +363,7 @@ pub fn serve<L: RobotLink + 'static>(
             &shared,
             &ack,
             &mut events,
+            &intake_thread,
         )
     }))
     .unwrap_or_else(|panic| {
@@ -386,6 +406,9 @@ pub fn serve<L: RobotLink + 'static>(
         None => Ok(0),
     };
     let done = cycle_thread.join().map_err(|_| ServeError::CyclePanicked);
+    // The arm is at rest: the intake thread may end.
+    intake_stop.store(true, Ordering::Release);
+    let intake_figures = intake_thread.join();
     // The cycle's last report (at rest) goes out before the exit.
     twin.take_reports();
     let _ = node.publish_final_state(twin.last_report(), &shared, &mut fk, clock.now_ns());
@@ -395,6 +418,7 @@ pub fn serve<L: RobotLink + 'static>(
     if timed_out {
         return Err(ServeError::ShutdownTimeout(SHUTDOWN_TIMEOUT));
     }
+    let intake_figures = intake_figures?;
     let r = done.cycle.report();
     tracing::info!(
         stops = r.stops,
@@ -407,11 +431,11 @@ pub fn serve<L: RobotLink + 'static>(
         cycle: done.stats.summary(),
         rt: done.rt,
         allocations_in_cycle: done.allocations,
-        detection_to_twin: node.detection_age(),
+        detection_to_twin: intake_figures.detection_age,
         commands_logged: commands_logged?,
         commands_refused: r.commands_refused,
         envelope_breaches: r.envelope_breaches,
-        intake: node.intake_counters(),
+        intake: intake_figures.counters,
     })
 }
 
@@ -497,6 +521,7 @@ fn twin_loop(
     shared: &LoopShared,
     ack: &AtomicBool,
     events: &mut Vec<TwinEvent<Scene>>,
+    intake_thread: &IntakeThread,
 ) -> Result<(), ServeError> {
     // The twin thread polls its subscribers every 100 µs; a 1 ns timer slack keeps the
     // sleeps close to that.
@@ -513,6 +538,10 @@ fn twin_loop(
         // Watchdog: a cycle thread that has ended or stopped beating.
         if shared.finished.load(Ordering::Acquire) {
             return Err(ServeError::CycleStalled("has ended"));
+        }
+        if intake_thread.is_finished() {
+            // No scene reaches the cycle any more (it would stop on stale detections).
+            return Err(ServeError::IntakeEnded);
         }
         let now_beat = shared.heartbeat.load(Ordering::Acquire);
         if now_beat != beat.0 {
