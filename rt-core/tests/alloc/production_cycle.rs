@@ -25,11 +25,15 @@ fn the_production_cycle_moving_on_the_xarm_driver_does_not_allocate() {
         .expect("sim")
         .inject_error(ControllerError::Collision);
     let ((), stopping) = crate::count_allocations(|| {
-        // Until the error is read and latched (an acknowledgement before that acknowledges
-        // nothing and is dropped).
-        for _ in 0..500 {
+        // Until the error code is read and latched (an acknowledgement before that
+        // acknowledges nothing and is dropped). Not merely until the latch: the controller's
+        // stopped state can arrive a report before its error code (a latch of its own,
+        // `ControllerStopped`), and on a loaded machine the acknowledgement below then came
+        // before the code was ever read — the test once failed so under `make test`.
+        for _ in 0..2000 {
             rig.cycle_once();
-            if rig.cycle.report().awaiting_ack {
+            let r = rig.cycle.report();
+            if r.awaiting_ack && r.arm_error_code == 31 {
                 break;
             }
         }
