@@ -257,11 +257,7 @@ impl ArmLock {
             tracing::warn!(path = %path.display(), error = %e, "could not write the arm lock's holder record");
         }
         tracing::info!(path = %path.display(), %addr, "arm lock taken: this process owns the arm");
-        Ok(Self {
-            file,
-            path,
-            holder,
-        })
+        Ok(Self { file, path, holder })
     }
 
     /// The lock file.
