@@ -22,7 +22,7 @@ export LIBTORCH_BYPASS_VERSION_CHECK := 1
 CARGO ?= cargo
 BIN := $(CARGO_TARGET_DIR)/release
 
-.PHONY: setup build demo test test-deploy lint fmt learner-host bench bench-link bench-loop sweep clean help
+.PHONY: setup build demo test test-deploy lint fmt learner-host bench bench-link bench-loop sweep sweep-dynamic clean help
 
 help:
 	@echo "make demo   - run the main job on the simulated arm (installs what it needs)"
@@ -32,6 +32,7 @@ help:
 	@echo "make bench-link - policy/request latency across two network namespaces (root)"
 	@echo "make test-deploy - the deploy build (panic = abort) brakes after a panic"
 	@echo "make sweep  - the adversarial safety sweep, 10 000 episodes (ARGS to override)"
+	@echo "make sweep-dynamic - the sweep with intruders during a motion, 1 000 episodes (ARGS)"
 
 setup:
 	@bash scripts/setup.sh
@@ -96,6 +97,13 @@ bench-link: setup
 SWEEP_ARGS ?= --episodes 10000 --seed 1 --out runs/sweep
 sweep: setup
 	$(CARGO) run --release -p sweep -- $(or $(ARGS),$(SWEEP_ARGS))
+
+# The dynamic sweep (issue 33): an intruder during each motion (enters and stops on the path,
+# crosses it, stops then leaves, appears at once; 0.1-1.6 m/s), 60 Hz frames with tracked
+# velocities; exits non-zero on any avoidable contact while the arm moves.
+SWEEP_DYNAMIC_ARGS ?= --dynamic --episodes 1000 --seed 1 --out runs/sweep-dynamic
+sweep-dynamic: setup
+	$(CARGO) run --release -p sweep -- $(or $(ARGS),$(SWEEP_DYNAMIC_ARGS))
 
 clean:
 	$(CARGO) clean

@@ -1,10 +1,13 @@
 //! `sweep`: the adversarial sweep of the production twin worker and cycle (the `sweep`
 //! library), checked by the independent oracle. Prints progress, a summary table, and
 //! writes `summary.json` (atomically: a temporary file renamed) into `--out`. Exit code 1
-//! when any hard count is non-zero, 2 on an error.
+//! when any hard count is non-zero, 2 on an error. With `--dynamic`, the dynamic sweep
+//! (intruders during a motion, `sweep::dynamic`; its own tables and summary; exit code 1 also
+//! on any avoidable contact while moving).
 //!
 //! ```text
 //! cargo run --release -p sweep -- --episodes 10000 --seed 1 --out runs/sweep
+//! cargo run --release -p sweep -- --dynamic --episodes 1000 --seed 1 --out runs/sweep-dynamic
 //! ```
 
 #![forbid(unsafe_code)]
@@ -16,8 +19,12 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
 use shm_schemas::cli_bounds::{f64_within, int_within};
+use sweep::dynamic::DynamicSettings;
 use sweep::{SweepAssets, SweepSettings, SweepSummary, run_sweep};
+
+mod cli;
 
 /// The adversarial sweep of rt-core's twin worker and cycle, checked by an independent oracle.
 #[derive(Debug, Parser)]
@@ -41,9 +48,14 @@ struct SweepArgs {
     /// Worker threads (default: the available cores).
     #[arg(long, value_parser = int_within(1usize, 1024), allow_negative_numbers = true)]
     jobs: Option<usize>,
-    /// Longest episode, s.
-    #[arg(long, default_value_t = 12.0, value_parser = f64_within(0.1, 3600.0), allow_negative_numbers = true)]
-    max_episode_s: f64,
+    /// Longest episode, s (default 12; with --dynamic, the longest run with the intruder:
+    /// default 30).
+    #[arg(long, value_parser = f64_within(0.1, 3600.0), allow_negative_numbers = true)]
+    max_episode_s: Option<f64>,
+    /// The dynamic sweep: an intruder during each motion (entering and stopping on the
+    /// path, crossing it, stopping then leaving, appearing at once), 60 Hz frames.
+    #[arg(long)]
+    dynamic: bool,
 }
 
 fn main() -> ExitCode {
@@ -60,14 +72,27 @@ fn main() -> ExitCode {
 fn run(args: &SweepArgs) -> anyhow::Result<ExitCode> {
     let assets = SweepAssets::load(&args.assets)
         .with_context(|| format!("loading assets from {}", args.assets.display()))?;
+    let jobs = args
+        .jobs
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    if args.dynamic {
+        let defaults = DynamicSettings::default();
+        let settings = DynamicSettings {
+            seed: args.seed,
+            episodes: args.episodes,
+            first_episode: args.first_episode,
+            max_episode_s: args.max_episode_s.unwrap_or(defaults.max_episode_s),
+            jobs,
+            ..defaults
+        };
+        return cli::dynamic::run(&assets, &settings, &args.out);
+    }
     let settings = SweepSettings {
         seed: args.seed,
         episodes: args.episodes,
         first_episode: args.first_episode,
-        max_episode_s: args.max_episode_s,
-        jobs: args
-            .jobs
-            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
+        max_episode_s: args.max_episode_s.unwrap_or(12.0),
+        jobs,
         ..SweepSettings::default()
     };
     let bar = ProgressBar::new(args.episodes);
@@ -173,7 +198,7 @@ fn print_table(s: &SweepSummary) {
 }
 
 /// Writes `summary.json` into `dir` through a temporary file and a rename.
-fn write_summary(dir: &Path, s: &SweepSummary) -> anyhow::Result<PathBuf> {
+fn write_summary(dir: &Path, s: &impl Serialize) -> anyhow::Result<PathBuf> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let path = dir.join("summary.json");
     let tmp = dir.join(".summary.json.tmp");

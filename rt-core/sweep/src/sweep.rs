@@ -37,7 +37,7 @@ use crate::oracle::{
 
 /// `CLOCK_MONOTONIC` at the cycle clock's origin in the sweep, ns (any value well above the
 /// largest stamp offset works).
-const ORIGIN_NS: u64 = 1_000_000_000_000;
+pub(crate) const ORIGIN_NS: u64 = 1_000_000_000_000;
 
 /// How far ahead of the arm a box may be injected, cycles.
 pub const MAX_INJECT_AHEAD_CYCLES: u64 = 200;
@@ -192,7 +192,8 @@ impl PolicyKind {
         PolicyKind::HugeWeights,
     ];
 
-    fn name(self) -> &'static str {
+    /// A short name (counters, reports).
+    pub fn name(self) -> &'static str {
         match self {
             PolicyKind::Bundled => "bundled",
             PolicyKind::RandomWeights => "random_weights",
@@ -334,7 +335,7 @@ impl HardCounts {
             + self.non_finite_commands
     }
 
-    fn add(&mut self, o: &Self) {
+    pub(crate) fn add(&mut self, o: &Self) {
         self.box_penetrations += o.box_penetrations;
         self.table_penetrations += o.table_penetrations;
         self.joint_step_violations += o.joint_step_violations;
@@ -678,7 +679,7 @@ pub fn run_sweep(
 }
 
 /// The random stream of episode `index` of the sweep seeded `seed`.
-fn episode_rng(seed: u64, index: u64) -> ChaCha8Rng {
+pub(crate) fn episode_rng(seed: u64, index: u64) -> ChaCha8Rng {
     let mut z = seed ^ index.wrapping_mul(0x9e37_79b9_7f4a_7c15);
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
@@ -794,7 +795,7 @@ struct EpisodeSpec {
     latency_seed: u64,
 }
 
-fn f32x3(p: [f64; 3]) -> [f32; 3] {
+pub(crate) fn f32x3(p: [f64; 3]) -> [f32; 3] {
     p.map(|v| v as f32)
 }
 
@@ -964,9 +965,9 @@ impl EpisodeSpec {
 }
 
 /// The in-process arm with a record of every command it received.
-struct RecordingLink {
+pub(crate) struct RecordingLink {
     arm: InProcessArm,
-    sent: Vec<(u64, Joints)>,
+    pub(crate) sent: Vec<(u64, Joints)>,
 }
 
 impl RobotLink for RecordingLink {
@@ -991,7 +992,7 @@ impl RobotLink for RecordingLink {
 
 /// A prepared policy of `kind` for the task (the bundled one falls back to the goal-seeker
 /// when unavailable; `fell_back` says so).
-fn make_policy(
+pub(crate) fn make_policy(
     assets: &SweepAssets,
     kind: PolicyKind,
     id: u64,
@@ -1061,7 +1062,7 @@ struct Rehearsal {
 }
 
 /// The name of a stop reason (for counters).
-fn stop_reason_name(r: StopReason) -> &'static str {
+pub(crate) fn stop_reason_name(r: StopReason) -> &'static str {
     match r {
         StopReason::None => "none",
         StopReason::Shield(_) => "shield",
@@ -1075,6 +1076,72 @@ fn stop_reason_name(r: StopReason) -> &'static str {
         StopReason::ModelMismatch => "model_mismatch",
         StopReason::ControllerStopped { .. } => "controller_stopped",
         StopReason::TrackingLost => "tracking_lost",
+    }
+}
+
+/// The production worker and cycle of one episode, wired as `rt-core run` wires them, on a
+/// manual clock at 0, the cycle started on the in-process arm at the task's start posture,
+/// and the production intake in front of the worker.
+pub(crate) struct Rig {
+    pub(crate) clock: ManualClock,
+    pub(crate) cycle: Cycle<TwinModel, RecordingLink>,
+    pub(crate) worker: ProductionWorker,
+    pub(crate) intake: SceneIntake,
+    pub(crate) log: RtLogDrain<CycleEvent>,
+    pub(crate) connection: Arc<AtomicBool>,
+}
+
+impl Rig {
+    /// The rig for `assets`; `auto_resume` lets the cycle resume on its own after a link
+    /// loss.
+    pub(crate) fn new(assets: &SweepAssets, auto_resume: bool) -> Self {
+        let cfg = &assets.cfg;
+        let start = assets.task.start.joints_rad;
+        let (twin_io, cycle_io, log) = cycle::wire::<Scene>();
+        let arm = InProcessArm::new(
+            start,
+            cfg.limits.joint_min_rad,
+            cfg.limits.joint_max_rad,
+            [std::f64::consts::PI; DOF],
+        );
+        let connection = arm.connection();
+        let mut cycle_cfg = CycleConfig::from_runtime(cfg);
+        cycle_cfg.auto_resume_after_link_loss = auto_resume;
+        let mut cycle = Cycle::new(
+            cycle_cfg,
+            serve::cycle_shield(cfg, &assets.model, false),
+            Brake::new(&cfg.limits),
+            RecordingLink {
+                arm,
+                sent: Vec::with_capacity(4096),
+            },
+            cycle_io,
+        );
+        let clock = ManualClock::new(0);
+        // The in-process arm is always readable at start.
+        let _ = cycle.start(clock.now_ns());
+        let lookahead =
+            TwinLookahead::new(assets.model.clone(), assets.task, LookaheadActions::Policy);
+        let worker = ProductionWorker::new(
+            cfg,
+            lookahead,
+            serve::plan_shield(cfg, &assets.model, false),
+            twin_io,
+        );
+        let intake = SceneIntake::new(
+            cfg.intake,
+            (cfg.stale.max_detection_age_s * 1e9) as u64,
+            assets.task.sampling.table_height_m,
+            ORIGIN_NS,
+        );
+        Self {
+            clock,
+            cycle,
+            worker,
+            intake,
+            log,
+            connection,
+        }
     }
 }
 
@@ -1113,43 +1180,14 @@ impl<'a> Episode<'a> {
     ) -> Self {
         let cfg = &assets.cfg;
         let start = assets.task.start.joints_rad;
-        let (twin_io, cycle_io, log) = cycle::wire::<Scene>();
-        let arm = InProcessArm::new(
-            start,
-            cfg.limits.joint_min_rad,
-            cfg.limits.joint_max_rad,
-            [std::f64::consts::PI; DOF],
-        );
-        let connection = arm.connection();
-        let mut cycle_cfg = CycleConfig::from_runtime(cfg);
-        cycle_cfg.auto_resume_after_link_loss = spec.link_cut.is_some_and(|l| l.auto_resume);
-        let mut cycle = Cycle::new(
-            cycle_cfg,
-            serve::cycle_shield(cfg, &assets.model, false),
-            Brake::new(&cfg.limits),
-            RecordingLink {
-                arm,
-                sent: Vec::with_capacity(4096),
-            },
-            cycle_io,
-        );
-        let clock = ManualClock::new(0);
-        // The in-process arm is always readable at start.
-        let _ = cycle.start(clock.now_ns());
-        let lookahead =
-            TwinLookahead::new(assets.model.clone(), assets.task, LookaheadActions::Policy);
-        let worker = ProductionWorker::new(
-            cfg,
-            lookahead,
-            serve::plan_shield(cfg, &assets.model, false),
-            twin_io,
-        );
-        let intake = SceneIntake::new(
-            cfg.intake,
-            (cfg.stale.max_detection_age_s * 1e9) as u64,
-            assets.task.sampling.table_height_m,
-            ORIGIN_NS,
-        );
+        let Rig {
+            clock,
+            cycle,
+            worker,
+            intake,
+            log,
+            connection,
+        } = Rig::new(assets, spec.link_cut.is_some_and(|l| l.auto_resume));
         let oracle = &assets.oracle;
         let gc = spec.goal_center.map(f64::from);
         let goal_target = [
@@ -1710,7 +1748,7 @@ impl<'a> Episode<'a> {
     }
 }
 
-fn max_gap(a: &Point, b: &Point) -> f64 {
+pub(crate) fn max_gap(a: &Point, b: &Point) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 

@@ -1,12 +1,16 @@
 //! The adversarial sweep (the `sweep` crate) on the production twin worker and
 //! cycle: a short run with every twist made likely, whose hard counts must be zero and whose
 //! adversarial paths must have been taken; and the oracle shown able to fail, against
-//! hand-computed distances.
+//! hand-computed distances. The dynamic sweep (intruders during a motion): a short run whose
+//! avoidable contacts while moving must be zero for intruders up to 1.0 m/s and whose arm
+//! must mostly go on to its goal; and its checks shown able to fail, on a runtime that never
+//! sees the intruder.
 
 #![allow(missing_docs, clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::PathBuf;
 
+use sweep::dynamic::{DynamicEpisodeReport, DynamicSettings, IntruderKind, run_dynamic_sweep};
 use sweep::oracle::{OracleBox, segment_box_distance_m};
 use sweep::{SweepAssets, SweepSettings, TwistRates, run_sweep};
 
@@ -118,4 +122,92 @@ fn the_oracle_counts_a_pose_through_a_box_and_passes_one_1_mm_clear() {
     assert!(at_tcp.box_m < -0.01, "{at_tcp:?}");
     // The padding is off: the twin's padded capsule would already touch at 1 mm.
     assert!(cap.radius_m > 0.0);
+}
+
+/// Episodes of the short dynamic sweep: a few seconds in release on a slow two-core machine.
+const SHORT_DYNAMIC_EPISODES: u64 = 40;
+
+fn dynamic_settings(episodes: u64) -> DynamicSettings {
+    DynamicSettings {
+        seed: 5,
+        episodes,
+        jobs: std::thread::available_parallelism()
+            .map_or(1, |n| n.get())
+            .min(2),
+        ..DynamicSettings::default()
+    }
+}
+
+/// Issue 33 item 6: intruders entering and stopping on the path, crossing it, stopping then
+/// leaving, and appearing at once, during the motion, through the real intake, worker and
+/// cycle. Outcomes only: no avoidable contact while moving up to 1.0 m/s, the arm goes on to
+/// its goal after the intruder left, and the run with the intruder sends the rehearsal's
+/// commands until the first frame that carries it (the rig is deterministic).
+#[test]
+fn a_short_dynamic_sweep_has_no_avoidable_contact_up_to_1_m_s_and_goes_on_to_the_goal() {
+    let assets = assets();
+    let settings = dynamic_settings(SHORT_DYNAMIC_EPISODES);
+    let mut reports: Vec<DynamicEpisodeReport> = Vec::new();
+    let s = run_dynamic_sweep(&assets, &settings, |r, _| reports.push(r.clone()));
+    let report = serde_json::to_string_pretty(&s).unwrap();
+    assert_eq!(s.hard.total(), 0, "hard violations: {report}");
+    assert!(
+        s.episodes_run >= SHORT_DYNAMIC_EPISODES * 9 / 10,
+        "{report}"
+    );
+    for kind in IntruderKind::ALL {
+        assert!(s.by_kind[kind.name()].episodes > 0, "no {kind:?}: {report}");
+    }
+    for band in ["0.1-0.5", "0.5-1.0"] {
+        assert_eq!(
+            s.by_speed_band[band].contacts_while_moving_avoidable, 0,
+            "avoidable contact while moving at {band} m/s: {report}"
+        );
+    }
+    assert!(
+        s.targets.no_avoidable_moving_contact_up_to_1_m_s,
+        "{report}"
+    );
+    let cleared = s.all.intruder_cleared;
+    assert!(cleared >= 10, "too few intruders left: {report}");
+    assert!(
+        s.all.reached_after_clear * 10 >= cleared * 8,
+        "the arm did not go on to its goal: {report}"
+    );
+    assert!(s.all.reaction.changed > 0, "no reaction measured: {report}");
+    for r in &reports {
+        if let Some(changed) = r.changed_cycle {
+            let first = r.first_intruder_frame_cycle.expect("a frame carried it");
+            assert!(
+                changed >= first,
+                "episode {}: commands changed in cycle {changed}, before the intruder's first \
+                 frame ({first})",
+                r.episode
+            );
+        }
+    }
+}
+
+/// The dynamic sweep's checks can fail: with perception blind to the intruder the runtime
+/// sends exactly the rehearsal's commands, and the intruders placed on its path meet the
+/// moving arm where it could have stopped.
+#[test]
+fn the_dynamic_checks_find_the_contacts_of_a_runtime_blind_to_the_intruder() {
+    let assets = assets();
+    let settings = DynamicSettings {
+        blind_to_intruder: true,
+        ..dynamic_settings(30)
+    };
+    let mut reports: Vec<DynamicEpisodeReport> = Vec::new();
+    let s = run_dynamic_sweep(&assets, &settings, |r, _| reports.push(r.clone()));
+    let report = serde_json::to_string_pretty(&s).unwrap();
+    assert!(
+        s.all.contacts_while_moving_avoidable > 0,
+        "a blind runtime met no intruder where it could have stopped: {report}"
+    );
+    assert!(s.failures_total() > 0);
+    for r in &reports {
+        assert_eq!(r.changed_cycle, None, "episode {}: {report}", r.episode);
+        assert_eq!(r.first_intruder_frame_cycle, None);
+    }
 }

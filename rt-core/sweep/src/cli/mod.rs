@@ -1,0 +1,3 @@
+//! The `sweep` binary's modes besides the static sweep (which lives in `main.rs`).
+
+pub(crate) mod dynamic;
