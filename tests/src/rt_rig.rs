@@ -105,6 +105,17 @@ impl Rig {
 
     /// [`Rig::start_with`] with the `rt-core` binary at `rt_core` (e.g. the deploy build).
     pub fn start_with_bin(test: &str, rt_core: &std::path::Path, extra: &[String]) -> Self {
+        Self::start_with_bin_stderr(test, rt_core, extra, None)
+    }
+
+    /// [`Rig::start_with_bin`] with rt-core's stderr sent to `stderr` (e.g. `/dev/full`)
+    /// instead of the log file (`None`: the log file).
+    pub fn start_with_bin_stderr(
+        test: &str,
+        rt_core: &std::path::Path,
+        extra: &[String],
+        stderr: Option<Stdio>,
+    ) -> Self {
         let prefix = unique_prefix(test);
         let dir = std::env::temp_dir().join(&prefix);
         std::fs::create_dir_all(&dir).expect("temp dir");
@@ -138,7 +149,7 @@ impl Rig {
                 .arg("120")
                 .args(extra)
                 .stdout(Stdio::null())
-                .stderr(Stdio::from(log_file)),
+                .stderr(stderr.unwrap_or_else(|| Stdio::from(log_file))),
         );
         let obstacles: Obstacles = Arc::new(Mutex::new(Vec::new()));
         let stop = Arc::new(AtomicBool::new(false));

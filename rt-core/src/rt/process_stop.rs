@@ -9,7 +9,10 @@
 //! on an xArm). A handler does nothing else (setting an atomic is async-signal-safe).
 //!
 //! Signals: SIGHUP, SIGINT, SIGQUIT, SIGTERM, SIGUSR2, SIGALRM, SIGXCPU, SIGXFSZ, SIGVTALRM,
-//! SIGPROF, SIGIO, SIGPWR, SIGSTKFLT and the real-time signals request the stop. SIGPIPE is
+//! SIGPROF, SIGIO, SIGPWR, SIGSTKFLT, the job-control stops SIGTSTP, SIGTTIN and SIGTTOU (a
+//! stopped process would leave the arm mid-plan) and the real-time signals request the stop.
+//! SIGSTOP cannot be caught: after it (or a paused VM) the cycle sees the gap and stops at
+//! the measured joints ([`crate::cycle::StopReason::Frozen`]). SIGPIPE is
 //! counted and otherwise ignored (a broken socket is an error of the write, never the end of
 //! the process). SIGUSR1, the operator's acknowledgement, is caught from the start so that
 //! one sent before the runtime listens for it does not kill the process (it is dropped: an
@@ -50,7 +53,7 @@ thread_local! {
 /// The signals whose default action ends the process and that request a controlled stop
 /// instead (the real-time signals are added at install time: their numbers are the C
 /// library's).
-pub const STOP_SIGNALS: [libc::c_int; 13] = [
+pub const STOP_SIGNALS: [libc::c_int; 16] = [
     libc::SIGHUP,
     libc::SIGINT,
     libc::SIGQUIT,
@@ -64,6 +67,11 @@ pub const STOP_SIGNALS: [libc::c_int; 13] = [
     libc::SIGIO,
     libc::SIGPWR,
     libc::SIGSTKFLT,
+    // A terminal's Ctrl-Z and background reads/writes would stop the process with the arm
+    // mid-plan (issue 30 item 3): a controlled stop instead, then the process ends.
+    libc::SIGTSTP,
+    libc::SIGTTIN,
+    libc::SIGTTOU,
 ];
 
 /// A signal handler could not be installed.
@@ -179,6 +187,12 @@ pub fn install_panic_hook(wait: Duration) {
     }
     let default = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
+        if cfg!(panic = "abort") {
+            // Brake first: nothing below may keep the cycle from seeing the request (issue
+            // 30 item 4: printing to a full disk or a closed pipe once panicked in here,
+            // which aborts at once, without the stop).
+            PANICKED.store(true, Ordering::Release);
+        }
         default(info);
         if cfg!(panic = "abort") {
             brake_before_abort(wait);
@@ -197,18 +211,30 @@ pub fn brake_before_abort(wait: Duration) -> bool {
 // The panic path, off the cycle: waits in wall time for the cycle to brake.
 #[allow(clippy::disallowed_methods)]
 fn wait_for_cycles(wait: Duration) -> bool {
+    let mut stderr = std::io::stderr();
     if ON_CYCLE_THREAD.try_with(Cell::get).unwrap_or(false) {
-        eprintln!("rt-core: panic on the cycle thread: no controlled stop is possible; aborting");
+        say(
+            &mut stderr,
+            format_args!(
+                "rt-core: panic on the cycle thread: no controlled stop is possible; aborting"
+            ),
+        );
         return false;
     }
     if cycles_running() == 0 {
         return true;
     }
-    eprintln!("rt-core: panic: braking the arm to rest before aborting");
+    say(
+        &mut stderr,
+        format_args!("rt-core: panic: braking the arm to rest before aborting"),
+    );
     let deadline = Instant::now() + wait;
     while cycles_running() > 0 {
         if Instant::now() >= deadline {
-            eprintln!("rt-core: the cycle did not end within {wait:?}; aborting anyway");
+            say(
+                &mut stderr,
+                format_args!("rt-core: the cycle did not end within {wait:?}; aborting anyway"),
+            );
             return false;
         }
         std::thread::sleep(Duration::from_millis(2));
@@ -220,6 +246,12 @@ fn wait_for_cycles(wait: Duration) -> bool {
     true
 }
 
+/// One line to `out`, its error ignored: the panic path must never panic itself
+/// (`eprintln!` panics when stderr cannot be written: a full disk, a closed pipe).
+fn say(out: &mut impl std::io::Write, line: std::fmt::Arguments<'_>) {
+    let _ = writeln!(out, "{line}");
+}
+
 /// How long the panic hook lets the cycle's log drain run after the cycle ended (several
 /// of the drain's 20 ms periods).
 const LOG_DRAIN_GRACE: Duration = Duration::from_millis(100);
@@ -229,6 +261,25 @@ const LOG_DRAIN_GRACE: Duration = Duration::from_millis(100);
 #[allow(clippy::disallowed_methods)]
 mod tests {
     use super::*;
+
+    /// Issue 30 item 4: the hook's lines go to a writer that fails (stderr on /dev/full or
+    /// a closed pipe) without panicking.
+    #[test]
+    fn the_panic_path_prints_to_a_failing_stderr_without_panicking() {
+        struct Full;
+        impl std::io::Write for Full {
+            fn write(&mut self, _: &[u8]) -> std::io::Result<usize> {
+                Err(std::io::Error::from(std::io::ErrorKind::StorageFull))
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Err(std::io::Error::from(std::io::ErrorKind::BrokenPipe))
+            }
+        }
+        say(&mut Full, format_args!("rt-core: panic: braking the arm"));
+        let mut sink = Vec::new();
+        say(&mut sink, format_args!("line {}", 1));
+        assert_eq!(sink, b"line 1\n");
+    }
 
     #[test]
     fn the_panic_wait_ends_with_the_cycle_threads_and_never_waits_for_itself() {
