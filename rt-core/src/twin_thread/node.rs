@@ -532,6 +532,8 @@ pub fn stop_code(reason: StopReason) -> shm_schemas::StopReason {
         // its own, and measured joints that disagree with the commands.
         StopReason::ControllerStopped { .. } => S::ArmError,
         StopReason::TrackingLost => S::ModelMismatch,
+        // The cycle itself went stale (a stopped process): the nearest contract code.
+        StopReason::Frozen => S::StaleRobotState,
     }
 }
 

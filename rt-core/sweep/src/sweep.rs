@@ -1076,6 +1076,7 @@ pub(crate) fn stop_reason_name(r: StopReason) -> &'static str {
         StopReason::ModelMismatch => "model_mismatch",
         StopReason::ControllerStopped { .. } => "controller_stopped",
         StopReason::TrackingLost => "tracking_lost",
+        StopReason::Frozen => "frozen",
     }
 }
 

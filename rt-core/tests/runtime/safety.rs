@@ -225,3 +225,51 @@ fn an_unsafe_lookahead_after_a_scene_change_revokes_the_plan_under_way() {
     );
     assert_eq!(rig.cycle.report().stop_reason, StopReason::Revoked);
 }
+
+/// Issue 30 item 3: a cycle that was not run for longer than the freeze bound while the arm
+/// moved (SIGSTOP, a paused VM, a long page fault) ends the stop at the measured joints and
+/// latches, instead of streaming on from where the plan's clock left off (a jump from rest
+/// to the plan's speed). Before, the cycle took the next sample as if nothing had happened.
+#[test]
+fn a_frozen_cycle_stops_at_the_measured_joints_and_latches() {
+    let mut rig = Rig::new();
+    rig.policy(1, TARGET_A);
+    rig.run(60);
+    assert_eq!(rig.mode(), Mode::Following);
+    let held = rig.arm_q();
+    // Half a second without a cycle: the controller holds the last target.
+    rig.clock.advance_ns(500_000_000);
+    rig.run(1);
+    let r = *rig.cycle.report();
+    assert_eq!(r.stop_reason, StopReason::Frozen, "{r:?}");
+    assert_eq!(rig.mode(), Mode::Stopped);
+    assert!(
+        r.awaiting_ack,
+        "a frozen stop latches on an arm that does not auto-resume"
+    );
+    assert_eq!(rig.arm_q(), held, "a target was streamed after the freeze");
+    rig.run(200);
+    assert_eq!(rig.arm_q(), held, "moved without an acknowledgement");
+    assert_eq!(rig.mode(), Mode::Stopped);
+}
+
+/// The same freeze on a simulated arm that auto-resumes: a pause, then a fresh plan from
+/// where the arm stands.
+#[test]
+fn a_frozen_cycle_on_an_auto_resuming_arm_stops_then_continues_on_a_fresh_plan() {
+    let mut rig = Rig::auto_resuming();
+    rig.policy(1, TARGET_A);
+    rig.run(60);
+    assert_eq!(rig.mode(), Mode::Following);
+    let first_plan = rig.cycle.report().plan_id;
+    rig.clock.advance_ns(500_000_000);
+    rig.run(1);
+    assert_eq!(rig.cycle.report().stop_reason, StopReason::Frozen);
+    assert!(!rig.cycle.report().awaiting_ack);
+    rig.run(400);
+    assert!(
+        rig.cycle.report().plan_id > first_plan,
+        "{:?}",
+        rig.cycle.report()
+    );
+}

@@ -29,7 +29,20 @@ pub struct CycleConfig {
     /// More than [`CycleConfig::max_tracking_error_rad`] for this many periods in a row is
     /// a frozen arm: a latched stop (`tracking.max_error_cycles`).
     pub tracking_error_cycles: u32,
+    /// Longest time between two cycles while the arm moves, ns: a longer gap (the process
+    /// stopped, a paused VM, a long page fault) is a stop at the measured joints
+    /// ([`super::StopReason::Frozen`]), never a resumption from where the plan's clock left
+    /// off. [`FREEZE_BOUND_PERIODS`] periods, at least [`FREEZE_BOUND_MIN_NS`].
+    pub max_cycle_gap_ns: u64,
 }
+
+/// Periods a cycle may come late before it counts as a freeze.
+pub const FREEZE_BOUND_PERIODS: u64 = 10;
+
+/// The freeze bound's floor, ns (100 ms: far above a shared CI machine's worst wake-up seen,
+/// 11 ms at p99, so a loaded machine does not latch a real arm; a stopped process is
+/// stopped for seconds).
+pub const FREEZE_BOUND_MIN_NS: u64 = 100_000_000;
 
 impl CycleConfig {
     /// From the runtime configuration.
@@ -37,6 +50,7 @@ impl CycleConfig {
         Self {
             period_ns: cfg.period_ns(),
             max_detection_age_ns: (cfg.stale.max_detection_age_s * 1e9) as u64,
+            max_cycle_gap_ns: (FREEZE_BOUND_PERIODS * cfg.period_ns()).max(FREEZE_BOUND_MIN_NS),
             max_robot_state_age_ns: (cfg.stale.max_robot_state_age_s * 1e9) as u64,
             start_tolerance_rad: 0.02,
             brake_horizon_samples: {

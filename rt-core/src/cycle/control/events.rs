@@ -100,6 +100,13 @@ pub enum CycleEvent {
         /// rad.
         error_rad: f64,
     },
+    /// The cycle itself was not run for longer than the freeze bound (the process stopped
+    /// by SIGSTOP or a terminal's Ctrl-Z, a paused VM, a long page fault): the controller got
+    /// no target meanwhile, so the arm stands where measured; the stop ends there.
+    Frozen {
+        /// Time since the cycle before, ns.
+        gap_ns: u64,
+    },
     /// An acknowledgement arrived while the link was down or the arm was still stopping:
     /// dropped (an operator acknowledges an arm at rest they can see; a new one is needed).
     AcknowledgementDropped,
@@ -154,6 +161,11 @@ pub enum StopReason {
     /// [`CycleConfig::max_tracking_error_rad`](super::CycleConfig::max_tracking_error_rad) apart): a frozen or blocked arm. Stopped and
     /// latched until an operator acknowledges.
     TrackingLost,
+    /// The cycle was not run for longer than the freeze bound while the arm moved
+    /// ([`CycleConfig::max_cycle_gap_ns`](super::CycleConfig::max_cycle_gap_ns)): the
+    /// stop ends at the measured joints, latched until an operator acknowledges (unless the
+    /// arm is simulated and auto-resumes, as after a lost link).
+    Frozen,
 }
 
 impl StopReason {
@@ -172,6 +184,7 @@ impl StopReason {
             StopReason::ModelMismatch => 9,
             StopReason::ControllerStopped { .. } => 20,
             StopReason::TrackingLost => 21,
+            StopReason::Frozen => 22,
         }
     }
 }

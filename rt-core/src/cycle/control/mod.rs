@@ -113,6 +113,9 @@ pub struct Cycle<M: ShieldModel, L: RobotLink> {
     controller_ready_seen: bool,
     /// Periods in a row with the measured joints beyond the tracking tolerance.
     tracking_bad_cycles: u32,
+    /// Time of the cycle before (0 before the first), ns: a longer gap than
+    /// [`CycleConfig::max_cycle_gap_ns`] is a freeze.
+    last_cycle_ns: u64,
 }
 
 impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
@@ -150,6 +153,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             mismatch_latch_pending: false,
             controller_ready_seen: false,
             tracking_bad_cycles: 0,
+            last_cycle_ns: 0,
         }
     }
 
@@ -342,6 +346,26 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         self.begin_stop(now_ns, StopReason::ModelMismatch, StopMotion::AlongPlan);
         self.report.stop_reason = StopReason::ModelMismatch;
         self.mismatch_latch_pending = true;
+    }
+
+    /// The cycle was not run for `gap_ns` (longer than the freeze bound). While the arm
+    /// moved (or stopped), the controller got no target meanwhile and holds the arm where it
+    /// stands: the stop ends at the measured joints at once — streaming on from where the
+    /// plan's clock left off would jump the arm from rest to the plan's speed. Latched until
+    /// an operator acknowledges, unless the arm is simulated and auto-resumes
+    /// ([`CycleConfig::auto_resume_after_link_loss`]). At rest a gap changes nothing.
+    fn on_freeze(&mut self, now_ns: u64, gap_ns: u64) {
+        if !matches!(self.mode, Mode::Following | Mode::Stopping) {
+            return;
+        }
+        self.io.log.log(now_ns, CycleEvent::Frozen { gap_ns });
+        self.begin_stop(now_ns, StopReason::Frozen, StopMotion::Brake);
+        self.report.stop_reason = StopReason::Frozen;
+        if !self.cfg.auto_resume_after_link_loss && self.link.commands_reach_arm() {
+            self.report.awaiting_ack = true;
+        }
+        let q = self.report.measured_q_rad;
+        self.snap_to(now_ns, q);
     }
 
     fn refuse(&mut self, now_ns: u64, p: Box<Plan>) {
@@ -542,6 +566,12 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         }
         // Inputs.
         let mut inputs_ok = self.read_inputs(now_ns);
+        let gap_ns = now_ns.saturating_sub(self.last_cycle_ns);
+        if self.last_cycle_ns != 0 && gap_ns > self.cfg.max_cycle_gap_ns {
+            inputs_ok = false;
+            self.on_freeze(now_ns, gap_ns);
+        }
+        self.last_cycle_ns = now_ns;
         let refused = self.scene.is_some_and(|s| s.refused);
         let scene_fresh = self.scene.is_some_and(|s| {
             !s.refused && now_ns.saturating_sub(s.stamp_ns) <= self.cfg.max_detection_age_ns
