@@ -217,6 +217,8 @@ pub mod bounds {
     /// within its own period (4 ms), so a slower stream sends larger jumps per target, and
     /// the cycle's one-step bound (a period's motion at the speed limits) grows with it.
     pub const XARM_MIN_RATE_HZ: f64 = 100.0;
+    /// The controller's own servo period, s: it executes each servo target within it.
+    pub const XARM_SERVO_PERIOD_S: f64 = 0.004;
     /// Largest detection age, s: older, a dead perception would leave the arm moving on a
     /// scene that may have changed.
     pub const MAX_DETECTION_AGE_S: f64 = 1.0;
@@ -571,6 +573,23 @@ impl RuntimeConfig {
                       larger jumps per target)",
             });
         }
+        // Issue 30 item 5: one target's step at the configured speed must be one the
+        // controller executes within its own servo period at its joint speed limit.
+        let max_step_rad = bounds::SDK_MAX_JOINT_VELOCITY_RAD_S * bounds::XARM_SERVO_PERIOD_S;
+        if self
+            .limits
+            .max_velocity_rad_s
+            .iter()
+            .any(|v| v / self.rate_hz > max_step_rad + 1e-12)
+        {
+            return Err(RuntimeConfigError::Invalid {
+                field: "limits.max_velocity_rad_s",
+                why: "with rate_hz, one servo target's step (max_velocity_rad_s / rate_hz) must be \
+                      at most what the controller executes in its 4 ms servo period at its joint \
+                      speed limit (pi rad/s x 4 ms = 12.6 mrad): lower limits.max_velocity_rad_s \
+                      or raise rate_hz",
+            });
+        }
         Ok(())
     }
 
@@ -761,6 +780,27 @@ mod tests {
             }
         }
         RuntimeConfig::from_toml(&with_value("rate_hz", "100.0"))
+            .unwrap()
+            .check_for_xarm_link()
+            .unwrap();
+        // Issue 30 item 5: 100 Hz with 1.5 rad/s asks for 15 mrad per target, more than the
+        // controller executes in its 4 ms servo period (12.6 mrad at its speed limit).
+        let fast = with_value("rate_hz", "100.0").replace(
+            "max_velocity_rad_s = [1.0, 1.0, 1.0, 1.0, 1.0]",
+            "max_velocity_rad_s = [1.0, 1.5, 1.0, 1.0, 1.0]",
+        );
+        match RuntimeConfig::from_toml(&fast)
+            .unwrap()
+            .check_for_xarm_link()
+        {
+            Err(e @ RuntimeConfigError::Invalid { field, .. }) => {
+                assert_eq!(field, "limits.max_velocity_rad_s");
+                assert!(e.to_string().contains("rate_hz"), "{e}");
+            }
+            other => panic!("expected Invalid(limits.max_velocity_rad_s), got {other:?}"),
+        }
+        let fast_at_250 = fast.replace("rate_hz = 100.0", "rate_hz = 250.0");
+        RuntimeConfig::from_toml(&fast_at_250)
             .unwrap()
             .check_for_xarm_link()
             .unwrap();
