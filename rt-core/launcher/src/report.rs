@@ -35,6 +35,13 @@ pub struct Summary {
     pub collision_predicted_before_motion: bool,
     /// Policies swapped into the running loop.
     pub policy_swaps: u64,
+    /// Times the arm stopped for an obstacle (a plan the twin revoked, or a command the
+    /// shield refused, while a box moved into its way): `paused` in the timeline.
+    #[serde(default)]
+    pub pauses: u64,
+    /// The longest such pause, stop → moving again (s); `None` when no pause ended.
+    #[serde(default)]
+    pub longest_pause_s: Option<f64>,
     /// World change → first detection of the new scene (s).
     pub world_change_to_detection_s: Option<f64>,
     /// World change → first verdict on the new scene (s).
@@ -47,6 +54,11 @@ pub struct Summary {
     pub cycle_p99_us: Option<f64>,
     /// Cycle compute time, 99.9th percentile (µs).
     pub cycle_p999_us: Option<f64>,
+    /// What real-time set-up rt-core's cycle thread got (the launcher asks for SCHED_FIFO
+    /// and a pinned core; `{"pinned": {"Ok": 1}, "fifo": {"Err": 1}, ...}`: granted, or the
+    /// OS's errno), and its wake-up latency (µs); from rt-core's summary line.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rt_core_realtime: Option<serde_json::Value>,
     /// Whether the lookahead gate was on (`--no-lookahead` turns it off).
     pub lookahead: bool,
     /// Whether the planner fallback was on (`--planner-fallback`).
@@ -610,6 +622,8 @@ pub fn write_markdown(
             summary.collision_predicted_before_motion.to_string(),
         ),
         ("policy swaps", summary.policy_swaps.to_string()),
+        ("pauses for an obstacle", summary.pauses.to_string()),
+        ("longest pause", fmt_opt(summary.longest_pause_s, "s")),
         (
             "planner fallback",
             on_off(summary.planner_fallback).to_owned(),

@@ -7,15 +7,20 @@
 //! From then on it timestamps, from what the processes publish: the first detection of the
 //! new scene, the first verdict on it (and whether it flagged a collision before the arm had
 //! moved), the retrain request, the new policy, the arm moving again, and the goal reached.
+//! In a scene with moving boxes it also marks when each box sets off and comes to rest
+//! (from the scene file's keyframes, counted from the switch), when the arm stops for an
+//! obstacle (`paused`: a controlled stop whose reason is the shield's, which is how rt-core
+//! reports a plan its twin revoked) and when it moves on again (`resumed`).
 //!
 //! The director is a pure state machine over [`Observations`] and a clock value, so it is
 //! tested without processes; the `foresight` binary feeds it.
 
 use nalgebra::Vector3;
 use serde::Serialize;
-use shm_schemas::scene_file::SceneFile;
+use shm_schemas::scene_file::{Keyframe, SceneFile};
 use shm_schemas::{
-    Executor, PhaseCode, RetrainPhase, RetrainProgress, RetrainRequest, RobotState, TwinVerdict,
+    Executor, PhaseCode, RetrainPhase, RetrainProgress, RetrainRequest, RobotState, StopReason,
+    TwinVerdict,
 };
 
 use super::observer::{Observations, SeenScene};
@@ -62,7 +67,8 @@ pub struct TimelineEvent {
     /// Time since the launcher started (s).
     pub t_s: f64,
     /// Event kind (`world_change`, `detection`, `verdict`, `retrain_request`,
-    /// `retrain_progress`, `policy_swap`, `motion`, `goal_reached`, `timeout`, …).
+    /// `retrain_progress`, `policy_swap`, `motion`, `goal_reached`, `timeout`,
+    /// `obstacle_moves`, `obstacle_stops`, `paused`, `resumed`, …).
     pub kind: &'static str,
     /// Human-readable detail.
     pub detail: String,
@@ -113,6 +119,30 @@ pub struct Director {
     closest_m: Vec<f64>,
     p99_us: Option<f64>,
     last_progress_print_s: f64,
+    /// Since when the arm has been stopped for an obstacle (launcher time, s).
+    paused_since_s: Option<f64>,
+    /// Per scene: the arm's stops for an obstacle.
+    pauses: Vec<u32>,
+    /// The longest pause that ended (s).
+    longest_pause_s: Option<f64>,
+    /// The scene in force's box motions still to be marked: (launcher time s, kind, detail).
+    box_events: Vec<(f64, &'static str, String)>,
+}
+
+/// A box motion's timeline mark: box `i` at keyframe `k` of a scene put in force at `t_s`.
+fn box_mark(
+    t_s: f64,
+    i: usize,
+    k: Keyframe,
+    kind: &'static str,
+    verb: &str,
+) -> (f64, &'static str, String) {
+    let c = k.center_m;
+    let detail = format!(
+        "box {i} {verb} ({:.2}, {:.2}, {:.2}) m (+{:.2} s)",
+        c[0], c[1], c[2], k.at_s
+    );
+    (t_s + k.at_s, kind, detail)
 }
 
 fn tcp_of(state: &RobotState) -> Vector3<f64> {
@@ -151,6 +181,10 @@ impl Director {
             closest_m: vec![f64::INFINITY; n],
             p99_us: None,
             last_progress_print_s: f64::NEG_INFINITY,
+            paused_since_s: None,
+            pauses: vec![0; n],
+            longest_pause_s: None,
+            box_events: Vec::new(),
         }
     }
 
@@ -203,6 +237,7 @@ impl Director {
     pub fn step(&mut self, t_s: f64, obs: &Observations) -> Vec<Action> {
         let mut actions = Vec::new();
         let scene_idx = self.scene_index();
+        self.mark_box_motions(t_s);
         for s in &obs.states {
             self.on_state(t_s, s, scene_idx);
         }
@@ -449,6 +484,7 @@ impl Director {
                                 Self::tallest(&self.cfg.world[next].1)
                             ),
                         );
+                        self.schedule_box_motions(t_s, next);
                         actions.push(Action::SwitchScene(next));
                     }
                 }
@@ -481,6 +517,7 @@ impl Director {
         } else if self.still_since_s.is_none() {
             self.still_since_s = Some(t_s);
         }
+        self.watch_pause(t_s, s, moving, scene);
         if let Some(q0) = self.joints_at_change
             && !self.moved_since_change
             && q0
@@ -529,6 +566,83 @@ impl Director {
             );
         }
         self.last_state = Some(*s);
+    }
+
+    /// Marks the arm stopping for an obstacle (`paused`) and moving on again (`resumed`).
+    /// rt-core reports a plan its twin revoked and a command its shield refused alike, as a
+    /// controlled stop with [`StopReason::ShieldViolation`]; the pause ends when the arm is
+    /// out of the stop and its joints move.
+    fn watch_pause(&mut self, t_s: f64, s: &RobotState, moving: bool, scene: usize) {
+        let for_obstacle = s.is_stopped() && s.stop_reason() == Ok(StopReason::ShieldViolation);
+        match self.paused_since_s {
+            None if for_obstacle => {
+                self.paused_since_s = Some(t_s);
+                self.pauses[scene] += 1;
+                let after = self
+                    .change_s
+                    .map_or(String::new(), |c| format!(" (+{:.2} s)", t_s - c));
+                self.log(
+                    t_s,
+                    "paused",
+                    format!(
+                        "the arm stops for an obstacle{after}: shield_violation (the twin revoked \
+                         the plan or the shield refused a command), TCP at ({:.3}, {:.3}, {:.3}) m",
+                        s.tcp_m[0], s.tcp_m[1], s.tcp_m[2]
+                    ),
+                );
+            }
+            Some(since_s) if !s.is_stopped() && moving => {
+                self.paused_since_s = None;
+                let pause_s = t_s - since_s;
+                self.longest_pause_s =
+                    Some(self.longest_pause_s.map_or(pause_s, |l| l.max(pause_s)));
+                self.log(
+                    t_s,
+                    "resumed",
+                    format!("the arm moves on after a {pause_s:.2} s pause"),
+                );
+            }
+            _ => {}
+        }
+    }
+
+    /// Schedules the timeline marks of scene `scene`'s moving boxes, put in force at `t_s`:
+    /// `obstacle_moves` where a box sets off, `obstacle_stops` where it comes to rest.
+    fn schedule_box_motions(&mut self, t_s: f64, scene: usize) {
+        let mut marks = Vec::new();
+        for (i, b) in self.cfg.world[scene].1.obstacles.iter().enumerate() {
+            let mut was_moving = false;
+            for w in b.path.keyframes().windows(2) {
+                let moving = w[0].center_m != w[1].center_m;
+                if moving && !was_moving {
+                    marks.push(box_mark(t_s, i, w[0], "obstacle_moves", "sets off from"));
+                }
+                if !moving && was_moving {
+                    marks.push(box_mark(t_s, i, w[0], "obstacle_stops", "comes to rest at"));
+                }
+                was_moving = moving;
+            }
+            if was_moving && let Some(last) = b.path.keyframes().last() {
+                marks.push(box_mark(
+                    t_s,
+                    i,
+                    *last,
+                    "obstacle_stops",
+                    "comes to rest at",
+                ));
+            }
+        }
+        marks.sort_by(|a, b| a.0.total_cmp(&b.0));
+        self.box_events = marks;
+    }
+
+    /// Logs the box motions due by `t_s`, at the times they happen.
+    fn mark_box_motions(&mut self, t_s: f64) {
+        let due = self.box_events.iter().take_while(|e| e.0 <= t_s).count();
+        let marks: Vec<_> = self.box_events.drain(..due).collect();
+        for (at_s, kind, detail) in marks {
+            self.log(at_s, kind, detail);
+        }
     }
 
     /// Why scene `i`'s goal was not reached, as far as the director saw it.
@@ -617,12 +731,15 @@ impl Director {
             collisions,
             collision_predicted_before_motion: self.predicted_before_motion,
             policy_swaps: self.policy_swaps,
+            pauses: self.pauses.iter().map(|&p| u64::from(p)).sum(),
+            longest_pause_s: self.longest_pause_s,
             world_change_to_detection_s: since(self.detect_s),
             world_change_to_verdict_s: since(self.verdict_s),
             retrain_s: self.request_s.zip(self.published_s).map(|(a, b)| b - a),
             world_change_to_motion_s: since(self.motion_s),
             cycle_p99_us: self.p99_us,
             cycle_p999_us,
+            rt_core_realtime: None,
             lookahead: self.cfg.lookahead,
             detector: String::new(),
             seed,
@@ -764,6 +881,75 @@ mod tests {
             assert!(kinds.contains(&k), "timeline lacks {k}: {kinds:?}");
         }
         assert!(d.path().iter().any(|p| p.scene == 1));
+    }
+
+    #[test]
+    fn a_box_in_the_way_shows_as_a_pause_and_the_continuation() {
+        use shm_schemas::scene_file::BoxPath;
+        let mut moving = scene([0.3, 0.25, 0.025], 0.2);
+        moving.obstacles[0].path = BoxPath::new(&[
+            Keyframe {
+                at_s: 1.0,
+                center_m: [0.05, 0.2, 0.1],
+            },
+            Keyframe {
+                at_s: 2.0,
+                center_m: [0.3, 0.14, 0.1],
+            },
+            Keyframe {
+                at_s: 3.0,
+                center_m: [0.3, 0.14, 0.1],
+            },
+            Keyframe {
+                at_s: 4.0,
+                center_m: [0.55, 0.08, 0.1],
+            },
+        ])
+        .unwrap();
+        let cfg = ScenarioConfig {
+            world: vec![(0.0, scene([0.4, 0.2, 0.025], 0.06)), (0.0, moving)],
+            goal_tolerance_m: 0.02,
+            goal_hover_m: 0.05,
+            phase_timeout_s: 60.0,
+            settle_s: 0.0,
+            lookahead: true,
+            home_q_rad: None,
+        };
+        let mut d = Director::new(cfg);
+        d.step(0.0, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1)));
+        assert_eq!(
+            d.step(0.1, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1))),
+            vec![Action::SwitchScene(1)]
+        );
+        d.step(0.5, &obs_state(state([0.35, 0.1, 0.2], 0.1, 1)));
+        let stopped = |q0: f64| RobotState {
+            controlled_stop: 1,
+            stop_reason: StopReason::ShieldViolation as u8,
+            ..state([0.33, 0.15, 0.18], q0, 1)
+        };
+        d.step(1.5, &obs_state(stopped(0.15)));
+        d.step(2.0, &obs_state(stopped(0.15)));
+        // Out of the stop but not yet moving: still paused.
+        d.step(3.0, &obs_state(state([0.33, 0.15, 0.18], 0.15, 1)));
+        d.step(3.5, &obs_state(state([0.32, 0.2, 0.15], 0.2, 1)));
+        d.step(4.5, &obs_state(state([0.3, 0.25, 0.1], 0.25, 1)));
+        let kinds: Vec<&str> = d.events().iter().map(|e| e.kind).collect();
+        let at = |k: &str| kinds.iter().position(|x| *x == k).unwrap();
+        assert!(
+            at("obstacle_moves") < at("paused")
+                && at("paused") < at("obstacle_stops")
+                && at("obstacle_stops") < at("resumed")
+                && at("resumed") < kinds.iter().rposition(|x| *x == "goal_reached").unwrap(),
+            "{kinds:?}"
+        );
+        assert_eq!(kinds.iter().filter(|k| **k == "obstacle_moves").count(), 2);
+        assert_eq!(kinds.iter().filter(|k| **k == "obstacle_stops").count(), 2);
+        let moves = &d.events()[at("obstacle_moves")];
+        assert!((moves.t_s - 1.1).abs() < 1e-9, "{moves:?}");
+        let s = d.summary(0, None, 0, 0);
+        assert_eq!(s.pauses, 1);
+        assert!((s.longest_pause_s.unwrap() - 2.0).abs() < 1e-9, "{s:?}");
+        assert!(s.goal_reached);
     }
 
     #[test]
