@@ -441,7 +441,11 @@ fn finish(
         .as_ref()
         .and_then(report::RefereeFigures::from_sim_status);
     sup.stop_all(Duration::from_secs(5));
-    let (p99, p999) = read_cycle_stats(&setup.run.path.join("logs/rt-core.log"));
+    let rt_core_line = read_rt_core_summary(&setup.run.path.join("logs/rt-core.log"));
+    let (p99, p999) = rt_core_line.as_ref().map_or((None, None), |v| {
+        let c = &v["cycle_compute_us"];
+        (c["p99"].as_f64(), c["p999"].as_f64())
+    });
     let restarts = ["perception", "learner", "zenoh-relay"]
         .iter()
         .map(|n| u64::from(sup.restarts(n)))
@@ -451,6 +455,14 @@ fn finish(
     summary.detector = args.detector.name().to_owned();
     summary.planner_fallback = args.planner_fallback == crate::args::OnOff::On;
     summary.cycle_p99_us = p99.or(summary.cycle_p99_us);
+    summary.rt_core_realtime = rt_core_line.map(|v| {
+        serde_json::json!({
+            "rt": v["rt"],
+            "wakeup_latency_us": v["wakeup_latency_us"],
+            "cycles": v["cycles"],
+            "missed_deadlines": v["missed_deadlines"],
+        })
+    });
     summary.notes.extend(notes);
     if args.learner_host {
         let path = setup.run.path.join(crate::processes::RELAY_STATUS);
@@ -541,21 +553,15 @@ fn last_error_line(log: &Path) -> Option<String> {
 }
 
 /// Cycle compute p99 and p99.9 (µs) from the JSON line `rt-core run` prints at exit.
-fn read_cycle_stats(log: &Path) -> (Option<f64>, Option<f64>) {
-    let Ok(text) = std::fs::read_to_string(log) else {
-        return (None, None);
-    };
-    text.lines()
-        .rev()
-        .find_map(|l| {
-            let v: serde_json::Value = serde_json::from_str(l.trim()).ok()?;
-            let c = v.get("cycle_compute_us")?;
-            Some((
-                c.get("p99").and_then(serde_json::Value::as_f64),
-                c.get("p999").and_then(serde_json::Value::as_f64),
-            ))
-        })
-        .unwrap_or((None, None))
+/// rt-core's one-line JSON summary (the last line of its log that holds
+/// `cycle_compute_us`), if it wrote one.
+fn read_rt_core_summary(log: &Path) -> Option<serde_json::Value> {
+    let text = std::fs::read_to_string(log).ok()?;
+    text.lines().rev().find_map(|l| {
+        let v: serde_json::Value = serde_json::from_str(l.trim()).ok()?;
+        v.get("cycle_compute_us")?;
+        Some(v)
+    })
 }
 
 fn write_report(

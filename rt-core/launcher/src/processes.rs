@@ -33,6 +33,10 @@ fn s(p: &Path) -> String {
     p.display().to_string()
 }
 
+/// The `SCHED_FIFO` priority the launcher asks for rt-core's cycle thread: above the kernel's
+/// default threaded IRQ handlers (50), below the watchdog-class threads (99).
+pub const RT_CORE_PRIORITY: i32 = 80;
+
 /// Starts every process of the run; `live` is the scene file the world director keeps
 /// current.
 ///
@@ -302,6 +306,16 @@ fn start_rt_core(
     if args.no_lookahead {
         rt_args.push("--no-lookahead".into());
     }
+    // The cycle thread asks for SCHED_FIFO and the machine's last core (issue 33: reaction
+    // depends on the cycle being real-time where it runs); where the OS refuses either, rt-core
+    // runs on and its summary line (`"rt"`, copied into the run's summary.json) says so.
+    let last_cpu = std::thread::available_parallelism().map_or(0, |n| n.get() - 1);
+    rt_args.extend([
+        "--rt-priority".into(),
+        RT_CORE_PRIORITY.to_string(),
+        "--cpu".into(),
+        last_cpu.to_string(),
+    ]);
     rt_args.extend([
         "--planner-fallback".into(),
         args.planner_fallback.name().into(),
