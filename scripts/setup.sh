@@ -103,7 +103,10 @@ ort_lib=$(ls "$venv"/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.
 # The `mcap` Python package is the independent reader the system tests check every run's
 # MCAP file with (tests/scripts/check_mcap.py, CDR decoded by mcap-ros2-support);
 # matplotlib draws the README's picture of a recording (tests/scripts/render_mcap.py).
-py_pkgs=(mcap==1.6.0 mcap-ros2-support==0.6.0 matplotlib==3.11.2)
+# flatbuffers and protobuf are what the onnxruntime wheel (installed without its dependencies
+# above) declares besides numpy and packaging (which matplotlib brings): installed here, in the
+# same resolver run, so that pip reports no broken dependency (issue 32 item 4).
+py_pkgs=(mcap==1.6.0 mcap-ros2-support==0.6.0 matplotlib==3.11.2 flatbuffers==25.12.19 protobuf==6.33.6)
 missing_py=$("$venv/bin/python" - "${py_pkgs[@]}" <<'PY' 2>/dev/null || true
 import importlib.metadata as m, sys
 for spec in sys.argv[1:]:

@@ -310,18 +310,7 @@ fn a_twin_thread_panic_stops_the_arm_then_exits_non_zero() {
 #[ignore = "needs the deploy build of rt-core: make test-deploy"]
 fn deploy_build_a_twin_thread_panic_brakes_the_arm_before_the_abort() {
     let _serial = one_at_a_time();
-    // This test runs from <target>/release/deps; the deploy build is <target>/deploy.
-    let exe = std::env::current_exe().expect("test executable");
-    let deploy = exe
-        .ancestors()
-        .nth(3)
-        .map(|t| t.join("deploy/rt-core"))
-        .expect("target folder");
-    assert!(
-        deploy.is_file(),
-        "{} is not built: cargo build --profile deploy -p rt-core",
-        deploy.display()
-    );
+    let deploy = deploy_rt_core();
     let sim = SimProc::start([0; 6], &[]);
     let mut rig = Rig::start_with_bin(
         "exit_deploy_panic",
@@ -329,15 +318,7 @@ fn deploy_build_a_twin_thread_panic_brakes_the_arm_before_the_abort() {
         &sim_args(&sim, &["--inject-fault", "twin-panic:300"]),
     );
     let _moving_at = start_moving(&mut rig);
-    let deadline = Instant::now() + Duration::from_secs(20);
-    let status = loop {
-        rig.pump();
-        if let Ok(Some(st)) = rig.rt.child.try_wait() {
-            break st;
-        }
-        assert!(Instant::now() < deadline, "rt-core did not exit");
-        std::thread::sleep(Duration::from_millis(2));
-    };
+    let status = wait_for_exit(&mut rig);
     let log = std::fs::read_to_string(&rig.log).unwrap_or_default();
     assert!(
         std::os::unix::process::ExitStatusExt::signal(&status) == Some(6),
@@ -377,13 +358,7 @@ fn deploy_build_a_twin_thread_panic_brakes_the_arm_before_the_abort() {
 #[ignore = "needs the deploy build of rt-core: make test-deploy"]
 fn deploy_build_with_stderr_on_a_full_device_still_brakes_before_the_abort() {
     let _serial = one_at_a_time();
-    let exe = std::env::current_exe().expect("test executable");
-    let deploy = exe
-        .ancestors()
-        .nth(3)
-        .map(|t| t.join("deploy/rt-core"))
-        .expect("target folder");
-    assert!(deploy.is_file(), "{} is not built", deploy.display());
+    let deploy = deploy_rt_core();
     let full = std::fs::OpenOptions::new()
         .write(true)
         .open("/dev/full")
@@ -396,15 +371,7 @@ fn deploy_build_with_stderr_on_a_full_device_still_brakes_before_the_abort() {
         Some(std::process::Stdio::from(full)),
     );
     let _moving_at = start_moving(&mut rig);
-    let deadline = Instant::now() + Duration::from_secs(20);
-    let status = loop {
-        rig.pump();
-        if let Ok(Some(st)) = rig.rt.child.try_wait() {
-            break st;
-        }
-        assert!(Instant::now() < deadline, "rt-core did not exit");
-        std::thread::sleep(Duration::from_millis(2));
-    };
+    let status = wait_for_exit(&mut rig);
     assert!(
         std::os::unix::process::ExitStatusExt::signal(&status) == Some(6),
         "not aborted (deploy build, panic = abort): {status:?}"
@@ -413,4 +380,34 @@ fn deploy_build_with_stderr_on_a_full_device_still_brakes_before_the_abort() {
     assert_eq!(s["state"], 4, "controller not in its stop state: {s}");
     assert!(s["stop_requests"].as_u64().unwrap_or(0) >= 1, "{s}");
     assert_eq!(s["protective_faults"], 0, "{s}");
+}
+
+/// The deploy build of rt-core (`<target>/deploy/rt-core`; this test runs from
+/// `<target>/release/deps`).
+fn deploy_rt_core() -> std::path::PathBuf {
+    let exe = std::env::current_exe().expect("test executable");
+    let deploy = exe
+        .ancestors()
+        .nth(3)
+        .map(|t| t.join("deploy/rt-core"))
+        .expect("target folder");
+    assert!(
+        deploy.is_file(),
+        "{} is not built: cargo build --profile deploy -p rt-core",
+        deploy.display()
+    );
+    deploy
+}
+
+/// Pumps the rig until rt-core exits (20 s at most) and returns how it ended.
+fn wait_for_exit(rig: &mut Rig) -> std::process::ExitStatus {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        rig.pump();
+        if let Ok(Some(st)) = rig.rt.child.try_wait() {
+            return st;
+        }
+        assert!(Instant::now() < deadline, "rt-core did not exit");
+        std::thread::sleep(Duration::from_millis(2));
+    }
 }

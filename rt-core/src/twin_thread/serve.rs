@@ -326,9 +326,11 @@ pub fn serve<L: RobotLink + 'static>(
     // Detections go their own way: the intake thread hands each accepted scene to the
     // cycle and the plan guard, then notes it to the twin thread for planning.
     let (frame_notes, frames) = std::sync::mpsc::channel();
-    let scene_path = twin
-        .take_scene_path()
-        .ok_or(ServeError::CycleStalled("scene path already taken"))?;
+    let scene_path = twin.take_scene_path().ok_or_else(|| {
+        ServeError::Spawn(std::io::Error::other(
+            "the worker's scene path was taken before the intake thread started",
+        ))
+    })?;
     let intake_stop = Arc::new(AtomicBool::new(false));
     let intake_thread = spawn_intake_thread(
         &opts.prefix,

@@ -21,7 +21,12 @@ fn scenes_round_trip_through_the_file_format() {
 #[test]
 fn demo_world_swaps_in_the_tall_box_and_moves_the_goal_at_10_s() {
     let w = WorldScript::load(&assets().join("scenes/demo_world.toml")).unwrap();
-    assert_eq!(w.steps.len(), 2);
+    // The third act (issue 33): a box that crosses the arm's way while it moves.
+    assert_eq!(w.steps.len(), 3);
+    let (i2, third) = w.scene_at(1e3);
+    assert_eq!(i2, 2);
+    assert!(third.is_moving(), "{third:?}");
+    assert!(!w.scene_at(10.0).1.is_moving());
     let (i0, first) = w.scene_at(9.9);
     let (i1, second) = w.scene_at(10.0);
     assert_eq!((i0, i1), (0, 1));
