@@ -146,6 +146,10 @@ pub fn run(args: RunArgs) -> ExitCode {
         )
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        // A log line that cannot be written (stderr on a full disk, a closed pipe) is lost,
+        // never reported with `eprintln!`, which panics there — and in the deploy build a
+        // panic of the log thread aborted rt-core without braking (issue 30 item 4).
+        .log_internal_errors(false)
         .try_init();
     match runtime(&args) {
         Ok(()) => ExitCode::SUCCESS,
