@@ -453,15 +453,43 @@ pub fn global_config() -> Result<&'static Config, NodeCreateError> {
     *LOADED.get_or_init(load_global_config)
 }
 
+/// The installed assets folder a process was given (`--assets`), set once at start-up
+/// ([`set_assets_dir`]).
+static ASSETS_DIR: std::sync::OnceLock<std::path::PathBuf> = std::sync::OnceLock::new();
+
+/// Names the folder of the installed assets (a process's `--assets`): its `iceoryx2.toml` is
+/// used before the current folder's [`ICEORYX2_CONFIG_FILE`], so a process started from
+/// anywhere (a service manager, a test harness) finds the shipped configuration. Call it
+/// before the first node; returns `false` when a folder was set already (the first stays).
+pub fn set_assets_dir(dir: &std::path::Path) -> bool {
+    ASSETS_DIR.set(dir.to_path_buf()).is_ok()
+}
+
+/// Which iceoryx2 configuration file to load: `env_value` (`$FORESIGHT_ICEORYX2_CONFIG`) when
+/// set, else `<assets_dir>/iceoryx2.toml` when it is there, else [`ICEORYX2_CONFIG_FILE`]
+/// under the current folder when it is there, else none (iceoryx2's own lookup).
+fn config_file_to_load(
+    env_value: Option<String>,
+    assets_dir: Option<&std::path::Path>,
+) -> Option<String> {
+    env_value.filter(|p| !p.is_empty()).or_else(|| {
+        assets_dir
+            .map(|d| d.join("iceoryx2.toml"))
+            .filter(|p| p.is_file())
+            .map(|p| p.to_string_lossy().into_owned())
+            .or_else(|| {
+                std::path::Path::new(ICEORYX2_CONFIG_FILE)
+                    .is_file()
+                    .then(|| ICEORYX2_CONFIG_FILE.to_owned())
+            })
+    })
+}
+
 fn load_global_config() -> Result<&'static Config, NodeCreateError> {
-    let file = std::env::var(ICEORYX2_CONFIG_ENV)
-        .ok()
-        .filter(|p| !p.is_empty())
-        .or_else(|| {
-            std::path::Path::new(ICEORYX2_CONFIG_FILE)
-                .is_file()
-                .then(|| ICEORYX2_CONFIG_FILE.to_owned())
-        });
+    let file = config_file_to_load(
+        std::env::var(ICEORYX2_CONFIG_ENV).ok(),
+        ASSETS_DIR.get().map(std::path::PathBuf::as_path),
+    );
     match file {
         Some(path) => {
             let path = FilePath::new(path.as_bytes()).map_err(|_| {
@@ -514,6 +542,32 @@ pub fn create_node_with_config<S: Service>(
 #[allow(clippy::unwrap_used)]
 mod config_tests {
     use super::*;
+
+    /// Issue 30 item 7: the shipped configuration is found from the installed assets, not
+    /// only from a process started in the repository root.
+    #[test]
+    fn the_iceoryx2_config_is_found_in_the_assets_folder_before_the_current_folder() {
+        let assets = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../assets"));
+        let chosen = config_file_to_load(None, Some(assets)).unwrap();
+        assert!(chosen.ends_with("assets/iceoryx2.toml"), "{chosen}");
+        assert!(std::path::Path::new(&chosen).is_absolute(), "{chosen}");
+        // The environment's file wins; an empty value does not count.
+        assert_eq!(
+            config_file_to_load(Some("/etc/x.toml".into()), Some(assets)).as_deref(),
+            Some("/etc/x.toml")
+        );
+        assert_eq!(
+            config_file_to_load(Some(String::new()), Some(assets)),
+            Some(chosen)
+        );
+        // A folder without the file falls back to the current folder's, if any.
+        let empty = std::env::temp_dir();
+        let fallback = config_file_to_load(None, Some(&empty));
+        assert_eq!(
+            fallback.is_some(),
+            std::path::Path::new(ICEORYX2_CONFIG_FILE).is_file()
+        );
+    }
 
     /// The shipped `assets/iceoryx2.toml` loads, and says what iceoryx2's defaults say
     /// except the creation timeout: every process, with the file or without, agrees.

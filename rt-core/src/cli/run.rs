@@ -80,7 +80,8 @@ pub struct RunArgs {
     clear_errors: bool,
     /// After a lost link returns, take fresh plans (and re-enter servo mode) without an
     /// operator's acknowledgement. For simulated arms (`xarm-sim`, `--link sim`) only: a
-    /// real arm waits for `kill -USR1 <pid>` (the acknowledgement; see docs/real-arm.md).
+    /// real arm waits for the operator's `rt-core ack --robot HOST` (the acknowledgement;
+    /// README.md, "Driving a real xArm5 — checklist").
     /// With `--link xarm` it is refused, before any connection, unless `--robot` is (or
     /// resolves only to) a loopback address, as `--no-lookahead` is.
     #[arg(long)]
@@ -184,6 +185,8 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
     process_stop::install_signal_handlers()?;
     process_stop::install_panic_hook(PANIC_BRAKE_WAIT);
     stop_with_parent()?;
+    // iceoryx2's configuration from the installed assets, wherever the process started.
+    shm_schemas::services::set_assets_dir(&args.assets);
     // Blind mode never reaches a real arm: decided from the address alone, first.
     if args.no_lookahead
         && args.link == LinkKind::Xarm
