@@ -37,12 +37,6 @@ pub struct Revocation {
     pub at_index: usize,
 }
 
-/// A plan handed to the cycle, and the scene it was approved (or last verified) in.
-struct LivePlan<S> {
-    plan: Arc<Plan>,
-    verified_in: S,
-}
-
 /// How a live plan stands with the cycle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Standing {
@@ -61,7 +55,8 @@ pub struct PlanGuard<M: ShieldModel> {
     shield: Shield<M>,
     period_s: f64,
     control: Arc<CycleControl>,
-    live: Vec<LivePlan<M::Scene>>,
+    /// Plans handed to the cycle and not handed back, oldest first.
+    live: Vec<Arc<Plan>>,
     scene: Option<M::Scene>,
     revocations: Vec<Revocation>,
     verifications: u64,
@@ -89,10 +84,7 @@ impl<M: ShieldModel> PlanGuard<M> {
         if self.live.len() == MAX_LIVE_PLANS {
             self.live.remove(0);
         }
-        self.live.push(LivePlan {
-            plan,
-            verified_in: approved_in,
-        });
+        self.live.push(plan);
         if let Some(scene) = self.scene
             && scene != approved_in
         {
@@ -102,7 +94,7 @@ impl<M: ShieldModel> PlanGuard<M> {
 
     /// The cycle handed plan `plan_id` back (refused, replaced, revoked, or at the end).
     pub fn returned(&mut self, plan_id: u64) {
-        self.live.retain(|p| p.plan.id != plan_id);
+        self.live.retain(|p| p.id != plan_id);
     }
 
     /// An accepted scene: when it differs from the last one, every live plan that can still
@@ -122,7 +114,7 @@ impl<M: ShieldModel> PlanGuard<M> {
 
     /// Plans live now (handed over, not handed back).
     pub fn live_ids(&self) -> impl Iterator<Item = u64> + '_ {
-        self.live.iter().map(|p| p.plan.id)
+        self.live.iter().map(|p| p.id)
     }
 
     /// Re-verifications run so far (one per live plan checked).
@@ -151,7 +143,7 @@ impl<M: ShieldModel> PlanGuard<M> {
         let mut first_bad: Option<Revocation> = None;
         let mut newest_checked = 0;
         for i in 0..self.live.len() {
-            let plan = self.live[i].plan.clone();
+            let plan = self.live[i].clone();
             let bad = match self.standing(&plan) {
                 Standing::Inert => continue,
                 Standing::Running { next } => {
@@ -167,8 +159,8 @@ impl<M: ShieldModel> PlanGuard<M> {
                     let running = self
                         .live
                         .iter()
-                        .find(|p| Some(p.plan.id) == plan.join.map(|j| j.plan_id))
-                        .map(|p| p.plan.clone());
+                        .find(|p| Some(p.id) == plan.join.map(|j| j.plan_id))
+                        .cloned();
                     match running {
                         Some(r) if join_index < r.len() => {
                             self.first_unsafe(&r.q_rad[join_index], &plan.q_rad, &scene)
@@ -183,7 +175,6 @@ impl<M: ShieldModel> PlanGuard<M> {
                 },
             };
             newest_checked = newest_checked.max(plan.id);
-            self.live[i].verified_in = scene;
             if let Some(at_index) = bad {
                 first_bad.get_or_insert(Revocation {
                     plan_id: plan.id,
