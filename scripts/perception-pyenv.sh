@@ -30,7 +30,13 @@ fi
 site=$("$venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
 if [ -n "$torch_venv" ] && [ -d "$torch_venv" ]; then
   tsite=$("$torch_venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
-  echo "$tsite" > "$site/foresight-torch.pth"
+  # Rewritten only when it changes, and then by rename: tests run this script while other
+  # tests' Python processes start, and a .pth caught truncated mid-write hides torch from
+  # them ("No module named 'torch'", the flake of CI stop 34).
+  if [ "$(cat "$site/foresight-torch.pth" 2>/dev/null || true)" != "$tsite" ]; then
+    echo "$tsite" > "$site/foresight-torch.pth.tmp.$$"
+    mv -f "$site/foresight-torch.pth.tmp.$$" "$site/foresight-torch.pth"
+  fi
 fi
 
 start=$(date +%s)
@@ -50,6 +56,12 @@ PY
   # No deps for torchvision (it would pull another torch); the rest of ultralytics' needs normally.
   "$venv/bin/pip" install --quiet --no-deps "$tv" >&2
   "$venv/bin/pip" install --quiet "ultralytics==8.3.*" "onnxslim" >&2
+  installed_ul=1
+fi
+if [ "${installed_ul:-0}" = 1 ] && ! "$venv/bin/python" -c 'import torch, torchvision, ultralytics' 2>/dev/null; then
+  echo "perception-pyenv: $venv cannot import torch, torchvision and ultralytics after provisioning" >&2
+  "$venv/bin/python" -c 'import torch, torchvision, ultralytics' >&2 || true
+  exit 1
 fi
 end=$(date +%s)
 [ $((end - start)) -gt 1 ] && echo "perception-pyenv: provisioning took $((end - start)) s" >&2

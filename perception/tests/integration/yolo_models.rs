@@ -19,12 +19,19 @@ fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-fn python(ultralytics: bool) -> PathBuf {
+/// The perception venv's python, provisioned once per test process and always with
+/// ultralytics: provisioning installs packages, so it must finish before any test of this
+/// process starts a Python that imports them (a test that asked for `onnx` only used to run
+/// while another's provisioning was still installing ultralytics' dependencies).
+fn python() -> PathBuf {
+    static PYTHON: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    PYTHON.get_or_init(provision_python).clone()
+}
+
+fn provision_python() -> PathBuf {
     let mut cmd = Command::new("bash");
-    cmd.arg(repo().join("scripts/perception-pyenv.sh"));
-    if ultralytics {
-        cmd.arg("--ultralytics");
-    }
+    cmd.arg(repo().join("scripts/perception-pyenv.sh"))
+        .arg("--ultralytics");
     let t = std::time::Instant::now();
     let out = cmd.output().expect("run scripts/perception-pyenv.sh");
     assert!(
@@ -69,7 +76,7 @@ struct Anchor {
 #[test]
 fn toy_model_decodes_to_the_expected_boxes() {
     let dir = tmpdir("yolo-toy");
-    let py = python(false);
+    let py = python();
     let anchors = [
         // goal, kept
         Anchor {
@@ -210,7 +217,7 @@ fn toy_model_decodes_to_the_expected_boxes() {
 #[test]
 fn stock_yolov8n_export_runs_and_matches_pytorch() {
     let dir = tmpdir("yolo-stock");
-    let py = python(true);
+    let py = python();
     let t = std::time::Instant::now();
     let (model, blob, want) = export(&py, &dir, "yolov8n", 640, &[]);
     eprintln!(
@@ -339,7 +346,7 @@ fn export(
 #[test]
 fn yolo11_and_nms_free_exports_load_on_onnx_runtime() {
     let dir = tmpdir("yolo-exports");
-    let py = python(true);
+    let py = python();
     let cam = crate::common::camera();
     let scene = crate::common::random_scene(&cam, &mut crate::common::rng(5));
     let frame = Frame::from_rendered(&cam.render(&scene), 1, 0).unwrap();
@@ -437,7 +444,7 @@ fn yolo11_and_nms_free_exports_load_on_onnx_runtime() {
 #[test]
 fn trained_model_boxes_match_ultralytics() {
     let dir = tmpdir("yolo-reference");
-    let py = python(true);
+    let py = python();
     let cam = crate::common::camera();
     let models = crate::common::assets().join("models");
     for name in ["foresight-tiny-320.onnx", "foresight-tiny-320-e2e.onnx"] {
