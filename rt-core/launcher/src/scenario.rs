@@ -127,6 +127,13 @@ pub struct Director {
     longest_pause_s: Option<f64>,
     /// The scene in force's box motions still to be marked: (launcher time s, kind, detail).
     box_events: Vec<(f64, &'static str, String)>,
+    /// Per scene: the ids of the retrain requests rt-core made while it was in force. A
+    /// progress message counts for a scene only when it answers one of them: a late answer
+    /// to an earlier scene's request (a learner still finishing it) can neither end nor
+    /// relabel the current scene ("infeasible", "published").
+    requests: Vec<Vec<u64>>,
+    /// Per scene: progress messages ignored because they answered another scene's request.
+    stale_progress: Vec<u32>,
 }
 
 /// A box motion's timeline mark: box `i` at keyframe `k` of a scene put in force at `t_s`.
@@ -185,6 +192,8 @@ impl Director {
             pauses: vec![0; n],
             longest_pause_s: None,
             box_events: Vec::new(),
+            requests: vec![Vec::new(); n],
+            stale_progress: vec![0; n],
         }
     }
 
@@ -349,6 +358,9 @@ impl Director {
 
     /// A retrain request: logged; the first after a change is timed.
     fn on_retrain_request(&mut self, t_s: f64, r: &RetrainRequest, scene: usize) {
+        if !self.requests[scene].contains(&r.request_id) {
+            self.requests[scene].push(r.request_id);
+        }
         if self.request_s.is_none() && self.change_s.is_some() {
             self.request_s = Some(t_s);
         }
@@ -367,6 +379,21 @@ impl Director {
 
     /// Retraining progress: logged at most once a second, and when it ends.
     fn on_progress(&mut self, t_s: f64, p: &RetrainProgress, scene: usize) {
+        if !self.requests[scene].contains(&p.request_id) {
+            self.stale_progress[scene] += 1;
+            if self.stale_progress[scene] == 1 {
+                self.log(
+                    t_s,
+                    "stale_progress",
+                    format!(
+                        "retraining progress for request {}, which scene {scene} did not make: \
+                         ignored (a late answer to an earlier scene's request)",
+                        p.request_id
+                    ),
+                );
+            }
+            return;
+        }
         let phase = RetrainPhase::try_from(p.phase).ok();
         if phase == Some(RetrainPhase::BudgetExhausted) {
             self.budgets_exhausted[scene] += 1;
@@ -950,6 +977,88 @@ mod tests {
         assert_eq!(s.pauses, 1);
         assert!((s.longest_pause_s.unwrap() - 2.0).abs() < 1e-9, "{s:?}");
         assert!(s.goal_reached);
+    }
+
+    /// Issue 30 item 7: a late answer to the first scene's request (here: "infeasible" and
+    /// "published") must neither end nor relabel the second scene; only progress for the
+    /// second scene's own request counts. Before the fix the stale "infeasible" marked scene
+    /// 1 infeasible and the stale "published" timed its retraining.
+    #[test]
+    fn progress_for_an_earlier_scenes_request_neither_ends_nor_relabels_the_current_scene() {
+        let cfg = ScenarioConfig {
+            world: vec![
+                (0.0, scene([0.4, 0.2, 0.025], 0.06)),
+                (0.0, scene([0.4, -0.2, 0.025], 0.35)),
+            ],
+            goal_tolerance_m: 0.02,
+            goal_hover_m: 0.05,
+            phase_timeout_s: 60.0,
+            settle_s: 0.0,
+            lookahead: true,
+            home_q_rad: None,
+        };
+        let mut d = Director::new(cfg);
+        // Scene 0 asked for retraining (request 7) before its goal was reached.
+        d.step(
+            0.0,
+            &Observations {
+                retrain_requests: vec![RetrainRequest {
+                    request_id: 7,
+                    ..RetrainRequest::default()
+                }],
+                ..obs_state(state([0.4, 0.2, 0.1], 0.0, 1))
+            },
+        );
+        assert_eq!(
+            d.step(0.1, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1))),
+            vec![Action::SwitchScene(1)]
+        );
+        // Scene 1 asks (request 8); request 7's late answers arrive.
+        d.step(
+            0.2,
+            &Observations {
+                retrain_requests: vec![RetrainRequest {
+                    request_id: 8,
+                    ..RetrainRequest::default()
+                }],
+                ..Observations::default()
+            },
+        );
+        let late = |phase: RetrainPhase| RetrainProgress {
+            request_id: 7,
+            phase: phase as u8,
+            ..RetrainProgress::default()
+        };
+        d.step(
+            0.3,
+            &Observations {
+                progress: vec![
+                    late(RetrainPhase::Infeasible),
+                    late(RetrainPhase::Published),
+                ],
+                ..Observations::default()
+            },
+        );
+        let kinds: Vec<&str> = d.events().iter().map(|e| e.kind).collect();
+        assert!(!kinds.contains(&"infeasible"), "{kinds:?}");
+        assert!(kinds.contains(&"stale_progress"), "{kinds:?}");
+        let s = d.summary(0, None, 0, 0);
+        assert_eq!(s.retrain_s, None, "{s:?}");
+        assert_ne!(s.outcome, Outcome::Infeasible, "{s:?}");
+        // Scene 1's own answer counts.
+        d.step(
+            0.4,
+            &Observations {
+                progress: vec![RetrainProgress {
+                    request_id: 8,
+                    phase: RetrainPhase::Infeasible as u8,
+                    ..RetrainProgress::default()
+                }],
+                ..Observations::default()
+            },
+        );
+        let kinds: Vec<&str> = d.events().iter().map(|e| e.kind).collect();
+        assert!(kinds.contains(&"infeasible"), "{kinds:?}");
     }
 
     #[test]
