@@ -6,6 +6,9 @@
 #   retraining, swap); on, the planner's checked path moves the arm while the learner
 #   retrains, and the retrained policy replaces it:
 #   make demo ARGS="--planner-fallback on"
+#   The default policy is the distilled generalist (assets/policy-distilled); the research
+#   system's setting (its PPO generalist and its tall box):
+#   make demo ARGS="--checkpoint assets/policy --world assets/scenes/paper_world.toml"
 set -euo pipefail
 bin=${1:?usage: demo.sh <bin-dir> [foresight options]}
 shift

@@ -19,7 +19,7 @@ fn scenes_round_trip_through_the_file_format() {
 }
 
 #[test]
-fn demo_world_swaps_in_the_tall_box_and_moves_the_goal_at_10_s() {
+fn demo_world_swaps_in_the_wide_tall_box_and_moves_the_goal_at_10_s() {
     let w = WorldScript::load(&assets().join("scenes/demo_world.toml")).unwrap();
     // The third act (issue 33): a box that crosses the arm's way while it moves.
     assert_eq!(w.steps.len(), 3);
@@ -31,7 +31,8 @@ fn demo_world_swaps_in_the_tall_box_and_moves_the_goal_at_10_s() {
     let (i1, second) = w.scene_at(10.0);
     assert_eq!((i0, i1), (0, 1));
     assert_eq!(first.name, "small_box");
-    assert_eq!(second.name, "tall_box");
+    assert_eq!(second.name, "wide_tall_box");
+    assert!(second.obstacles[0].height_m() >= 0.30);
     assert_ne!(first.goal.center_m, second.goal.center_m);
 }
 
