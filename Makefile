@@ -22,7 +22,7 @@ export LIBTORCH_BYPASS_VERSION_CHECK := 1
 CARGO ?= cargo
 BIN := $(CARGO_TARGET_DIR)/release
 
-.PHONY: setup build demo test test-deploy lint fmt learner-host bench bench-link bench-loop sweep sweep-dynamic clean help
+.PHONY: setup build demo test test-deploy docs-check lint fmt learner-host bench bench-link bench-loop sweep sweep-dynamic clean help
 
 help:
 	@echo "make demo   - run the main job on the simulated arm (installs what it needs)"
@@ -33,6 +33,7 @@ help:
 	@echo "make test-deploy - the deploy build (panic = abort) brakes after a panic"
 	@echo "make sweep  - the adversarial safety sweep, 10 000 episodes (ARGS to override)"
 	@echo "make sweep-dynamic - the sweep with intruders during a motion, 1 000 episodes (ARGS)"
+	@echo "make docs-check - README's figures re-run where deterministic (about 2 min)"
 
 setup:
 	@bash scripts/setup.sh
@@ -54,6 +55,7 @@ _test:
 	$(CARGO) fmt --all --check
 	$(CARGO) clippy --release --workspace --all-targets -- -D warnings
 	$(CARGO) build --release --workspace --bins
+	python3 scripts/docs_check.py --bin "$(BIN)"
 	$(CARGO) test --release --workspace --no-fail-fast
 	@bash scripts/ci-bench-loop.sh "$(BIN)"
 
@@ -65,6 +67,13 @@ test-deploy: setup
 	$(CARGO) build --release -p xarm-sim --bins
 	$(CARGO) test --release -p foresight-tests --test exit_paths -- --ignored deploy_build
 
+# README's claims (issue 32 item 3): `make test` checks the results table against
+# docs/results.toml, the links, paths, make targets and flags; this also re-runs the seeded,
+# deterministic figures (the sweeps, the unseen-worlds benchmark) and fails when one changed.
+docs-check: setup
+	$(MAKE) --no-print-directory _build
+	python3 scripts/docs_check.py --bin "$(BIN)" --rerun
+
 lint: setup
 	$(CARGO) fmt --all --check
 	$(CARGO) clippy --release --workspace --all-targets -- -D warnings
@@ -75,7 +84,7 @@ fmt:
 bench: setup
 	$(CARGO) bench -p twin -p policy -p xarm
 
-# The GPU box of a two-host setup (README, "Two hosts"): `learner serve` plus the learner
+# The GPU box of a two-host setup (docs/components.md, "Two hosts"): `learner serve` plus the learner
 # side of the relay. LEARNER_HOST_ARGS says where to listen (and any learner flags).
 # LINK_KEYS is the folder of `zenoh-relay keygen` (issue 25); made here on first use, then
 # copy $(LINK_KEYS)/robot-pc to the robot PC (`foresight --learner-host --link-keys …`).
