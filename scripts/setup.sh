@@ -15,8 +15,9 @@
 #      libonnxruntime.so, loaded at run time by the `ort` crate's load-dynamic; ort 2.0.0-rc.15
 #      with api-22 needs ONNX Runtime >= 1.22), installed without dependencies into the same venv.
 #   4. The run-recording readers: the `mcap` and `mcap-ros2-support` Python packages (the
-#      independent reader of the runs' MCAP files in the system tests) and matplotlib (the
-#      README's picture of a recording).
+#      independent reader of the runs' MCAP files in the system tests), `rosbags` (the
+#      independent rosbag2 reader of a run folder) and matplotlib (the README's picture of a
+#      recording).
 #   5. build/env.mk: the LIBTORCH path and the ONNX Runtime library path that the Makefile
 #      exports to every cargo call (perception bakes the latter in as its default), so that
 #      nothing is rebuilt because a variable changed.
@@ -106,7 +107,9 @@ ort_lib=$(ls "$venv"/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.
 # flatbuffers and protobuf are what the onnxruntime wheel (installed without its dependencies
 # above) declares besides numpy and packaging (which matplotlib brings): installed here, in the
 # same resolver run, so that pip reports no broken dependency (issue 32 item 4).
-py_pkgs=(mcap==1.6.0 mcap-ros2-support==0.6.0 matplotlib==3.11.2 flatbuffers==25.12.19 protobuf==6.33.6)
+# rosbags is the independent rosbag2 reader that opens a run folder as a bag (metadata.yaml and
+# the channels' offered QoS; tests/scripts/check_bag.py).
+py_pkgs=(mcap==1.6.0 mcap-ros2-support==0.6.0 matplotlib==3.11.2 flatbuffers==25.12.19 protobuf==6.33.6 rosbags==0.11.9)
 missing_py=$("$venv/bin/python" - "${py_pkgs[@]}" <<'PY' 2>/dev/null || true
 import importlib.metadata as m, sys
 for spec in sys.argv[1:]:

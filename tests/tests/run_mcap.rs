@@ -5,6 +5,13 @@
 //! log time never going back (`tests/scripts/check_mcap.py`). A launcher killed with
 //! SIGKILL leaves a file readable up to its last chunk.
 //!
+//! The run folder is a rosbag2 bag (issue 32): a second independent reader, `rosbags`' rosbag2
+//! `Reader`, opens the folder through its `metadata.yaml` and finds every topic with the
+//! count the MCAP reader counted, `/robot_description` offered transient local and the
+//! streaming topics volatile, in `metadata.yaml` and in the MCAP channels alike
+//! (`tests/scripts/check_bag.py`). A killed launcher leaves the `metadata.yaml` written at the
+//! start: the topics and their QoS, state `recording`.
+//!
 //! The recorded run is one scene (`assets/scenes/small_box.toml`): the shortest whole run;
 //! the killed one is `assets/scenes/fast_world.toml` (long enough to kill mid-run). Needs
 //! the workspace's binaries built and `make setup` done.
@@ -93,6 +100,34 @@ fn check(mcap: &Path, extra: &[&str]) -> (i32, serde_json::Value) {
     (out.status.code().unwrap_or(-1), report)
 }
 
+/// Runs `rosbags` on the run folder `run` as a rosbag2 bag; returns its exit code and its
+/// JSON report.
+fn check_bag(run: &Path, extra: &[&str]) -> (i32, serde_json::Value) {
+    let script = repo_root().join("tests/scripts/check_bag.py");
+    let out = Command::new(venv_python())
+        .arg(&script)
+        .arg(run)
+        .args(extra)
+        .output()
+        .expect("running check_bag.py");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    println!("{stdout}");
+    eprintln!("{}", String::from_utf8_lossy(&out.stderr));
+    let report = serde_json::from_str(&stdout)
+        .unwrap_or_else(|e| panic!("check_bag.py printed no JSON ({e}): {stdout}"));
+    (out.status.code().unwrap_or(-1), report)
+}
+
+/// The QoS arguments of `check_bag.py`: the URDF latched, the streams volatile.
+const BAG_QOS: [&str; 6] = [
+    "--transient-local",
+    "/robot_description",
+    "--volatile",
+    "/joint_states",
+    "--volatile",
+    "/tf",
+];
+
 fn count(report: &serde_json::Value, topic: &str) -> u64 {
     report["topics"][topic]["count"].as_u64().unwrap_or(0)
 }
@@ -145,6 +180,41 @@ fn a_run_leaves_an_mcap_file_that_an_independent_reader_validates() {
     );
     let md = std::fs::read_to_string(run.join("report.md")).expect("report.md");
     assert!(md.contains("run.mcap"), "the report links the recording");
+
+    // The folder is a rosbag2 bag that rosbags opens, with the MCAP reader's counts.
+    let (code, bag) = check_bag(&run, &BAG_QOS);
+    assert_eq!(code, 0, "rosbags found problems: {}", bag["errors"]);
+    assert_eq!(bag["version"], 9, "rosbag2 metadata version");
+    assert_eq!(bag["storage"], "mcap");
+    assert_eq!(bag["files"], serde_json::json!(["run.mcap"]));
+    assert_eq!(bag["state"], "finished");
+    let bag_topics = bag["topics"].as_object().expect("topics");
+    for t in topics {
+        assert!(
+            bag_topics.contains_key(t),
+            "{t} not in metadata.yaml: {bag}"
+        );
+    }
+    for (name, t) in bag_topics {
+        let mcap_count = count(&report, name);
+        assert_eq!(
+            t["count"], mcap_count,
+            "{name}: metadata.yaml vs the MCAP reader"
+        );
+        assert_eq!(
+            t["read"], mcap_count,
+            "{name}: rosbags read vs the MCAP reader"
+        );
+    }
+    assert_eq!(bag["message_count"], report["messages"]);
+    let urdf = &bag["topics"]["/robot_description"];
+    assert_eq!(urdf["durability"], "transient_local", "{urdf}");
+    assert_eq!(urdf["channel"]["durability"], "transient_local", "{urdf}");
+    assert_eq!(urdf["depth"], 1, "{urdf}");
+    assert_eq!(
+        bag["topics"]["/joint_states"]["durability"], "volatile",
+        "{bag}"
+    );
 }
 
 #[test]
@@ -191,4 +261,17 @@ fn a_killed_launcher_leaves_a_recording_readable_up_to_its_last_chunk() {
     );
     assert!(count(&report, "/joint_states") > 50, "{report}");
     assert_eq!(count(&report, "/robot_description"), 1, "{report}");
+
+    // The metadata.yaml of the start is there: the topics and their QoS, still recording.
+    let run = mcap.parent().expect("run folder");
+    let mut args = vec!["--metadata-only"];
+    args.extend(BAG_QOS);
+    let (code, bag) = check_bag(run, &args);
+    assert_eq!(code, 0, "metadata.yaml problems: {}", bag["errors"]);
+    assert_eq!(bag["state"], "recording", "{bag}");
+    assert_eq!(bag["topics"]["/robot_description"]["count"], 1, "{bag}");
+    assert!(
+        bag["topics"]["/foresight/scene_markers"].is_object(),
+        "{bag}"
+    );
 }

@@ -1,8 +1,10 @@
 //! The run's recording: every run is written to `runs/<run>/run.mcap` by the `recorder`
 //! crate (a normal thread of the launcher subscribed to the run's services, never a process
 //! of the real-time path), with the simulated arm's referee figures added as the launcher
-//! reads them. `--no-record` turns it off. A recording that cannot start or ends badly is a
-//! note in the report, never the end of a run.
+//! reads them. The run folder is a rosbag2 bag: the recorder writes its `metadata.yaml`
+//! beside `run.mcap` ([`recorder::bag`]), so `ros2 bag info runs/<run>` and
+//! `ros2 bag play runs/<run>` open it. `--no-record` turns it off. A recording that cannot
+//! start or ends badly is a note in the report, never the end of a run.
 
 use std::path::Path;
 
@@ -13,8 +15,12 @@ use crate::args::LaunchArgs;
 /// The file name of a run's recording in its folder.
 pub const RUN_MCAP: &str = "run.mcap";
 
-/// Starts recording the run `prefix` into `<run_dir>/run.mcap`, unless `--no-record`. On
-/// failure the reason is pushed to `notes` and the run goes on unrecorded.
+/// The rosbag2 metadata beside it, which makes the run folder a bag.
+pub const BAG_METADATA: &str = recorder::bag::METADATA_FILE;
+
+/// Starts recording the run `prefix` into `<run_dir>/run.mcap` (and `<run_dir>` as a rosbag2
+/// bag), unless `--no-record`. On failure the reason is pushed to `notes` and the run goes on
+/// unrecorded.
 pub fn start(
     args: &LaunchArgs,
     run_dir: &Path,
@@ -35,6 +41,8 @@ pub fn start(
         }
     };
     let mut cfg = RecorderConfig::new(run_dir.join(RUN_MCAP), prefix, urdf);
+    // The run folder holds this recording alone: it is the bag.
+    cfg.bag_metadata = true;
     cfg.max_bytes = args.record_max_mib.saturating_mul(1024 * 1024);
     match Recorder::start(cfg) {
         Ok(r) => Some(r),

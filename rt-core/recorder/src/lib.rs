@@ -17,6 +17,18 @@
 //! | `/foresight/robot_status` | `foresight_msgs/RobotStatus` | `RobotState` (stop reason, controller codes) |
 //! | `/foresight/referee` | `foresight_msgs/RefereeClearance` | handed in by the owner ([`Recorder::referee`]) |
 //!
+//! Each channel carries the QoS its publisher offered (`offered_qos_profiles`:
+//! `/robot_description` transient local, so `ros2 bag play` latches the URDF; every other
+//! topic volatile), and with [`RecorderConfig::bag_metadata`] (the launcher's run folders) the
+//! file's folder is a rosbag2 bag ([`bag`]): `metadata.yaml` (rosbag2 metadata version 9, as
+//! Jazzy writes it) beside the MCAP file, so `ros2 bag info runs/<id>`, `ros2 bag play
+//! runs/<id>` and the `rosbags` Python reader open the folder.
+//!
+//! `assets/foxglove/foresight-layout.json` is a Foxglove layout for a run (Foxglove: Layouts
+//! → Import): a 3D panel with the robot (`/robot_description`, `/tf`) and the scene markers,
+//! plots of the verdicts (plan approved, safe, task reached) and of the separation (the
+//! twin's smallest robot–obstacle distance, the referee's clearance), and the raw verdicts.
+//!
 //! The file is bounded ([`RecorderConfig::max_bytes`]: recording stops, once, with a
 //! warning), written in whole chunks at least every [`RecorderConfig::flush_interval_s`] so a
 //! killed process leaves a file readable up to its last chunk, and finished (summary and
@@ -25,7 +37,9 @@
 //! ```no_run
 //! use recorder::{Recorder, RecorderConfig};
 //! let urdf = std::fs::read_to_string("assets/xarm5.urdf").unwrap();
-//! let rec = Recorder::start(RecorderConfig::new("runs/x/run.mcap".into(), "run42", urdf)).unwrap();
+//! let mut cfg = RecorderConfig::new("runs/x/run.mcap".into(), "run42", urdf);
+//! cfg.bag_metadata = true; // runs/x/ is a rosbag2 bag: metadata.yaml beside run.mcap
+//! let rec = Recorder::start(cfg).unwrap();
 //! // … the run …
 //! let stats = rec.stop().unwrap();
 //! println!("{} messages", stats.total());
@@ -33,15 +47,79 @@
 
 #![forbid(unsafe_code)]
 
+pub mod bag;
 pub mod cdr;
 pub mod markers;
 pub mod mcap_file;
 pub mod msgs;
 pub mod recorder;
 
+pub use bag::{BagMetadata, BagMetadataWriteError, Durability, OfferedQos, RecordingState};
 pub use mcap_file::{McapFile, McapFileOptions, RecordingStats};
 pub use msgs::RefereeClearance;
 pub use recorder::{
     DEFAULT_MAX_BYTES, Recorder, RecorderConfig, RecorderConfigError, RecorderStartError,
     RecorderStopError, topics,
 };
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use crate::msgs::{RefereeClearanceMsg, RosMessage, TwinVerdictMsg};
+
+    /// The Foxglove layout parses and every topic its panels name is recorded.
+    #[test]
+    fn the_foxglove_layout_shows_recorded_topics() {
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../assets/foxglove/foresight-layout.json"
+        ))
+        .unwrap();
+        let layout: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let panels = layout["configById"].as_object().unwrap();
+        let mut named = Vec::new();
+        for panel in panels.values() {
+            if let Some(topics) = panel["topics"].as_object() {
+                named.extend(topics.keys().cloned());
+            }
+            for path in panel["paths"].as_array().into_iter().flatten() {
+                let (topic, field) = path["value"].as_str().unwrap().split_once('.').unwrap();
+                // The plotted field is in the topic's message definition.
+                let definition = match topic {
+                    crate::topics::VERDICTS => TwinVerdictMsg::definition(),
+                    crate::topics::REFEREE => RefereeClearanceMsg::definition(),
+                    other => panic!("no plot expected of {other}"),
+                };
+                assert!(
+                    definition
+                        .lines()
+                        .any(|l| l.split_whitespace().nth(1) == Some(field)),
+                    "{topic} has no field {field}"
+                );
+                named.push(topic.to_owned());
+            }
+            if let Some(topic) = panel["topicPath"].as_str() {
+                named.push(topic.to_owned());
+            }
+        }
+        for t in [
+            crate::topics::ROBOT_DESCRIPTION,
+            crate::topics::SCENE_MARKERS,
+            crate::topics::VERDICTS,
+            crate::topics::REFEREE,
+        ] {
+            assert!(named.iter().any(|n| n == t), "{t} not shown: {named:?}");
+        }
+        for n in &named {
+            assert!(
+                crate::topics::ALL.contains(&n.as_str()),
+                "{n} is not recorded"
+            );
+        }
+        // Every panel of the layout tree has a configuration.
+        let tree = layout["layout"].to_string();
+        for id in panels.keys() {
+            assert!(tree.contains(&format!("\"{id}\"")), "{id} not placed");
+        }
+    }
+}

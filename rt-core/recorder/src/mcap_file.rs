@@ -15,6 +15,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use crate::bag::{BagMetadata, BagTopic, OfferedQos, RecordingState};
 use crate::cdr::CdrWriter;
 use crate::msgs::RosMessage;
 
@@ -42,6 +43,8 @@ pub struct RecordingStats {
     pub limit_reached: bool,
     /// File size (bytes) when closed.
     pub bytes: u64,
+    /// Log time (ns since the Unix epoch) of the first and the last message written.
+    pub log_time_span_ns: Option<(u64, u64)>,
 }
 
 impl RecordingStats {
@@ -125,6 +128,7 @@ pub struct McapFile {
     opts: McapFileOptions,
     written: Arc<AtomicU64>,
     channels: HashMap<String, u16>,
+    topics: Vec<BagTopic>,
     sequence: u32,
     last_log_time_ns: u64,
     cdr: CdrWriter,
@@ -178,6 +182,7 @@ impl McapFile {
             opts,
             written,
             channels: HashMap::new(),
+            topics: Vec::new(),
             sequence: 0,
             last_log_time_ns: 0,
             cdr: CdrWriter::new(),
@@ -209,20 +214,52 @@ impl McapFile {
         }
     }
 
-    /// Adds a channel for `topic` carrying `M` (its schema is written once per type).
+    /// The topics added, in channel order.
+    pub fn topics(&self) -> &[BagTopic] {
+        &self.topics
+    }
+
+    /// What the bag's `metadata.yaml` says of this file now, in `state`.
+    pub fn bag_metadata(&self, state: RecordingState) -> BagMetadata {
+        BagMetadata {
+            file_name: self
+                .path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            topics: self.topics.clone(),
+            stats: self.stats.clone(),
+            state,
+        }
+    }
+
+    /// Adds a channel for `topic` carrying `M` (its schema is written once per type), with
+    /// the QoS profile its publisher offered in the channel metadata
+    /// (`offered_qos_profiles`, the `ros2` MCAP profile).
     ///
     /// # Errors
     /// [`McapWriteError`].
-    pub fn add_topic<M: RosMessage>(&mut self, topic: &str) -> Result<(), McapWriteError> {
+    pub fn add_topic<M: RosMessage>(
+        &mut self,
+        topic: &str,
+        qos: OfferedQos,
+    ) -> Result<(), McapWriteError> {
         let State::Open(w) = &mut self.state else {
             return Ok(());
         };
+        let metadata =
+            BTreeMap::from([("offered_qos_profiles".to_owned(), qos.channel_metadata())]);
         let added = w
             .add_schema(M::TYPE_NAME, "ros2msg", M::definition().as_bytes())
-            .and_then(|schema| w.add_channel(schema, topic, "cdr", &BTreeMap::new()));
+            .and_then(|schema| w.add_channel(schema, topic, "cdr", &metadata));
         match added {
             Ok(id) => {
                 self.channels.insert(topic.to_owned(), id);
+                self.topics.push(BagTopic {
+                    name: topic.to_owned(),
+                    type_name: M::TYPE_NAME.to_owned(),
+                    qos,
+                });
                 self.stats.messages.entry(topic.to_owned()).or_insert(0);
                 Ok(())
             }
@@ -280,6 +317,8 @@ impl McapFile {
         match w.write_to_known_channel(&header, self.cdr.as_bytes()) {
             Ok(()) => {
                 *self.stats.messages.entry(topic.to_owned()).or_insert(0) += 1;
+                let first = self.stats.log_time_span_ns.map_or(log_time, |(f, _)| f);
+                self.stats.log_time_span_ns = Some((first, log_time));
                 Ok(())
             }
             Err(e) => Err(self.fail(e)),
@@ -353,7 +392,8 @@ mod tests {
             },
         )
         .unwrap();
-        f.add_topic::<StringMsg>("/t").unwrap();
+        f.add_topic::<StringMsg>("/t", OfferedQos::STREAMING)
+            .unwrap();
         for i in 0..100 {
             let m = StringMsg {
                 data: format!("message {i}"),
@@ -380,7 +420,8 @@ mod tests {
             },
         )
         .unwrap();
-        f.add_topic::<StringMsg>("/t").unwrap();
+        f.add_topic::<StringMsg>("/t", OfferedQos::STREAMING)
+            .unwrap();
         let m = StringMsg {
             data: "x".repeat(1000),
         };
@@ -403,6 +444,53 @@ mod tests {
     }
 
     #[test]
+    fn each_channel_carries_its_offered_qos_and_the_bag_metadata_its_topics() {
+        let path = tmp("qos.mcap");
+        let mut f = McapFile::create(
+            &path,
+            McapFileOptions {
+                max_bytes: 1 << 20,
+                chunk_bytes: 1024,
+            },
+        )
+        .unwrap();
+        f.add_topic::<StringMsg>("/robot_description", OfferedQos::LATCHED)
+            .unwrap();
+        f.add_topic::<StringMsg>("/t", OfferedQos::STREAMING)
+            .unwrap();
+        f.write("/robot_description", 2_000, &StringMsg::default())
+            .unwrap();
+        f.write("/t", 5_000, &StringMsg::default()).unwrap();
+        f.write("/t", 9_000, &StringMsg::default()).unwrap();
+        let md = f.bag_metadata(RecordingState::Finished);
+        assert_eq!(md.file_name, "qos.mcap");
+        assert_eq!(md.topics.len(), 2);
+        assert_eq!(md.topics[0].type_name, "std_msgs/msg/String");
+        assert_eq!(md.topics[1].qos, OfferedQos::STREAMING);
+        assert_eq!(md.time_span_ns(), (2_000, 7_000));
+        assert_eq!(md.message_count(), 3);
+        let stats = f.finish().unwrap();
+        assert_eq!(stats.log_time_span_ns, Some((2_000, 9_000)));
+        let bytes = std::fs::read(&path).unwrap();
+        let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
+        let qos: BTreeMap<&str, &str> = summary
+            .channels
+            .values()
+            .map(|c| {
+                (
+                    c.topic.as_str(),
+                    c.metadata["offered_qos_profiles"].as_str(),
+                )
+            })
+            .collect();
+        assert_eq!(
+            qos["/robot_description"],
+            OfferedQos::LATCHED.channel_metadata()
+        );
+        assert_eq!(qos["/t"], OfferedQos::STREAMING.channel_metadata());
+    }
+
+    #[test]
     fn log_time_never_goes_back() {
         let path = tmp("monotonic.mcap");
         let mut f = McapFile::create(
@@ -413,7 +501,8 @@ mod tests {
             },
         )
         .unwrap();
-        f.add_topic::<StringMsg>("/t").unwrap();
+        f.add_topic::<StringMsg>("/t", OfferedQos::STREAMING)
+            .unwrap();
         f.write("/t", 500, &StringMsg::default()).unwrap();
         f.write("/t", 100, &StringMsg::default()).unwrap();
         assert_eq!(f.last_log_time_ns, 500);

@@ -1,9 +1,11 @@
 //! The recording thread: subscribes to a run's iceoryx2 services like any other reader
 //! (never touching the cycle), turns each sample into ROS 2 messages and writes them to an
-//! [`McapFile`]. [`Recorder::start`] opens the file and the subscribers before it returns;
-//! [`Recorder::stop`] (or dropping the handle) drains what is left and closes the file.
+//! [`McapFile`]. [`Recorder::start`] opens the file and the subscribers (and, with
+//! [`RecorderConfig::bag_metadata`], writes the bag's first `metadata.yaml`, [`crate::bag`])
+//! before it returns; [`Recorder::stop`] (or dropping the handle) drains what is left, closes
+//! the file and rewrites `metadata.yaml` with the final counts.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
@@ -17,6 +19,7 @@ use shm_schemas::{
 };
 use twin::{DOF, RobotModel};
 
+use crate::bag::{BagMetadataWriteError, OfferedQos, RecordingState};
 use crate::markers::{PlanPath, scene_markers};
 use crate::mcap_file::{
     McapCreateError, McapFile, McapFileOptions, McapWriteError, RecordingStats,
@@ -75,6 +78,11 @@ pub const JOINT_NAMES: [&str; DOF] = ["joint1", "joint2", "joint3", "joint4", "j
 pub struct RecorderConfig {
     /// The MCAP file (its folder is created).
     pub path: PathBuf,
+    /// Make the file's folder a rosbag2 bag: write its `metadata.yaml` beside the file at the
+    /// start and at the end ([`crate::bag`]). For a folder that holds this recording alone
+    /// (the launcher's run folder); off by default, so that a file recorded into a shared
+    /// folder does not claim it. The channels carry their offered QoS either way.
+    pub bag_metadata: bool,
     /// iceoryx2 service prefix of the run.
     pub prefix: String,
     /// URDF text (for `/robot_description` and the forward kinematics of `/tf`).
@@ -101,6 +109,7 @@ impl RecorderConfig {
     pub fn new(path: PathBuf, prefix: &str, urdf: String) -> Self {
         Self {
             path,
+            bag_metadata: false,
             prefix: prefix.to_owned(),
             urdf,
             frame_id: "world".to_owned(),
@@ -163,6 +172,9 @@ pub enum RecorderStartError {
     /// A channel could not be added.
     #[error(transparent)]
     Write(#[from] McapWriteError),
+    /// The bag's first `metadata.yaml` could not be written.
+    #[error(transparent)]
+    Metadata(#[from] BagMetadataWriteError),
     /// The iceoryx2 node or a subscriber could not be opened.
     #[error("the recorder cannot subscribe to the run's services: {0}")]
     Subscribe(String),
@@ -177,6 +189,10 @@ pub enum RecorderStopError {
     /// Writing failed (the file is readable up to its last finished chunk).
     #[error(transparent)]
     Write(#[from] McapWriteError),
+    /// The bag's final `metadata.yaml` could not be written (the MCAP file is complete; the
+    /// folder keeps the first `metadata.yaml`).
+    #[error(transparent)]
+    Metadata(#[from] BagMetadataWriteError),
     /// The recording thread panicked.
     #[error("the recorder thread panicked")]
     Panicked,
@@ -192,7 +208,7 @@ enum Fact {
 pub struct Recorder {
     stop: Arc<AtomicBool>,
     facts: mpsc::Sender<Fact>,
-    thread: Option<JoinHandle<Result<RecordingStats, McapWriteError>>>,
+    thread: Option<JoinHandle<Result<RecordingStats, RecorderStopError>>>,
     path: PathBuf,
 }
 
@@ -210,9 +226,17 @@ fn unix_now_ns() -> u64 {
         .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
 }
 
+/// The bag folder of the MCAP file `path` (where `metadata.yaml` goes).
+fn bag_dir(path: &Path) -> &Path {
+    path.parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+}
+
 impl Recorder {
-    /// Opens the file, writes `/robot_description`, subscribes to the run's services and
-    /// starts the recording thread (named `recorder`, a normal thread).
+    /// Opens the file, writes `/robot_description`, subscribes to the run's services, writes
+    /// the bag's first `metadata.yaml` (with [`RecorderConfig::bag_metadata`]) and starts the
+    /// recording thread (named `recorder`, a normal thread).
     ///
     /// # Errors
     /// [`RecorderStartError`]; nothing runs after an error.
@@ -239,22 +263,29 @@ impl Recorder {
         file.flush()?;
         let stop = Arc::new(AtomicBool::new(false));
         let (facts_tx, facts_rx) = mpsc::channel();
-        let (ready_tx, ready_rx) = mpsc::sync_channel::<Result<(), String>>(1);
+        let (ready_tx, ready_rx) = mpsc::sync_channel::<Result<(), RecorderStartError>>(1);
         let path = cfg.path.clone();
         let thread_stop = stop.clone();
         let thread = std::thread::Builder::new()
             .name("recorder".to_owned())
             .spawn(move || {
                 let subs = match Subscriptions::open(&cfg.prefix) {
-                    Ok(s) => {
-                        let _ = ready_tx.send(Ok(()));
-                        s
-                    }
+                    Ok(s) => s,
                     Err(e) => {
-                        let _ = ready_tx.send(Err(e));
-                        return file.finish();
+                        let _ = ready_tx.send(Err(RecorderStartError::Subscribe(e)));
+                        return Ok(file.finish()?);
                     }
                 };
+                // The folder is a bag from the start: a killed recording keeps this file.
+                if cfg.bag_metadata
+                    && let Err(e) = file
+                        .bag_metadata(RecordingState::Recording)
+                        .write(bag_dir(&cfg.path))
+                {
+                    let _ = ready_tx.send(Err(e.into()));
+                    return Ok(file.finish()?);
+                }
+                let _ = ready_tx.send(Ok(()));
                 let mut session = Session::new(cfg, model, file);
                 session.run(&subs, &facts_rx, &thread_stop);
                 session.finish()
@@ -269,7 +300,7 @@ impl Recorder {
             }),
             Ok(Err(e)) => {
                 let _ = thread.join();
-                Err(RecorderStartError::Subscribe(e))
+                Err(e)
             }
             Err(_) => {
                 let _ = thread.join();
@@ -304,7 +335,7 @@ impl Recorder {
             return Ok(RecordingStats::default());
         };
         match thread.join() {
-            Ok(r) => Ok(r?),
+            Ok(r) => r,
             Err(_) => Err(RecorderStopError::Panicked),
         }
     }
@@ -318,18 +349,26 @@ impl Drop for Recorder {
     }
 }
 
+/// Every topic, with the QoS [`OfferedQos::for_topic`] gives it (`/robot_description`
+/// latched, the rest streaming).
 fn add_topics(file: &mut McapFile) -> Result<(), McapWriteError> {
-    file.add_topic::<JointState>(topics::JOINT_STATES)?;
-    file.add_topic::<JointState>(topics::JOINT_COMMANDS)?;
-    file.add_topic::<TfMessage>(topics::TF)?;
-    file.add_topic::<StringMsg>(topics::ROBOT_DESCRIPTION)?;
-    file.add_topic::<MarkerArray>(topics::SCENE_MARKERS)?;
-    file.add_topic::<DetectionsMsg>(topics::DETECTIONS)?;
-    file.add_topic::<TwinVerdictMsg>(topics::VERDICTS)?;
-    file.add_topic::<RetrainRequestMsg>(topics::RETRAIN_REQUESTS)?;
-    file.add_topic::<RetrainProgressMsg>(topics::RETRAIN_PROGRESS)?;
-    file.add_topic::<RobotStatusMsg>(topics::ROBOT_STATUS)?;
-    file.add_topic::<RefereeClearanceMsg>(topics::REFEREE)
+    fn add<M: crate::msgs::RosMessage>(
+        file: &mut McapFile,
+        topic: &str,
+    ) -> Result<(), McapWriteError> {
+        file.add_topic::<M>(topic, OfferedQos::for_topic(topic))
+    }
+    add::<JointState>(file, topics::JOINT_STATES)?;
+    add::<JointState>(file, topics::JOINT_COMMANDS)?;
+    add::<TfMessage>(file, topics::TF)?;
+    add::<StringMsg>(file, topics::ROBOT_DESCRIPTION)?;
+    add::<MarkerArray>(file, topics::SCENE_MARKERS)?;
+    add::<DetectionsMsg>(file, topics::DETECTIONS)?;
+    add::<TwinVerdictMsg>(file, topics::VERDICTS)?;
+    add::<RetrainRequestMsg>(file, topics::RETRAIN_REQUESTS)?;
+    add::<RetrainProgressMsg>(file, topics::RETRAIN_PROGRESS)?;
+    add::<RobotStatusMsg>(file, topics::ROBOT_STATUS)?;
+    add::<RefereeClearanceMsg>(file, topics::REFEREE)
 }
 
 struct Subscriptions {
@@ -610,12 +649,34 @@ impl Session {
         self.markers_dirty = false;
     }
 
-    fn finish(self) -> Result<RecordingStats, McapWriteError> {
-        let stats = self.file.finish()?;
-        match self.error {
-            Some(e) => Err(e),
-            None => Ok(stats),
+    /// Closes the file, then (with [`RecorderConfig::bag_metadata`]) rewrites the bag's
+    /// `metadata.yaml` with what it holds (also after a write error: the counts are those of
+    /// the file's readable part).
+    fn finish(self) -> Result<RecordingStats, RecorderStopError> {
+        let mut metadata = self.file.bag_metadata(RecordingState::Finished);
+        let finished = self.file.finish();
+        let failed = self.error.is_some() || finished.is_err();
+        if let Ok(stats) = &finished {
+            metadata.stats = stats.clone();
         }
+        metadata.state = if failed {
+            RecordingState::Failed
+        } else if metadata.stats.limit_reached {
+            RecordingState::SizeLimit
+        } else {
+            RecordingState::Finished
+        };
+        let written = if self.cfg.bag_metadata {
+            metadata.write(bag_dir(&self.cfg.path)).map(|_| ())
+        } else {
+            Ok(())
+        };
+        let stats = finished?;
+        if let Some(e) = self.error {
+            return Err(e.into());
+        }
+        written?;
+        Ok(stats)
     }
 }
 
@@ -624,6 +685,37 @@ impl Session {
 mod tests {
     use super::*;
     use shm_schemas::{DetectedObject, ObjectClass};
+
+    /// Without `bag_metadata` the folder gets the MCAP file alone (a file recorded into a
+    /// shared folder does not claim it as a bag).
+    #[test]
+    fn a_plain_recording_writes_no_bag_metadata() {
+        let urdf = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../assets/xarm5.urdf"
+        ))
+        .unwrap();
+        let dir = std::env::temp_dir().join(format!("recorder-plain-{}", std::process::id()));
+        let path = dir.join("plain.mcap");
+        let cfg = RecorderConfig::new(path.clone(), "unused", urdf.clone());
+        assert!(!cfg.bag_metadata);
+        let model = RobotModel::from_urdf_str(&urdf).unwrap();
+        let mut file = McapFile::create(
+            &path,
+            McapFileOptions {
+                max_bytes: cfg.max_bytes,
+                chunk_bytes: cfg.chunk_bytes,
+            },
+        )
+        .unwrap();
+        add_topics(&mut file).unwrap();
+        let mut s = Session::new(cfg, model, file);
+        s.put(topics::ROBOT_DESCRIPTION, 1, &StringMsg { data: urdf });
+        assert_eq!(s.finish().unwrap().total(), 1);
+        assert!(path.is_file());
+        assert!(!dir.join(crate::bag::METADATA_FILE).exists());
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     /// One message of every topic, through the same code as a run (the system test
     /// `tests/tests/run_mcap.rs` reads a real run back with an independent reader).
@@ -634,8 +726,10 @@ mod tests {
             "/../../assets/xarm5.urdf"
         ))
         .unwrap();
-        let path = std::env::temp_dir().join(format!("recorder-all-{}.mcap", std::process::id()));
-        let cfg = RecorderConfig::new(path.clone(), "unused", urdf.clone());
+        let dir = std::env::temp_dir().join(format!("recorder-all-{}", std::process::id()));
+        let path = dir.join("run.mcap");
+        let mut cfg = RecorderConfig::new(path.clone(), "unused", urdf.clone());
+        cfg.bag_metadata = true;
         let model = RobotModel::from_urdf_str(&urdf).unwrap();
         let mut file = McapFile::create(
             &path,
@@ -696,5 +790,15 @@ mod tests {
         // Three states 20 ms apart at 100 Hz: all three recorded; the path has two points
         // (the first two commanded TCPs are 2 mm apart or more).
         assert_eq!(stats.messages[topics::JOINT_STATES], 3);
+        // The folder is a bag: metadata.yaml beside the file, with the file's counts.
+        let yaml = std::fs::read_to_string(dir.join(crate::bag::METADATA_FILE)).unwrap();
+        assert!(
+            yaml.contains(&format!("  message_count: {}\n", stats.total())),
+            "{yaml}"
+        );
+        assert!(yaml.contains("foresight_recording: finished"), "{yaml}");
+        assert_eq!(yaml.matches("- topic_metadata:").count(), topics::ALL.len());
+        assert_eq!(yaml.matches("durability: transient_local").count(), 1);
+        std::fs::remove_dir_all(&dir).ok();
     }
 }
