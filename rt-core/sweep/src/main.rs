@@ -42,7 +42,7 @@ struct SweepArgs {
     /// Folder for summary.json.
     #[arg(long, default_value = "sweep-out")]
     out: PathBuf,
-    /// Folder with runtime.toml, xarm5.urdf, task.toml and policy/policy.blob.
+    /// Folder with runtime.toml, xarm5.urdf, task.toml and policy-distilled/policy.blob.
     #[arg(long, default_value = "assets")]
     assets: PathBuf,
     /// Worker threads (default: the available cores).
@@ -56,6 +56,11 @@ struct SweepArgs {
     /// path, crossing it, stopping then leaving, appearing at once), 60 Hz frames.
     #[arg(long)]
     dynamic: bool,
+    /// The planner fallback installed in the worker, as `rt-core run --planner-fallback on`
+    /// installs it (static and dynamic sweeps; its search is bounded by wall time, so
+    /// counts other than the hard ones may vary with the machine's load).
+    #[arg(long)]
+    planner_fallback: bool,
 }
 
 fn main() -> ExitCode {
@@ -83,6 +88,7 @@ fn run(args: &SweepArgs) -> anyhow::Result<ExitCode> {
             first_episode: args.first_episode,
             max_episode_s: args.max_episode_s.unwrap_or(defaults.max_episode_s),
             jobs,
+            planner_fallback: args.planner_fallback,
             ..defaults
         };
         return cli::dynamic::run(&assets, &settings, &args.out);
@@ -93,6 +99,7 @@ fn run(args: &SweepArgs) -> anyhow::Result<ExitCode> {
         first_episode: args.first_episode,
         max_episode_s: args.max_episode_s.unwrap_or(12.0),
         jobs,
+        planner_fallback: args.planner_fallback,
         ..SweepSettings::default()
     };
     let bar = ProgressBar::new(args.episodes);

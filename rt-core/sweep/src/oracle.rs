@@ -3,11 +3,15 @@
 //! between the arm's *nominal* collision capsules and the *ground-truth* boxes, and the
 //! motion limits (joint range, joint step per period, TCP speed, finiteness).
 //!
-//! Independent of what it checks: no parry3d, no `twin::RobotGeometry`, no shield code. The
-//! link segments come from the forward kinematics of the twin's [`RobotModel`] and the
-//! capsule definitions it read from the URDF; each radius is the URDF's collision radius
-//! *minus* the twin's padding ([`twin::COLLISION_MARGIN_M`]), so a negative distance here
-//! is real penetration of the arm's surface, not of the safety margin.
+//! Independent of what it checks: no parry3d, no `twin::RobotGeometry`, no shield code, and
+//! not the twin's kinematics either (issue 30 item 7). The arm's pose comes from UFactory's
+//! published Denavit–Hartenberg table and its body from one unpadded capsule per link, the
+//! shapes of `xarm-sim`'s referee (`xarm_sim::referee`, written apart from the twin and
+//! checked against the published dimension drawing), so a model error shared by the twin's
+//! URDF and everything built on it shows here as penetration. A negative distance is real
+//! penetration of the arm's surface, not of the twin's safety padding. The twin's model
+//! serves only to mount the task's tool (given in the URDF's flange frame) on the datasheet
+//! flange, and to place the sweep's injected boxes (never a check).
 //!
 //! The segment–box distance minimises the box's signed distance function along the segment:
 //! that function is convex (the signed distance of a convex set is convex, and so is its
@@ -23,8 +27,10 @@
 //! assert!((d - 0.25).abs() < 1e-12);
 //! ```
 
-use nalgebra::Point3;
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion};
 use twin::{DOF, Joints, LinkCapsule, RobotModel};
+use xarm_sim::referee::kinematics::{Frame, forward};
+use xarm_sim::referee::{ArmCapsules, LINKS, N_LINKS};
 
 use rt_core::cycle::shield::STEP_TOLERANCE;
 
@@ -128,18 +134,20 @@ pub fn segment_plane_distance_m(a: &Point, b: &Point, plane_z_m: f64) -> f64 {
     a[2].min(b[2]) - plane_z_m
 }
 
-/// One nominal capsule of the arm, in its link frame.
+/// One nominal capsule of the arm: a link body of the datasheet arm, or the tool.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NominalCapsule {
-    /// Link frame (`0` = base … `5` = link5); the tool is carried by frame 5.
+    /// Link body (`0` = base … `5` = link5, as `xarm_sim::referee::LINKS`); the tool is
+    /// carried by the flange (5).
     pub frame: usize,
     /// Whether it is the tool's capsule.
     pub tool: bool,
-    /// Axis ends in the link frame, m.
+    /// Axis ends: in the flange frame for the tool (as the task gives it); unused for link
+    /// bodies, whose ends come from the datasheet kinematics at each pose.
     pub a_m: Point,
     /// Second axis end, m.
     pub b_m: Point,
-    /// Nominal radius (the URDF's minus the padding), m.
+    /// Nominal radius (the arm's surface, no padding), m.
     pub radius_m: f64,
 }
 
@@ -177,72 +185,100 @@ pub struct PoseClearance {
     pub table_m: f64,
 }
 
-/// The arm's nominal capsules over the twin's forward kinematics.
+/// The arm's nominal capsules over the datasheet's forward kinematics (see the module docs).
 #[derive(Debug, Clone)]
 pub struct DistanceOracle {
+    /// The twin's model: where injected boxes go ([`DistanceOracle::frame_origins_m`]);
+    /// never used by a check.
     model: RobotModel,
-    capsules: Vec<NominalCapsule>,
+    /// The tool, in the flange frame of the URDF, and that frame in the datasheet's flange
+    /// frame (a constant: both are rigidly the flange).
+    tool: Option<(NominalCapsule, Isometry3<f64>)>,
+}
+
+/// A datasheet frame as an isometry.
+fn isometry(f: &Frame) -> Isometry3<f64> {
+    let r = Matrix3::from_fn(|i, j| f.rot[i][j]);
+    Isometry3::from_parts(
+        Translation3::new(f.origin_m[0], f.origin_m[1], f.origin_m[2]),
+        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r)),
+    )
 }
 
 impl DistanceOracle {
-    /// From `model`'s collision capsules and its tool (if any), each radius reduced by
-    /// `padding_m` (the twin's padding: [`twin::COLLISION_MARGIN_M`]).
+    /// The datasheet arm, with `model`'s tool (if any) mounted on its flange; the tool's
+    /// radius is reduced by `padding_m` (the twin's padding: [`twin::COLLISION_MARGIN_M`]).
     ///
     /// # Errors
     /// [`OracleBuildError::RadiusBelowPadding`].
     pub fn new(model: &RobotModel, padding_m: f64) -> Result<Self, OracleBuildError> {
-        let mut capsules = Vec::new();
-        let with_tool = model.tool().map(|t| (t, true));
-        for (c, tool) in model.capsules().iter().map(|c| (c, false)).chain(with_tool) {
-            let c: &LinkCapsule = c;
-            let radius_m = c.radius_m - padding_m;
-            if radius_m <= 0.0 {
-                return Err(OracleBuildError::RadiusBelowPadding {
-                    frame: c.frame,
-                    radius_m: c.radius_m,
-                    padding_m,
-                });
+        let tool = match model.tool() {
+            None => None,
+            Some(c) => {
+                let c: &LinkCapsule = c;
+                let radius_m = c.radius_m - padding_m;
+                if radius_m <= 0.0 {
+                    return Err(OracleBuildError::RadiusBelowPadding {
+                        frame: c.frame,
+                        radius_m: c.radius_m,
+                        padding_m,
+                    });
+                }
+                // The URDF's flange frame in the datasheet's, at the zero pose.
+                let q0 = [0.0; DOF];
+                let urdf_flange = model.fk(&q0).links[c.frame];
+                let dh_flange = isometry(forward(&q0).flange());
+                let mount = dh_flange.inverse() * urdf_flange;
+                Some((
+                    NominalCapsule {
+                        frame: c.frame,
+                        tool: true,
+                        a_m: c.a_m,
+                        b_m: c.b_m,
+                        radius_m,
+                    },
+                    mount,
+                ))
             }
-            capsules.push(NominalCapsule {
-                frame: c.frame,
-                tool,
-                a_m: c.a_m,
-                b_m: c.b_m,
-                radius_m,
-            });
-        }
+        };
         Ok(Self {
             model: model.clone(),
-            capsules,
+            tool,
         })
     }
 
-    /// The nominal capsules, in their link frames.
-    pub fn capsules(&self) -> &[NominalCapsule] {
-        &self.capsules
-    }
-
-    /// Every nominal capsule at `q_rad`, in the base frame: `(capsule, a, b)`.
+    /// Every nominal capsule at `q_rad`, in the base frame: `(capsule, a, b)` — the six
+    /// link bodies of the datasheet arm, then the tool.
     pub fn world_capsules(&self, q_rad: &Joints) -> Vec<(NominalCapsule, Point, Point)> {
-        let poses = self.model.fk(q_rad);
-        self.capsules
-            .iter()
-            .map(|c| {
-                let iso = &poses.links[c.frame];
-                let a = iso * Point3::from(c.a_m);
-                let b = iso * Point3::from(c.b_m);
-                (*c, [a.x, a.y, a.z], [b.x, b.y, b.z])
-            })
-            .collect()
+        let frames = forward(q_rad);
+        let bodies = ArmCapsules::from_frames(&frames);
+        let mut out = Vec::with_capacity(N_LINKS + 1);
+        for (i, (seg, link)) in bodies.segments_m.iter().zip(LINKS).enumerate() {
+            let capsule = NominalCapsule {
+                frame: i,
+                tool: false,
+                a_m: seg[0],
+                b_m: seg[1],
+                radius_m: link.radius_m,
+            };
+            out.push((capsule, seg[0], seg[1]));
+        }
+        if let Some((c, mount)) = &self.tool {
+            let iso = isometry(frames.flange()) * mount;
+            let a = iso * Point3::from(c.a_m);
+            let b = iso * Point3::from(c.b_m);
+            out.push((*c, [a.x, a.y, a.z], [b.x, b.y, b.z]));
+        }
+        out
     }
 
-    /// The TCP at `q_rad`, m.
+    /// The TCP (the datasheet's flange centre) at `q_rad`, m.
     pub fn tcp_m(&self, q_rad: &Joints) -> Point {
-        let t = self.model.tcp_m(q_rad);
-        [t.x, t.y, t.z]
+        forward(q_rad).flange().origin_m
     }
 
-    /// The link frame origins at `q_rad` (base, link1 … link5), m.
+    /// The twin's link frame origins at `q_rad` (base, link1 … link5), m: where the sweep
+    /// injects boxes (never a check).
     pub fn frame_origins_m(&self, q_rad: &Joints) -> [Point; DOF + 1] {
         let poses = self.model.fk(q_rad);
         let mut out = [[0.0; 3]; DOF + 1];
@@ -371,6 +407,69 @@ pub const TWIN_PADDING_M: f64 = twin::COLLISION_MARGIN_M;
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    fn urdf() -> RobotModel {
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/xarm5.urdf");
+        RobotModel::load(&p).unwrap()
+    }
+
+    /// Poses spread over the joint ranges (a fixed pseudo-random walk, no RNG crate).
+    fn poses() -> impl Iterator<Item = Joints> {
+        (0..200u32).map(|i| {
+            let f = |k: u32| ((i * 7919 + k * 104_729) % 1000) as f64 / 1000.0 - 0.5;
+            [2.0 * f(1), 1.2 * f(2), 1.5 * f(3), 2.0 * f(4), 3.0 * f(5)]
+        })
+    }
+
+    /// The oracle's arm is the datasheet's, not the twin's, yet the two must describe the
+    /// same arm: the TCP within 0.01 mm everywhere (the DH table's 2 µm digit slip; see
+    /// `xarm_sim::referee::kinematics`). A URDF that drifts from the datasheet fails here,
+    /// and the sweep would count its poses against the real arm's shape.
+    #[test]
+    fn the_datasheet_arm_and_the_twins_urdf_put_the_tcp_in_the_same_place() {
+        let model = urdf();
+        let oracle = DistanceOracle::new(&model, 0.010).unwrap();
+        for q in poses() {
+            let dh = oracle.tcp_m(&q);
+            let tw = model.tcp_m(&q);
+            let gap =
+                ((dh[0] - tw.x).powi(2) + (dh[1] - tw.y).powi(2) + (dh[2] - tw.z).powi(2)).sqrt();
+            assert!(gap < 1e-5, "{q:?}: datasheet {dh:?}, URDF {tw:?} ({gap} m)");
+        }
+    }
+
+    /// A tool given in the URDF's flange frame rides on the datasheet flange exactly where
+    /// the twin puts it, radius less the padding.
+    #[test]
+    fn the_tool_rides_on_the_datasheet_flange_where_the_twin_puts_it() {
+        let tool = LinkCapsule {
+            frame: DOF,
+            a_m: [0.0, 0.0, 0.0],
+            b_m: [0.0, 0.0, 0.10],
+            radius_m: 0.04,
+        };
+        let model = urdf().with_tool(Some(tool));
+        let oracle = DistanceOracle::new(&model, 0.010).unwrap();
+        for q in poses() {
+            let caps = oracle.world_capsules(&q);
+            let (c, a, b) = caps.iter().find(|(c, _, _)| c.tool).copied().unwrap();
+            assert!((c.radius_m - 0.03).abs() < 1e-12);
+            let flange = model.fk(&q).links[DOF];
+            let (ta, tb) = (
+                flange * Point3::from(tool.a_m),
+                flange * Point3::from(tool.b_m),
+            );
+            for (got, want) in [(a, ta), (b, tb)] {
+                let gap = ((got[0] - want.x).powi(2)
+                    + (got[1] - want.y).powi(2)
+                    + (got[2] - want.z).powi(2))
+                .sqrt();
+                assert!(gap < 1e-5, "{q:?}: {got:?} vs {want:?}");
+            }
+        }
+        // Six datasheet link bodies and the tool.
+        assert_eq!(oracle.world_capsules(&[0.0; DOF]).len(), N_LINKS + 1);
+    }
 
     #[test]
     fn point_and_segment_distances_match_hand_values() {

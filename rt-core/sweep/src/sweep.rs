@@ -28,7 +28,9 @@ use rt_core::twin_thread::TwinEvent;
 use rt_core::twin_thread::intake::{FrameRefusal, SceneIntake};
 use rt_core::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
 use rt_core::twin_thread::node::ProductionWorker;
+use rt_core::twin_thread::path_planner::TwinPathPlanner;
 use rt_core::twin_thread::serve;
+use rt_core::twin_thread::worker::PLANNER_POLICY_ID;
 
 use crate::oracle::{
     CommandLimits, DistanceOracle, OracleBox, OracleBuildError, Point, TWIN_PADDING_M,
@@ -62,7 +64,7 @@ pub enum SweepAssetsError {
 /// Why the bundled policy is not used (the sweep substitutes the goal-seeker).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BundledPolicyProblem {
-    /// `policy/policy.blob` could not be read as a blob.
+    /// `policy-distilled/policy.blob` could not be read as a blob.
     Unreadable,
     /// The loader refused it (e.g. trained for another task hash).
     Rejected(PolicyRejectReason),
@@ -77,7 +79,7 @@ pub struct SweepAssets {
     pub model: RobotModel,
     /// `task.toml`.
     pub task: TaskConfig,
-    /// `policy/policy.blob`, when it loads and suits the task.
+    /// `policy-distilled/policy.blob`, when it loads and suits the task.
     pub bundled: Option<Box<PolicyBlob>>,
     /// Why not, otherwise.
     pub bundled_problem: Option<BundledPolicyProblem>,
@@ -85,7 +87,7 @@ pub struct SweepAssets {
 }
 
 impl SweepAssets {
-    /// Loads `runtime.toml`, `xarm5.urdf`, `task.toml` and `policy/policy.blob` from an
+    /// Loads `runtime.toml`, `xarm5.urdf`, `task.toml` and `policy-distilled/policy.blob` from an
     /// assets folder.
     ///
     /// # Errors
@@ -98,7 +100,7 @@ impl SweepAssets {
         let task = TaskConfig::load(&assets.join("task.toml"))?;
         let loader = PolicyLoader::new(PolicyExpectation::for_task(task.hash()));
         let (bundled, bundled_problem) =
-            match policy::read_policy_file(&assets.join("policy/policy.blob")) {
+            match policy::read_policy_file(&assets.join("policy-distilled/policy.blob")) {
                 Err(_) => (None, Some(BundledPolicyProblem::Unreadable)),
                 Ok(blob) => match loader.check(&blob) {
                     Ok(()) => (Some(blob), None),
@@ -174,7 +176,7 @@ impl BrakingHorizon {
 /// The policies an episode may run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub enum PolicyKind {
-    /// `assets/policy/policy.blob`.
+    /// `assets/policy-distilled/policy.blob`.
     Bundled,
     /// Random weights (as `bench-loop`).
     RandomWeights,
@@ -270,6 +272,10 @@ pub struct SweepSettings {
     pub jobs: usize,
     /// The twists.
     pub rates: TwistRates,
+    /// The planner fallback installed in the worker, as `rt-core run --planner-fallback
+    /// on` installs it (its search is bounded by wall time, so a sweep with it is not
+    /// reproducible to the command under another load; its hard counts must still be 0).
+    pub planner_fallback: bool,
 }
 
 impl Default for SweepSettings {
@@ -283,6 +289,7 @@ impl Default for SweepSettings {
             max_latency_s: 0.03,
             jobs: 1,
             rates: TwistRates::default(),
+            planner_fallback: false,
         }
     }
 }
@@ -1094,8 +1101,8 @@ pub(crate) struct Rig {
 
 impl Rig {
     /// The rig for `assets`; `auto_resume` lets the cycle resume on its own after a link
-    /// loss.
-    pub(crate) fn new(assets: &SweepAssets, auto_resume: bool) -> Self {
+    /// loss; `planner_fallback` installs the planner fallback in the worker.
+    pub(crate) fn new(assets: &SweepAssets, auto_resume: bool, planner_fallback: bool) -> Self {
         let cfg = &assets.cfg;
         let start = assets.task.start.joints_rad;
         let (twin_io, cycle_io, log) = cycle::wire::<Scene>();
@@ -1123,12 +1130,20 @@ impl Rig {
         let _ = cycle.start(clock.now_ns());
         let lookahead =
             TwinLookahead::new(assets.model.clone(), assets.task, LookaheadActions::Policy);
-        let worker = ProductionWorker::new(
+        let mut worker = ProductionWorker::new(
             cfg,
             lookahead,
             serve::plan_shield(cfg, &assets.model, false),
             twin_io,
         );
+        if planner_fallback {
+            // As `rt-core run` installs it (serve.rs): over the model with the task's tool.
+            let armed = assets
+                .model
+                .clone()
+                .with_tool(assets.task.tool.map(|t| t.capsule()));
+            worker.set_fallback_planner(Box::new(TwinPathPlanner::new(armed, assets.task, cfg)));
+        }
         let intake = SceneIntake::new(
             cfg.intake,
             (cfg.stale.max_detection_age_s * 1e9) as u64,
@@ -1188,7 +1203,11 @@ impl<'a> Episode<'a> {
             intake,
             log,
             connection,
-        } = Rig::new(assets, spec.link_cut.is_some_and(|l| l.auto_resume));
+        } = Rig::new(
+            assets,
+            spec.link_cut.is_some_and(|l| l.auto_resume),
+            settings.planner_fallback,
+        );
         let oracle = &assets.oracle;
         let gc = spec.goal_center.map(f64::from);
         let goal_target = [
@@ -1351,8 +1370,12 @@ impl<'a> Episode<'a> {
                         "twin_verdicts_failed"
                     }
                 }
-                TwinEvent::PlanApproved { joins, .. } => {
-                    if joins {
+                TwinEvent::PlanApproved {
+                    joins, policy_id, ..
+                } => {
+                    if policy_id == PLANNER_POLICY_ID {
+                        "twin_plans_approved_planner"
+                    } else if joins {
                         "twin_plans_approved_joining"
                     } else {
                         "twin_plans_approved"

@@ -75,6 +75,42 @@ fn a_short_adversarial_sweep_finds_no_hard_violation_and_takes_the_adversarial_p
     );
 }
 
+/// Issue 30 item 7: the same adversarial sweep with the planner fallback installed, as
+/// `rt-core run --planner-fallback on` runs it: the planner's paths go through the same gate
+/// and shield, and the oracle must find no hard violation among them either.
+#[test]
+fn a_short_sweep_with_the_planner_fallback_finds_no_hard_violation_and_the_planner_moves_the_arm() {
+    let assets = assets();
+    let settings = SweepSettings {
+        seed: 11,
+        episodes: 120,
+        jobs: std::thread::available_parallelism()
+            .map_or(1, |n| n.get())
+            .min(2),
+        max_episode_s: 10.0,
+        rates: TwistRates {
+            // Mostly policies that cannot reach the goal: the planner takes over.
+            policy_weights: [0.1, 0.6, 0.1, 0.2],
+            inject: 0.5,
+            ..TwistRates::default()
+        },
+        planner_fallback: true,
+        ..SweepSettings::default()
+    };
+    let s = run_sweep(&assets, &settings, |_, _| {});
+    let report = serde_json::to_string_pretty(&s).unwrap();
+    assert_eq!(s.hard.total(), 0, "hard violations: {report}");
+    assert!(
+        s.counts
+            .get("twin_plans_approved_planner")
+            .copied()
+            .unwrap_or(0)
+            > 0,
+        "the planner never moved the arm: {report}"
+    );
+    assert!(s.commands_checked > 0, "{report}");
+}
+
 /// The oracle's primitives against hand-computed values.
 #[test]
 fn the_oracle_measures_hand_computed_distances() {

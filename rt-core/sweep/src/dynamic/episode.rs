@@ -224,7 +224,7 @@ impl<'a> Run<'a> {
         seeds: (u64, u64),
     ) -> Self {
         let cfg = &assets.cfg;
-        let mut rig = Rig::new(assets, false);
+        let mut rig = Rig::new(assets, false, settings.planner_fallback);
         let (policy, _) = make_policy(assets, world.policy, 1 + index * 8, index);
         if let Some(p) = policy {
             rig.worker.on_policy(p, &mut Vec::new());

@@ -89,6 +89,10 @@ pub struct DynamicSettings {
     /// Perception never sees the intruder (frames without it, settled): a runtime that
     /// cannot react, for the sweep's own test that its checks find the contacts.
     pub blind_to_intruder: bool,
+    /// The planner fallback installed in the worker (`rt-core run --planner-fallback on`):
+    /// the continuation after the intruder has left may then go by the planner's path where
+    /// no policy passes from where the arm stopped.
+    pub planner_fallback: bool,
 }
 
 impl Default for DynamicSettings {
@@ -110,6 +114,7 @@ impl Default for DynamicSettings {
             velocity_noise_m_s: 0.03,
             world_attempts: 8,
             blind_to_intruder: false,
+            planner_fallback: false,
         }
     }
 }
