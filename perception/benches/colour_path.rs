@@ -44,6 +44,9 @@ fn bench(c: &mut Criterion) {
     let rendered = cam.render(&scene);
     let frame = Frame::from_rendered(&rendered, 1, shm_schemas::clock::monotonic_now_ns()).unwrap();
     let calibration = Calibration::new(CalibrationFile {
+        camera: perception::camera_id::CalibrationCamera::synthetic(
+            perception::camera_id::CalibratedAt::now(),
+        ),
         intrinsics: cam.config.intrinsics,
         workspace: cam.workspace_for(&scene),
         corners_px: cam.workspace_corners_px(&scene).unwrap(),

@@ -118,6 +118,9 @@ fn bench(c: &mut Criterion) {
 
     // Frame → published DetectionFrame with YOLO (ONNX Runtime, 640) as the detector.
     let calibration = Calibration::new(CalibrationFile {
+        camera: perception::camera_id::CalibrationCamera::synthetic(
+            perception::camera_id::CalibratedAt::now(),
+        ),
         intrinsics: cam.config.intrinsics,
         workspace: cam.workspace_for(&scene),
         corners_px: cam.workspace_corners_px(&scene).unwrap(),

@@ -37,6 +37,9 @@ fn main() {
     .unwrap();
     let frame = Frame::from_rendered(&cam.render(&scene), 1, 0).unwrap();
     let cal = Calibration::new(CalibrationFile {
+        camera: perception::camera_id::CalibrationCamera::synthetic(
+            perception::camera_id::CalibratedAt::now(),
+        ),
         intrinsics: cam.config.intrinsics,
         workspace: cam.workspace_for(&scene),
         corners_px: cam.workspace_corners_px(&scene).unwrap(),

@@ -9,6 +9,10 @@
 //!
 //! Saved to and loaded from TOML ([`CalibrationFile`]); loading validates everything and
 //! rejects a calibration whose corners do not reproject within [`MAX_REPROJECTION_ERROR_PX`].
+//!
+//! A calibration belongs to one camera: its `[camera]` table names the camera's frame id
+//! (optionally its serial) and when it was made ([`crate::camera_id`]). A file without it
+//! is refused ([`CalibrationError::NoCamera`]) with a hint to re-run `perception calibrate`.
 
 use std::path::{Path, PathBuf};
 
@@ -17,6 +21,7 @@ use opencv::core::{Mat, Point2d, Point2f, Point3d, Vector};
 use opencv::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::camera_id::{CalibratedAt, CalibrationCamera};
 use crate::geometry::{CameraModel, CameraPose, Intrinsics};
 use crate::workspace::WorkspaceRect;
 
@@ -45,6 +50,18 @@ pub enum CalibrationError {
     /// Values out of range or geometrically inconsistent.
     #[error("invalid calibration: {0}")]
     Invalid(String),
+    /// The file has no `[camera]` table (made before it existed, or by hand): which camera
+    /// it belongs to is unknown.
+    #[error(
+        "calibration file {path} has no [camera] table (frame_id, calibrated_at): it does not say \
+         which camera it was made for, so it is refused; re-run `perception calibrate --image \
+         FRAME.png --frame-id FRAME_ID …` for this camera (FRAME_ID: the header.frame_id of its \
+         colour images; docs/real-arm.md, checklist step 3)"
+    )]
+    NoCamera {
+        /// The file.
+        path: PathBuf,
+    },
     /// OpenCV failed.
     #[error("OpenCV failed during calibration: {0}")]
     OpenCv(#[from] opencv::Error),
@@ -54,6 +71,9 @@ pub enum CalibrationError {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrationFile {
+    /// The camera it was made for (`[camera]`: `frame_id`, optional `serial`,
+    /// `calibrated_at`).
+    pub camera: CalibrationCamera,
     /// Intrinsics of the (rectified) colour and depth images.
     pub intrinsics: Intrinsics,
     /// The taped rectangle in the twin's frame.
@@ -86,10 +106,15 @@ impl Calibration {
     /// Validates `file` and solves the homography and the camera pose.
     ///
     /// # Errors
-    /// [`CalibrationError::Invalid`] for bad numbers, a degenerate quadrilateral, a pose that
-    /// puts the camera below the table or a reprojection error above
-    /// [`MAX_REPROJECTION_ERROR_PX`]; [`CalibrationError::OpenCv`] when OpenCV fails.
+    /// [`CalibrationError::Invalid`] for a bad `[camera]` table
+    /// ([`CalibrationCamera::validate`], against this machine's clock), bad numbers, a
+    /// degenerate quadrilateral, a pose that puts the camera below the table or a
+    /// reprojection error above [`MAX_REPROJECTION_ERROR_PX`]; [`CalibrationError::OpenCv`]
+    /// when OpenCV fails.
     pub fn new(file: CalibrationFile) -> Result<Self, CalibrationError> {
+        file.camera
+            .validate(CalibratedAt::now())
+            .map_err(|e| CalibrationError::Invalid(e.to_string()))?;
         check_file(&file)?;
         let pixel_to_table = pixel_to_table_homography(&file)?;
         let z = file.workspace.table_height_m;
@@ -121,15 +146,25 @@ impl Calibration {
     /// Loads and validates a calibration file.
     ///
     /// # Errors
-    /// See [`Calibration::new`]; plus I/O and TOML errors.
+    /// See [`Calibration::new`]; plus I/O and TOML errors, and
+    /// [`CalibrationError::NoCamera`] for a file that would be valid but for its missing
+    /// `[camera]` table.
     pub fn load(path: &Path) -> Result<Self, CalibrationError> {
         let text = std::fs::read_to_string(path).map_err(|source| CalibrationError::Io {
             path: path.to_path_buf(),
             source,
         })?;
-        let file: CalibrationFile = toml::from_str(&text).map_err(|e| CalibrationError::Parse {
-            path: path.to_path_buf(),
-            message: e.to_string(),
+        let file: CalibrationFile = toml::from_str(&text).map_err(|e| {
+            if lacks_only_camera(&text) {
+                CalibrationError::NoCamera {
+                    path: path.to_path_buf(),
+                }
+            } else {
+                CalibrationError::Parse {
+                    path: path.to_path_buf(),
+                    message: e.to_string(),
+                }
+            }
         })?;
         Self::new(file).map_err(|e| match e {
             CalibrationError::Invalid(m) => {
@@ -147,8 +182,11 @@ impl Calibration {
         let text = toml::to_string_pretty(&self.file)
             .map_err(|e| CalibrationError::Invalid(e.to_string()))?;
         let header = format!(
-            "# Foresight perception calibration. Corner order: (xmin,ymin), (xmin,ymax), (xmax,ymax), (xmax,ymin).\n\
+            "# Foresight perception calibration of camera {:?}, made {}. It is used only with that camera.\n\
+             # Corner order: (xmin,ymin), (xmin,ymax), (xmax,ymax), (xmax,ymin).\n\
              # Solved camera centre: {:?} m; mean corner reprojection error {:.3} px.\n",
+            self.file.camera.frame_id,
+            self.file.camera.calibrated_at,
             self.model.pose.eye_m().as_slice(),
             self.reprojection_error_px
         );
@@ -205,6 +243,25 @@ impl Calibration {
         )?;
         Ok(out)
     }
+}
+
+/// Whether `text` lacks a `[camera]` table and would parse as a [`CalibrationFile`] with one
+/// (an old calibration file): then the missing table is the error to report.
+fn lacks_only_camera(text: &str) -> bool {
+    let Ok(mut table) = toml::from_str::<toml::Table>(text) else {
+        return false;
+    };
+    if table.contains_key("camera") {
+        return false;
+    }
+    let Ok(camera) = toml::Value::try_from(CalibrationCamera::synthetic(CalibratedAt::now()))
+    else {
+        return false;
+    };
+    table.insert("camera".into(), camera);
+    toml::Value::Table(table)
+        .try_into::<CalibrationFile>()
+        .is_ok()
 }
 
 /// Checks the numbers of a calibration file: intrinsics, workspace, scale, corners inside
@@ -579,6 +636,7 @@ mod tests {
         )
         .unwrap();
         let file = CalibrationFile {
+            camera: CalibrationCamera::synthetic(CalibratedAt::now()),
             intrinsics: cam.config.intrinsics,
             workspace: cam.workspace_for(&scene),
             corners_px: cam.workspace_corners_px(&scene).unwrap(),
@@ -657,6 +715,89 @@ mod tests {
                 .contains("missing.toml")
         );
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// Issue 30 item 2: a calibration names its camera; a file without `[camera]` is refused
+    /// naming the table with the hint to re-run `perception calibrate`, a bad field is
+    /// named, and the bundled file is the synthetic camera's.
+    #[test]
+    fn a_calibration_names_its_camera_and_an_old_file_without_it_is_refused() {
+        let (_, _, mut file) = setup();
+        file.camera = CalibrationCamera {
+            frame_id: "zed_left_camera_frame_optical".into(),
+            serial: Some("38492711".into()),
+            calibrated_at: CalibratedAt::parse("2026-11-27T12:53:48Z").unwrap(),
+        };
+        let dir = std::env::temp_dir().join(format!("foresight-calcam-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("c.toml");
+        Calibration::new(file.clone()).unwrap().save(&p).unwrap();
+        let text = std::fs::read_to_string(&p).unwrap();
+        assert!(
+            text.contains("[camera]")
+                && text.contains("frame_id = \"zed_left_camera_frame_optical\"")
+                && text.contains("serial = \"38492711\"")
+                && text.contains("calibrated_at = 2026-11-27T12:53:48Z"),
+            "{text}"
+        );
+        assert_eq!(Calibration::load(&p).unwrap().file, file);
+        // The same file without its [camera] table: an old calibration.
+        let table_start = text.find("[camera]").unwrap();
+        let table_end = table_start + text[table_start..].find("\n\n").unwrap();
+        let old = format!("{}{}", &text[..table_start], &text[table_end..]);
+        assert!(!old.contains("frame_id"), "{old}");
+        std::fs::write(&p, &old).unwrap();
+        let e = Calibration::load(&p).unwrap_err();
+        assert!(matches!(e, CalibrationError::NoCamera { .. }), "{e:?}");
+        let m = e.to_string();
+        assert!(
+            m.contains("c.toml")
+                && m.contains("[camera]")
+                && m.contains("perception calibrate")
+                && m.contains("--frame-id"),
+            "{m}"
+        );
+        // A [camera] table without frame_id: the field is named.
+        std::fs::write(
+            &p,
+            old.replace(
+                "[intrinsics]",
+                "[camera]\ncalibrated_at = 2026-11-27T12:53:48Z\n\n[intrinsics]",
+            ),
+        )
+        .unwrap();
+        let m = Calibration::load(&p).unwrap_err().to_string();
+        assert!(m.contains("malformed") && m.contains("frame_id"), "{m}");
+        // A bad value: the field is named with the file.
+        std::fs::write(
+            &p,
+            old.replace(
+                "[intrinsics]",
+                "[camera]\nframe_id = \"\"\ncalibrated_at = 2026-11-27T12:53:48Z\n\n[intrinsics]",
+            ),
+        )
+        .unwrap();
+        let m = Calibration::load(&p).unwrap_err().to_string();
+        assert!(m.contains("camera.frame_id") && m.contains("c.toml"), "{m}");
+        // A malformed file that also lacks [camera] is reported as malformed.
+        std::fs::write(&p, "corners_px = [[1.0, 2.0]]\n").unwrap();
+        let e = Calibration::load(&p).unwrap_err();
+        assert!(matches!(e, CalibrationError::Parse { .. }), "{e:?}");
+        std::fs::remove_dir_all(&dir).ok();
+        // The bundled calibration is the synthetic camera's.
+        let bundled = Calibration::load(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/perception/calibration.toml"),
+        )
+        .unwrap();
+        assert!(
+            bundled.file.camera.is_synthetic(),
+            "{:?}",
+            bundled.file.camera
+        );
+        assert_eq!(
+            bundled.file.camera.frame_id,
+            crate::synthetic::SYNTHETIC_CAMERA_FRAME_ID
+        );
     }
 
     #[test]

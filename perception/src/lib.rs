@@ -17,7 +17,8 @@
 //!   rendering scene files with exact depth and ground truth).
 //! - Geometry: [`geometry`] (intrinsics, camera pose, project / unproject); [`workspace`]
 //!   (the taped rectangle on the table); [`calibration`] (that rectangle → homography and
-//!   camera pose, TOML save/load).
+//!   camera pose, TOML save/load); [`camera_id`] (the camera a calibration belongs to:
+//!   `[camera] frame_id`, checked against the source).
 //! - Detection: [`color_detector`] (per-class HSV thresholds + depth); [`runs`] (run-based
 //!   connected components); [`measure`] (a blob with depth → position, footprint, height);
 //!   [`yolo`] (YOLOv8 / YOLO11 / NMS-free ONNX exports on ONNX Runtime or OpenCV DNN) and
@@ -51,6 +52,7 @@
 
 pub mod annotate;
 pub mod calibration;
+pub mod camera_id;
 pub mod color_detector;
 pub mod detection;
 pub mod frame;

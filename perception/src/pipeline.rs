@@ -20,7 +20,9 @@
 //! refused for their stamp (`bad_stamps`), colour images without a depth image of the same
 //! moment (`unpaired_depth`: a stalled depth topic; the tracker's settled state then starts
 //! over, [`Tracker::interrupt`], so no settled frame is published until depth is fresh
-//! again and the quiet time has passed), frames published with objects left out
+//! again and the quiet time has passed), colour images of another camera than the
+//! calibration's (`wrong_camera`: their `header.frame_id` differs, [`crate::camera_id`];
+//! logged as an error naming both ids, and the settled state starts over too), frames published with objects left out
 //! (`truncated_frames`, `dropped_objects`: the frame carries `dropped_count`, so rt-core
 //! refuses it and stops), detections below the confidence floors (`goals_demoted`,
 //! `low_confidence_dropped`), goal tracks beyond the one goal (`extra_goals`) and good
@@ -170,6 +172,9 @@ pub struct RunStats {
     /// Colour images refused for want of a depth image of the same moment (none, or only
     /// stale ones: a stalled depth topic).
     pub unpaired_depth: u64,
+    /// Images refused because they come from another camera than the calibration's (their
+    /// `header.frame_id` is not its `[camera] frame_id`).
+    pub wrong_camera: u64,
     /// Frames published with more objects seen than fit (`dropped_count` > 0: rt-core
     /// refuses them and stops).
     pub truncated_frames: u64,
@@ -224,6 +229,7 @@ struct CaptureCounts {
     bad_frames: u64,
     bad_stamps: u64,
     unpaired_depth: u64,
+    wrong_camera: u64,
 }
 
 /// Runs the pipeline until the source ends, `max_frames` frames were taken, or `stop()`
@@ -309,6 +315,7 @@ fn run_with(
     stats.bad_frames = captured.bad_frames;
     stats.bad_stamps = captured.bad_stamps;
     stats.unpaired_depth = captured.unpaired_depth;
+    stats.wrong_camera = captured.wrong_camera;
     stats.frames_dropped_behind_detector = handoff.dropped();
     Ok(stats)
 }
@@ -329,6 +336,7 @@ fn capture_loop(
     let mut failures_in_row = 0;
     let mut stamp_log = LogLimiter::new(WARN_INTERVAL);
     let mut depth_log = LogLimiter::new(WARN_INTERVAL);
+    let mut camera_log = LogLimiter::new(WARN_INTERVAL);
     let mut drop_log = LogLimiter::new(DROP_LOG_INTERVAL);
     while !stop() && max_frames.is_none_or(|m| counts.frames < m) {
         if !handoff.sleep_until(next) {
@@ -375,6 +383,22 @@ fn capture_loop(
                     tracing::warn!(
                         unpaired_depth = counts.unpaired_depth,
                         "frame refused, no settled frame until depth is fresh again: {e} ({held_back} more refused since the last warning)"
+                    );
+                }
+                continue;
+            }
+            Err(SourceError::WrongCamera(e)) => {
+                // Another camera publishes on our topic, or the calibration is not this
+                // camera's: nothing it shows is measured, and no settled frame is published
+                // until the calibrated camera's frames have been quiet again.
+                failures_in_row = 0;
+                counts.bad_frames += 1;
+                counts.wrong_camera += 1;
+                interrupted_at_ns.fetch_max(monotonic_now_ns(), Ordering::AcqRel);
+                if let Some(held_back) = camera_log.allow(Instant::now()) {
+                    tracing::error!(
+                        wrong_camera = counts.wrong_camera,
+                        "image refused: {e} ({held_back} more refused since the last error)"
                     );
                 }
                 continue;
@@ -563,6 +587,9 @@ mod tests {
         let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
         let cam = SyntheticCamera::load(&assets.join("perception/synthetic_camera.toml")).unwrap();
         let calibration = Calibration::new(CalibrationFile {
+            camera: crate::camera_id::CalibrationCamera::synthetic(
+                crate::camera_id::CalibratedAt::now(),
+            ),
             intrinsics: cam.config.intrinsics,
             workspace: cam.workspace_for(scene),
             corners_px: cam.workspace_corners_px(scene).unwrap(),
@@ -789,6 +816,7 @@ mod tests {
                 extra_goals: 0,
                 frames_dropped_behind_detector: 0,
                 unpaired_depth: 0,
+                wrong_camera: 0,
             }
         );
     }

@@ -17,7 +17,7 @@
 //! stay clear of Linux's ephemeral range): a ROS 2 node on the default domain 0 on this
 //! machine is not heard. The camera driver must be started with `ROS_DOMAIN_ID=42` (or the
 //! file's id). A domain is a filter, not a lock: any process of this machine that joins it
-//! can publish images; see the README's real-arm checklist for what remains trusted.
+//! can publish images; see docs/real-arm.md for what remains trusted.
 //!
 //! **ROS 2 security (SROS2) is not available in this build**: `ros2-client` 0.12 and
 //! `rustdds` 0.15 read none of the `ROS_SECURITY_*` variables (`ROS_SECURITY_ENABLE`,
@@ -35,6 +35,16 @@
 //! loop) and the tracker's settled state starts over ([`crate::tracker::Tracker::interrupt`]):
 //! a new box is never measured against the table's old depth (a tall box published as a
 //! 1 mm footprint in a settled frame).
+//!
+//! **One camera** (issue 30 item 2). The source is opened with the calibration's camera
+//! frame id ([`crate::camera_id`]); a colour image whose `header.frame_id` differs is
+//! refused ([`SourceError::WrongCamera`], counted as `wrong_camera` by the run loop, which
+//! logs it naming both ids and starts the tracker's settled state over), and a depth image
+//! whose `header.frame_id` differs is never paired (dropped at receipt, logged at most every
+//! 5 s). A camera whose images carry another id than its calibration never yields a frame:
+//! perception publishes nothing and says why, rather than measuring one camera's pixels with
+//! another camera's pose. `perception run` refuses the synthetic camera's calibration with
+//! this source, and starting it without `--calibration`, before DDS is touched.
 //!
 //! **Stamps.** A frame's `capture_time_ns` is the colour image's `header.stamp` (the
 //! camera's capture time, on the ROS/system clock) converted to `CLOCK_MONOTONIC` with the
@@ -57,6 +67,7 @@ use ros2_client::{
 use serde::{Deserialize, Serialize};
 
 use crate::frame::{Frame, FrameError};
+use crate::log_limit::LogLimiter;
 use crate::source::{FrameSource, SourceError};
 use crate::stamp::{ClockPair, StampLimits, StampLimitsError, ros_stamp_to_monotonic_ns};
 
@@ -279,7 +290,7 @@ pub enum Ros2TopicsError {
         "ROS_SECURITY_ENABLE={0}: ROS 2 security (SROS2) was asked for, but this build's DDS \
          (rustdds without its `security` feature) cannot join a secured domain; unset it to run \
          unsecured on loopback and perception's own domain, or keep the camera off this host's \
-         reach (README, real-arm checklist)"
+         reach (docs/real-arm.md, the real-arm checklist)"
     )]
     SecurityUnsupported(String),
     /// `max_depth_skew_ms` is not within 0..=[`MAX_DEPTH_SKEW_MS`].
@@ -576,6 +587,42 @@ fn image_mat(
     Ok(m)
 }
 
+/// A colour image from another camera than the calibration's: its `header.frame_id` is not
+/// the calibration's `[camera] frame_id`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "the image on {topic} has header.frame_id {got:?}, but the calibration was made for camera \
+     frame_id {expected:?}: a camera is measured only with its own calibration (calibrate this \
+     camera with `perception calibrate --frame-id {got} …`, or publish the calibrated camera)"
+)]
+pub struct WrongCameraError {
+    /// The colour topic.
+    pub topic: String,
+    /// The image's `header.frame_id`.
+    pub got: String,
+    /// The calibration's `[camera] frame_id`.
+    pub expected: String,
+}
+
+/// Checks an image's `header.frame_id` against the calibration's camera `expected`.
+///
+/// # Errors
+/// [`WrongCameraError`] naming both ids and `topic`.
+pub fn check_frame_id(
+    topic: &str,
+    header: &Header,
+    expected: &str,
+) -> Result<(), WrongCameraError> {
+    if header.frame_id == expected {
+        return Ok(());
+    }
+    Err(WrongCameraError {
+        topic: topic.to_owned(),
+        got: header.frame_id.clone(),
+        expected: expected.to_owned(),
+    })
+}
+
 /// Why a colour image has no depth image to be measured with.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DepthPairError {
@@ -648,15 +695,25 @@ pub struct Ros2Source {
     sequence: u64,
     /// Topic names in use.
     pub topics: Ros2Topics,
+    /// The calibration's camera: images with another `header.frame_id` are refused.
+    frame_id: String,
+    /// Depth images dropped for another `header.frame_id`.
+    pub foreign_depth: u64,
+    foreign_depth_log: LogLimiter,
 }
 
 impl Ros2Source {
     /// Checks the settings against `access` ([`Ros2Topics::validate`]: loopback only
-    /// unless [`NetworkAccess::Open`]) and subscribes to the three topics.
+    /// unless [`NetworkAccess::Open`]) and subscribes to the three topics; only images whose
+    /// `header.frame_id` is `frame_id` (the calibration's camera) are used.
     ///
     /// # Errors
     /// [`SourceError::Open`], naming the field for refused settings.
-    pub fn open(topics: &Ros2Topics, access: NetworkAccess) -> Result<Self, SourceError> {
+    pub fn open(
+        topics: &Ros2Topics,
+        access: NetworkAccess,
+        frame_id: &str,
+    ) -> Result<Self, SourceError> {
         topics.validate(access)?;
         check_ros_security(std::env::var("ROS_SECURITY_ENABLE").ok().as_deref())?;
         if topics.networks.is_empty() {
@@ -692,11 +749,24 @@ impl Ros2Source {
             timeout: Duration::from_secs_f64(topics.timeout_s.clamp(0.01, 600.0)),
             sequence: 0,
             topics: topics.clone(),
+            frame_id: frame_id.to_owned(),
+            foreign_depth: 0,
+            foreign_depth_log: LogLimiter::new(Duration::from_secs(5)),
         })
     }
 
     fn drain_side_topics(&mut self) {
         while let Ok(Some((m, _))) = self.depth.take() {
+            if let Err(e) = check_frame_id(&self.topics.depth, &m.header, &self.frame_id) {
+                self.foreign_depth += 1;
+                if let Some(held_back) = self.foreign_depth_log.allow(Instant::now()) {
+                    tracing::error!(
+                        foreign_depth = self.foreign_depth,
+                        "depth image dropped: {e} ({held_back} more since the last warning)"
+                    );
+                }
+                continue;
+            }
             if self.depths.len() == DEPTH_HISTORY {
                 self.depths.pop_front();
             }
@@ -736,8 +806,9 @@ impl FrameSource for Ros2Source {
     /// `header.stamp` on `CLOCK_MONOTONIC`.
     ///
     /// # Errors
-    /// [`SourceError::Stamp`] for a refused stamp and [`SourceError::Depth`] for a colour
-    /// image without a paired depth image (this frame only), [`SourceError::Frame`] for a
+    /// [`SourceError::WrongCamera`] for a colour image of another camera than the
+    /// calibration's, [`SourceError::Stamp`] for a refused stamp and [`SourceError::Depth`]
+    /// for a colour image without a paired depth image (these frames only), [`SourceError::Frame`] for a
     /// bad image, [`SourceError::Failed`] when no image came within `timeout_s`.
     fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
         let deadline = Instant::now() + self.timeout;
@@ -767,6 +838,7 @@ impl FrameSource for Ros2Source {
         let Some((colour, received)) = colour else {
             return Ok(None);
         };
+        check_frame_id(&self.topics.colour, &colour.header, &self.frame_id)?;
         let stamp = colour.header.stamp;
         let capture =
             ros_stamp_to_monotonic_ns(stamp.sec, stamp.nanosec, received, &self.topics.stamp)?;
@@ -826,7 +898,7 @@ mod tests {
             );
             open.validate(NetworkAccess::Open).unwrap();
             // Opening the source itself refuses before touching DDS.
-            let Err(e) = Ros2Source::open(&open, NetworkAccess::LoopbackOnly) else {
+            let Err(e) = Ros2Source::open(&open, NetworkAccess::LoopbackOnly, "zed") else {
                 panic!("a source open beyond loopback was created without the flag");
             };
             assert!(e.to_string().contains("networks"), "{e}");
@@ -885,6 +957,36 @@ mod tests {
         assert_eq!(pair_depth(t0, [t0 + 1], 0), Err(Some(1)));
         assert_eq!(pair_depth(t0, [t0], 0), Ok(0));
         assert_eq!(stamp_ns(Time { sec: 2, nanosec: 5 }), 2_000_000_005);
+    }
+
+    /// Issue 30 item 2: an image is used only when its `header.frame_id` is the
+    /// calibration's camera.
+    #[test]
+    fn images_of_another_camera_are_refused_naming_both_frame_ids() {
+        let header = |id: &str| Header {
+            frame_id: id.to_owned(),
+            ..Header::default()
+        };
+        check_frame_id("/c", &header("zed_left"), "zed_left").unwrap();
+        for got in ["zed_right", "", "zed_left "] {
+            let e = check_frame_id("/c", &header(got), "zed_left").unwrap_err();
+            assert_eq!(
+                e,
+                WrongCameraError {
+                    topic: "/c".into(),
+                    got: got.into(),
+                    expected: "zed_left".into()
+                }
+            );
+            let m = SourceError::from(e).to_string();
+            assert!(
+                m.contains("/c")
+                    && m.contains(&format!("{got:?}"))
+                    && m.contains("\"zed_left\"")
+                    && m.contains("perception calibrate"),
+                "{m}"
+            );
+        }
     }
 
     #[test]

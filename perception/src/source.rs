@@ -10,6 +10,7 @@ use opencv::prelude::*;
 use shm_schemas::scene_file::live::seconds_since;
 use shm_schemas::scene_file::{LiveScene, WorldScript};
 
+use crate::camera_id::CameraKind;
 use crate::frame::{Frame, FrameError, read_colour, read_depth};
 use crate::synthetic::{ScriptedCamera, SyntheticCamera};
 use shm_schemas::clock::monotonic_now_ns;
@@ -23,6 +24,18 @@ pub enum SourceSpec {
     File(PathBuf),
     /// `ros2` (ZED wrapper topics by default).
     Ros2,
+}
+
+impl SourceSpec {
+    /// What kind of camera this is, for the calibration it may use
+    /// ([`crate::camera_id::CalibrationCamera::check_use`]).
+    pub fn camera_kind(&self) -> CameraKind {
+        match self {
+            Self::Synthetic(_) => CameraKind::Synthetic,
+            Self::File(_) => CameraKind::Recording,
+            Self::Ros2 => CameraKind::Live,
+        }
+    }
 }
 
 impl FromStr for SourceSpec {
@@ -60,6 +73,10 @@ pub enum SourceError {
     /// stale ones: [`crate::ros2_source::pair_depth`]); the source goes on.
     #[error("frame refused: {0}")]
     Depth(#[from] crate::ros2_source::DepthPairError),
+    /// This image comes from another camera than the calibration's (its `header.frame_id`
+    /// differs: [`crate::ros2_source::WrongCameraError`]); the source goes on.
+    #[error("image refused: {0}")]
+    WrongCamera(#[from] crate::ros2_source::WrongCameraError),
     /// A transport failure.
     #[error("source failed: {0}")]
     Failed(String),

@@ -34,6 +34,12 @@ use crate::geometry::{
 };
 use crate::workspace::{WorkspaceRect, WorkspaceValidateError};
 
+/// The camera frame id of the synthetic camera: what its calibrations name in `[camera]
+/// frame_id` (the bundled `assets/perception/calibration.toml`, `perception render`'s, the
+/// exact one `perception run --source synthetic:…` derives). A calibration naming it is
+/// refused with a live camera ([`crate::camera_id`]), and the synthetic source takes no other.
+pub const SYNTHETIC_CAMERA_FRAME_ID: &str = "foresight_synthetic_camera";
+
 /// Label of a pixel that sees nothing (sky): depth is NaN there.
 pub const LABEL_NONE: u8 = 0;
 /// Label of the bare table top.

@@ -273,10 +273,25 @@ fn the_ros2_source_is_loopback_only_unless_opened_and_help_says_so() {
         "{help}"
     );
     let dir = tmpdir("perc-open");
+    // A live camera's calibration (the bundled one, renamed to a ZED's frame id): the
+    // synthetic camera's is refused with --source ros2 before the networks are looked at.
+    let cal = dir.join("zed_calibration.toml");
+    let bundled =
+        std::fs::read_to_string(foresight_tests::asset("perception/calibration.toml")).unwrap();
+    std::fs::write(
+        &cal,
+        bundled.replace(
+            "frame_id = \"foresight_synthetic_camera\"",
+            "frame_id = \"zed_left_camera_frame_optical\"",
+        ),
+    )
+    .unwrap();
     let run = |extra: &[&str]| {
         let o = Command::new(bin_path("perception"))
             .args(["run", "--source", "ros2", "--frames", "1"])
             .args(["--prefix", &unique_prefix("percopen")])
+            .arg("--calibration")
+            .arg(&cal)
             .args(extra)
             .output()
             .unwrap();

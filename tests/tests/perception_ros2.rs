@@ -11,6 +11,11 @@
 //! stamp are refused and counted (`unpaired_depth`), and no settled frame ever shows a new
 //! tall box as a flat one.
 //!
+//! A calibration belongs to one camera (issue 30 item 2): the calibrations name the test
+//! camera's frame id (`[camera] frame_id`); images of another camera (another
+//! `header.frame_id`) are refused, counted (`wrong_camera`) and logged naming both ids, and
+//! never published.
+//!
 //! DDS stays on loopback: both sides restrict rustdds to 127.0.0.1 (`with_only_networks`,
 //! perception's default) and use perception's own default domain (42, not ROS 2's 0), and the test runs inside a private network namespace
 //! (`unshare -n`, `lo` up with MULTICAST on, which rustdds' discovery needs) made by
@@ -29,6 +34,7 @@ use foresight_tests::{
 };
 use iceoryx2::prelude::*;
 use perception::calibration::{Calibration, CalibrationFile};
+use perception::camera_id::{CalibratedAt, CalibrationCamera};
 use perception::ros2_source::{
     CameraInfo, Header, Image, Ros2Topics, Time, camera_info_publisher, context, image_publisher,
     node,
@@ -39,6 +45,18 @@ use shm_schemas::scene_file::SceneFile;
 use shm_schemas::{DetectionFrame, ObjectClass, services};
 
 const SCENE: &str = "[goal]\ncenter_m = [0.45, 0.20, 0.025]\nsize_m = 0.05\n[[obstacle]]\ncenter_m = [0.30, -0.10, 0.075]\nsize_m = [0.08, 0.06, 0.15]\n";
+
+/// The `header.frame_id` the test camera stamps its images with.
+const ZED_FRAME_ID: &str = "zed_left_camera_optical_frame";
+
+/// The test camera, as its calibrations name it.
+fn zed_camera() -> CalibrationCamera {
+    CalibrationCamera {
+        frame_id: ZED_FRAME_ID.into(),
+        serial: Some("12345678".into()),
+        calibrated_at: CalibratedAt::now(),
+    }
+}
 
 #[test]
 fn ros2_camera_topics_become_detection_frames() {
@@ -64,6 +82,7 @@ fn ros2_camera_topics_become_detection_frames() {
     let scene = SceneFile::from_toml_str(SCENE, std::path::Path::new("<test>")).unwrap();
     let r = cam.render(&scene);
     Calibration::new(CalibrationFile {
+        camera: zed_camera(),
         intrinsics: cam.config.intrinsics,
         workspace: cam.workspace_for(&scene),
         corners_px: cam.workspace_corners_px(&scene).unwrap(),
@@ -126,7 +145,7 @@ fn ros2_camera_topics_become_detection_frames() {
             // Stamped as a ROS 2 driver does: the system clock at capture.
             let header = Header {
                 stamp: ros_time(0),
-                frame_id: "zed_left_camera_optical_frame".into(),
+                frame_id: ZED_FRAME_ID.into(),
             };
             let info = CameraInfo {
                 header: header.clone(),
@@ -236,6 +255,7 @@ fn ros2_frames_carry_the_camera_stamp_on_the_monotonic_clock_and_unstamped_image
     let scene = SceneFile::from_toml_str(SCENE, std::path::Path::new("<test>")).unwrap();
     let r = cam.render(&scene);
     Calibration::new(CalibrationFile {
+        camera: zed_camera(),
         intrinsics: cam.config.intrinsics,
         workspace: cam.workspace_for(&scene),
         corners_px: cam.workspace_corners_px(&scene).unwrap(),
@@ -320,7 +340,7 @@ fn ros2_frames_carry_the_camera_stamp_on_the_monotonic_clock_and_unstamped_image
                 } else {
                     Time::default()
                 },
-                frame_id: "zed_left_camera_optical_frame".into(),
+                frame_id: ZED_FRAME_ID.into(),
             };
             let _ = depth_pub.publish(Image {
                 header: header.clone(),
@@ -431,6 +451,7 @@ fn a_stalled_depth_topic_refuses_frames_and_never_settles_a_tall_box_as_flat() {
     let scene_a = SceneFile::from_toml_str(SCENE, std::path::Path::new("<a>")).unwrap();
     let scene_b = SceneFile::from_toml_str(SCENE_TALL, std::path::Path::new("<b>")).unwrap();
     Calibration::new(CalibrationFile {
+        camera: zed_camera(),
         intrinsics: cam.config.intrinsics,
         workspace: cam.workspace_for(&scene_a),
         corners_px: cam.workspace_corners_px(&scene_a).unwrap(),
@@ -492,7 +513,7 @@ fn a_stalled_depth_topic_refuses_frames_and_never_settles_a_tall_box_as_flat() {
             let (w, h, bgra, depth) = if ph == 0 { &a } else { &b };
             let header = Header {
                 stamp: ros_time(0),
-                frame_id: "zed_left_camera_optical_frame".into(),
+                frame_id: ZED_FRAME_ID.into(),
             };
             if ph != 1 {
                 let _ = depth_pub.publish(Image {
@@ -584,6 +605,186 @@ fn a_stalled_depth_topic_refuses_frames_and_never_settles_a_tall_box_as_flat() {
                 .iter()
                 .any(|o| near_tall(o) && (o.size_m[2] - 0.30).abs() < 0.03)),
         "no settled frame with the tall box at its height after depth returned:\n{log}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Issue 30 item 2: a live camera is driven only with a calibration made for it. The
+/// calibration names camera `zed_left_camera_optical_frame`; the camera first publishes
+/// images of another camera (`header.frame_id` = `other_camera_optical_frame`, colour and
+/// depth): every one is refused, counted in `wrong_camera` and logged naming both ids, and
+/// nothing is published (before: they were measured with this calibration and published).
+/// Then the calibrated camera's images arrive and are published: a refusal is per image, not
+/// the end of the run.
+#[test]
+fn images_of_another_camera_are_refused_and_never_published() {
+    const OTHER: &str = "other_camera_optical_frame";
+    let name = "images_of_another_camera_are_refused_and_never_published";
+    if run_in_private_netns(name) == NetnsOutcome::RanInChild {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("foresight-perc-camid-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut cam =
+        SyntheticCamera::load(&foresight_tests::asset("perception/synthetic_camera.toml"))
+            .unwrap()
+            .config;
+    cam.intrinsics.fx_px /= 4.0;
+    cam.intrinsics.fy_px /= 4.0;
+    cam.intrinsics.cx_px /= 4.0;
+    cam.intrinsics.cy_px /= 4.0;
+    cam.intrinsics.width_px /= 4;
+    cam.intrinsics.height_px /= 4;
+    let cam = SyntheticCamera::new(cam).unwrap();
+    let scene = SceneFile::from_toml_str(SCENE, std::path::Path::new("<test>")).unwrap();
+    let r = cam.render(&scene);
+    Calibration::new(CalibrationFile {
+        camera: zed_camera(),
+        intrinsics: cam.config.intrinsics,
+        workspace: cam.workspace_for(&scene),
+        corners_px: cam.workspace_corners_px(&scene).unwrap(),
+        rectified_px_per_m: 1000.0,
+    })
+    .unwrap()
+    .save(&dir.join("calibration.toml"))
+    .unwrap();
+    let topics = Ros2Topics {
+        timeout_s: 5.0,
+        ..Ros2Topics::default()
+    };
+    std::fs::write(dir.join("topics.toml"), toml_of(&topics)).unwrap();
+
+    let prefix = unique_prefix("perccamid");
+    let (ice, _) = services::create_node::<ipc::Service>("perception-camid-test").unwrap();
+    let sub = services::open_subscriber::<DetectionFrame, _>(&ice, &prefix).unwrap();
+    let mut p = ChildGuard::spawn(
+        "perception run --source ros2",
+        Command::new(bin_path("perception"))
+            .args(["run", "--source", "ros2", "--prefix", &prefix])
+            .args(["--rate", "10", "--frames", "60", "--persist-frames", "1"])
+            .arg("--ros2-topics")
+            .arg(dir.join("topics.toml"))
+            .arg("--calibration")
+            .arg(dir.join("calibration.toml"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped()),
+    );
+    // perception's log, line by line: the calibrated camera starts publishing only once
+    // perception has refused the other camera's images (never, before the fix).
+    let refused = Arc::new(AtomicBool::new(false));
+    let stderr = p.child.stderr.take().unwrap();
+    let refused2 = refused.clone();
+    let log = std::thread::spawn(move || {
+        use std::io::BufRead;
+        let mut all = String::new();
+        for line in std::io::BufReader::new(stderr).lines() {
+            let Ok(line) = line else { break };
+            if line.contains("header.frame_id") && line.contains(OTHER) {
+                refused2.store(true, Ordering::Relaxed);
+            }
+            all += &line;
+            all.push('\n');
+        }
+        all
+    });
+
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop2 = stop.clone();
+    let (w, h) = (r.width_px as u32, r.height_px as u32);
+    let bgra: Vec<u8> = r
+        .bgr
+        .chunks_exact(3)
+        .flat_map(|p| [p[0], p[1], p[2], 255])
+        .collect();
+    let depth: Vec<u8> = r.depth_m.iter().flat_map(|d| d.to_le_bytes()).collect();
+    // CLOCK_MONOTONIC just before the first image of the calibrated camera was stamped.
+    let switched_mono_ns = Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let switched2 = switched_mono_ns.clone();
+    let camera = std::thread::spawn(move || {
+        let ctx = context(topics.domain_id, &topics.networks).unwrap();
+        let mut n = node(&ctx, "fake_zed").unwrap();
+        let colour_pub = image_publisher(&mut n, &topics.colour).unwrap();
+        let depth_pub = image_publisher(&mut n, &topics.depth).unwrap();
+        while !stop2.load(Ordering::Relaxed) {
+            let ours = refused.load(Ordering::Relaxed);
+            if ours && switched2.load(Ordering::Relaxed) == 0 {
+                switched2.store(monotonic_now_ns(), Ordering::Relaxed);
+            }
+            let header = Header {
+                stamp: ros_time(0),
+                frame_id: if ours { ZED_FRAME_ID } else { OTHER }.into(),
+            };
+            let _ = depth_pub.publish(Image {
+                header: header.clone(),
+                height: h,
+                width: w,
+                encoding: "32FC1".into(),
+                is_bigendian: 0,
+                step: w * 4,
+                data: depth.clone(),
+            });
+            let _ = colour_pub.publish(Image {
+                header,
+                height: h,
+                width: w,
+                encoding: "bgra8".into(),
+                is_bigendian: 0,
+                step: w * 4,
+                data: bgra.clone(),
+            });
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    });
+
+    let mut frames = Vec::new();
+    let done = wait_for(Duration::from_secs(90), || {
+        while let Ok(Some(s)) = sub.receive() {
+            frames.push(*s.payload());
+        }
+        p.child.try_wait().unwrap()
+    });
+    while let Ok(Some(s)) = sub.receive() {
+        frames.push(*s.payload());
+    }
+    stop.store(true, Ordering::Relaxed);
+    camera.join().unwrap();
+    let log = log.join().unwrap();
+    let switched = switched_mono_ns.load(Ordering::Relaxed);
+    // Nothing the other camera showed was published.
+    for f in &frames {
+        assert!(
+            switched > 0 && f.capture_time_ns >= switched,
+            "a frame of camera {OTHER:?} was published with the calibration of {ZED_FRAME_ID:?} \
+             (captured at {} ns, the calibrated camera started at {switched} ns): {f:?}\n{log}",
+            f.capture_time_ns
+        );
+    }
+    assert!(
+        done.is_some_and(|s| s.success()),
+        "perception run failed:\n{log}"
+    );
+    let mut stdout = String::new();
+    use std::io::Read;
+    p.child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut stdout)
+        .unwrap();
+    let stats: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert!(
+        stats["wrong_camera"].as_u64().is_some_and(|n| n >= 1),
+        "{stdout}\n{log}"
+    );
+    assert!(
+        log.contains(&format!("header.frame_id {OTHER:?}"))
+            && log.contains(&format!("camera frame_id {ZED_FRAME_ID:?}")),
+        "the refusal does not name both frame ids:\n{log}"
+    );
+    // The calibrated camera's images are published, with both objects.
+    assert!(
+        frames.iter().any(|f| f.count == 2),
+        "no DetectionFrame from the calibrated camera:\n{stdout}\n{log}"
     );
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -1,7 +1,8 @@
 //! The real `perception` process: synthetic camera → colour detector → `DetectionFrame`s
 //! over iceoryx2, received by an ordinary subscriber; a world script swaps the small box
 //! for a tall one and the published obstacle (same id) grows; corrupt and empty image files
-//! are skipped while the good ones are served; bad inputs give clear errors.
+//! are skipped while the good ones are served; bad inputs give clear errors; a calibration
+//! is used only with its own camera (issue 30 item 2).
 //!
 //! Needs `cargo build --release -p perception` (the binary) first.
 
@@ -262,5 +263,96 @@ fn bad_inputs_give_clear_errors() {
         dir.join("labels.txt").to_str().unwrap(),
     ]);
     assert!(!ok && err.contains("missing.onnx"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Issue 30 item 2: a calibration belongs to one camera. `perception run --source ros2`
+/// without `--calibration` is refused saying why (it used to load the bundled synthetic
+/// calibration silently); the bundled calibration (the synthetic camera's) is refused with
+/// the ROS 2 source; an old calibration without `[camera]` is refused with the hint to
+/// re-run `perception calibrate`; a live camera's calibration is refused with the synthetic
+/// source. All before the source is opened: nothing waits for images.
+#[test]
+fn a_calibration_is_used_only_with_its_own_camera() {
+    let dir = tmpdir("perc-calcam");
+    let run = |args: &[&str]| {
+        let o = Command::new(bin_path("perception"))
+            .args(args)
+            .args(["--prefix", &unique_prefix("perccalcam")])
+            .output()
+            .unwrap();
+        (
+            o.status.success(),
+            format!(
+                "{}{}",
+                String::from_utf8_lossy(&o.stdout),
+                String::from_utf8_lossy(&o.stderr)
+            ),
+        )
+    };
+    // Quick to give up on a camera that never sends (before: the run waited for images).
+    let topics = dir.join("topics.toml");
+    std::fs::write(
+        &topics,
+        "colour = \"/c\"\ndepth = \"/d\"\ncamera_info = \"/i\"\ntimeout_s = 0.2\n",
+    )
+    .unwrap();
+    let ros2 = ["run", "--source", "ros2", "--frames", "1", "--ros2-topics"];
+    let ros2 = |extra: &[&str]| {
+        let mut a = ros2.to_vec();
+        a.push(topics.to_str().unwrap());
+        a.extend_from_slice(extra);
+        run(&a)
+    };
+    let (ok, out) = ros2(&[]);
+    assert!(
+        !ok && out.contains("--source ros2 needs --calibration FILE")
+            && out.contains("synthetic camera"),
+        "--source ros2 without --calibration was not refused:\n{out}"
+    );
+    let bundled = foresight_tests::asset("perception/calibration.toml");
+    let (ok, out) = ros2(&["--calibration", bundled.to_str().unwrap()]);
+    assert!(
+        !ok && out.contains("made for the synthetic camera")
+            && out.contains("calibration.toml")
+            && out.contains("--frame-id"),
+        "the synthetic camera's calibration was not refused with --source ros2:\n{out}"
+    );
+    let text = std::fs::read_to_string(&bundled).unwrap();
+    let start = text.find("\n[camera]\n").unwrap() + 1;
+    let end = start + text[start..].find("\n\n").unwrap();
+    let old = dir.join("old_calibration.toml");
+    std::fs::write(&old, format!("{}{}", &text[..start], &text[end..])).unwrap();
+    let (ok, out) = ros2(&["--calibration", old.to_str().unwrap()]);
+    assert!(
+        !ok && out.contains("old_calibration.toml")
+            && out.contains("no [camera] table")
+            && out.contains("perception calibrate"),
+        "a calibration without [camera] was not refused:\n{out}"
+    );
+    let zed = dir.join("zed_calibration.toml");
+    std::fs::write(
+        &zed,
+        text.replace(
+            "frame_id = \"foresight_synthetic_camera\"",
+            "frame_id = \"zed_left_camera_frame_optical\"",
+        ),
+    )
+    .unwrap();
+    let world = write_world(&dir);
+    let (ok, out) = run(&[
+        "run",
+        "--source",
+        &format!("synthetic:{}", world.display()),
+        "--frames",
+        "1",
+        "--calibration",
+        zed.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && out.contains("zed_left_camera_frame_optical")
+            && out.contains("not for the synthetic camera"),
+        "a live camera's calibration was not refused with the synthetic source:\n{out}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

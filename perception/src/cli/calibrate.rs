@@ -1,7 +1,13 @@
 //! `perception calibrate`: the four workspace-corner pixels (given with `--corners`, or
 //! found from the tape) plus the intrinsics and the workspace rectangle → a calibration file
 //! and the rectified top view. Prints one JSON object:
-//! `{"calibration","rectified","corners_px","camera_eye_m","reprojection_error_px"}`.
+//! `{"calibration","rectified","corners_px","camera_eye_m","reprojection_error_px","frame_id","calibrated_at"}`.
+//!
+//! The file names the camera it was made for (`[camera]`, [`perception::camera_id`]):
+//! `--frame-id` (the `header.frame_id` of the camera's colour images), else the `[camera]`
+//! table of the `--camera` file when it is an earlier calibration, else the synthetic
+//! camera's id when the intrinsics are a synthetic camera's (no `--camera`, or a synthetic
+//! camera file); otherwise `--frame-id` is required. `--calibrated-at` defaults to now.
 
 use std::path::{Path, PathBuf};
 
@@ -11,8 +17,10 @@ use perception::annotate::write_image;
 use perception::calibration::{
     Calibration, CalibrationFile, DEFAULT_TAPE_HSV, HsvRange, find_workspace_corners,
 };
+use perception::camera_id::{CalibratedAt, CalibrationCamera, SYNTHETIC_CAMERA_FRAME_ID};
 use perception::frame::read_colour;
 use perception::geometry::Intrinsics;
+use perception::synthetic::SyntheticCamera;
 use perception::workspace::WorkspaceRect;
 use shm_schemas::cli_bounds::f64_within;
 
@@ -44,6 +52,20 @@ pub struct CalibrateArgs {
     /// Tape colour range "h,s,v-h,s,v" (OpenCV HSV scale).
     #[arg(long)]
     tape_hsv: Option<String>,
+    /// The camera's frame id: the `header.frame_id` of its colour images (e.g. `ros2 topic
+    /// echo --once --field header.frame_id /zed/zed_node/rgb/image_rect_color`). A live
+    /// camera is driven only with a calibration naming its frame id. Default: the
+    /// `[camera]` of the --camera file (an earlier calibration), else the synthetic camera's
+    /// when the intrinsics are the synthetic camera's.
+    #[arg(long)]
+    frame_id: Option<String>,
+    /// The camera's serial number (recorded for people, not checked).
+    #[arg(long)]
+    serial: Option<String>,
+    /// When the calibration was made: RFC 3339 with offset (2026-11-27T12:53:48Z) or unix
+    /// seconds. Default: now.
+    #[arg(long, value_parser = parse_calibrated_at)]
+    calibrated_at: Option<CalibratedAt>,
     /// Output calibration file.
     #[arg(long, default_value = "calibration.toml")]
     out: PathBuf,
@@ -58,7 +80,8 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         .camera
         .clone()
         .unwrap_or_else(|| asset("synthetic_camera.toml"));
-    let (intrinsics, file_workspace) = read_camera_file(&cam_path)?;
+    let (intrinsics, file_workspace, file_camera) = read_camera_file(&cam_path)?;
+    let camera = camera_identity(&args, &cam_path, file_camera)?;
     let workspace = workspace(&args, file_workspace)?;
     let bgr = read_colour(&args.image)?;
     let corners_px = match &args.corners {
@@ -66,6 +89,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         None => find_workspace_corners(&bgr, tape_range(args.tape_hsv.as_deref())?)?,
     };
     let cal = Calibration::new(CalibrationFile {
+        camera,
         intrinsics,
         workspace,
         corners_px,
@@ -74,19 +98,63 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     cal.save(&args.out)?;
     write_image(&args.rectified, &cal.rectify(&bgr)?)?;
     println!(
-        "{{\"calibration\":{:?},\"rectified\":{:?},\"corners_px\":{:?},\"camera_eye_m\":{:?},\"reprojection_error_px\":{:.4}}}",
-        args.out.display().to_string(),
-        args.rectified.display().to_string(),
-        cal.file.corners_px,
-        cal.model.pose.eye_m().as_slice(),
-        cal.reprojection_error_px
+        "{}",
+        serde_json::json!({
+            "calibration": args.out.display().to_string(),
+            "rectified": args.rectified.display().to_string(),
+            "corners_px": cal.file.corners_px,
+            "camera_eye_m": cal.model.pose.eye_m().as_slice(),
+            "reprojection_error_px": (cal.reprojection_error_px * 1e4).round() / 1e4,
+            "frame_id": cal.file.camera.frame_id,
+            "calibrated_at": cal.file.camera.calibrated_at.to_string(),
+        })
     );
     Ok(())
 }
 
-/// The `[intrinsics]` table and the optional `[workspace]` table of a camera or calibration
-/// file.
-fn read_camera_file(path: &Path) -> Result<(Intrinsics, Option<WorkspaceRect>)> {
+/// `--calibrated-at`.
+fn parse_calibrated_at(s: &str) -> Result<CalibratedAt, String> {
+    CalibratedAt::parse(s).map_err(|e| e.to_string())
+}
+
+/// The camera the calibration is made for: `--frame-id` (and `--serial`), else the
+/// `[camera]` table of the camera file (an earlier calibration), else the synthetic camera
+/// when the camera file describes it; `--calibrated-at`, else now.
+fn camera_identity(
+    args: &CalibrateArgs,
+    cam_path: &Path,
+    from_file: Option<CalibrationCamera>,
+) -> Result<CalibrationCamera> {
+    let calibrated_at = args.calibrated_at.unwrap_or_else(CalibratedAt::now);
+    let (frame_id, serial) = match (&args.frame_id, from_file) {
+        (Some(id), _) => (id.clone(), args.serial.clone()),
+        (None, Some(c)) => (c.frame_id, args.serial.clone().or(c.serial)),
+        (None, None) if SyntheticCamera::load(cam_path).is_ok() => {
+            (SYNTHETIC_CAMERA_FRAME_ID.to_owned(), args.serial.clone())
+        }
+        (None, None) => bail!(
+            "--frame-id is needed: {} names no camera ([camera] frame_id) and is not a synthetic \
+             camera file; give the header.frame_id of the camera's colour images (e.g. `ros2 topic \
+             echo --once --field header.frame_id /zed/zed_node/rgb/image_rect_color`)",
+            cam_path.display()
+        ),
+    };
+    let camera = CalibrationCamera {
+        frame_id,
+        serial,
+        calibrated_at,
+    };
+    camera
+        .validate(CalibratedAt::now())
+        .context("--frame-id / --serial / --calibrated-at")?;
+    Ok(camera)
+}
+
+/// The `[intrinsics]` table, the optional `[workspace]` table and the optional `[camera]`
+/// table of a camera or calibration file.
+fn read_camera_file(
+    path: &Path,
+) -> Result<(Intrinsics, Option<WorkspaceRect>, Option<CalibrationCamera>)> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let value: toml::Table =
@@ -105,7 +173,15 @@ fn read_camera_file(path: &Path) -> Result<(Intrinsics, Option<WorkspaceRect>)> 
         ),
         None => None,
     };
-    Ok((intrinsics, workspace))
+    let camera = match value.get("camera") {
+        Some(c) => Some(
+            c.clone()
+                .try_into()
+                .with_context(|| format!("[camera] of {}", path.display()))?,
+        ),
+        None => None,
+    };
+    Ok((intrinsics, workspace, camera))
 }
 
 /// The workspace from the flags (both `--workspace-min` and `--workspace-size`), else from
@@ -181,6 +257,71 @@ fn triple_u8(s: &str, what: &str) -> Result<[u8; 3]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: CalibrateArgs,
+    }
+
+    fn args(extra: &[&str]) -> CalibrateArgs {
+        Cli::try_parse_from([&["calibrate", "--image", "x.png"][..], extra].concat())
+            .unwrap()
+            .args
+    }
+
+    /// Issue 30 item 2: the file names the camera: `--frame-id`, else an earlier
+    /// calibration's `[camera]`, else the synthetic camera for a synthetic camera file;
+    /// else `--frame-id` is asked for.
+    #[test]
+    fn the_calibration_names_its_camera() {
+        let synthetic_cam = asset("synthetic_camera.toml");
+        let c = camera_identity(&args(&[]), &synthetic_cam, None).unwrap();
+        assert_eq!(c.frame_id, SYNTHETIC_CAMERA_FRAME_ID);
+        assert!((c.calibrated_at.unix_s() - CalibratedAt::now().unix_s()).abs() < 60);
+        let a = args(&[
+            "--frame-id",
+            "zed_left_camera_frame_optical",
+            "--serial",
+            "38492711",
+            "--calibrated-at",
+            "2026-11-27T12:53:48Z",
+        ]);
+        let c = camera_identity(&a, &synthetic_cam, None).unwrap();
+        assert_eq!(
+            (
+                c.frame_id.as_str(),
+                c.serial.as_deref(),
+                c.calibrated_at.to_string()
+            ),
+            (
+                "zed_left_camera_frame_optical",
+                Some("38492711"),
+                "2026-11-27T12:53:48Z".to_owned()
+            )
+        );
+        // An earlier calibration's camera is kept (a new date).
+        let c2 = camera_identity(&args(&[]), Path::new("earlier.toml"), Some(c.clone())).unwrap();
+        assert_eq!((c2.frame_id, c2.serial), (c.frame_id, c.serial));
+        // A camera file that names no camera and is no synthetic camera.
+        let e = camera_identity(&args(&[]), Path::new("/nonexistent/zed.toml"), None)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("--frame-id is needed") && e.contains("zed.toml"),
+            "{e}"
+        );
+        let e = format!(
+            "{:#}",
+            camera_identity(&args(&["--frame-id", "a b"]), &synthetic_cam, None).unwrap_err()
+        );
+        assert!(e.contains("camera.frame_id"), "{e}");
+        assert!(
+            Cli::try_parse_from(["calibrate", "--image", "x.png", "--calibrated-at", "soon"])
+                .is_err()
+        );
+    }
 
     #[test]
     fn flag_values_parse_or_name_the_flag() {

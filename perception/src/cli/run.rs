@@ -3,8 +3,9 @@
 //! calibration and the tracker; changes are published as `DetectionFrame`s over iceoryx2.
 //! At the end (`--frames`, or a finite source) prints its counters as one JSON object
 //! ([`perception::pipeline::RunStats`]: `frames`, `published`, `bad_frames`, `failed`,
-//! `bad_stamps`, `unpaired_depth`, `truncated_frames`, `dropped_objects`, `goals_demoted`,
-//! `low_confidence_dropped`, `extra_goals`, `frames_dropped_behind_detector`).
+//! `bad_stamps`, `unpaired_depth`, `wrong_camera`, `truncated_frames`, `dropped_objects`,
+//! `goals_demoted`, `low_confidence_dropped`, `extra_goals`,
+//! `frames_dropped_behind_detector`).
 //!
 //! Frames are taken by a capture thread at `--rate`; the detector works on the newest one
 //! (a live source drops the oldest waiting frame when the detector is slower than the
@@ -13,12 +14,21 @@
 //!
 //! The ROS 2 source listens on loopback only unless `--ros2-open-network` is given (see
 //! [`perception::ros2_source`]).
+//!
+//! A calibration belongs to one camera ([`perception::camera_id`]): `--source ros2` needs an
+//! explicit `--calibration` made for that camera (never the bundled one, the synthetic
+//! camera's, which is refused with it), and every colour image whose `header.frame_id` is
+//! not the calibration's is refused and counted (`wrong_camera`). Both start-up refusals
+//! come before DDS is touched. The synthetic source takes only the synthetic camera's
+//! calibration (derived exactly when `--calibration` is left out); a `file:` recording takes
+//! any, the bundled one when none is given.
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use perception::calibration::Calibration;
+use perception::camera_id::CameraKind;
 use perception::pipeline::Pipeline;
 use perception::publisher::DetectionPublisher;
 use perception::ros2_source::{NetworkAccess, Ros2Source, Ros2Topics};
@@ -36,7 +46,9 @@ pub struct RunArgs {
     /// only unless --ros2-open-network)
     #[arg(long)]
     source: SourceSpec,
-    /// Calibration file (synthetic source: derived exactly from the camera when absent).
+    /// Calibration file, made for this camera (`[camera] frame_id`). Required with
+    /// `--source ros2`; synthetic source: derived exactly from the camera when absent; a
+    /// `file:` recording: the bundled (synthetic camera's) calibration when absent.
     #[arg(long)]
     calibration: Option<PathBuf>,
     /// Service-name prefix.
@@ -113,11 +125,20 @@ pub fn run(args: RunArgs) -> Result<()> {
         bail!("--rate {rate}: must be in (0, 1000] Hz");
     }
     let selection = selection(&args)?;
+    // Before the detector is loaded and the source opened (no DDS for a refused camera).
+    let given_cal = given_calibration(&args)?;
     let detector = load_detector(args.detector.as_deref(), &args.yolo)?;
-    let (mut src, default_cal) = open_source(&args)?;
-    let calibration = calibration(&args, default_cal)?;
+    let (mut src, calibration) = open_source(&args, given_cal)?;
     tracing::info!(
-        "calibration: camera at {:?} m, corner reprojection error {:.3} px",
+        "calibration of camera {:?}{} made {}: camera at {:?} m, corner reprojection error {:.3} px",
+        calibration.file.camera.frame_id,
+        calibration
+            .file
+            .camera
+            .serial
+            .as_ref()
+            .map_or(String::new(), |s| format!(" (serial {s})")),
+        calibration.file.camera.calibrated_at,
         calibration.model.pose.eye_m().as_slice(),
         calibration.reprojection_error_px
     );
@@ -161,8 +182,39 @@ fn selection(args: &RunArgs) -> Result<SelectionConfig> {
     Ok(cfg)
 }
 
-/// The frame source; for the synthetic camera also its exact calibration.
-fn open_source(args: &RunArgs) -> Result<(Box<dyn FrameSource>, Option<Calibration>)> {
+/// `--calibration`, loaded and checked against the kind of source
+/// ([`perception::camera_id::CalibrationCamera::check_use`]); a live camera (`--source
+/// ros2`) without it is refused.
+fn given_calibration(args: &RunArgs) -> Result<Option<Calibration>> {
+    let kind = args.source.camera_kind();
+    let Some(path) = &args.calibration else {
+        if kind == CameraKind::Live {
+            bail!(
+                "--source ros2 needs --calibration FILE: a live camera is measured only with a \
+                 calibration made for it (`perception calibrate --frame-id FRAME_ID …`, its \
+                 [camera] frame_id checked against every image); the bundled \
+                 assets/perception/calibration.toml is the synthetic camera's and is never used \
+                 for a live camera (docs/real-arm.md, checklist step 3)"
+            );
+        }
+        return Ok(None);
+    };
+    let cal = Calibration::load(path)?;
+    cal.file
+        .camera
+        .check_use(kind)
+        .with_context(|| format!("--calibration {}", path.display()))?;
+    Ok(Some(cal))
+}
+
+/// The frame source and the calibration to use with it: `given` (checked by
+/// [`given_calibration`]), else the synthetic camera's exact one, else (a `file:`
+/// recording) the bundled one. The ROS 2 source refuses images of any camera but the
+/// calibration's.
+fn open_source(
+    args: &RunArgs,
+    given: Option<Calibration>,
+) -> Result<(Box<dyn FrameSource>, Calibration)> {
     Ok(match &args.source {
         SourceSpec::Synthetic(world) => {
             let camera = args
@@ -173,11 +225,34 @@ fn open_source(args: &RunArgs) -> Result<(Box<dyn FrameSource>, Option<Calibrati
             if args.fixed_step {
                 s.fixed_step_s = Some(1.0 / args.rate);
             }
-            let cal = synthetic_calibration(&s.scripted.camera, &s.scripted.script.steps[0].1)?;
-            (Box::new(s), Some(cal))
+            let cal = match given {
+                Some(c) => c,
+                None => synthetic_calibration(&s.scripted.camera, &s.scripted.script.steps[0].1)?,
+            };
+            (Box::new(s), cal)
         }
-        SourceSpec::File(p) => (Box::new(FileSource::open(p)?), None),
+        SourceSpec::File(p) => {
+            let src = FileSource::open(p)?;
+            let cal = match given {
+                Some(c) => c,
+                None => {
+                    let bundled = asset("calibration.toml");
+                    tracing::info!(
+                        "no --calibration: the recording is measured with the bundled synthetic camera's calibration {}",
+                        bundled.display()
+                    );
+                    Calibration::load(&bundled).with_context(|| {
+                        format!(
+                            "no --calibration given and the bundled {} is unusable",
+                            bundled.display()
+                        )
+                    })?
+                }
+            };
+            (Box::new(src), cal)
+        }
         SourceSpec::Ros2 => {
+            let cal = given.context("--source ros2 needs --calibration FILE")?;
             let mut topics = match &args.ros2_topics {
                 Some(p) => Ros2Topics::load(p)?,
                 None => Ros2Topics::default(),
@@ -190,18 +265,8 @@ fn open_source(args: &RunArgs) -> Result<(Box<dyn FrameSource>, Option<Calibrati
             } else {
                 NetworkAccess::LoopbackOnly
             };
-            (Box::new(Ros2Source::open(&topics, access)?), None)
+            let src = Ros2Source::open(&topics, access, &cal.file.camera.frame_id)?;
+            (Box::new(src), cal)
         }
-    })
-}
-
-/// `--calibration`, else the source's own, else the bundled one.
-fn calibration(args: &RunArgs, from_source: Option<Calibration>) -> Result<Calibration> {
-    Ok(match (&args.calibration, from_source) {
-        (Some(p), _) => Calibration::load(p)?,
-        (None, Some(c)) => c,
-        (None, None) => Calibration::load(&asset("calibration.toml")).context(
-            "no --calibration given and the default assets/perception/calibration.toml is unusable",
-        )?,
     })
 }

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use perception::calibration::{Calibration, CalibrationFile};
+use perception::camera_id::{CalibratedAt, CalibrationCamera};
 use perception::color_detector::{ColourDetector, ColourDetectorConfig};
 use perception::pipeline::Detector;
 use perception::synthetic::SyntheticCamera;
@@ -27,12 +28,14 @@ pub fn asset(name: &str) -> PathBuf {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/perception")).join(name)
 }
 
-/// The exact calibration of a synthetic camera for a scene's table.
+/// The exact calibration of a synthetic camera for a scene's table, made now and naming the
+/// synthetic camera (`[camera] frame_id`).
 pub fn synthetic_calibration(cam: &SyntheticCamera, scene: &SceneFile) -> Result<Calibration> {
     let corners = cam
         .workspace_corners_px(scene)
         .context("a workspace corner lies behind the synthetic camera")?;
     Ok(Calibration::new(CalibrationFile {
+        camera: CalibrationCamera::synthetic(CalibratedAt::now()),
         intrinsics: cam.config.intrinsics,
         workspace: cam.workspace_for(scene),
         corners_px: corners,

@@ -125,6 +125,9 @@ fn colour_detector_meets_1cm_on_100_random_scenes() {
         .map(|(a, b)| (a[0] - b[0]).hypot(a[1] - b[1]))
         .collect();
     let tape_cal = Calibration::new(CalibrationFile {
+        camera: perception::camera_id::CalibrationCamera::synthetic(
+            perception::camera_id::CalibratedAt::now(),
+        ),
         corners_px: corners,
         ..exact_cal.file.clone()
     })

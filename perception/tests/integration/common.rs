@@ -18,6 +18,9 @@ pub fn camera() -> SyntheticCamera {
 
 pub fn exact_calibration(cam: &SyntheticCamera, scene: &SceneFile) -> Calibration {
     Calibration::new(CalibrationFile {
+        camera: perception::camera_id::CalibrationCamera::synthetic(
+            perception::camera_id::CalibratedAt::now(),
+        ),
         intrinsics: cam.config.intrinsics,
         workspace: cam.workspace_for(scene),
         corners_px: cam.workspace_corners_px(scene).unwrap(),
