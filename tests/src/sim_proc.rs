@@ -1,6 +1,9 @@
 //! `xarm-sim` as a child process for the system tests: started on given ports (0: the OS
 //! picks) with the workspace's URDF and a scene, its `listening` line read for the ports it
-//! announced, and its summary line read when it is interrupted.
+//! announced, and its summary line read when it is interrupted. Like the launcher, it gives
+//! each simulator a fresh secret in `FORESIGHT_SIM_SECRET` ([`SimProc::secret`]): an
+//! `rt-core run` asked for simulation-only rights (`--auto-resume`, `--no-lookahead`) needs
+//! the same in its environment ([`SIM_SECRET_ENV`]).
 
 use std::io::{BufRead, BufReader};
 use std::process::{ChildStdout, Command, Stdio};
@@ -21,6 +24,24 @@ pub const PORTS: [(&str, &str); 6] = [
 /// The ports `xarm-sim` announced, in the order of [`PORTS`].
 pub type SimPorts = [u16; 6];
 
+/// The environment variable that carries a run's simulator secret
+/// (`xarm::sim_identity::SIM_SECRET_ENV`).
+pub const SIM_SECRET_ENV: &str = "FORESIGHT_SIM_SECRET";
+
+/// A fresh secret as 64 hex digits, from the OS random source.
+///
+/// # Panics
+/// When `/dev/urandom` cannot be read.
+pub fn fresh_secret() -> String {
+    let mut b = [0u8; 32];
+    std::io::Read::read_exact(
+        &mut std::fs::File::open("/dev/urandom").expect("/dev/urandom"),
+        &mut b,
+    )
+    .expect("32 random bytes");
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
 /// A running `xarm-sim`.
 pub struct SimProc {
     /// The child (killed when dropped).
@@ -29,14 +50,28 @@ pub struct SimProc {
     pub out: BufReader<ChildStdout>,
     /// The ports it announced.
     pub ports: SimPorts,
+    /// The secret it proves its identity with (`None`: started without one; it then passes
+    /// for a real arm).
+    pub secret: Option<String>,
 }
 
 impl SimProc {
-    /// Starts `xarm-sim` on `ports` with `assets/scenes/small_box.toml` and `extra` args.
+    /// Starts `xarm-sim` on `ports` with `assets/scenes/small_box.toml`, `extra` args and
+    /// a fresh secret.
     ///
     /// # Panics
     /// When it does not start or announce its ports.
     pub fn start(ports: SimPorts, extra: &[&str]) -> Self {
+        Self::start_with_secret(ports, extra, Some(fresh_secret()))
+    }
+
+    /// [`Self::start`] with the given secret (the same as an earlier simulator's, to stand
+    /// in for it after a restart), or none: it then answers the identity challenge as a
+    /// real controller does, and is a real arm to rt-core.
+    ///
+    /// # Panics
+    /// When it does not start or announce its ports.
+    pub fn start_with_secret(ports: SimPorts, extra: &[&str], secret: Option<String>) -> Self {
         let root = repo_root();
         let mut cmd = Command::new(bin_path("xarm-sim"));
         for ((flag, _), port) in PORTS.iter().zip(ports) {
@@ -47,8 +82,12 @@ impl SimProc {
             .arg("--scene")
             .arg(root.join("assets/scenes/small_box.toml"))
             .args(extra)
+            .env_remove(SIM_SECRET_ENV)
             .stdout(Stdio::piped())
             .stderr(Stdio::null());
+        if let Some(s) = &secret {
+            cmd.env(SIM_SECRET_ENV, s);
+        }
         let mut guard = ChildGuard::spawn("xarm-sim", &mut cmd);
         let mut out = BufReader::new(guard.child.stdout.take().expect("sim stdout"));
         let mut line = String::new();
@@ -61,7 +100,20 @@ impl SimProc {
                 .and_then(|p| u16::try_from(p).ok())
                 .unwrap_or_else(|| panic!("no {key} port in {line}"))
         });
-        Self { guard, out, ports }
+        Self {
+            guard,
+            out,
+            ports,
+            secret,
+        }
+    }
+
+    /// The secret it was started with (for `rt-core`'s [`SIM_SECRET_ENV`]).
+    ///
+    /// # Panics
+    /// When it was started without one.
+    pub fn secret(&self) -> &str {
+        self.secret.as_deref().expect("started with a secret")
     }
 
     /// The command port.

@@ -11,7 +11,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use foresight_tests::sim_proc::SimProc;
+use foresight_tests::sim_proc::{SIM_SECRET_ENV, SimProc};
 use foresight_tests::{ChildGuard, bin_path, repo_root, unique_prefix, wait_for};
 
 fn read(path: &Path) -> String {
@@ -48,6 +48,9 @@ fn rt_core_run_rides_out_a_controller_restart() {
             .arg(report_real_port.to_string())
             .arg("--prefix")
             .arg(unique_prefix("reconnect"))
+            // `--auto-resume` is granted only to a controller that proves it is xarm-sim
+            // holding this secret, at connect and at every reconnect.
+            .env(SIM_SECRET_ENV, sim.secret())
             .env("NO_COLOR", "1")
             .stdout(Stdio::piped())
             .stderr(std::fs::File::create(&log).expect("log file")),
@@ -72,8 +75,9 @@ fn rt_core_run_rides_out_a_controller_restart() {
         read(&log)
     );
 
-    // The controller comes back on the same ports.
-    let sim2 = SimProc::start(ports, &[]);
+    // The controller comes back on the same ports, with the run's secret (an xarm-sim
+    // without it would be a real arm: rt-core would not reconnect to it on its own).
+    let sim2 = SimProc::start_with_secret(ports, &[], sim.secret.clone());
     wait_log("xArm link re-established", 20);
     std::thread::sleep(Duration::from_millis(500));
 

@@ -5,6 +5,14 @@
 //! and only on a loopback robot address (`xarm-sim` on this machine): it is refused, before
 //! any connection, for any other (`check_blind_mode_target`).
 //!
+//! Every simulation-only right (`--no-lookahead`, `--auto-resume`, `--simulated-sensors`)
+//! goes by identity too, not by address alone: rt-core reads the run's secret from
+//! `FORESIGHT_SIM_SECRET` (the launcher draws one per run and gives it to the `xarm-sim` it
+//! starts and to rt-core, in the environment, never on a command line) and the controller
+//! must prove it holds it right after `GET_VERSION`, before anything else is sent
+//! ([`rt_core::cycle::xarm_link::SimRights`], [`xarm::sim_identity`]). Without the secret,
+//! or without the proof, the arm is a real arm and the run is refused, naming the flags.
+//!
 //! rt-core is tied to its parent, whoever started it: it asks the kernel for SIGTERM when
 //! the parent dies (`PR_SET_PDEATHSIG`), and SIGTERM is the runtime's controlled stop (the
 //! arm brakes to rest, the controller is put in its stop state, then the process exits).
@@ -27,7 +35,8 @@ use rt_core::config::RuntimeConfig;
 use rt_core::cycle::link::{InProcessArm, RobotLink};
 use rt_core::cycle::shield::ShieldLimits;
 use rt_core::cycle::xarm_link::{
-    XArmOpenError, XArmOpenOptions, check_auto_resume_target, check_blind_mode_target, open_xarm,
+    AUTO_RESUME_FLAG, BLIND_MODE_FLAG, SIMULATED_SENSORS, SimRights, XArmOpenError,
+    XArmOpenOptions, check_auto_resume_target, check_blind_mode_target, open_xarm, sim_rights_for,
 };
 use rt_core::rt::process_stop;
 use rt_core::twin_thread::serve::{InjectedFault, SHUTDOWN_TIMEOUT, ServeOptions, serve_on};
@@ -83,9 +92,17 @@ pub struct RunArgs {
     /// real arm waits for the operator's `rt-core ack --robot HOST` (the acknowledgement;
     /// README.md, "Driving a real xArm5 — checklist").
     /// With `--link xarm` it is refused, before any connection, unless `--robot` is (or
-    /// resolves only to) a loopback address, as `--no-lookahead` is.
+    /// resolves only to) a loopback address, as `--no-lookahead` is, and then granted only
+    /// to a controller that proves at connect it is xarm-sim holding FORESIGHT_SIM_SECRET.
     #[arg(long)]
     auto_resume: bool,
+    /// The run's camera is simulated (the launcher's synthetic camera, a recording, or the
+    /// bundled calibration): with `--link xarm`, refuse a robot that is not (or does not
+    /// resolve only to) a loopback address, and a controller that does not prove at connect
+    /// that it is xarm-sim holding FORESIGHT_SIM_SECRET (a real arm is driven only from a
+    /// live camera and an explicit calibration). The launcher passes it.
+    #[arg(long)]
+    simulated_sensors: bool,
     /// Test hook: inject a fault to exercise an exit path (`twin-panic:MS`, a twin-thread
     /// panic MS ms after a plan starts). Hidden; never for operation.
     #[arg(long, hide = true)]
@@ -98,7 +115,9 @@ pub struct RunArgs {
     /// policy's plans whatever the lookahead says, and leave the obstacle boxes out of the
     /// shield's clearance check (the table clearance, joint, workspace and speed limits
     /// still hold). With `--link xarm` it is refused, before any connection, unless
-    /// `--robot` is (or resolves only to) a loopback address (127.0.0.0/8, ::1, localhost).
+    /// `--robot` is (or resolves only to) a loopback address (127.0.0.0/8, ::1, localhost),
+    /// and then granted only to a controller that proves at connect it is xarm-sim holding
+    /// the run's secret (FORESIGHT_SIM_SECRET, which the launcher sets).
     #[arg(long)]
     no_lookahead: bool,
     /// Dry run: read the arm, run everything, compute every command, and send none (the
@@ -201,6 +220,9 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
     {
         check_auto_resume_target(host)?;
     }
+    // And each of them, with the simulated sensors, needs the run's secret: the controller
+    // proves at connect that it is xarm-sim, or it is a real arm.
+    let sim_rights = sim_rights(args)?;
     let (mut cfg, model, task) = load_assets(&args.assets, None, Some(&args.config))?;
     if let Some(switch) = args.planner_fallback {
         cfg.planner_fallback.enabled = switch == Switch::On;
@@ -231,7 +253,7 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
         }
         None => None,
     };
-    let served = serve_link(args, &opts, cfg, model, task);
+    let served = serve_link(args, &opts, cfg, model, task, sim_rights);
     if let Some(r) = recording {
         let path = r.path().display().to_string();
         match r.stop() {
@@ -242,6 +264,31 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
     served
 }
 
+/// The simulation-only rights `args` asks of an xArm link (`None` without any, or for the
+/// in-process arm), with the run's secret from `FORESIGHT_SIM_SECRET`: refused before any
+/// connection off loopback or without the secret.
+fn sim_rights(args: &RunArgs) -> anyhow::Result<Option<SimRights>> {
+    let (LinkKind::Xarm, Some(host)) = (args.link, args.robot.as_deref()) else {
+        return Ok(None);
+    };
+    let asked: Vec<_> = [
+        (args.no_lookahead, BLIND_MODE_FLAG),
+        (args.auto_resume, AUTO_RESUME_FLAG),
+        (args.simulated_sensors, SIMULATED_SENSORS),
+    ]
+    .into_iter()
+    .filter_map(|(on, right)| on.then_some(right))
+    .collect();
+    if asked.is_empty() {
+        return Ok(None);
+    }
+    Ok(sim_rights_for(
+        host,
+        &asked,
+        xarm::sim_identity::SimSecret::from_env(),
+    )?)
+}
+
 /// Opens the robot link `args` asks for and serves on it.
 fn serve_link(
     args: &RunArgs,
@@ -249,6 +296,7 @@ fn serve_link(
     cfg: RuntimeConfig,
     model: RobotModel,
     task: TaskConfig,
+    sim_rights: Option<SimRights>,
 ) -> anyhow::Result<()> {
     match args.link {
         LinkKind::Sim => {
@@ -275,6 +323,7 @@ fn serve_link(
                     .max_step_rad(1.0 / cfg.rate_hz),
                 resume_after_reconnect: args.auto_resume,
                 max_tcp_gap_m: cfg.shield.max_tcp_gap_m,
+                sim_rights,
             };
             let link = open_xarm(host, &open, &model).map_err(|e| {
                 anyhow::anyhow!(

@@ -10,6 +10,17 @@
 //! a mismatch to the cycle (`LinkState::model_mismatch_m`), which stops under control and
 //! latches ([`crate::cycle::StopReason::ModelMismatch`]).
 //!
+//! Simulation-only rights (blind mode `--no-lookahead`, `--auto-resume`, and
+//! `--simulated-sensors`: the launcher's synthetic camera or bundled calibration) go by
+//! identity, not by address ([`SimRights`]): the robot address must be loopback (decided
+//! first, from the address alone: [`check_blind_mode_target`]) *and* the controller must
+//! prove at connect that it is this run's `xarm-sim`, holding the secret the launcher gave
+//! it and rt-core ([`xarm::sim_identity`]; the challenge goes out right after `GET_VERSION`,
+//! before anything that changes the controller, and again at every reconnect). A loopback
+//! forward to a real arm (`ssh -L`, `socat`, a container's proxy) answers no proof: it is a
+//! real arm, and [`open_xarm`] refuses it before the lock's holder sends anything else
+//! ([`XArmOpenError::NotSimulator`]).
+//!
 //! Read-only uses do not take the lock: `rt-core xarm probe` without `--servo-test` and
 //! `rt-core run --dry-run` send nothing that changes the controller (the dry run withholds
 //! every command and leaves the mode as it is), so they may watch an arm another process
@@ -31,6 +42,7 @@ use twin::{Joints, LinkPoses, RobotModel};
 use xarm::config::LoopbackCheckError;
 use xarm::driver::{DriverState, XArmConfig, XArmDriver, XArmError};
 use xarm::owner::{ArmLock, ArmLockError};
+use xarm::sim_identity::{SIM_SECRET_ENV, SimIdentityError, SimSecret, SimSecretError};
 
 /// The default largest distance between the twin's TCP of the measured joints and the TCP
 /// the controller reports, m (`shield.max_tcp_gap_m` in `assets/runtime.toml`). Beyond it
@@ -157,6 +169,22 @@ pub enum XArmOpenError {
     /// The twin's TCP and the controller's disagree.
     #[error(transparent)]
     TcpMismatch(#[from] TcpMismatchError),
+    /// Simulation-only rights were asked for and the controller did not prove it is this
+    /// run's `xarm-sim`: it is a real arm.
+    #[error(
+        "{flags} refused for the robot at {addr}: {reason}. It has not proven it is this \
+         run's xarm-sim, so it is a real arm whatever its address (a loopback forward reaches \
+         real arms too); nothing was moved (only GET_VERSION and the identity challenge were \
+         sent)"
+    )]
+    NotSimulator {
+        /// The simulation-only flags asked for, e.g. `--no-lookahead, --auto-resume`.
+        flags: String,
+        /// The address as given.
+        addr: String,
+        /// Why the proof failed.
+        reason: SimIdentityError,
+    },
 }
 
 /// The production link: the driver, the arm's lock (held as long as the link) and the TCP
@@ -314,6 +342,97 @@ fn simulation_only_verdict(
     })
 }
 
+/// `--simulated-sensors`, for [`SimRights`]: the launcher's synthetic camera or bundled
+/// calibration.
+pub const SIMULATED_SENSORS: (&str, &str) = (
+    "--simulated-sensors",
+    "a real arm is driven only from a live camera and an explicit calibration",
+);
+
+/// The blind-mode flag, for [`SimRights`].
+pub const BLIND_MODE_FLAG: (&str, &str) = BLIND_MODE;
+
+/// The auto-resume flag, for [`SimRights`].
+pub const AUTO_RESUME_FLAG: (&str, &str) = AUTO_RESUME;
+
+/// The simulation-only rights a run asks for, and the secret the controller must prove it
+/// holds before they are granted ([`XArmConfig::sim_secret`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimRights {
+    /// The flags asked for, in words (`--no-lookahead, --auto-resume`).
+    pub flags: String,
+    /// The run's secret.
+    pub secret: SimSecret,
+}
+
+/// Why simulation-only rights are refused before any connection.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SimRightsError {
+    /// The address is not loopback.
+    #[error(transparent)]
+    NotLoopback(#[from] BlindModeError),
+    /// No secret: nothing at the address can prove it is `xarm-sim`.
+    #[error(
+        "{flags} refused for the robot at {addr}: no simulator secret in {SIM_SECRET_ENV}, so \
+         nothing there can prove it is xarm-sim and it is treated as a real arm, whatever its \
+         address (foresight gives the xarm-sim it starts and rt-core one secret per run; \
+         start xarm-sim by hand with the same {SIM_SECRET_ENV} as rt-core). No connection \
+         was attempted"
+    )]
+    NoSecret {
+        /// The flags asked for.
+        flags: String,
+        /// The address as given.
+        addr: String,
+    },
+    /// The secret in the environment is malformed.
+    #[error("{flags} refused for the robot at {addr}: {reason}. No connection was attempted")]
+    BadSecret {
+        /// The flags asked for.
+        flags: String,
+        /// The address as given.
+        addr: String,
+        /// What is wrong with it.
+        reason: SimSecretError,
+    },
+}
+
+/// Decides, before any connection, whether the simulation-only rights `asked` (flag, what
+/// it is for) may be asked of the controller at `addr`: none asked, `Ok(None)`; otherwise
+/// the address must be loopback (as [`check_blind_mode_target`]) and `secret` (rt-core's
+/// [`SIM_SECRET_ENV`]) present. The rights are granted only once the controller has
+/// proven it holds `secret` ([`open_xarm`] with [`XArmOpenOptions::sim_rights`]).
+///
+/// # Errors
+/// [`SimRightsError`] naming the flags, the address and why.
+pub fn sim_rights_for(
+    addr: &str,
+    asked: &[(&'static str, &'static str)],
+    secret: Result<Option<SimSecret>, SimSecretError>,
+) -> Result<Option<SimRights>, SimRightsError> {
+    let Some(first) = asked.first() else {
+        return Ok(None);
+    };
+    simulation_only_verdict(
+        *first,
+        addr,
+        XArmConfig::from_addr(addr).check_loopback_only(),
+    )?;
+    let flags = asked.iter().map(|(f, _)| *f).collect::<Vec<_>>().join(", ");
+    match secret {
+        Ok(Some(secret)) => Ok(Some(SimRights { flags, secret })),
+        Ok(None) => Err(SimRightsError::NoSecret {
+            flags,
+            addr: addr.to_owned(),
+        }),
+        Err(reason) => Err(SimRightsError::BadSecret {
+            flags,
+            addr: addr.to_owned(),
+            reason,
+        }),
+    }
+}
+
 /// How [`open_xarm`] connects.
 #[derive(Debug, Clone, PartialEq)]
 pub struct XArmOpenOptions {
@@ -332,18 +451,25 @@ pub struct XArmOpenOptions {
     /// Largest distance between the twin's TCP and the controller's reported TCP, m
     /// (`shield.max_tcp_gap_m`; [`MAX_TCP_GAP_M`] by default).
     pub max_tcp_gap_m: f64,
+    /// Simulation-only rights asked for ([`sim_rights_for`]): the controller must prove it
+    /// is this run's `xarm-sim` at connect, and at every reconnect, or nothing more is sent.
+    /// `None`: no challenge; the arm is driven as a real arm.
+    pub sim_rights: Option<SimRights>,
 }
 
 /// Connects to the controller at `addr` (`HOST[:PORT]`) and, unless `dry_run` (the arm's
 /// mode is then left as it is), enters servo mode from the joints where the arm stands.
 /// In order: the arm's lock (not for a dry run, which sends nothing), the connection (the
-/// handshake refuses anything but an xArm5), the TCP check against `model` (tolerance
+/// handshake refuses anything but an xArm5; with `opts.sim_rights`, anything but this run's
+/// `xarm-sim`), the TCP check against `model` (tolerance
 /// `opts.max_tcp_gap_m`), then servo mode. The controller's error is cleared only with
 /// `clear_errors` (an operator's action).
 ///
 /// # Errors
 /// [`XArmOpenError::Owned`] when another process owns the arm (nothing was sent);
-/// [`XArmOpenError::TcpMismatch`] (nothing was moved); [`XArmOpenError::Driver`] from the
+/// [`XArmOpenError::NotSimulator`] when simulation-only rights were asked for and the
+/// controller did not prove it is `xarm-sim` (only `GET_VERSION` and the challenge were
+/// sent); [`XArmOpenError::TcpMismatch`] (nothing was moved); [`XArmOpenError::Driver`] from the
 /// connection or the servo-mode entry ([`XArmError::NotXArm5`]; [`XArmError::Controller`]
 /// when the controller reports an error and `clear_errors` is off).
 pub fn open_xarm(
@@ -357,12 +483,27 @@ pub fn open_xarm(
     }
     cfg.max_resume_step_rad = opts.max_resume_step_rad;
     cfg.resume_after_reconnect = opts.resume_after_reconnect;
+    cfg.sim_secret = opts.sim_rights.as_ref().map(|r| r.secret.clone());
     let owner = if opts.dry_run {
         None
     } else {
         Some(ArmLock::acquire(&cfg)?)
     };
-    let driver = XArmDriver::connect(cfg)?;
+    let driver = XArmDriver::connect(cfg).map_err(|e| match (e, &opts.sim_rights) {
+        (XArmError::NotSimulator(reason), Some(rights)) => XArmOpenError::NotSimulator {
+            flags: rights.flags.clone(),
+            addr: addr.to_owned(),
+            reason,
+        },
+        (e, _) => XArmOpenError::Driver(e),
+    })?;
+    if let Some(rights) = &opts.sim_rights {
+        tracing::info!(
+            addr,
+            flags = rights.flags,
+            "the controller proved it is this run's xarm-sim: simulation-only rights granted"
+        );
+    }
     let mut link = XArmLink::new(
         driver,
         TcpCheck::new(model.clone(), opts.max_tcp_gap_m),
@@ -408,7 +549,8 @@ pub fn link_error(e: XArmError) -> LinkError {
         | XArmError::Disconnected
         | XArmError::Frame(_)
         | XArmError::Report(_)
-        | XArmError::NotXArm5 { .. } => LinkError::Disconnected,
+        | XArmError::NotXArm5 { .. }
+        | XArmError::NotSimulator(_) => LinkError::Disconnected,
     }
 }
 
@@ -540,6 +682,64 @@ mod tests {
                 "{msg}"
             );
         }
+    }
+
+    /// Issue 30 item 1: simulation rights go by identity; before any connection they need a
+    /// loopback address and the run's secret, and name every flag asked for.
+    #[test]
+    fn simulation_rights_need_loopback_and_the_secret_before_any_connection() {
+        let secret = SimSecret::generate().expect("random");
+        assert_eq!(
+            sim_rights_for("192.168.1.195", &[], Ok(None)),
+            Ok(None),
+            "nothing asked, nothing needed"
+        );
+        let both = [BLIND_MODE_FLAG, AUTO_RESUME_FLAG];
+        let granted = sim_rights_for("127.0.0.1:5020", &both, Ok(Some(secret.clone())))
+            .expect("loopback with a secret")
+            .expect("rights asked");
+        assert_eq!(granted.flags, "--no-lookahead, --auto-resume");
+        assert_eq!(granted.secret, secret);
+        let e = sim_rights_for("10.0.0.2", &[SIMULATED_SENSORS], Ok(Some(secret)))
+            .expect_err("off loopback");
+        assert!(
+            e.to_string().starts_with(
+                "--simulated-sensors is refused for the non-loopback robot address 10.0.0.2"
+            ),
+            "{e}"
+        );
+        let e = sim_rights_for("127.0.0.1:5020", &both, Ok(None)).expect_err("no secret");
+        let m = e.to_string();
+        assert!(
+            m.starts_with("--no-lookahead, --auto-resume refused for the robot at 127.0.0.1:5020")
+                && m.contains("no simulator secret in FORESIGHT_SIM_SECRET")
+                && m.contains("treated as a real arm")
+                && m.contains("No connection was attempted"),
+            "{m}"
+        );
+        let e = sim_rights_for(
+            "localhost",
+            &[AUTO_RESUME_FLAG],
+            Err(SimSecretError::NotHex),
+        )
+        .expect_err("bad secret");
+        assert!(e.to_string().contains("not a hexadecimal digit"), "{e}");
+        let refused = XArmOpenError::NotSimulator {
+            flags: "--no-lookahead".into(),
+            addr: "127.0.0.1:502".into(),
+            reason: SimIdentityError::Unsupported { status: 0x18 },
+        };
+        let m = refused.to_string();
+        assert!(
+            m.starts_with("--no-lookahead refused for the robot at 127.0.0.1:502")
+                && m.contains("real arm")
+                && m.contains("nothing was moved"),
+            "{m}"
+        );
+        assert_eq!(
+            link_error(XArmError::NotSimulator(SimIdentityError::WrongProof)),
+            LinkError::Disconnected
+        );
     }
 
     #[test]

@@ -23,6 +23,7 @@ fn opts(report_port: u16, dry_run: bool) -> XArmOpenOptions {
         max_resume_step_rad: 0.05,
         resume_after_reconnect: false,
         max_tcp_gap_m: rt_core::cycle::xarm_link::MAX_TCP_GAP_M,
+        sim_rights: None,
     }
 }
 

@@ -4,6 +4,11 @@
 //! controller raises in servo mode when a `servo_j` target would move the arm too fast
 //! (see [`ProtectiveLimits`]). Pure logic (no sockets, no clock): the server feeds it frames
 //! and time, the world check feeds it contacts.
+//!
+//! Given the run's secret ([`Controller::set_sim_secret`]), it answers Foresight's identity
+//! challenge (register 0xF0, [`xarm::sim_identity`]) with its proof; without one it answers
+//! that register as every register it does not have (status bit 0x08, no data), as a real
+//! controller is expected to — and is then treated as a real arm.
 
 use std::f64::consts::PI;
 
@@ -14,6 +19,7 @@ use xarm::codec::{
 use xarm::codes::{ControllerError, ControllerWarning};
 use xarm::limits::{LIMIT_SLACK_RAD, XARM5_JOINT_LIMITS_RAD};
 use xarm::report::{ArmReport, ReportKind};
+use xarm::sim_identity::{NONCE_LEN, SimSecret};
 
 use twin::RobotModel;
 
@@ -210,6 +216,10 @@ pub struct ControllerCounters {
     pub joint_speed_faults: u64,
     /// TCP speed faults (error 60).
     pub tcp_speed_faults: u64,
+    /// Identity challenges (register 0xF0) received.
+    pub identity_challenges: u64,
+    /// Identity challenges answered with a proof (the simulator holds a secret).
+    pub identity_proofs: u64,
 }
 
 /// The controller's state.
@@ -239,6 +249,8 @@ pub struct Controller {
     last_wire_target: Option<([f64; 5], Option<[f64; 3]>)>,
     /// Fault injection: the arm accepts targets and does not move (a frozen or blocked arm).
     frozen: bool,
+    /// The run's secret: with it the identity challenge is answered with a proof.
+    sim_secret: Option<SimSecret>,
 }
 
 impl Default for Controller {
@@ -309,7 +321,40 @@ impl Controller {
             stream: ServoStreamStats::default(),
             last_wire_target: None,
             frozen: false,
+            sim_secret: None,
         }
+    }
+
+    /// The run's secret, which the identity challenge's proof is made with (`None`: the
+    /// challenge is answered as an unknown register, and the simulator passes for a real arm).
+    pub fn set_sim_secret(&mut self, secret: Option<SimSecret>) {
+        self.sim_secret = secret;
+    }
+
+    /// The reply to an identity challenge: the proof with a secret; without one, the reply
+    /// to any register the controller does not have.
+    fn answer_identity(
+        &mut self,
+        tid: u16,
+        protocol: u16,
+        nonce: &[u8; NONCE_LEN],
+        out: &mut [u8; MAX_FRAME_LEN],
+    ) -> Result<usize, FrameError> {
+        self.counters.identity_challenges += 1;
+        let register = u8::from(xarm::codec::Register::SimIdentity);
+        let n = match &self.sim_secret {
+            Some(secret) => {
+                self.counters.identity_proofs += 1;
+                let proof = secret.proof(nonce);
+                codec::encode_response(tid, protocol, register, self.status(), &proof, out)
+            }
+            None => {
+                self.counters.bad_frames += 1;
+                let status = self.status() | codec::STATUS_INVALID;
+                codec::encode_response(tid, protocol, register, status, &[], out)
+            }
+        };
+        n.map_err(|_| FrameError::UnknownRegister(register))
     }
 
     /// Gives the controller the robot model, for the TCP speed check and the TCP step figure.
@@ -615,6 +660,9 @@ impl Controller {
             }
         };
         self.counters.frames += 1;
+        if let Request::SimIdentity(nonce) = req {
+            return self.answer_identity(h.tid, h.protocol, &nonce, out);
+        }
         let mut data = [0u8; 84];
         let n = self.execute(req, &mut data);
         let status = self.status();
@@ -710,7 +758,8 @@ impl Controller {
             }
             Request::GetJointPos(k) => n = self.write_joints(k, data),
             Request::SetFeedbackType(t) => self.feedback_type = t,
-            Request::FeedbackCheck => {}
+            // Answered in `handle` before any state is touched.
+            Request::FeedbackCheck | Request::SimIdentity(_) => {}
         }
         n
     }
@@ -783,6 +832,35 @@ impl Controller {
 mod tests {
     use super::*;
     use xarm::codec::Response;
+
+    /// Issue 30 item 1: with the run's secret the identity challenge gets its proof; without
+    /// one, the reply to a register the controller does not have, and nothing changes.
+    #[test]
+    fn the_identity_challenge_is_answered_with_a_proof_only_with_the_secret() {
+        let secret = SimSecret::generate().unwrap();
+        let nonce = [9u8; NONCE_LEN];
+        let mut frame = [0u8; 64];
+        let n = Request::SimIdentity(nonce)
+            .encode(7, codec::PROTOCOL_PRIVATE, &mut frame)
+            .unwrap();
+        let mut out = [0u8; MAX_FRAME_LEN];
+        for held in [Some(secret.clone()), None] {
+            let mut c = Controller::new([0.0; 5]);
+            c.set_sim_secret(held.clone());
+            let m = c.handle(&frame[..n], &mut out).unwrap();
+            let r = Response::parse(&out[..m]).unwrap();
+            r.check(7, codec::PROTOCOL_PRIVATE, 0xF0).unwrap();
+            let verdict = xarm::sim_identity::check_reply(&secret, &nonce, r.status, r.data);
+            assert_eq!(verdict.is_ok(), held.is_some(), "{verdict:?}");
+            if held.is_none() {
+                assert_ne!(r.status & codec::STATUS_INVALID, 0);
+                assert!(r.data.is_empty());
+            }
+            assert_eq!((c.state(), c.mode()), (4, 0), "nothing changed");
+            assert_eq!(c.counters().identity_challenges, 1);
+            assert_eq!(c.counters().identity_proofs, u64::from(held.is_some()));
+        }
+    }
 
     /// A controller taken through enable, mode 1 and state 0 (transactions 1–3), as the
     /// SDK does before streaming servo_j.

@@ -8,6 +8,12 @@
 //! `--fault-tolerance` tune it and `--no-protective-faults` turns it off. Prints one JSON line `{"event":"listening",…}` when ready and one
 //! `{"event":"summary",…}` line at exit (SIGINT, SIGTERM or `shutdown`).
 //!
+//! Its identity: with the run's secret in `FORESIGHT_SIM_SECRET` (64 hex digits; the
+//! launcher draws one per run and gives it to `xarm-sim` and `rt-core`, never on a command
+//! line) it proves to rt-core that it is `xarm-sim` ([`xarm::sim_identity`]), which is what
+//! grants a run blind mode, auto-resume and the synthetic camera. Without it, it passes for
+//! a real arm on 127.0.0.1.
+//!
 //! ```text
 //! xarm-sim --port-offset 10000 --scene assets/scenes/small_box.toml \
 //!          --swap-scene-at 10s assets/scenes/tall_box.toml
@@ -26,6 +32,7 @@ use anyhow::{Context, Result, bail};
 use clap::Parser;
 use shm_schemas::cli_bounds::{f64_within, int_within};
 use shm_schemas::scene_file::{LiveScene, SceneFile, WorldScript};
+use xarm::sim_identity::{SIM_SECRET_ENV, SimSecret};
 use xarm_sim::server::default_urdf;
 use xarm_sim::world::World;
 use xarm_sim::{ProtectiveLimits, SimOptions, SimPorts, SimServer};
@@ -170,7 +177,9 @@ fn options(a: &Args) -> Result<SimOptions> {
         };
         anyhow::anyhow!("{flag}: {e}")
     })?;
+    let sim_secret = SimSecret::from_env().with_context(|| format!("reading {SIM_SECRET_ENV}"))?;
     Ok(SimOptions {
+        sim_secret,
         bind: a.bind,
         ports,
         urdf,
@@ -188,6 +197,14 @@ fn run() -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())?;
     signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())?;
+    if opts.sim_secret.is_some() {
+        tracing::info!("{SIM_SECRET_ENV} set: this simulator proves it is xarm-sim");
+    } else {
+        tracing::warn!(
+            "no {SIM_SECRET_ENV}: this simulator cannot prove it is xarm-sim and is treated as \
+             a real arm (no blind mode, auto-resume or synthetic camera)"
+        );
+    }
     let server = SimServer::start(opts).context("starting xarm-sim")?;
     println!(
         "{}",

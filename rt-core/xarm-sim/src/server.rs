@@ -110,6 +110,10 @@ pub struct SimOptions {
     pub q0_rad: [f64; 5],
     /// The servo-mode protective check (joint and TCP speed faults); on by default.
     pub protective: ProtectiveLimits,
+    /// The run's secret ([`xarm::sim_identity`]): with it the simulator proves it is
+    /// `xarm-sim` and may be given simulation-only rights (blind mode, auto-resume, the
+    /// synthetic camera); `None` (the default): it passes for a real arm.
+    pub sim_secret: Option<xarm::sim_identity::SimSecret>,
 }
 
 impl Default for SimOptions {
@@ -123,6 +127,7 @@ impl Default for SimOptions {
             contact_margin_m: 0.0,
             q0_rad: [0.0; 5],
             protective: ProtectiveLimits::default(),
+            sim_secret: None,
         }
     }
 }
@@ -291,6 +296,7 @@ impl SimServer {
         let mut controller = Controller::new(opts.q0_rad);
         controller.set_model(world.model().clone());
         controller.set_protective_limits(opts.protective);
+        controller.set_sim_secret(opts.sim_secret.clone());
         controller.set_tcp_pose(tcp_pose_report(&opts.q0_rad));
         let shared = Arc::new(Shared {
             controller: Mutex::new(controller),

@@ -85,6 +85,10 @@ pub enum Register {
     GetJointPos,
     /// 0x5B: TCP pose, axis-angle orientation.
     GetTcpPoseAa,
+    /// 0xF0: Foresight's own, not the xArm's: `xarm-sim` proves it holds the run's secret
+    /// ([`crate::sim_identity`]). The SDK names no register 0xF0; a real controller answers
+    /// it as it answers any register it does not have.
+    SimIdentity,
     /// 0xFD: feedback check.
     FeedbackCheck,
     /// 0xFE: feedback type mask.
@@ -118,6 +122,7 @@ impl From<u8> for Register {
             0x29 => Self::GetTcpPose,
             0x2A => Self::GetJointPos,
             0x5B => Self::GetTcpPoseAa,
+            0xF0 => Self::SimIdentity,
             0xFD => Self::FeedbackCheck,
             0xFE => Self::SetFeedbackType,
             0xFF => Self::Feedback,
@@ -149,6 +154,7 @@ impl From<Register> for u8 {
             Register::GetTcpPose => 0x29,
             Register::GetJointPos => 0x2A,
             Register::GetTcpPoseAa => 0x5B,
+            Register::SimIdentity => 0xF0,
             Register::FeedbackCheck => 0xFD,
             Register::SetFeedbackType => 0xFE,
             Register::Feedback => 0xFF,
@@ -257,6 +263,9 @@ pub enum Request {
     SetFeedbackType(u8),
     /// `FEEDBACK_CHECK`.
     FeedbackCheck,
+    /// Foresight's identity challenge (register 0xF0, [`crate::sim_identity`]): a fresh
+    /// nonce; `xarm-sim` answers with its proof, a real controller as to any unknown register.
+    SimIdentity([u8; crate::sim_identity::NONCE_LEN]),
 }
 
 /// Why a frame could not be encoded.
@@ -651,6 +660,7 @@ impl Request {
             Self::GetTcpPoseAa => Register::GetTcpPoseAa,
             Self::SetFeedbackType(_) => Register::SetFeedbackType,
             Self::FeedbackCheck => Register::FeedbackCheck,
+            Self::SimIdentity(_) => Register::SimIdentity,
         }
     }
 
@@ -667,6 +677,7 @@ impl Request {
             | Self::SetJointJerk(_)
             | Self::SetJointMaxAcc(_) => 4,
             Self::GetJointPos(n) => usize::from(n.is_some()),
+            Self::SimIdentity(_) => crate::sim_identity::NONCE_LEN,
             _ => 0,
         }
     }
@@ -720,6 +731,7 @@ impl Request {
             | Self::SetJointJerk(v)
             | Self::SetJointMaxAcc(v) => put_f32(out, 7, *v),
             Self::GetJointPos(Some(k)) => out[7] = *k,
+            Self::SimIdentity(nonce) => out[7..7 + nonce.len()].copy_from_slice(nonce),
             _ => {}
         }
         Ok(total)
@@ -819,6 +831,12 @@ impl Request {
                 Self::SetFeedbackType(p[0])
             }
             Register::FeedbackCheck => Self::FeedbackCheck,
+            Register::SimIdentity => {
+                exact(crate::sim_identity::NONCE_LEN)?;
+                let mut nonce = [0u8; crate::sim_identity::NONCE_LEN];
+                nonce.copy_from_slice(p);
+                Self::SimIdentity(nonce)
+            }
             Register::Feedback | Register::Unknown(_) => {
                 return Err(FrameError::UnknownRegister(reg));
             }

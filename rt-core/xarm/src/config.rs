@@ -6,6 +6,7 @@ use std::net::{IpAddr, ToSocketAddrs};
 use std::time::Duration;
 
 use crate::report::{self, ReportKind};
+use crate::sim_identity::SimSecret;
 
 /// Driver settings.
 #[derive(Debug, Clone, PartialEq)]
@@ -40,6 +41,12 @@ pub struct XArmConfig {
     /// While the controller reports an error, ask `GET_ERROR` this often (ns) until it
     /// reads cleared (the 30003 report carries no error code).
     pub error_poll_ns: u64,
+    /// Set when a simulation-only right is asked for (blind mode, `--auto-resume`, the
+    /// synthetic camera): every connection, the first and each reconnect, then requires the
+    /// controller to prove it is `xarm-sim` holding this secret
+    /// ([`crate::sim_identity`]) before anything else is sent after `GET_VERSION`. `None`
+    /// (the default): no challenge, the arm is driven as a real arm.
+    pub sim_secret: Option<SimSecret>,
 }
 
 impl XArmConfig {
@@ -59,6 +66,7 @@ impl XArmConfig {
             max_resume_step_rad: 0.05,
             resume_after_reconnect: false,
             error_poll_ns: 100_000_000,
+            sim_secret: None,
         }
     }
 

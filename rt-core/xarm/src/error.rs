@@ -7,6 +7,7 @@ use crate::codec::FrameError;
 use crate::codes::ControllerError;
 use crate::limits::JointCheckError;
 use crate::report::ReportError;
+use crate::sim_identity::SimIdentityError;
 
 /// Why a driver operation failed. Small and `Copy`: it travels through the cycle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
@@ -25,6 +26,11 @@ pub enum XArmError {
         /// Robot type the controller reports.
         robot_type: u8,
     },
+    /// A simulation-only right was asked for ([`crate::config::XArmConfig::sim_secret`]) and
+    /// the controller did not prove it is this run's `xarm-sim`: it is a real arm, and
+    /// nothing but `GET_VERSION` and the challenge was sent to it.
+    #[error("the controller did not prove it is this run's xarm-sim: {0}")]
+    NotSimulator(SimIdentityError),
     /// No reply within the timeout.
     #[error("no reply within the timeout")]
     Timeout,

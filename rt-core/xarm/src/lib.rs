@@ -1,7 +1,8 @@
 //! The UFactory xArm5 on the wire: the controller's command/report protocol (allocation-free
 //! codec, reports, error codes, the SDK's client-side joint limits) and our driver with its
 //! off-cycle reconnect helper. A leaf crate: no Foresight dependency, so it is fuzzed and
-//! reused as it is. The simulated controller that speaks the same protocol is `xarm-sim`.
+//! reused as it is. The simulated controller that speaks the same protocol is `xarm-sim`;
+//! it proves it is the run's simulator by [`sim_identity`], never by its address.
 //!
 //! ```
 //! use xarm::codec::{JointTarget, SERVOJ_FRAME_LEN, encode_servo_j};
@@ -20,3 +21,4 @@ pub mod owner;
 pub mod reconnect;
 pub mod report;
 pub mod session;
+pub mod sim_identity;

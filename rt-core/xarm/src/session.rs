@@ -15,6 +15,7 @@ use crate::codes::{ControllerError, ControllerWarning};
 use crate::config::XArmConfig;
 use crate::error::XArmError;
 use crate::report::ReportFramer;
+use crate::sim_identity::{self, SimIdentityError, SimSecret};
 
 /// Most requests in flight (sent, not yet answered).
 pub const MAX_IN_FLIGHT: usize = 64;
@@ -230,11 +231,14 @@ impl Session {
     /// Opens a session like the SDK (blocking): TCP to the command and report ports,
     /// `GET_VERSION` with protocol id 2 (transaction id 1), then protocol id 3, and
     /// `GET_ERROR`. Clears nothing and moves nothing. A controller whose version string does
-    /// not name an xArm5 (type 5, 5 axes) is refused before anything else is sent.
+    /// not name an xArm5 (type 5, 5 axes) is refused before anything else is sent. With
+    /// [`XArmConfig::sim_secret`] set, the controller must then prove it is `xarm-sim`
+    /// holding that secret ([`Self::prove_sim_identity`]) before anything else is sent.
     ///
     /// # Errors
-    /// [`XArmError::NotXArm5`] for another arm; [`XArmError`] for unreachable ports,
-    /// timeouts and malformed replies.
+    /// [`XArmError::NotXArm5`] for another arm; [`XArmError::NotSimulator`] for a controller
+    /// that does not prove it is `xarm-sim` when that is asked; [`XArmError`] for
+    /// unreachable ports, timeouts and malformed replies.
     pub fn open(cfg: &XArmConfig) -> Result<Self, XArmError> {
         let mut s = Self::connect(cfg)?;
         let r = s.call(&Request::GetVersion, cfg.reply_timeout)?;
@@ -252,8 +256,46 @@ impl Session {
         tracing::info!(version = v.as_str(), "xArm connected");
         s.version = Some(v);
         s.protocol = PROTOCOL_PRIVATE;
+        if let Some(secret) = &cfg.sim_secret {
+            if let Err(e) = s.prove_sim_identity(secret, cfg.reply_timeout) {
+                tracing::error!(
+                    host = cfg.host,
+                    port = cfg.command_port,
+                    "not xarm-sim: {e}; it is a real arm, refused for simulation-only use"
+                );
+                return Err(XArmError::NotSimulator(e));
+            }
+            tracing::info!(
+                host = cfg.host,
+                port = cfg.command_port,
+                "the controller proved it is this run's xarm-sim"
+            );
+        }
         s.refresh_error(cfg.reply_timeout)?;
         Ok(s)
+    }
+
+    /// Asks the controller to prove it is `xarm-sim` holding `secret` (blocking): one
+    /// challenge on register 0xF0 with a fresh nonce, answered by HMAC-SHA256 of the secret
+    /// ([`crate::sim_identity`]). Sends nothing else; changes nothing on the controller.
+    ///
+    /// # Errors
+    /// [`SimIdentityError`]: anything but a proof that verifies (an unknown-register reply,
+    /// no answer within `timeout`, a closed connection, a wrong proof).
+    pub fn prove_sim_identity(
+        &mut self,
+        secret: &SimSecret,
+        timeout: Duration,
+    ) -> Result<(), SimIdentityError> {
+        let nonce = sim_identity::fresh_nonce()?;
+        match self.call(&Request::SimIdentity(nonce), timeout) {
+            Ok(r) => sim_identity::check_reply(secret, &nonce, r.status, &r.data[..r.len]),
+            Err(XArmError::Timeout) => Err(SimIdentityError::NoAnswer),
+            Err(XArmError::Disconnected) => Err(SimIdentityError::Closed),
+            Err(XArmError::Frame(e)) => Err(SimIdentityError::BadReply(e)),
+            Err(XArmError::Io(k)) => Err(SimIdentityError::Io(k)),
+            Err(_) => Err(SimIdentityError::NoAnswer),
+        }
     }
 
     /// The version string the handshake read.

@@ -81,6 +81,7 @@ fn request() -> impl Strategy<Value = Request> {
         Just(Request::GetTcpPoseAa),
         any::<u8>().prop_map(Request::SetFeedbackType),
         Just(Request::FeedbackCheck),
+        any::<[u8; 16]>().prop_map(Request::SimIdentity),
     ]
 }
 

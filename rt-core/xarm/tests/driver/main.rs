@@ -19,6 +19,7 @@ use xarm::limits::JointCheckError;
 use xarm::report::{self, ReportKind};
 use xarm_sim::{SimOptions, SimServer};
 
+mod sim_identity;
 mod support;
 
 use support::{Clock, cfg, driver, home, sim, sleep_until, urdf, wait_for_state};
