@@ -6,7 +6,9 @@
 //! two sides use different iceoryx2 prefixes: the only way across is Zenoh over the veth.
 //!
 //! The two sides authenticate each other with keys made by `zenoh-relay keygen` (one folder
-//! per side); the run must see no refusal.
+//! per side): each relay's gate makes the other prove its host key before Zenoh sees the
+//! connection, then every message is signed. The run must see no refusal of a message, and
+//! (without a link cut) no connection refused at either gate.
 //!
 //! The namespaces are made with `ip netns` as root and removed at the end; without the
 //! permission the tests say so and return (CI runs as root). Nothing leaves the machine:
@@ -37,8 +39,14 @@ fn json(path: &Path) -> Option<serde_json::Value> {
 }
 
 /// The demo's fast world across two hosts; `during_retraining` runs once the learner
-/// host has started answering the first retrain request. Returns the summary.
-fn two_host_run(tag: &str, during_retraining: impl FnOnce(&TwoHosts)) -> Option<serde_json::Value> {
+/// host has started answering the first retrain request. With `clean_gates`, neither relay's
+/// gate may have refused a connection (a cut link can time a handshake out). Returns the
+/// summary.
+fn two_host_run(
+    tag: &str,
+    clean_gates: bool,
+    during_retraining: impl FnOnce(&TwoHosts),
+) -> Option<serde_json::Value> {
     let hosts = match TwoHosts::make(tag) {
         Ok(h) => h,
         Err(why) => {
@@ -137,6 +145,22 @@ fn two_host_run(tag: &str, during_retraining: impl FnOnce(&TwoHosts)) -> Option<
     );
     let report = std::fs::read_to_string(run.join("report.md")).expect("report.md");
     assert!(report.contains("remote learner"), "{report}");
+    // The gates: what each relay refused at its door or dialler.
+    for (side, path) in [
+        ("robot PC", run.join("relay.json")),
+        ("learner host", dir.join("learner-relay.json")),
+    ] {
+        let st = json(&path).expect("relay status");
+        let refused = &st["refused_connections"];
+        println!("{side}: connections refused at the gate: {refused}");
+        if clean_gates {
+            assert!(
+                refused.as_object().is_none_or(|m| m.is_empty()),
+                "{side} refused a connection of the other relay: {refused}; the last: {}",
+                st["last_connection_refusal"]
+            );
+        }
+    }
     std::fs::remove_dir_all(&dir).ok();
     Some(s)
 }
@@ -144,7 +168,7 @@ fn two_host_run(tag: &str, during_retraining: impl FnOnce(&TwoHosts)) -> Option<
 #[test]
 fn a_retrain_request_crosses_to_the_learner_host_and_its_policy_brings_the_arm_to_the_goal() {
     let _one = one_at_a_time();
-    let Some(s) = two_host_run("a", |_| {}) else {
+    let Some(s) = two_host_run("a", true, |_| {}) else {
         return;
     };
     println!(
@@ -156,7 +180,7 @@ fn a_retrain_request_crosses_to_the_learner_host_and_its_policy_brings_the_arm_t
 #[test]
 fn the_link_cut_for_5_s_during_retraining_still_ends_at_the_goal() {
     let _one = one_at_a_time();
-    let Some(s) = two_host_run("b", |hosts| {
+    let Some(s) = two_host_run("b", false, |hosts| {
         hosts.link(false);
         std::thread::sleep(Duration::from_secs(5));
         hosts.link(true);

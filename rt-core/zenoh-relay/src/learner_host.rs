@@ -24,8 +24,9 @@ pub struct LearnerArgs {
     /// The `learner` executable (default: the one beside `zenoh-relay`).
     #[arg(long)]
     pub learner_bin: Option<PathBuf>,
-    /// Base checkpoint retraining resumes from (the same policy as the controller's).
-    #[arg(long, default_value = "assets/policy")]
+    /// Base checkpoint retraining resumes from (the same policy as the controller's:
+    /// `foresight`'s default, the distilled generalist).
+    #[arg(long, default_value = "assets/policy-distilled")]
     pub checkpoint: PathBuf,
     /// Task configuration (must be the controller's: requests carry its hash).
     #[arg(long, default_value = "assets/task.toml")]
@@ -196,7 +197,7 @@ mod tests {
         assert_eq!(after("--prefix"), Some("lh-1"));
         assert_eq!(after("--time-budget-s"), Some("60"));
         assert_eq!(after("--max-steps"), Some("400000"));
-        assert_eq!(after("--checkpoint"), Some("assets/policy"));
+        assert_eq!(after("--checkpoint"), Some("assets/policy-distilled"));
         assert_eq!(&a[a.len() - 2..], ["--workers", "4"]);
     }
 }

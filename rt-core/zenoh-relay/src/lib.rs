@@ -11,15 +11,18 @@
 //! - [`keys`]: the link credential (Zenoh `usrpwd`) and each host's signing key;
 //!   `zenoh-relay keygen`; the replay state.
 //! - [`reliable`]: re-send until answered, drop repeats.
+//! - [`gate`]: the front door of every connection between the relays (mutual
+//!   challenge–response on the two hosts' keys; bounded, timed-out pending connections).
 //! - [`link`]: where a relay listens and connects.
 //! - [`relay`]: the loop.
 //! - [`status`]: the status file the launcher's report reads.
 //! - [`learner_host`]: `zenoh-relay learner-host`, the relay plus a supervised `learner serve`.
 //!
-//! **Trust.** A relay accepts a Zenoh session only from a holder of the link credential, and
-//! a message only when it is signed by the other host's key, with a sequence above the last
-//! one accepted on its channel (kept across restarts), and — for progress and policies — bound
-//! to the request in flight. There is no unauthenticated mode: without keys a relay refuses
+//! **Trust.** A connection between the relays carries Zenoh only after *each* end proved to
+//! the other that it holds its host's signing key ([`gate`]); inside, Zenoh accepts a session
+//! only from a holder of the link credential, and the relay a message only when it is signed
+//! by the other host's key, with a sequence above the last one accepted on its channel (kept
+//! across restarts) and — for progress and policies — bound to the request in flight. There is no unauthenticated mode: without keys a relay refuses
 //! to start, naming what is missing. What a relay must still trust: the other host itself
 //! (a learner host with its key can send any *valid* policy; rt-core's lookahead and shield
 //! still gate every motion), and whoever can read the keys folders. The link is not
@@ -29,6 +32,7 @@
 //! crates.io while the workspace is on iceoryx2 0.10.0, so this small relay on the `zenoh`
 //! crate stands in its place.
 
+pub mod gate;
 pub mod keys;
 pub mod learner_host;
 pub mod link;

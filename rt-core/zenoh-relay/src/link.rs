@@ -1,26 +1,30 @@
 //! The Zenoh side of a relay: where it listens, whom it connects to, and the keys.
 //!
-//! A relay is a Zenoh *peer* that listens only on the endpoints it is given (`--listen`),
+//! A relay is a Zenoh *peer* that listens only on the endpoints it is given (`--listen`) and
 //! connects to the ones it is given (`--peer`, retried in the background every 0.5–2 s, also
-//! after a lost connection) and scouts the LAN by multicast only with `--scout`. Zenoh's own
-//! default (listen on every interface at a random port, multicast scouting on) is never
-//! used. Only TCP links are built into this binary.
+//! after a lost connection). Zenoh itself never touches the network: it listens on a
+//! loopback port behind the relay's [`crate::gate::Door`] and connects through a
+//! [`crate::gate::Dialer`], so every connection between the relays starts with the gate's
+//! mutual challenge–response on the two hosts' keys, and pending connections are bounded and
+//! timed out there. There is no multicast scouting and no gossip (a scouted or gossiped
+//! Zenoh locator would lead past the gate). Only TCP links are built into this binary.
 //!
 //! Keys are `foresight/<link name>/<channel>`; two robots on one LAN use two link names.
 //!
-//! Every session is authenticated with Zenoh's `usrpwd` (the link credential of
-//! [`crate::keys`]): the relay that accepts a connection refuses one without the credential,
-//! so a stranger on the LAN gets no session. The size of a message Zenoh reassembles is capped
-//! at the largest valid relay message ([`crate::wire::MAX_MESSAGE_LEN`]) and the number of
-//! sessions and pending connections is small. There is no unauthenticated mode: without
-//! `--link-keys` a relay does not start.
+//! Inside the gate, every session is also authenticated with Zenoh's `usrpwd` (the link
+//! credential of [`crate::keys`]). The size of a message Zenoh reassembles is capped at the
+//! largest valid relay message ([`crate::wire::MAX_MESSAGE_LEN`]) and the number of sessions
+//! is small. There is no unauthenticated mode: without `--link-keys` a relay does not start.
 
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
+use std::net::{SocketAddr, ToSocketAddrs};
+
 use zenoh::Wait;
 use zenoh::config::EndPoint;
 
+use crate::gate::{Dialer, Door, GateEvents, GateKey};
 use crate::keys::{KeyError, LinkKeys};
 use crate::wire::{Channel, MAX_MESSAGE_LEN, Side};
 
@@ -37,10 +41,6 @@ pub struct LinkArgs {
     /// every interface). Nothing is listened on unless given.
     #[arg(long = "listen", value_name = "tcp/ADDR:PORT")]
     pub listen: Vec<String>,
-    /// Find the peer relay by Zenoh's UDP multicast scouting on the LAN (224.0.0.224:7446).
-    /// Off unless given.
-    #[arg(long)]
-    pub scout: bool,
     /// The link's name: the middle of every Zenoh key (`foresight/<NAME>/…`). Relays only
     /// talk to relays of the same name (one name per robot on a shared LAN).
     #[arg(long, default_value = "foresight")]
@@ -55,10 +55,10 @@ pub struct LinkArgs {
 /// Why the link settings are refused or the session could not be opened.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum LinkError {
-    /// Neither `--peer`, `--listen` nor `--scout`: nothing could ever connect.
+    /// Neither `--peer` nor `--listen`: nothing could ever connect.
     #[error(
         "no way to reach the other host: give --peer tcp/ADDR:PORT (the other relay's \
-         address), --listen tcp/ADDR:PORT (where the other relay connects) or --scout"
+         address) or --listen tcp/ADDR:PORT (where the other relay connects)"
     )]
     Nowhere,
     /// An endpoint is not `tcp/ADDR:PORT`.
@@ -79,9 +79,50 @@ pub enum LinkError {
     /// The keys are missing or unusable (the message names the file).
     #[error("{0}")]
     Keys(String),
-    /// Zenoh refused the configuration or could not open (e.g. the listen port is taken).
+    /// A `--listen` address cannot be listened on (taken, not this host's, unresolvable).
+    #[error("--listen {value}: {error}")]
+    Listen {
+        /// As given.
+        value: String,
+        /// The system's words.
+        error: String,
+    },
+    /// Zenoh refused the configuration or could not open.
     #[error("zenoh: {0}")]
     Zenoh(String),
+}
+
+/// Where the relay's own Zenoh listens and connects: loopback ports of the gate (see
+/// [`LinkArgs::open`]), never the network.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ZenohEndpoints {
+    /// Zenoh's listener behind the [`Door`]s (`tcp/127.0.0.1:PORT`), if the relay listens.
+    pub listen: Vec<String>,
+    /// The [`Dialer`]s' loopback ports, one per `--peer`.
+    pub connect: Vec<String>,
+}
+
+/// A relay's gate: its doors (one per `--listen`) and dialers (one per `--peer`). Dropping
+/// it closes them and every connection they carry.
+#[derive(Default)]
+pub struct Gate {
+    /// One per `--listen`.
+    pub doors: Vec<Door>,
+    /// One per `--peer`.
+    pub dialers: Vec<Dialer>,
+}
+
+/// `ADDR:PORT` of a checked `tcp/ADDR:PORT[?…][#…]` endpoint.
+fn host_port(endpoint: &str) -> &str {
+    let a = endpoint.strip_prefix("tcp/").unwrap_or(endpoint);
+    a.split(['?', '#']).next().unwrap_or(a)
+}
+
+/// A loopback port free now (for Zenoh's listener behind the door).
+fn free_loopback_port() -> Result<SocketAddr, LinkError> {
+    std::net::TcpListener::bind(SocketAddr::from(([127, 0, 0, 1], 0)))
+        .and_then(|l| l.local_addr())
+        .map_err(|e| LinkError::Zenoh(format!("no free loopback port for Zenoh: {e}")))
 }
 
 impl From<KeyError> for LinkError {
@@ -118,7 +159,7 @@ impl LinkArgs {
     /// # Errors
     /// [`LinkError`] naming the flag and value.
     pub fn validate(&self) -> Result<(), LinkError> {
-        if self.peers.is_empty() && self.listen.is_empty() && !self.scout {
+        if self.peers.is_empty() && self.listen.is_empty() {
             return Err(LinkError::Nowhere);
         }
         for p in &self.peers {
@@ -160,9 +201,6 @@ impl LinkArgs {
         for l in &self.listen {
             out.extend(["--listen".to_owned(), l.clone()]);
         }
-        if self.scout {
-            out.push("--scout".to_owned());
-        }
         out.extend(["--link-name".to_owned(), self.link_name.clone()]);
         if let Some(k) = &self.link_keys {
             out.extend(["--link-keys".to_owned(), k.display().to_string()]);
@@ -175,13 +213,18 @@ impl LinkArgs {
         format!("foresight/{}/{}", self.link_name, channel.key_suffix())
     }
 
-    /// The Zenoh configuration: peer mode, exactly these endpoints, multicast scouting only
-    /// with `--scout`, no shared memory transport, `usrpwd` authentication with `keys`'
-    /// credential, and bounded sessions and message sizes.
+    /// The Zenoh configuration: peer mode, listening and connecting only on the gate's
+    /// loopback endpoints `inner`, no multicast scouting and no gossip, no shared memory
+    /// transport, `usrpwd` authentication with `keys`' credential, and bounded sessions and
+    /// message sizes.
     ///
     /// # Errors
     /// [`LinkError`] (the settings are validated first).
-    pub fn zenoh_config(&self, keys: &LinkKeys) -> Result<zenoh::Config, LinkError> {
+    pub fn zenoh_config(
+        &self,
+        keys: &LinkKeys,
+        inner: &ZenohEndpoints,
+    ) -> Result<zenoh::Config, LinkError> {
         self.validate()?;
         let mut c = zenoh::Config::default();
         let json = |v: &[String]| serde_json::to_string(v).unwrap_or_else(|_| "[]".into());
@@ -190,16 +233,11 @@ impl LinkArgs {
                 .map_err(|e| LinkError::Zenoh(format!("config {k} = {v}: {e}")))
         };
         set(&mut c, "mode", "\"peer\"")?;
-        set(&mut c, "listen/endpoints", &json(&self.listen))?;
-        set(&mut c, "connect/endpoints", &json(&self.peers))?;
-        set(
-            &mut c,
-            "scouting/multicast/enabled",
-            if self.scout { "true" } else { "false" },
-        )?;
-        // A peer found by gossip is connected to only through endpoints it listens on, which
-        // the user chose; keep gossip to the next hop.
-        set(&mut c, "scouting/gossip/multihop", "false")?;
+        set(&mut c, "listen/endpoints", &json(&inner.listen))?;
+        set(&mut c, "connect/endpoints", &json(&inner.connect))?;
+        // Found peers would be dialled at their Zenoh locators, past the gate.
+        set(&mut c, "scouting/multicast/enabled", "false")?;
+        set(&mut c, "scouting/gossip/enabled", "false")?;
         // The lease (10 s by default) decides when a silent peer is dropped; a dropped link
         // to a `--peer` is re-dialled every 0.5–2 s.
         set(
@@ -209,7 +247,8 @@ impl LinkArgs {
         )?;
         set_usrpwd(&mut c, &keys.user, &keys.password, &keys.credential_file)?;
         // Bounds: Zenoh reassembles nothing larger than the largest valid message (rounded
-        // up to whole 64 KiB batches), keeps few sessions and few half-open connections.
+        // up to whole 64 KiB batches) and keeps few sessions. Only the gate's proven
+        // connections reach its listener; its own pending bounds stay as a second guard.
         let max_message = MAX_MESSAGE_LEN.div_ceil(65_536) * 65_536;
         set(
             &mut c,
@@ -226,16 +265,66 @@ impl LinkArgs {
         Ok(c)
     }
 
-    /// Opens the Zenoh session. Returns at once when the peer is not reachable yet (the
-    /// connection is retried in the background).
+    /// Opens the gate and the Zenoh session behind it: a [`Dialer`] per `--peer` (Zenoh
+    /// connects to it), Zenoh listening on a loopback port, then a [`Door`] per `--listen`
+    /// in front of that port. Returns at once when the peer is not reachable yet (Zenoh
+    /// dials again in the background). Connections the gate refuses are reported to
+    /// `events`.
     ///
     /// # Errors
-    /// [`LinkError`]: bad settings, or Zenoh could not open (e.g. a listen port in use).
-    pub fn open(&self, keys: &LinkKeys) -> Result<zenoh::Session, LinkError> {
-        let config = self.zenoh_config(keys)?;
-        zenoh::open(config)
+    /// [`LinkError`]: bad settings, a `--listen` address that cannot be listened on, or
+    /// Zenoh could not open.
+    pub fn open(
+        &self,
+        keys: &LinkKeys,
+        events: &GateEvents,
+    ) -> Result<(zenoh::Session, Gate), LinkError> {
+        self.validate()?;
+        let key = GateKey::of(keys, &self.link_name);
+        let mut gate = Gate::default();
+        let mut inner = ZenohEndpoints::default();
+        for p in &self.peers {
+            let d = Dialer::open(host_port(p).to_owned(), key.clone(), events.clone())
+                .map_err(|e| LinkError::Zenoh(format!("a loopback port for --peer {p}: {e}")))?;
+            inner.connect.push(format!("tcp/{}", d.local_addr()));
+            gate.dialers.push(d);
+        }
+        let mut listen = Vec::new();
+        for l in &self.listen {
+            let err = |error: String| LinkError::Listen {
+                value: l.clone(),
+                error,
+            };
+            let addr = host_port(l)
+                .to_socket_addrs()
+                .map_err(|e| err(e.to_string()))?
+                .next()
+                .ok_or_else(|| err("resolves to no address".into()))?;
+            listen.push((l, addr));
+        }
+        let backend = if listen.is_empty() {
+            None
+        } else {
+            let b = free_loopback_port()?;
+            inner.listen.push(format!("tcp/{b}"));
+            Some(b)
+        };
+        let config = self.zenoh_config(keys, &inner)?;
+        let session = zenoh::open(config)
             .wait()
-            .map_err(|e| LinkError::Zenoh(e.to_string()))
+            .map_err(|e| LinkError::Zenoh(e.to_string()))?;
+        if let Some(backend) = backend {
+            for (l, addr) in listen {
+                let door = Door::open(addr, backend, key.clone(), events.clone()).map_err(|e| {
+                    LinkError::Listen {
+                        value: l.clone(),
+                        error: e.to_string(),
+                    }
+                })?;
+                gate.doors.push(door);
+            }
+        }
+        Ok((session, gate))
     }
 }
 
@@ -268,7 +357,6 @@ mod tests {
         LinkArgs {
             peers: peers.iter().map(|s| (*s).to_owned()).collect(),
             listen: listen.iter().map(|s| (*s).to_owned()).collect(),
-            scout: false,
             link_name: "foresight".into(),
             link_keys: Some("keys".into()),
         }
@@ -316,27 +404,30 @@ mod tests {
     #[test]
     fn the_zenoh_config_listens_and_connects_only_where_told_and_does_not_scout() {
         let (dir, keys) = test_keys("cfg");
+        let inner = ZenohEndpoints {
+            listen: vec!["tcp/127.0.0.1:40001".into()],
+            connect: vec!["tcp/127.0.0.1:40002".into()],
+        };
         let c = link(&["tcp/10.0.0.2:7447"], &["tcp/10.0.0.1:7447"])
-            .zenoh_config(&keys)
+            .zenoh_config(&keys, &inner)
             .unwrap();
         let get = |c: &zenoh::Config, k: &str| -> serde_json::Value {
             serde_json::from_str(&c.get_json(k).unwrap()).unwrap()
         };
         assert_eq!(get(&c, "mode"), "peer");
+        // Zenoh only on the gate's loopback ports; nothing found by scouting or gossip.
         assert_eq!(
             get(&c, "listen/endpoints"),
-            serde_json::json!(["tcp/10.0.0.1:7447"])
+            serde_json::json!(["tcp/127.0.0.1:40001"])
         );
         assert_eq!(
             get(&c, "connect/endpoints"),
-            serde_json::json!(["tcp/10.0.0.2:7447"])
+            serde_json::json!(["tcp/127.0.0.1:40002"])
         );
         assert_eq!(get(&c, "scouting/multicast/enabled"), false);
-        let mut scout = link(&[], &[]);
-        scout.scout = true;
-        let c = scout.zenoh_config(&keys).unwrap();
-        assert_eq!(get(&c, "scouting/multicast/enabled"), true);
-        assert_eq!(get(&c, "listen/endpoints"), serde_json::json!([]));
+        assert_eq!(get(&c, "scouting/gossip/enabled"), false);
+        assert_eq!(host_port("tcp/[::1]:7447"), "[::1]:7447");
+        assert_eq!(host_port("tcp/10.0.0.2:7447#iface=eth0"), "10.0.0.2:7447");
         // Authenticated and bounded.
         assert_eq!(get(&c, "transport/auth/usrpwd/user"), keys.user.as_str());
         assert_eq!(
@@ -366,7 +457,6 @@ mod tests {
             &["tcp/10.0.0.2:7447", "tcp/10.0.0.3:7447"],
             &["tcp/0.0.0.0:7447"],
         );
-        l.scout = true;
         l.link_name = "arm-2".into();
         let argv = std::iter::once("x".to_owned()).chain(l.to_args());
         assert_eq!(Cli::parse_from(argv).link, l);

@@ -1,5 +1,5 @@
 //! `zenoh-relay`: carries retrain requests, retrain progress and policies between the robot
-//! PC and a learner host over Zenoh (see the library docs and README's "Two hosts").
+//! PC and a learner host over Zenoh (see the library docs and docs/components.md, "Two hosts").
 //!
 //! - `zenoh-relay controller --prefix P --peer tcp/GPU-BOX:7447` beside rt-core (the
 //!   launcher's `foresight --learner-host` starts it);

@@ -13,19 +13,29 @@
 //! answered, drop repeats, bind answers to their request) are [`crate::reliable`]. Each side
 //! says hello once a second; a peer silent for [`PEER_SILENCE`] counts as a link loss.
 //!
-//! **Bounded.** Zenoh's callback only checks the size and queues the bytes, without blocking,
-//! in a bounded queue per channel ([`queue_len`]); a full queue drops the message and counts
-//! it (`flood`). The loop takes at most a queue's length from each channel per turn, so a
-//! flood on one channel neither starves another (a policy gets through a progress flood) nor
-//! stops the loop's own work (local services, re-sends, hellos, the status file). Sends never
-//! block: Zenoh drops what its queue cannot take, and the re-send rules send it again.
+//! **Verified before queued.** Zenoh's callback checks the size (unread), the header and the
+//! signature, and that the sequence is above the last one queued or accepted on its channel,
+//! *before* a message may take a place in its channel's bounded queue ([`queue_len`]); only
+//! then is it queued, without blocking. So the queue holds nothing but fresh messages of the
+//! other host: a flood of forged, garbage or replayed messages is refused and counted in the
+//! callback (`bad_signature`, `malformed`, `replay`, …) and can neither take the 4 policy
+//! places nor push a real policy out. A full queue (only the other host itself could fill it)
+//! drops the message and counts it (`flood`). The loop takes at most a queue's length from
+//! each channel per turn, so no channel starves another or the loop's own work (local
+//! services, re-sends, hellos, the status file). Sends never block: Zenoh drops what its
+//! queue cannot take, and the re-send rules send it again.
+//!
+//! **Connections.** The link is opened behind the relay's gate ([`crate::gate`]): both ends
+//! prove their host keys to each other before Zenoh sees a connection, and pending
+//! connections are bounded and timed out. What the gate refuses is counted in the status file's
+//! `refused_connections`.
 //!
 //! Nothing of the real-time path crosses: no robot state, no detections, no verdicts.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, mpsc};
+use std::sync::{Arc, Mutex, PoisonError, mpsc};
 use std::time::{Duration, Instant};
 
 use iceoryx2::port::publisher::Publisher;
@@ -45,7 +55,7 @@ use crate::reliable::{
 use crate::status::{AuthStatus, PeerStatus, RelayStatus, RequestStatus, host_name, unix_s};
 use crate::wire::{
     self, Channel, Header, Hello, PolicyAck, RequestRef, Side, Signer, Verifier, WireError,
-    decode_control, decode_message, encode_control, encode_message,
+    control_payload, encode_control, encode_message, message_payload,
 };
 
 /// A peer not heard from for this long is "lost" (hellos come once a second).
@@ -61,8 +71,9 @@ pub const SEQUENCE_RESERVE_NS: u64 = 10_000_000_000;
 /// How long the loop sleeps waiting for the network between polls of the local services.
 const POLL: Duration = Duration::from_millis(1);
 
-/// How many received messages of `channel` may wait for the loop; more are dropped and
-/// counted (`flood`). The loop takes at most this many per channel per turn.
+/// How many received messages of `channel` may wait for the loop (each already verified:
+/// signed by the other host, fresh); more are dropped and counted (`flood`). The loop takes at
+/// most this many per channel per turn.
 pub const fn queue_len(channel: Channel) -> usize {
     match channel {
         Channel::Policy => 4,
@@ -169,18 +180,88 @@ struct CallbackRefusals {
 }
 
 fn note(refusals: &Mutex<CallbackRefusals>, kind: &'static str, text: String) {
-    let mut r = refusals
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let mut r = refusals.lock().unwrap_or_else(PoisonError::into_inner);
     *r.counts.entry(kind).or_default() += 1;
     r.last = Some(text);
 }
 
-/// The incoming side of the link: a bounded queue per channel, filled by Zenoh's callbacks.
+impl CallbackRefusals {
+    fn take(refusals: &Mutex<Self>) -> Self {
+        std::mem::take(&mut *refusals.lock().unwrap_or_else(PoisonError::into_inner))
+    }
+}
+
+/// A message the callback verified: the other host's signature over this header and
+/// payload, a sequence above any queued or accepted before on its channel.
+struct Verified {
+    header: Header,
+    payload: Vec<u8>,
+}
+
+fn replay_text(channel: Channel, sequence: u64, last: u64) -> String {
+    format!(
+        "{channel:?} refused: sequence {sequence} is not above the last accepted ({last}): a replayed or old message"
+    )
+}
+
+/// Zenoh's callback for `channel`: size (unread), header, signature and sequence, then the
+/// bounded queue; never blocks.
+fn admit(
+    bytes: &[u8],
+    channel: Channel,
+    verifier: &Verifier,
+    admitted: &Mutex<u64>,
+    queue: &mpsc::SyncSender<Verified>,
+    refusals: &Mutex<CallbackRefusals>,
+) -> bool {
+    let (header, payload) = match wire::decode(bytes, channel, verifier) {
+        Ok(v) => v,
+        Err(e) => {
+            note(refusals, e.kind(), format!("{channel:?} refused: {e}"));
+            return false;
+        }
+    };
+    let mut last = admitted.lock().unwrap_or_else(PoisonError::into_inner);
+    if header.sequence <= *last {
+        note(
+            refusals,
+            "replay",
+            replay_text(channel, header.sequence, *last),
+        );
+        return false;
+    }
+    let m = Verified {
+        header,
+        payload: payload.to_vec(),
+    };
+    match queue.try_send(m) {
+        Ok(()) => {
+            *last = header.sequence;
+            true
+        }
+        Err(mpsc::TrySendError::Full(_)) => {
+            note(
+                refusals,
+                "flood",
+                format!(
+                    "{channel:?} dropped: {} verified messages already wait (a flood)",
+                    queue_len(channel)
+                ),
+            );
+            false
+        }
+        Err(mpsc::TrySendError::Disconnected(_)) => false,
+    }
+}
+
+/// The incoming side of the link: a bounded queue of verified messages per channel, filled
+/// by Zenoh's callbacks.
 struct Inbox {
-    queues: Vec<(Channel, mpsc::Receiver<Vec<u8>>)>,
+    queues: Vec<(Channel, mpsc::Receiver<Verified>)>,
     doorbell: mpsc::Receiver<()>,
     refusals: Arc<Mutex<CallbackRefusals>>,
+    /// Connections the gate refused.
+    gate: Arc<Mutex<CallbackRefusals>>,
 }
 
 /// The running relay.
@@ -190,7 +271,6 @@ struct Relay {
     /// The last sequence sent (see [`crate::wire`]: never goes down).
     seq: u64,
     signer: Signer,
-    verifier: Verifier,
     guard: SequenceGuard,
     state: LinkState,
     state_path: PathBuf,
@@ -262,7 +342,13 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
             policies: services::open_subscriber(&node, p).map_err(shm)?,
         },
     };
-    let session = cfg.link.open(&keys)?;
+    let gate_refusals = Arc::new(Mutex::new(CallbackRefusals::default()));
+    let events: crate::gate::GateEvents = {
+        let g = Arc::clone(&gate_refusals);
+        Arc::new(move |kind, text| note(&g, kind, text))
+    };
+    let (session, gate) = cfg.link.open(&keys, &events)?;
+    let verifier = Verifier::new(keys.peer, &cfg.link.link_name);
     let incoming: &[Channel] = match cfg.side {
         Side::Controller => &[Channel::RetrainProgress, Channel::Policy, Channel::Hello],
         Side::Learner => &[Channel::RetrainRequest, Channel::PolicyAck, Channel::Hello],
@@ -272,33 +358,31 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
     let mut queues = Vec::new();
     let mut subscribers = Vec::new();
     for &channel in incoming {
-        let (tx, rx) = mpsc::sync_channel::<Vec<u8>>(queue_len(channel));
+        let (tx, rx) = mpsc::sync_channel::<Verified>(queue_len(channel));
         let bell = bell_tx.clone();
         let refused = Arc::clone(&refusals);
+        let verifier = verifier.clone();
+        // The last sequence queued on this channel, from the last accepted (across restarts).
+        let admitted = Mutex::new(
+            state
+                .seen
+                .get(channel.key_suffix())
+                .copied()
+                .unwrap_or_default(),
+        );
         let sub = session
             .declare_subscriber(cfg.link.key(channel))
             // Not this session's own publications (hellos go both ways on one key).
             .allowed_origin(zenoh::sample::Locality::Remote)
             .callback(move |sample| {
-                // Never blocks Zenoh: the size first (unread), then a bounded queue.
-                let len = sample.payload().len();
-                if let Err(e) = wire::check_size(len, channel) {
+                // The size first (unread), then verified, then a bounded queue; never blocks.
+                if let Err(e) = wire::check_size(sample.payload().len(), channel) {
                     note(&refused, e.kind(), format!("{channel:?} refused: {e}"));
                     return;
                 }
-                match tx.try_send(sample.payload().to_bytes().into_owned()) {
-                    Ok(()) => {
-                        let _ = bell.try_send(());
-                    }
-                    Err(mpsc::TrySendError::Full(_)) => note(
-                        &refused,
-                        "flood",
-                        format!(
-                            "{channel:?} dropped: {} messages already wait (a flood)",
-                            queue_len(channel)
-                        ),
-                    ),
-                    Err(mpsc::TrySendError::Disconnected(_)) => {}
+                let bytes = sample.payload().to_bytes();
+                if admit(&bytes, channel, &verifier, &admitted, &tx, &refused) {
+                    let _ = bell.try_send(());
                 }
             })
             .wait()
@@ -311,6 +395,7 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
         queues,
         doorbell,
         refusals,
+        gate: gate_refusals,
     };
     let status = RelayStatus {
         side: Some(cfg.side),
@@ -333,20 +418,17 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
         prefix = %cfg.prefix,
         peers = ?cfg.link.peers,
         listen = ?cfg.link.listen,
-        scout = cfg.link.scout,
         link = %cfg.link.link_name,
         own_key = %fingerprint(&keys.signing.verifying_key()),
         peer_key = %peer_fp,
         "relay up"
     );
     let signer = Signer::new(keys.signing.clone(), &cfg.link.link_name);
-    let verifier = Verifier::new(keys.peer, &cfg.link.link_name);
     let mut relay = Relay {
         instance: new_instance_id(),
         // Above every number an earlier run of this relay may have used.
         seq: state.sent,
         signer,
-        verifier,
         guard: SequenceGuard::from_marks(&state.seen),
         state,
         state_path,
@@ -405,6 +487,7 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
     drop(subscribers);
     let status = relay.status.clone();
     let _ = relay.session.close().wait();
+    drop(gate);
     tracing::info!("relay stopped");
     Ok(status)
 }
@@ -454,20 +537,14 @@ impl Relay {
         for (channel, rx) in &inbox.queues {
             for _ in 0..queue_len(*channel) {
                 match rx.try_recv() {
-                    Ok(bytes) => self.on_remote(*channel, &bytes),
+                    Ok(m) => self.on_remote(*channel, &m),
                     Err(_) => break,
                 }
             }
         }
-        let taken = {
-            let mut r = inbox
-                .refusals
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner);
-            std::mem::take(&mut *r)
-        };
+        let now = Instant::now();
+        let taken = CallbackRefusals::take(&inbox.refusals);
         if let Some(text) = taken.last {
-            let now = Instant::now();
             for (kind, n) in taken.counts {
                 *self.status.rejected.entry(kind.to_owned()).or_default() += n;
                 if self.warn.allow(kind, now) {
@@ -475,6 +552,21 @@ impl Relay {
                 }
             }
             self.status.last_rejection = Some(text);
+            self.status_dirty = true;
+        }
+        let refused = CallbackRefusals::take(&inbox.gate);
+        if let Some(text) = refused.last {
+            for (kind, n) in refused.counts {
+                *self
+                    .status
+                    .refused_connections
+                    .entry(kind.to_owned())
+                    .or_default() += n;
+                if self.warn.allow(kind, now) {
+                    tracing::warn!("gate: {text} ({n} this turn)");
+                }
+            }
+            self.status.last_connection_refusal = Some(text);
             self.status_dirty = true;
         }
     }
@@ -524,13 +616,7 @@ impl Relay {
                 true
             }
             Err(last) => {
-                self.refuse(
-                    "replay",
-                    format!(
-                        "{:?} refused: sequence {} is not above the last accepted ({last}): a replayed or old message",
-                        h.channel, h.sequence
-                    ),
-                );
+                self.refuse("replay", replay_text(h.channel, h.sequence, last));
                 false
             }
         }
@@ -557,12 +643,12 @@ impl Relay {
         self.status_dirty = true;
     }
 
-    /// A message from the other host (size already checked): signature, payload, sequence,
-    /// then the channel's rules.
-    fn on_remote(&mut self, channel: Channel, bytes: &[u8]) {
-        let v = &self.verifier;
+    /// A message from the other host (size, signature and sequence already checked by the
+    /// callback): payload, sequence against the persisted marks, then the channel's rules.
+    fn on_remote(&mut self, channel: Channel, m: &Verified) {
+        let (h, payload) = (m.header, m.payload.as_slice());
         let res = match channel {
-            Channel::Hello => decode_control::<Hello>(bytes, channel, v).map(|(h, m)| {
+            Channel::Hello => control_payload::<Hello>(payload, channel).map(|m| {
                 // Zenoh does not hand a session its own publications (`Locality::Remote`);
                 // the instance check is a second guard.
                 let ok = h.sender_instance != self.instance && self.fresh(&h);
@@ -571,32 +657,28 @@ impl Relay {
                 }
                 ok
             }),
-            Channel::RetrainRequest => {
-                decode_message::<RetrainRequest>(bytes, channel, v).map(|(h, r)| {
-                    let ok = self.fresh(&h);
-                    if ok {
-                        self.on_request(h.sender_instance, &r);
-                    }
-                    ok
-                })
-            }
-            Channel::RetrainProgress => {
-                decode_message::<RetrainProgress>(bytes, channel, v).map(|(h, p)| {
-                    let ok = self.fresh(&h);
-                    if ok {
-                        self.on_progress(&p, h.request);
-                    }
-                    ok
-                })
-            }
-            Channel::Policy => decode_message::<PolicyBlob>(bytes, channel, v).map(|(h, b)| {
+            Channel::RetrainRequest => message_payload::<RetrainRequest>(payload).map(|r| {
+                let ok = self.fresh(&h);
+                if ok {
+                    self.on_request(h.sender_instance, &r);
+                }
+                ok
+            }),
+            Channel::RetrainProgress => message_payload::<RetrainProgress>(payload).map(|p| {
+                let ok = self.fresh(&h);
+                if ok {
+                    self.on_progress(&p, h.request);
+                }
+                ok
+            }),
+            Channel::Policy => message_payload::<PolicyBlob>(payload).map(|b| {
                 let ok = self.fresh(&h);
                 if ok {
                     self.on_policy(&b, h.request);
                 }
                 ok
             }),
-            Channel::PolicyAck => decode_control::<PolicyAck>(bytes, channel, v).map(|(h, a)| {
+            Channel::PolicyAck => control_payload::<PolicyAck>(payload, channel).map(|a| {
                 let ok = self.fresh(&h);
                 if ok && self.policy_out.on_ack(a.policy_id, a.checksum) {
                     tracing::info!(

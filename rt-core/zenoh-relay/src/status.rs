@@ -109,6 +109,18 @@ pub struct RelayStatus {
     pub rejected: BTreeMap<String, u64>,
     /// The last refusal, in words.
     pub last_rejection: Option<String>,
+    /// Connections the gate ([`crate::gate`]) refused or closed, by reason:
+    /// `connector_unauthenticated` (a connection to a `--listen` address whose proof did not
+    /// verify with the other host's public key, that is not a relay, or that hung up during
+    /// the handshake), `handshake_timeout` (one that did not finish the handshake in
+    /// time: a socket that never spoke), `pending_evicted` (the oldest unfinished one, closed
+    /// for a newer one while the door was full), `listener_unauthenticated` (a `--peer` whose
+    /// proof did not verify with the other host's public key, or that is not a relay),
+    /// `listener_no_handshake` (a `--peer` that did not finish the handshake in time or hung
+    /// up during it).
+    pub refused_connections: BTreeMap<String, u64>,
+    /// The last connection refusal, in words.
+    pub last_connection_refusal: Option<String>,
     /// Re-sends of unanswered requests / unacknowledged policies.
     pub resends: u64,
     /// Repeats dropped (requests, policies, progress).

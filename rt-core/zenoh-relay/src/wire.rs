@@ -479,7 +479,15 @@ pub fn decode_message<T: ShmMessage>(
     verifier: &Verifier,
 ) -> Result<(Header, Box<T>), WireError> {
     let (header, payload) = decode(bytes, channel, verifier)?;
-    Ok((header, message_from_bytes::<T>(payload)?))
+    Ok((header, message_payload::<T>(payload)?))
+}
+
+/// The payload of a service message that [`decode`] checked, validated.
+///
+/// # Errors
+/// [`WireError::Payload`]: its length or a field.
+pub fn message_payload<T: ShmMessage>(payload: &[u8]) -> Result<Box<T>, WireError> {
+    Ok(message_from_bytes::<T>(payload)?)
 }
 
 /// Which end of the link a relay is.
@@ -547,11 +555,21 @@ pub fn decode_control<T: for<'de> Deserialize<'de>>(
     verifier: &Verifier,
 ) -> Result<(Header, T), WireError> {
     let (header, payload) = decode(bytes, channel, verifier)?;
-    let message = serde_json::from_slice(payload).map_err(|e| WireError::Control {
+    Ok((header, control_payload(payload, channel)?))
+}
+
+/// The JSON payload of a control message that [`decode`] checked.
+///
+/// # Errors
+/// [`WireError::Control`] naming the field.
+pub fn control_payload<T: for<'de> Deserialize<'de>>(
+    payload: &[u8],
+    channel: Channel,
+) -> Result<T, WireError> {
+    serde_json::from_slice(payload).map_err(|e| WireError::Control {
         channel,
         error: e.to_string(),
-    })?;
-    Ok((header, message))
+    })
 }
 
 #[cfg(test)]

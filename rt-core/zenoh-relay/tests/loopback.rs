@@ -73,6 +73,18 @@ fn tmp_dir(tag: &str) -> PathBuf {
     d
 }
 
+/// Who a third Zenoh peer is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Third {
+    /// Neither the link credential nor a host key: Zenoh straight to the relay's address.
+    Stranger,
+    /// The link credential (Zenoh's `usrpwd`) but no host key: Zenoh straight to the address.
+    CredentialOnly,
+    /// Through the gate with the learner host's key, and the credential: what a process on
+    /// the learner host (or a stream injected into the link) could send.
+    LearnerHost,
+}
+
 /// One link under test: its name, port, both hosts' service prefixes, status files and
 /// keys (made with `keygen`, as a user would).
 struct Link {
@@ -115,21 +127,36 @@ impl Link {
         LinkKeys::load(Some(&self.lrn_keys), Side::Learner).unwrap()
     }
 
-    /// A Zenoh session of a third peer connecting to the controller relay: with the link
-    /// credential (`usrpwd`) or without.
-    fn third_peer(&self, with_credential: bool) -> zenoh::Session {
+    /// Where a third peer that passes the gate as the learner host (with its key) reaches
+    /// the controller relay: a gate dialer's loopback port (kept for the rest of the test
+    /// process; tests are short).
+    fn through_gate(&self) -> String {
+        let dialer = zenoh_relay::gate::Dialer::open(
+            format!("127.0.0.1:{}", self.port),
+            zenoh_relay::gate::GateKey::of(&self.learner_keys(), &self.name),
+            std::sync::Arc::new(|_, _| {}),
+        )
+        .unwrap();
+        let local = dialer.local_addr();
+        std::mem::forget(dialer);
+        format!("tcp/{local}")
+    }
+
+    /// A Zenoh session of a third peer connecting to the controller relay.
+    fn third_peer(&self, who: Third) -> zenoh::Session {
         let mut config = zenoh::Config::default();
+        let endpoint = match who {
+            Third::LearnerHost => self.through_gate(),
+            Third::Stranger | Third::CredentialOnly => format!("tcp/127.0.0.1:{}", self.port),
+        };
         config
-            .insert_json5(
-                "connect/endpoints",
-                &format!("[\"tcp/127.0.0.1:{}\"]", self.port),
-            )
+            .insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
             .unwrap();
         config.insert_json5("listen/endpoints", "[]").unwrap();
         config
             .insert_json5("scouting/multicast/enabled", "false")
             .unwrap();
-        if with_credential {
+        if who != Third::Stranger {
             let k = self.learner_keys();
             zenoh_relay::link::set_usrpwd(&mut config, &k.user, &k.password, &k.credential_file)
                 .unwrap();
@@ -203,6 +230,16 @@ fn wait_for<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) 
 
 fn status(path: &Path) -> RelayStatus {
     RelayStatus::read(path).unwrap_or_default()
+}
+
+/// The status file's count of connections refused by the gate for `reason` (read from the
+/// file's JSON, as the launcher reads it).
+fn refused_connections(path: &Path, reason: &str) -> u64 {
+    std::fs::read_to_string(path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|v| v["refused_connections"][reason].as_u64())
+        .unwrap_or(0)
 }
 
 fn request(id: u64) -> RetrainRequest {
@@ -387,7 +424,7 @@ fn messages_of_another_schema_or_malformed_ones_are_refused_counted_and_not_forw
 
     // A mismatched peer with the credential and the learner host's key (another build, a
     // bug there), straight on Zenoh.
-    let session = link.third_peer(true);
+    let session = link.third_peer(Third::LearnerHost);
     assert_eq!(peers_after(&session, Duration::from_secs(20)), 1);
     let signer = Signer::new(link.learner_keys().signing, name);
     let key = |c: Channel| link.key(c);
@@ -605,26 +642,36 @@ fn a_third_peer_without_the_credential_gets_no_session_and_one_without_the_key_i
         ]
     };
 
-    // 1. No credential: Zenoh's usrpwd refuses the session; nothing it puts arrives.
-    let outsider = link.third_peer(false);
-    assert_eq!(
-        peers_after(&outsider, Duration::from_secs(3)),
-        0,
-        "a peer without the link credential got a session"
-    );
-    for _ in 0..10 {
-        for (k, m) in forged(now_seq()) {
-            outsider.put(k, m).wait().unwrap();
+    // 1. No credential, no key, and 1b. the link credential alone: the gate refuses the
+    //    connection (no host key), so there is no session; nothing they put arrives.
+    for who in [Third::Stranger, Third::CredentialOnly] {
+        let outsider = link.third_peer(who);
+        assert_eq!(
+            peers_after(&outsider, Duration::from_secs(3)),
+            0,
+            "{who:?} got a session"
+        );
+        for _ in 0..10 {
+            for (k, m) in forged(now_seq()) {
+                outsider.put(k, m).wait().unwrap();
+            }
+            std::thread::sleep(Duration::from_millis(100));
         }
-        std::thread::sleep(Duration::from_millis(100));
+        let st = status(&link.ctl_status);
+        assert!(st.rejected.is_empty(), "{st:?}");
+        assert!(st.received.is_empty(), "{st:?}");
+        let _ = outsider.close().wait();
     }
-    let st = status(&link.ctl_status);
-    assert!(st.rejected.is_empty(), "{st:?}");
-    assert!(st.received.is_empty(), "{st:?}");
-    let _ = outsider.close().wait();
+    wait_for("the gate's refusals", Duration::from_secs(10), || {
+        (refused_connections(&link.ctl_status, "connector_unauthenticated")
+            + refused_connections(&link.ctl_status, "handshake_timeout")
+            >= 2)
+            .then_some(())
+    });
 
-    // 2. The credential but not the learner host's key: every message refused and counted.
-    let insider = link.third_peer(true);
+    // 2. Through the gate (the learner host's key) but the messages signed by another key (a
+    //    stream injected into the link): every message refused and counted.
+    let insider = link.third_peer(Third::LearnerHost);
     assert_eq!(peers_after(&insider, Duration::from_secs(20)), 1);
     let st = put_until(
         &insider,
@@ -667,7 +714,7 @@ fn a_replayed_or_older_policy_is_refused_also_after_the_robot_side_restarts() {
     let bound = RequestRef::of(&r);
     // The test is the learner host here: its key, its credential.
     let signer = Signer::new(link.learner_keys().signing, &link.name);
-    let peer = link.third_peer(true);
+    let peer = link.third_peer(Third::LearnerHost);
     assert_eq!(peers_after(&peer, Duration::from_secs(20)), 1);
     let seq = now_seq();
     let recorded = signed_policy(&signer, 42, bound, seq);
@@ -705,7 +752,7 @@ fn a_replayed_or_older_policy_is_refused_also_after_the_robot_side_restarts() {
     std::fs::remove_file(&link.ctl_status).unwrap();
     ctl = link.controller();
     rt.request(&link, r);
-    let peer = link.third_peer(true);
+    let peer = link.third_peer(Third::LearnerHost);
     assert_eq!(peers_after(&peer, Duration::from_secs(20)), 1);
     put_until(
         &peer,
@@ -741,7 +788,7 @@ fn a_late_infeasible_answer_to_an_earlier_request_cannot_end_the_request_in_flig
     r.request_time_ns = 5_000;
     rt.request(&link, r);
     let signer = Signer::new(link.learner_keys().signing, &link.name);
-    let peer = link.third_peer(true);
+    let peer = link.third_peer(Third::LearnerHost);
     assert_eq!(peers_after(&peer, Duration::from_secs(20)), 1);
     let key = link.key(Channel::RetrainProgress);
     let late = wire::encode_message(
@@ -799,12 +846,13 @@ fn a_flood_is_dropped_and_counted_and_a_real_policy_still_gets_through() {
         || req_sub.receive().unwrap().map(|_| ()),
     );
 
-    // A peer with the credential (not the key) floods: small forged progress as fast as it
-    // can, oversize messages on the policy key, garbage hellos.
+    // A peer through the gate whose messages are not signed by the learner host's key floods:
+    // small forged progress as fast as it can, oversize messages on the policy key, garbage
+    // hellos.
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let flooder = {
         let stop = std::sync::Arc::clone(&stop);
-        let session = link.third_peer(true);
+        let session = link.third_peer(Third::LearnerHost);
         assert_eq!(peers_after(&session, Duration::from_secs(20)), 1);
         let (pk, polk, hk) = (
             link.key(Channel::RetrainProgress),
@@ -837,9 +885,11 @@ fn a_flood_is_dropped_and_counted_and_a_real_policy_still_gets_through() {
             let _ = session.close().wait();
         })
     };
+    // Forged messages are refused before they may wait in a queue (`bad_signature`, not
+    // `flood`).
     wait_for("the flood to be counted", Duration::from_secs(20), || {
         let st = status(&link.ctl_status);
-        (st.rejected.get("flood") >= Some(&1) && st.rejected.get("oversize") >= Some(&1))
+        (st.rejected.get("bad_signature") >= Some(&1) && st.rejected.get("oversize") >= Some(&1))
             .then_some(())
     });
     // During the flood, the learner host publishes a policy: it reaches rt-core.
@@ -865,8 +915,265 @@ fn a_flood_is_dropped_and_counted_and_a_real_policy_still_gets_through() {
     );
     assert!(!st.received.contains_key("retrain_progress"), "{st:?}");
     assert!(
+        !st.rejected.contains_key("flood"),
+        "a forged message took a queue place: {st:?}"
+    );
+    assert!(
         rt.prog_sub.receive().unwrap().is_none(),
         "forged progress forwarded"
     );
     assert!(st.requests[0].answered_unix_s.is_none(), "{st:?}");
+}
+
+// ---- Issue 30 item 6: link availability. ----
+
+/// A Zenoh session listening on the address the learner relay dials, holding the link
+/// credential (`keys`' `usrpwd`) but not the robot PC's key: a holder of the credential
+/// standing in for the robot PC.
+fn rogue_listener(port: u16, keys: &LinkKeys) -> zenoh::Session {
+    let mut config = zenoh::Config::default();
+    zenoh_relay::link::set_usrpwd(
+        &mut config,
+        &keys.user,
+        &keys.password,
+        &keys.credential_file,
+    )
+    .unwrap();
+    config
+        .insert_json5("listen/endpoints", &format!("[\"tcp/127.0.0.1:{port}\"]"))
+        .unwrap();
+    config.insert_json5("connect/endpoints", "[]").unwrap();
+    config
+        .insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    zenoh::open(config).wait().unwrap()
+}
+
+#[test]
+fn a_flood_of_forged_policies_does_not_keep_the_real_policy_out() {
+    let link = Link::new("polflood");
+    let _ctl = link.controller();
+    let _lrn = link.learner(&[]);
+    let rt = RobotSide::open(&link, "relay-test-polflood");
+    let (node, _) = services::create_node::<ipc::Service>("relay-test-polflood-l").unwrap();
+    let req_sub = services::open_subscriber::<RetrainRequest, _>(&node, &link.pl).unwrap();
+    let pol_pub = services::open_publisher::<PolicyBlob, _>(&node, &link.pl).unwrap();
+    link.wait_connected();
+    let r = request(1);
+    rt.request(&link, r);
+    wait_for(
+        "the request on the learner host",
+        Duration::from_secs(20),
+        || req_sub.receive().unwrap().map(|_| ()),
+    );
+
+    // A peer that got through the gate (as the learner host; a stream injected into the link
+    // could do the same) floods the policy key: full-size policies for the request in flight
+    // signed by a stranger, and short garbage, from three threads, as fast as Zenoh takes
+    // them. Before the fix each took one of the 4 policy places before its signature was
+    // looked at.
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let sent = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let session = std::sync::Arc::new(link.third_peer(Third::LearnerHost));
+    assert_eq!(peers_after(&session, Duration::from_secs(20)), 1);
+    let stranger = Signer::new(
+        ed25519_dalek::SigningKey::from_bytes(&[0x44; 32]),
+        &link.name,
+    );
+    let forged = signed_policy(&stranger, 666, RequestRef::of(&r), now_seq());
+    let garbage = vec![0x5au8; 200];
+    let flooders: Vec<_> = [forged, garbage.clone(), garbage]
+        .into_iter()
+        .map(|m| {
+            let (stop, sent, session) = (
+                std::sync::Arc::clone(&stop),
+                std::sync::Arc::clone(&sent),
+                std::sync::Arc::clone(&session),
+            );
+            let key = link.key(Channel::Policy);
+            std::thread::spawn(move || {
+                let deadline = Instant::now() + Duration::from_secs(60);
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) && Instant::now() < deadline
+                {
+                    session
+                        .put(&key, m.clone())
+                        .congestion_control(zenoh::qos::CongestionControl::Block)
+                        .wait()
+                        .unwrap();
+                    sent.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+            })
+        })
+        .collect();
+    wait_for(
+        "the forged policies refused",
+        Duration::from_secs(20),
+        || {
+            let st = status(&link.ctl_status);
+            (st.rejected.get("bad_signature") >= Some(&1)
+                && st.rejected.get("malformed") >= Some(&1))
+            .then_some(())
+        },
+    );
+    let flood_start = Instant::now();
+    // During the flood the learner host publishes its policy: it reaches rt-core.
+    let b = blob(42);
+    let mut s = loan_zeroed(&pol_pub).unwrap();
+    s.payload_mut().copy_from(&b);
+    s.send().unwrap();
+    let got = wait_for(
+        "the real policy during a flood of forged ones",
+        Duration::from_secs(20),
+        || rt.pol_sub.receive().unwrap().map(|s| s.payload().policy_id),
+    );
+    let flood_s = flood_start.elapsed().as_secs_f64();
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    for f in flooders {
+        f.join().unwrap();
+    }
+    let st = status(&link.ctl_status);
+    println!(
+        "policy flood: {} forged or garbage policies put; the real one arrived {flood_s:.1} s after it was published; refused {:?}, received {:?}",
+        sent.load(std::sync::atomic::Ordering::Relaxed),
+        st.rejected,
+        st.received
+    );
+    assert_eq!(got, 42, "a forged policy reached rt-core");
+    if let Some(s) = rt.pol_sub.receive().unwrap() {
+        panic!("another policy reached rt-core: {}", s.payload().policy_id);
+    }
+    // Nothing forged took one of the policy queue's places: no message (the real policy's
+    // sends included) was turned away for a full queue.
+    assert!(
+        !st.rejected.contains_key("flood"),
+        "forged or garbage policies took the policy queue's places and turned real messages away: {:?}",
+        st.rejected
+    );
+}
+
+#[test]
+fn idle_plain_tcp_connections_to_the_listener_do_not_keep_the_real_peer_out() {
+    const IDLE: usize = 40;
+    let link = Link::new("idle");
+    let _ctl = link.controller();
+    wait_for("the relay's status file", Duration::from_secs(20), || {
+        link.ctl_status.exists().then_some(())
+    });
+    // Plain TCP sockets that never speak, each opened again as soon as the listener closes it.
+    let addr = std::net::SocketAddr::from(([127, 0, 0, 1], link.port));
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let (opened_tx, opened_rx) = std::sync::mpsc::channel::<()>();
+    let holder = {
+        let stop = std::sync::Arc::clone(&stop);
+        std::thread::spawn(move || {
+            let open = || {
+                let s = std::net::TcpStream::connect(addr).unwrap();
+                s.set_nonblocking(true).unwrap();
+                s
+            };
+            let mut sockets: Vec<_> = (0..IDLE).map(|_| open()).collect();
+            opened_tx.send(()).unwrap();
+            let mut closed_by_listener = 0u64;
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                for s in &mut sockets {
+                    let mut b = [0u8; 64];
+                    match std::io::Read::read(s, &mut b) {
+                        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+                        _ => {
+                            closed_by_listener += 1;
+                            *s = open();
+                        }
+                    }
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            closed_by_listener
+        })
+    };
+    opened_rx.recv_timeout(Duration::from_secs(20)).unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+    let started = Instant::now();
+    let _lrn = link.learner(&[]);
+    let connected = Instant::now() + Duration::from_secs(20);
+    let mut seen = false;
+    while !seen && Instant::now() < connected {
+        seen = status(&link.ctl_status).peer.is_some_and(|p| p.connected);
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let closed = holder.join().unwrap();
+    println!(
+        "{IDLE} idle TCP connections held open: the real peer {} after {:.1} s; the listener closed {closed} idle connections",
+        if seen {
+            "connected"
+        } else {
+            "had not connected"
+        },
+        started.elapsed().as_secs_f64()
+    );
+    assert!(
+        seen,
+        "{IDLE} idle plain TCP connections kept the real peer out for 20 s"
+    );
+}
+
+#[test]
+fn a_peer_with_the_wrong_key_is_refused_on_both_sides() {
+    // 1. The connecting side: a holder of the link credential, without the robot PC's key,
+    //    listens where the learner relay dials. The learner relay must not open a session
+    //    with it (it would hand it the retrain requests' answers and take its traffic).
+    let link = Link::new("wrongkey");
+    let rogue = rogue_listener(link.port, &link.learner_keys());
+    let lrn = link.learner(&[]);
+    let n = peers_after(&rogue, Duration::from_secs(10));
+    assert_eq!(
+        n, 0,
+        "the learner relay opened a session with a listener that does not hold the robot PC's key"
+    );
+    wait_for(
+        "the learner relay's refusal of the listener",
+        Duration::from_secs(20),
+        || {
+            (refused_connections(&link.lrn_status, "listener_unauthenticated")
+                + refused_connections(&link.lrn_status, "listener_no_handshake")
+                >= 1)
+                .then_some(())
+        },
+    );
+    drop(lrn);
+    let _ = rogue.close().wait();
+
+    // 2. Both real relays, but the learner host's folder is of another `keygen`: each side
+    //    refuses the other, and neither sees a peer.
+    let other = link.dir.join("other-keys");
+    let out = Command::new(env!("CARGO_BIN_EXE_zenoh-relay"))
+        .arg("keygen")
+        .arg("--out")
+        .arg(&other)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "keygen: {out:?}");
+    std::fs::remove_file(&link.lrn_status).ok();
+    let _ctl = link.controller();
+    let wrong_status = link.dir.join("wrong-learner.json");
+    let _wrong = relay(
+        "learner",
+        &link.pl,
+        &["--peer".into(), format!("tcp/127.0.0.1:{}", link.port)],
+        &wrong_status,
+        &link.name,
+        &other.join("learner-host"),
+    );
+    let (ctl, lrn) = wait_for("both sides' refusals", Duration::from_secs(20), || {
+        let (c, l) = (status(&link.ctl_status), status(&wrong_status));
+        (refused_connections(&link.ctl_status, "connector_unauthenticated") >= 1
+            && refused_connections(&wrong_status, "listener_unauthenticated") >= 1)
+            .then_some((c, l))
+    });
+    println!(
+        "wrong keys: the controller refused {:?}; the learner refused {:?}",
+        ctl.last_connection_refusal, lrn.last_connection_refusal
+    );
+    assert!(ctl.peer.is_none(), "{ctl:?}");
+    assert!(lrn.peer.is_none(), "{lrn:?}");
 }
