@@ -83,6 +83,15 @@ fn the_arm_pauses_for_the_box_and_reaches_the_goal(test: &str, world: &str) {
     let kinds: Vec<&str> = events.iter().map(|(k, _)| k.as_str()).collect();
     assert_eq!(code, 0, "foresight exit code; summary: {s}");
     assert_eq!(s["referee"]["contacts_while_moving"], 0, "{s}");
+    // The launcher's own separation curve (the datasheet arm against the true boxes) agrees:
+    // the arm never touched a box, moving or at rest, and the report plots it.
+    for key in ["min_separation_moving_m", "min_separation_at_rest_m"] {
+        assert!(
+            s[key].as_f64().is_some_and(|d| d > 0.0),
+            "{key} missing or not positive: {s}"
+        );
+    }
+    assert!(run.join("separation.png").is_file(), "no separation.png");
     assert_eq!(s["referee"]["contacts"], 0, "{s}");
     assert_eq!(s["collisions"], 0, "{s}");
     assert_eq!(s["goal_reached"], true, "{s}");

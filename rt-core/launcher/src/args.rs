@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use shm_schemas::cli_bounds::{f64_within, int_within};
 use xarm::config::{LoopbackCheckError, XArmConfig};
+use xarm::sim_identity::{SIM_SECRET_ENV, SimSecret};
 use zenoh_relay::link::{LinkArgs, LinkError};
 
 /// Command line of `foresight`.
@@ -26,10 +27,16 @@ pub struct LaunchArgs {
     /// Robot model.
     #[arg(long, default_value = "assets/xarm5.urdf")]
     pub urdf: PathBuf,
-    /// Pre-trained policy checkpoint the learner resumes from.
-    #[arg(long, default_value = "assets/policy")]
+    /// Pre-trained policy checkpoint the controller starts with and the learner resumes
+    /// from. The default is the best generalist measured on worlds its training never saw
+    /// (the distilled one, docs/unseen-worlds.md); the research system's PPO generalist is
+    /// `assets/policy` (with `--world assets/scenes/paper_world.toml`: the paper's demo).
+    #[arg(long, default_value = "assets/policy-distilled")]
     pub checkpoint: PathBuf,
-    /// Drive a real xArm5 at this address instead of starting `xarm-sim`.
+    /// Drive a real xArm5 at this address instead of starting `xarm-sim`. Whatever the
+    /// address, the arm there is a real arm unless it proves it is xarm-sim holding the
+    /// secret in FORESIGHT_SIM_SECRET (only then, and only on loopback, are blind mode, the
+    /// synthetic camera and the bundled calibration allowed).
     #[arg(long)]
     pub robot: Option<String>,
     /// Camera source for perception (`synthetic` plays the world; `ros2`; `file:PATH`).
@@ -52,7 +59,8 @@ pub struct LaunchArgs {
     /// policy without the lookahead gate and without the shield's clearance to the boxes
     /// (the table clearance and every limit still hold). Refused, before any process
     /// starts, with a `--robot` that is not (or does not resolve only to) a loopback
-    /// address (127.0.0.0/8, ::1, localhost).
+    /// address (127.0.0.0/8, ::1, localhost), or one that does not prove it is xarm-sim
+    /// holding FORESIGHT_SIM_SECRET.
     #[arg(long)]
     pub no_lookahead: bool,
     /// Planner fallback: when no policy passes the lookahead, rt-core moves the arm along
@@ -108,7 +116,7 @@ pub struct LaunchArgs {
     /// The learner runs on another host (a GPU box): start no learner here, but the
     /// controller side of `zenoh-relay`, which carries retrain requests there and policies
     /// back over Zenoh. The other host runs `zenoh-relay learner-host --listen
-    /// tcp/0.0.0.0:7447` (README, "Two hosts"). Needs `--peer`, `--listen` or `--scout`.
+    /// tcp/0.0.0.0:7447` (docs/components.md, "Two hosts"). Needs `--peer` or `--listen`.
     #[arg(long)]
     pub learner_host: bool,
     /// Where the relay connects / listens (with `--learner-host`).
@@ -119,8 +127,8 @@ pub struct LaunchArgs {
 /// The host-to-host flags are inconsistent.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum LearnerHostError {
-    /// `--peer`, `--listen` or `--scout` without `--learner-host`.
-    #[error("--peer, --listen and --scout only mean something with --learner-host")]
+    /// `--peer` or `--listen` without `--learner-host`.
+    #[error("--peer and --listen only mean something with --learner-host")]
     LinkWithoutLearnerHost,
     /// The link settings are refused.
     #[error("--learner-host: {0}")]
@@ -213,6 +221,25 @@ pub struct RealArmSensorsRefused {
 /// live camera. The synthetic camera plays the world script; `file:` plays a recording.
 pub const REAL_CAMERA_SOURCES: [&str; 1] = ["ros2"];
 
+/// A `--robot` on loopback asked for simulation-only rights and has not proven it is
+/// `xarm-sim` holding the run's secret ([`xarm::sim_identity`]): it is a real arm (a
+/// loopback forward, `ssh -L` or `socat`, reaches real arms too).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "--robot {addr} has not proven it is xarm-sim ({why}): it is treated as a real arm, and a \
+     real arm is not driven {asks}. Give --camera ros2 and --calibration FILE and leave out \
+     --no-lookahead, or start that xarm-sim with {SIM_SECRET_ENV} and give foresight the \
+     same (no process was started)"
+)]
+pub struct SimIdentityRefused {
+    /// The `--robot` address as given.
+    pub addr: String,
+    /// Why it has not proven it, in words.
+    pub why: String,
+    /// The simulation-only things asked for, in words.
+    pub asks: String,
+}
+
 impl LaunchArgs {
     /// The assets folder: the folder of `--task` (rt-core gets it as `--assets` too).
     pub fn assets_dir(&self) -> PathBuf {
@@ -231,7 +258,7 @@ impl LaunchArgs {
             // The robot PC's keys (`--link-keys`) are loaded here so that a missing or
             // unusable key file is named before anything starts.
             self.link.load_keys(zenoh_relay::wire::Side::Controller)?;
-        } else if !self.link.peers.is_empty() || !self.link.listen.is_empty() || self.link.scout {
+        } else if !self.link.peers.is_empty() || !self.link.listen.is_empty() {
             return Err(LearnerHostError::LinkWithoutLearnerHost);
         }
         Ok(())
@@ -242,7 +269,8 @@ impl LaunchArgs {
     /// ([`REAL_CAMERA_SOURCES`]) and `--calibration` a file given explicitly (never the
     /// bundled one), unless `--dry-run` (nothing that moves the arm is sent; every report
     /// line then says the data are synthetic, [`Self::synthetic_data_note`]). Decided from
-    /// the address alone, before any process starts.
+    /// the address alone, before any process starts; a loopback address must then still
+    /// prove it is `xarm-sim` ([`Self::check_sim_identity`]).
     ///
     /// # Errors
     /// [`RealArmSensorsRefused`] naming `--camera`, `--calibration` and the address.
@@ -273,6 +301,72 @@ impl LaunchArgs {
         })
     }
 
+    /// Whether perception runs on simulated sensors: the synthetic camera or a recording
+    /// (not a live camera), or the bundled calibration (no `--calibration`).
+    pub fn simulated_sensors(&self) -> bool {
+        !REAL_CAMERA_SOURCES.contains(&self.camera.as_str()) || self.calibration.is_none()
+    }
+
+    /// What this run asks of a `--robot` that only `xarm-sim` may be given, in words: blind
+    /// mode, and — unless `--dry-run`, which sends nothing that moves the arm — a camera
+    /// that is not live and the bundled calibration. Empty: a real arm may be driven so.
+    pub fn simulation_only_asks(&self) -> Vec<String> {
+        let mut asks = Vec::new();
+        if self.no_lookahead {
+            asks.push("blind (--no-lookahead)".to_owned());
+        }
+        if !self.dry_run {
+            if !REAL_CAMERA_SOURCES.contains(&self.camera.as_str()) {
+                asks.push(format!("from the {} camera (--camera {0})", self.camera));
+            }
+            if self.calibration.is_none() {
+                asks.push("with the bundled calibration (no --calibration)".to_owned());
+            }
+        }
+        asks
+    }
+
+    /// Simulation rights by identity, not address: a `--robot` that is asked for anything
+    /// only `xarm-sim` may have ([`Self::simulation_only_asks`]) must prove it is `xarm-sim`
+    /// holding the secret in `FORESIGHT_SIM_SECRET`, asked over the xArm protocol before
+    /// any process starts ([`xarm::sim_identity::ask`]: `GET_VERSION` and the challenge on
+    /// the command port, nothing else). Call it after [`Self::check_blind_mode`] and
+    /// [`Self::check_real_arm_sensors`], which refuse an address off this machine without
+    /// connecting. Returns the secret to give rt-core (`None`: no `--robot`, the launcher's
+    /// own `xarm-sim` gets a fresh one; or nothing simulation-only was asked for).
+    ///
+    /// # Errors
+    /// [`SimIdentityRefused`] naming the address, why and what was asked for.
+    pub fn check_sim_identity(&self) -> Result<Option<SimSecret>, SimIdentityRefused> {
+        let Some(addr) = &self.robot else {
+            return Ok(None);
+        };
+        let asks = self.simulation_only_asks();
+        if asks.is_empty() {
+            return Ok(None);
+        }
+        let refused = |why: String| SimIdentityRefused {
+            addr: addr.clone(),
+            why,
+            asks: asks.join(", "),
+        };
+        let cfg = XArmConfig::from_addr(addr);
+        if let Err(reason) = cfg.check_loopback_only() {
+            return Err(refused(format!("{reason}; no connection was attempted")));
+        }
+        let secret = match SimSecret::from_env() {
+            Ok(Some(s)) => s,
+            Ok(None) => {
+                return Err(refused(format!(
+                    "no simulator secret in {SIM_SECRET_ENV}; no connection was attempted"
+                )));
+            }
+            Err(e) => return Err(refused(format!("{e}; no connection was attempted"))),
+        };
+        xarm::sim_identity::ask(&cfg, &secret).map_err(|e| refused(e.to_string()))?;
+        Ok(Some(secret))
+    }
+
     /// In a dry run on synthetic data (the synthetic camera or a recording, or no explicit
     /// calibration) the words every report line carries; `None` otherwise.
     pub fn synthetic_data_note(&self) -> Option<&'static str> {
@@ -284,7 +378,9 @@ impl LaunchArgs {
 
     /// Blind mode never reaches a real arm: with `--no-lookahead`, a `--robot` address must
     /// be, or resolve only to, loopback addresses (decided from the address alone, nothing
-    /// is sent to it). Without `--robot` the launcher's own `xarm-sim` on 127.0.0.1 is used.
+    /// is sent to it; a loopback one must then prove it is `xarm-sim`,
+    /// [`Self::check_sim_identity`]). Without `--robot` the launcher's own `xarm-sim` on
+    /// 127.0.0.1 is used, with this run's secret.
     ///
     /// # Errors
     /// [`BlindModeRefused`] naming the address and why.
@@ -453,6 +549,58 @@ mod tests {
                     .to_string();
                 assert!(e.contains(flag), "{flag} {bad}: {e}");
             }
+        }
+    }
+
+    /// Issue 30 item 1: what only `xarm-sim` may be given, and the refusals decided before
+    /// any connection (the proof itself: `tests/tests/sim_identity.rs`).
+    #[test]
+    fn simulation_rights_go_by_identity_not_address() {
+        let synthetic = [
+            "from the synthetic camera (--camera synthetic)",
+            "with the bundled calibration (no --calibration)",
+        ];
+        assert_eq!(
+            args(&["--robot", "127.0.0.1:5020"]).simulation_only_asks(),
+            synthetic
+        );
+        assert_eq!(
+            args(&["--robot", "127.0.0.1:5020", "--no-lookahead", "--dry-run"])
+                .simulation_only_asks(),
+            ["blind (--no-lookahead)"]
+        );
+        let real = ["--camera", "ros2", "--calibration", "cal.toml"];
+        for ok in [
+            args(&[]),
+            args(&["--no-lookahead"]),
+            args(&["--robot", "127.0.0.1:5020", "--dry-run"]),
+            args(&[&["--robot", "127.0.0.1:5020"][..], &real[..]].concat()),
+        ] {
+            // No --robot (the launcher's own xarm-sim gets a fresh secret), or nothing
+            // simulation-only asked: no secret needed, nothing is asked of the arm.
+            assert_eq!(ok.check_sim_identity(), Ok(None), "{ok:?}");
+        }
+        assert!(args(&["--robot", "127.0.0.1:5020"]).simulated_sensors());
+        assert!(!args(&real).simulated_sensors());
+        let e = args(&["--robot", "10.0.0.2", "--no-lookahead"])
+            .check_sim_identity()
+            .expect_err("off loopback");
+        assert!(e.to_string().contains("no connection was attempted"), "{e}");
+        if std::env::var_os(SIM_SECRET_ENV).is_none() {
+            let e = args(&["--robot", "127.0.0.1:5020", "--no-lookahead"])
+                .check_sim_identity()
+                .expect_err("no secret");
+            let m = e.to_string();
+            assert!(
+                m.starts_with("--robot 127.0.0.1:5020 has not proven it is xarm-sim")
+                    && m.contains("no simulator secret in FORESIGHT_SIM_SECRET")
+                    && m.contains("treated as a real arm")
+                    && m.contains("blind (--no-lookahead)")
+                    && m.contains(synthetic[0])
+                    && m.contains(synthetic[1])
+                    && m.contains("no process was started"),
+                "{m}"
+            );
         }
     }
 

@@ -30,6 +30,8 @@ use crate::supervisor::{ProcessEvent, Supervisor};
 pub fn run_all(args: &LaunchArgs) -> Result<bool> {
     args.check_blind_mode()?;
     args.check_real_arm_sensors()?;
+    args.check_sim_identity()?;
+    processes::check_camera_calibration(&args.camera, args.calibration.as_deref())?;
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(sig, stop.clone()).context("installing the signal handler")?;
@@ -589,6 +591,17 @@ fn write_report(
         ("TCP path, top view", "tcp_path_top.png"),
         ("TCP path, side view", "tcp_path_side.png"),
     ];
+    if !director.separation().samples().is_empty() {
+        crate::separation::plot_separation(
+            &run.path.join("separation.png"),
+            director.separation().samples(),
+            &director.world_changes_s(),
+        )?;
+        images.push((
+            "Separation of the arm from the boxes over time",
+            "separation.png",
+        ));
+    }
     let mut curves = Vec::new();
     if let Some(csv) = find_csv(&args.checkpoint)
         && let Ok(c) = report::read_reward_curve(&csv)

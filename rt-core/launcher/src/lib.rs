@@ -22,6 +22,7 @@ pub mod report;
 pub mod run_dir;
 pub mod runtime_view;
 pub mod scenario;
+pub mod separation;
 pub mod sim_link;
 pub mod supervisor;
 pub mod worlds;

@@ -2,16 +2,25 @@
 //! robot is given), `perception`, `learner serve`, `rt-core run` and, with `--ros`, the
 //! `ros-bridge`, all under the run's unique service prefix and supervised by
 //! [`Supervisor`].
+//!
+//! Simulation rights go by identity ([`xarm::sim_identity`]): for each run the launcher
+//! draws a fresh 32-byte secret and gives it to the `xarm-sim` it starts and to rt-core in
+//! their environment (`FORESIGHT_SIM_SECRET`; never on a command line, which every user can
+//! read in `/proc`); rt-core grants blind mode, auto-resume and the simulated sensors only
+//! to a controller that proves it holds it. With `--robot`, the secret is the operator's
+//! (`FORESIGHT_SIM_SECRET` of `foresight`, [`LaunchArgs::check_sim_identity`]), and only
+//! asked for when the run needs simulation-only rights.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use crate::args::{DetectorChoice, LaunchArgs};
+use crate::args::{DetectorChoice, LaunchArgs, REAL_CAMERA_SOURCES};
 use crate::run_dir::RunDir;
 use crate::sim_link::{SimPortsSeen, read_sim_ports, sim_status};
 use crate::supervisor::{ProcessSpec, Supervisor};
+use xarm::sim_identity::{SIM_SECRET_ENV, SimSecret};
 
 /// What was started.
 #[derive(Debug, Clone, Copy)]
@@ -43,7 +52,10 @@ pub const RT_CORE_PRIORITY: i32 = 80;
 /// # Errors
 /// Blind mode with a robot off this machine ([`LaunchArgs::check_blind_mode`]), a robot
 /// off this machine without a live camera and an explicit calibration
-/// ([`LaunchArgs::check_real_arm_sensors`]; nothing is started either), a process cannot be started, or `xarm-sim` does not come up within 15 s.
+/// ([`LaunchArgs::check_real_arm_sensors`]; nothing is started either), a `--robot` asked
+/// for simulation-only rights that does not prove it is `xarm-sim`
+/// ([`LaunchArgs::check_sim_identity`]; nothing is started), a process cannot be started, or
+/// `xarm-sim` does not come up within 15 s.
 pub fn start_all(
     sup: &mut Supervisor,
     args: &LaunchArgs,
@@ -53,16 +65,23 @@ pub fn start_all(
 ) -> Result<Started> {
     args.check_blind_mode()?;
     args.check_real_arm_sensors()?;
+    let robot_secret = args.check_sim_identity()?;
     args.check_learner_host()?;
     // Before anything starts: a `--detector yolo` without its model is refused here, not
     // discovered as a perception process that keeps failing.
     let perception = perception_args(args, prefix, live)?;
     let bins = bin_dir()?;
-    let (robot_addr, sim) = match &args.robot {
-        Some(host) => (host.clone(), None),
+    let (robot_addr, sim, secret) = match &args.robot {
+        Some(host) => (host.clone(), None, robot_secret),
         None => {
-            let ports = start_sim(sup, &bins, args, run, live)?;
-            (format!("127.0.0.1:{}", ports.command), Some(ports))
+            // This run's secret: only the xarm-sim started here and rt-core hold it.
+            let secret = SimSecret::generate().context("drawing the simulator's secret")?;
+            let ports = start_sim(sup, &bins, args, run, live, &secret)?;
+            (
+                format!("127.0.0.1:{}", ports.command),
+                Some(ports),
+                Some(secret),
+            )
         }
     };
     sup.start(ProcessSpec {
@@ -77,7 +96,16 @@ pub fn start_all(
     } else {
         start_learner(sup, &bins, args, run, prefix)?;
     }
-    start_rt_core(sup, &bins, args, run, prefix, robot_addr, sim)?;
+    start_rt_core(
+        sup,
+        &bins,
+        args,
+        run,
+        prefix,
+        robot_addr,
+        sim,
+        secret.as_ref(),
+    )?;
     if args.ros {
         sup.start(ProcessSpec {
             name: "ros-bridge".into(),
@@ -103,6 +131,7 @@ fn start_sim(
     args: &LaunchArgs,
     run: &RunDir,
     live: &Path,
+    secret: &SimSecret,
 ) -> Result<SimPortsSeen> {
     let mut sim_args: Vec<String> = vec!["--bind".into(), "127.0.0.1".into()];
     for flag in [
@@ -120,7 +149,7 @@ fn start_sim(
         name: "xarm-sim".into(),
         program: bins.join("xarm-sim"),
         args: sim_args,
-        env: vec![],
+        env: vec![(SIM_SECRET_ENV.into(), secret.to_hex())],
         restart: false,
     })?;
     let sim_log = run.path.join("logs/xarm-sim.log");
@@ -145,8 +174,10 @@ fn start_sim(
 /// the one of `--task`, as for rt-core's `--assets`).
 ///
 /// # Errors
-/// `--detector yolo` when that settings file or the model it names is missing.
+/// `--detector yolo` when that settings file or the model it names is missing; a live
+/// camera without a calibration made for a live camera ([`check_camera_calibration`]).
 pub fn perception_args(args: &LaunchArgs, prefix: &str, live: &Path) -> Result<Vec<String>> {
+    check_camera_calibration(&args.camera, args.calibration.as_deref())?;
     let source = if args.camera == "synthetic" {
         format!("synthetic:{}", s(live))
     } else {
@@ -173,6 +204,55 @@ pub fn perception_args(args: &LaunchArgs, prefix: &str, live: &Path) -> Result<V
         }
     }
     Ok(perception_args)
+}
+
+/// The synthetic camera's frame id, as perception's calibration files name it
+/// (`perception::synthetic::SYNTHETIC_CAMERA_FRAME_ID`; the launcher does not link
+/// perception, a test ties the two through the bundled calibration).
+const SYNTHETIC_CAMERA_FRAME_ID: &str = "foresight_synthetic_camera";
+
+/// A live camera (`--camera ros2`) is measured only with a calibration made for a live
+/// camera (issue 30 item 2): `--calibration` must be given, and its `[camera] frame_id` must
+/// be there and not the synthetic camera's (the bundled calibration). Refused here, before
+/// anything starts; perception checks the same at its start, and checks each image's
+/// `header.frame_id` against the file's. [`crate::launch::run_all`] calls it before any run
+/// folder is made; [`perception_args`] again.
+///
+/// # Errors
+/// Naming `--calibration` and why.
+pub fn check_camera_calibration(camera: &str, calibration: Option<&Path>) -> Result<()> {
+    if !REAL_CAMERA_SOURCES.contains(&camera) {
+        return Ok(());
+    }
+    let Some(path) = calibration else {
+        bail!(
+            "--camera {camera} needs --calibration FILE: a live camera is measured only with a \
+             calibration made for it (`perception calibrate --frame-id FRAME_ID …`, README \
+             real-arm checklist step 3); the bundled one is the synthetic camera's"
+        );
+    };
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading --calibration {}", path.display()))?;
+    let table: toml::Table = toml::from_str(&text)
+        .with_context(|| format!("--calibration {} is not valid TOML", path.display()))?;
+    let frame_id = table
+        .get("camera")
+        .and_then(|c| c.get("frame_id"))
+        .and_then(toml::Value::as_str);
+    match frame_id {
+        None => bail!(
+            "--calibration {} has no [camera] frame_id: it does not say which camera it was made \
+             for; re-run `perception calibrate --frame-id FRAME_ID …` for this camera",
+            path.display()
+        ),
+        Some(SYNTHETIC_CAMERA_FRAME_ID) => bail!(
+            "--calibration {} was made for the synthetic camera ([camera] frame_id = \
+             {SYNTHETIC_CAMERA_FRAME_ID:?}), not for a live camera: it is refused with --camera \
+             {camera}; calibrate the camera with `perception calibrate --frame-id FRAME_ID …`",
+            path.display()
+        ),
+        Some(_) => Ok(()),
+    }
 }
 
 /// The YOLO settings file exists and the model it names (`model`, relative to the file's
@@ -265,6 +345,7 @@ fn start_relay(
 /// How long the launcher waits for rt-core's controlled stop before SIGKILL.
 pub const RT_CORE_STOP_GRACE: std::time::Duration = std::time::Duration::from_secs(6);
 
+#[allow(clippy::too_many_arguments)]
 fn start_rt_core(
     sup: &mut Supervisor,
     bins: &Path,
@@ -273,6 +354,7 @@ fn start_rt_core(
     prefix: &str,
     robot_addr: String,
     sim: Option<SimPortsSeen>,
+    secret: Option<&SimSecret>,
 ) -> Result<()> {
     let assets = args
         .task
@@ -306,6 +388,12 @@ fn start_rt_core(
     if args.no_lookahead {
         rt_args.push("--no-lookahead".into());
     }
+    // Perception on the synthetic camera, a recording or the bundled calibration: rt-core
+    // drives only a controller that proves it is xarm-sim (a dry run sends nothing that
+    // moves the arm, and may plan on them for a real one).
+    if args.simulated_sensors() && !args.dry_run {
+        rt_args.push("--simulated-sensors".into());
+    }
     // The cycle thread asks for SCHED_FIFO and the machine's last core (issue 33: reaction
     // depends on the cycle being real-time where it runs); where the OS refuses either, rt-core
     // runs on and its summary line (`"rt"`, copied into the run's summary.json) says so.
@@ -334,7 +422,9 @@ fn start_rt_core(
         name: "rt-core".into(),
         program: bins.join("rt-core"),
         args: rt_args,
-        env: vec![],
+        env: secret
+            .map(|s| vec![(SIM_SECRET_ENV.into(), s.to_hex())])
+            .unwrap_or_default(),
         restart: false,
     })?;
     // On every way out of the launcher (the end, an error, Ctrl-C) rt-core is stopped
@@ -358,6 +448,57 @@ mod tests {
             .position(|a| a == flag)
             .and_then(|i| args.get(i + 1))
             .map(String::as_str)
+    }
+
+    /// Issue 30 item 2: `--camera ros2` needs `--calibration`, and not the bundled one (the
+    /// synthetic camera's) nor one that names no camera.
+    #[test]
+    fn a_live_camera_needs_a_calibration_made_for_a_live_camera() {
+        let bundled =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/perception/calibration.toml");
+        check_camera_calibration("synthetic", None).unwrap();
+        check_camera_calibration("synthetic", Some(&bundled)).unwrap();
+        check_camera_calibration("file:rec.mp4", None).unwrap();
+        let e = format!("{:#}", check_camera_calibration("ros2", None).unwrap_err());
+        assert!(e.contains("--camera ros2 needs --calibration FILE"), "{e}");
+        let e = format!(
+            "{:#}",
+            check_camera_calibration("ros2", Some(&bundled)).unwrap_err()
+        );
+        assert!(
+            e.contains("made for the synthetic camera") && e.contains("calibration.toml"),
+            "{e}"
+        );
+        let dir = std::env::temp_dir().join(format!("foresight-cal-cam-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let text = std::fs::read_to_string(&bundled).unwrap();
+        let zed = dir.join("zed.toml");
+        std::fs::write(
+            &zed,
+            text.replace(
+                &format!("frame_id = {SYNTHETIC_CAMERA_FRAME_ID:?}"),
+                "frame_id = \"zed_left_camera_frame_optical\"",
+            ),
+        )
+        .unwrap();
+        check_camera_calibration("ros2", Some(&zed)).unwrap();
+        let old = dir.join("old.toml");
+        std::fs::write(&old, text.replace("[camera]", "[camera_was]")).unwrap();
+        let e = format!(
+            "{:#}",
+            check_camera_calibration("ros2", Some(&old)).unwrap_err()
+        );
+        assert!(
+            e.contains("no [camera] frame_id") && e.contains("old.toml"),
+            "{e}"
+        );
+        let args = launch_args(&["--camera", "ros2"]);
+        let e = format!(
+            "{:#}",
+            perception_args(&args, "p1", Path::new("/live.toml")).unwrap_err()
+        );
+        assert!(e.contains("--calibration FILE"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

@@ -42,6 +42,13 @@ pub struct Summary {
     /// The longest such pause, stop → moving again (s); `None` when no pause ended.
     #[serde(default)]
     pub longest_pause_s: Option<f64>,
+    /// The smallest separation of the arm (the datasheet's, unpadded) from the world's true
+    /// boxes while it moved, m (`separation.png` plots it over time; ≤ 0 is contact).
+    #[serde(default)]
+    pub min_separation_moving_m: Option<f64>,
+    /// The same while the arm was at rest (a box moving into a still arm), m.
+    #[serde(default)]
+    pub min_separation_at_rest_m: Option<f64>,
     /// World change → first detection of the new scene (s).
     pub world_change_to_detection_s: Option<f64>,
     /// World change → first verdict on the new scene (s).
@@ -624,6 +631,14 @@ pub fn write_markdown(
         ("policy swaps", summary.policy_swaps.to_string()),
         ("pauses for an obstacle", summary.pauses.to_string()),
         ("longest pause", fmt_opt(summary.longest_pause_s, "s")),
+        (
+            "smallest separation from the boxes, moving / at rest",
+            format!(
+                "{} / {}",
+                fmt_opt(summary.min_separation_moving_m, "m"),
+                fmt_opt(summary.min_separation_at_rest_m, "m")
+            ),
+        ),
         (
             "planner fallback",
             on_off(summary.planner_fallback).to_owned(),

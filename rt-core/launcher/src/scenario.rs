@@ -25,6 +25,7 @@ use shm_schemas::{
 
 use super::observer::{Observations, SeenScene};
 use super::report::{Outcome, PathSample, Summary};
+use super::separation::{SeparationSample, SeparationTrace, separation_m};
 use twin::InfeasibleReason;
 use twin::max_joint_gap_rad;
 
@@ -134,6 +135,11 @@ pub struct Director {
     requests: Vec<Vec<u64>>,
     /// Per scene: progress messages ignored because they answered another scene's request.
     stale_progress: Vec<u32>,
+    /// When the scene in force came into force (launcher time, s): the origin of its boxes'
+    /// paths.
+    scene_since_s: f64,
+    /// The arm's separation from the world's true boxes over the run.
+    separation: SeparationTrace,
 }
 
 /// A box motion's timeline mark: box `i` at keyframe `k` of a scene put in force at `t_s`.
@@ -194,6 +200,8 @@ impl Director {
             box_events: Vec::new(),
             requests: vec![Vec::new(); n],
             stale_progress: vec![0; n],
+            scene_since_s: 0.0,
+            separation: SeparationTrace::default(),
         }
     }
 
@@ -205,6 +213,20 @@ impl Director {
     /// The executed TCP path so far.
     pub fn path(&self) -> &[PathSample] {
         &self.path
+    }
+
+    /// The arm's separation from the world's true boxes so far.
+    pub fn separation(&self) -> &SeparationTrace {
+        &self.separation
+    }
+
+    /// When each world change happened (launcher time, s).
+    pub fn world_changes_s(&self) -> Vec<f64> {
+        self.events
+            .iter()
+            .filter(|e| e.kind == "world_change")
+            .map(|e| e.t_s)
+            .collect()
     }
 
     /// The scene index in force.
@@ -512,6 +534,7 @@ impl Director {
                             ),
                         );
                         self.schedule_box_motions(t_s, next);
+                        self.scene_since_s = t_s;
                         actions.push(Action::SwitchScene(next));
                     }
                 }
@@ -538,6 +561,15 @@ impl Director {
                 .iter()
                 .zip(s.joints_rad.iter())
                 .any(|(a, b)| (a - b).abs() > 1e-4)
+        });
+        self.separation.push(SeparationSample {
+            t_s,
+            separation_m: separation_m(
+                &s.joints_rad,
+                &self.cfg.world[scene].1,
+                t_s - self.scene_since_s,
+            ),
+            moving,
         });
         if moving {
             self.still_since_s = None;
@@ -760,6 +792,8 @@ impl Director {
             policy_swaps: self.policy_swaps,
             pauses: self.pauses.iter().map(|&p| u64::from(p)).sum(),
             longest_pause_s: self.longest_pause_s,
+            min_separation_moving_m: self.separation.min_moving_m(),
+            min_separation_at_rest_m: self.separation.min_at_rest_m(),
             world_change_to_detection_s: since(self.detect_s),
             world_change_to_verdict_s: since(self.verdict_s),
             retrain_s: self.request_s.zip(self.published_s).map(|(a, b)| b - a),
