@@ -286,6 +286,116 @@ pub struct RuntimeConfig {
     /// The planner fallback (off by default).
     #[serde(default)]
     pub planner_fallback: PlannerFallbackConfig,
+    /// Verified sampling before the planner fallback.
+    #[serde(default)]
+    pub sampling: SamplingConfig,
+}
+
+/// Verified sampling (`[sampling]`): when no policy's deterministic rollout passes the
+/// lookahead, the twin rolls out `candidates − 1` perturbed variants of each policy of the
+/// library (action noise, `twin::Sampler`) on `threads` threads within `budget_s`, verifies
+/// each exactly as the deterministic rollout (then smoothing, the shield and the goal check
+/// on the smoothed plan), and sends the best that passes — fewest steps, then the largest
+/// clearance; only then the planner fallback and retraining.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SamplingConfig {
+    /// Sample when the deterministic rollouts fail (off by default: see `assets/runtime.toml`).
+    #[serde(default = "default_sampling_enabled")]
+    pub enabled: bool,
+    /// K: candidates per policy, the deterministic rollout included; 2..=256.
+    #[serde(default = "default_sampling_candidates")]
+    pub candidates: usize,
+    /// Wall time for the sampling of one planning (all policies), s; 0.005..=2. Each thread
+    /// stops before its next candidate once it has passed.
+    #[serde(default = "default_sampling_budget_s")]
+    pub budget_s: f64,
+    /// Standard deviation of the action noise, action units (the action range is [-1, 1],
+    /// times the task's `action.scale_m`); 0..=2.
+    #[serde(default = "default_sampling_noise_sigma")]
+    pub noise_sigma: f64,
+    /// Step-to-step correlation of the noise, 0 (white) ..< 1.
+    #[serde(default = "default_sampling_noise_correlation")]
+    pub noise_correlation: f64,
+    /// Seed of the candidates' noise (the same scene and policy give the same candidates).
+    #[serde(default)]
+    pub seed: u64,
+    /// Share of the perturbed candidates that start the goal approach at a random via point
+    /// instead of with action noise; 0..=1.
+    #[serde(default = "default_sampling_via_point_share")]
+    pub via_point_share: f64,
+    /// Threads the candidates run on; 1..=16.
+    #[serde(default = "default_sampling_threads")]
+    pub threads: usize,
+}
+
+impl Default for SamplingConfig {
+    fn default() -> Self {
+        Self {
+            enabled: default_sampling_enabled(),
+            candidates: default_sampling_candidates(),
+            budget_s: default_sampling_budget_s(),
+            noise_sigma: default_sampling_noise_sigma(),
+            noise_correlation: default_sampling_noise_correlation(),
+            seed: 0,
+            via_point_share: default_sampling_via_point_share(),
+            threads: default_sampling_threads(),
+        }
+    }
+}
+
+impl SamplingConfig {
+    /// The sampler's settings.
+    pub fn settings(&self) -> twin::SamplingSettings {
+        twin::SamplingSettings {
+            candidates: self.candidates,
+            noise_sigma: self.noise_sigma,
+            noise_correlation: self.noise_correlation,
+            seed: self.seed,
+            via_point_share: self.via_point_share,
+            threads: self.threads,
+        }
+    }
+
+    fn validate(&self) -> Result<(), RuntimeConfigError> {
+        let bad = |field, why| Err(RuntimeConfigError::Invalid { field, why });
+        if !(2..=twin::MAX_SAMPLES).contains(&self.candidates) {
+            return bad("sampling.candidates", "must be within 2..=256");
+        }
+        if !(self.budget_s.is_finite() && (0.005..=2.0).contains(&self.budget_s)) {
+            return bad("sampling.budget_s", "must be within 0.005..=2 s");
+        }
+        match self.settings().validate() {
+            Ok(()) => Ok(()),
+            Err(("noise_sigma", why)) => bad("sampling.noise_sigma", why),
+            Err(("noise_correlation", why)) => bad("sampling.noise_correlation", why),
+            Err(("threads", why)) => bad("sampling.threads", why),
+            Err(("via_point_share", why)) => bad("sampling.via_point_share", why),
+            Err((_, why)) => bad("sampling.candidates", why),
+        }
+    }
+}
+
+fn default_sampling_enabled() -> bool {
+    false
+}
+fn default_sampling_candidates() -> usize {
+    32
+}
+fn default_sampling_budget_s() -> f64 {
+    0.05
+}
+fn default_sampling_noise_sigma() -> f64 {
+    twin::SamplingSettings::default().noise_sigma
+}
+fn default_sampling_noise_correlation() -> f64 {
+    twin::SamplingSettings::default().noise_correlation
+}
+fn default_sampling_via_point_share() -> f64 {
+    twin::SamplingSettings::default().via_point_share
+}
+fn default_sampling_threads() -> usize {
+    2
 }
 
 /// The planner fallback: when no policy passes the lookahead, the twin's feasibility
@@ -404,6 +514,7 @@ impl RuntimeConfig {
         if !(budget_s.is_finite() && (0.05..=10.0).contains(&budget_s)) {
             return bad("planner_fallback.budget_s", "must be within 0.05..=10 s");
         }
+        self.sampling.validate()?;
         self.validate_limits()?;
         self.validate_shield()?;
         let period_s = 1.0 / self.rate_hz;
@@ -670,6 +781,33 @@ mod tests {
         text.join("\n")
     }
 
+    /// `[sampling]`'s `budget_s` set to `value` (the planner fallback's left as shipped).
+    fn with_sampling_budget(value: &str) -> String {
+        let (head, tail) = ASSET.split_once("[sampling]").unwrap();
+        let tail = tail.replacen("budget_s = 0.05", &format!("budget_s = {value}"), 1);
+        format!("{head}[sampling]{tail}")
+    }
+
+    #[test]
+    fn the_sampling_budget_is_bounded_by_name() {
+        for value in ["0.0", "nan", "3.0"] {
+            match RuntimeConfig::from_toml(&with_sampling_budget(value)) {
+                Err(RuntimeConfigError::Invalid { field, .. }) => {
+                    assert_eq!(field, "sampling.budget_s");
+                }
+                other => panic!("budget_s = {value}: got {other:?}"),
+            }
+        }
+        let cfg = RuntimeConfig::from_toml(&with_sampling_budget("0.2")).unwrap();
+        assert_eq!(cfg.sampling.budget_s, 0.2);
+        assert_eq!(cfg.planner_fallback.budget_s, 0.25);
+        // The shipped section is the defaults (a file without it samples the same way).
+        assert_eq!(
+            RuntimeConfig::xarm5_default().sampling,
+            SamplingConfig::default()
+        );
+    }
+
     #[test]
     fn the_shipped_config_is_the_default() {
         assert_eq!(
@@ -702,6 +840,12 @@ mod tests {
             ("budget_s", "0.0", "planner_fallback.budget_s"),
             ("budget_s", "nan", "planner_fallback.budget_s"),
             ("budget_s", "11.0", "planner_fallback.budget_s"),
+            ("candidates", "1", "sampling.candidates"),
+            ("candidates", "257", "sampling.candidates"),
+            ("noise_sigma", "-0.1", "sampling.noise_sigma"),
+            ("noise_correlation", "1.0", "sampling.noise_correlation"),
+            ("threads", "0", "sampling.threads"),
+            ("via_point_share", "2.0", "sampling.via_point_share"),
             (
                 "max_jerk_rad_s3",
                 "[40.0, 40.0, 0.0, 40.0, 40.0]",

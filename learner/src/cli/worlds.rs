@@ -17,6 +17,13 @@
 //! success on the pre-training evaluation scenes ("kept"), alone and as rt-core runs it — in
 //! a policy library with the base policy (a scene counts when either policy solves it).
 //!
+//! With `--samples 1,8,32,64`, verified sampling as rt-core's twin worker runs it before its
+//! planner fallback (`twin::Sampler`, the same code): for each K, the checkpoint's exported
+//! blob (what rt-core runs) rolled out as K candidates — the deterministic rollout and K − 1
+//! perturbed ones — each verified by the twin's episode (goal reached, no contact); pass@K
+//! is the share of feasible worlds where at least one passes, with the wall time of the K
+//! rollouts on `--sample-threads` threads.
+//!
 //! Prints the rows and a per-generator table, and writes (atomically) to `--out`:
 //! `worlds.json`, `worlds.md`, `worlds.png` (per generator: policy vs straight line vs
 //! planner) and, with `--retrain`, `adaptation.png` (retraining time per failed world).
@@ -33,9 +40,10 @@ use learner::ppo::{EvalResult, evaluate, successes};
 use learner::service;
 use learner::twin_env::{CurriculumSampler, TwinTask, fixed_scenes};
 use plotters::prelude::*;
+use policy::{MlpPolicy, PolicyExpectation, PolicyLoader};
 use rand::SeedableRng;
 use serde::Serialize;
-use twin::{Feasibility, Joints, Scene, check_feasibility};
+use twin::{Feasibility, Joints, Sampler, SamplingSettings, Scene, check_feasibility};
 use worldgen::Generator;
 
 use super::EVAL_SEED;
@@ -106,6 +114,27 @@ pub struct WorldsArgs {
     /// retrained policy's success is measured afterwards ("kept").
     #[arg(long, default_value_t = 200, value_parser = shm_schemas::cli_bounds::int_within(0usize, 1_000_000), allow_negative_numbers = true)]
     kept_eval_episodes: usize,
+    /// Verified sampling: the K values to measure pass@K for (comma-separated, each
+    /// 1..=256; candidate 0 is the deterministic rollout). Empty: none.
+    #[arg(long, value_delimiter = ',', value_parser = shm_schemas::cli_bounds::int_within(1usize, twin::MAX_SAMPLES), allow_negative_numbers = true)]
+    samples: Vec<usize>,
+    /// Standard deviation of the sampled candidates' action noise, action units (rt-core's
+    /// `sampling.noise_sigma`).
+    #[arg(long, default_value_t = SamplingSettings::default().noise_sigma)]
+    sample_sigma: f64,
+    /// Step-to-step correlation of that noise (`sampling.noise_correlation`).
+    #[arg(long, default_value_t = SamplingSettings::default().noise_correlation)]
+    sample_correlation: f64,
+    /// Seed of the candidates' noise (`sampling.seed`).
+    #[arg(long, default_value_t = SamplingSettings::default().seed)]
+    sample_seed: u64,
+    /// Share of the perturbed candidates that start with a via point instead of action
+    /// noise (`sampling.via_point_share`).
+    #[arg(long, default_value_t = SamplingSettings::default().via_point_share)]
+    sample_via_share: f64,
+    /// Threads the candidates run on (`sampling.threads`).
+    #[arg(long, default_value_t = SamplingSettings::default().threads)]
+    sample_threads: usize,
     /// The checkpoint, task, output folder (`--out`, required here) and the retraining
     /// settings, as `learner serve` takes them.
     #[command(flatten)]
@@ -131,8 +160,37 @@ struct WorldRow {
     /// The planner's path re-tracked: safe all along and ending within tolerance (`None`
     /// for an infeasible world).
     planner: Option<bool>,
+    /// Verified sampling, one entry per `--samples` K.
+    samples: Vec<SampleRow>,
     retrained: Option<RetrainRow>,
     scene: shm_schemas::scene_file::SceneFile,
+}
+
+/// Verified sampling with K candidates on one world.
+#[derive(Debug, Clone, Serialize)]
+struct SampleRow {
+    k: usize,
+    /// At least one candidate passed.
+    passed: bool,
+    /// Candidates that passed.
+    passing: usize,
+    /// The best that passed (fewest steps, then clearance): its index and steps.
+    best_index: Option<usize>,
+    best_steps: Option<u32>,
+    /// Wall time of the K rollouts, s.
+    elapsed_s: f64,
+}
+
+/// pass@K over a generator's feasible worlds.
+#[derive(Debug, Clone, Serialize)]
+struct PassAt {
+    k: usize,
+    passed: usize,
+    rate: f64,
+    /// Passed by a perturbed candidate only (the deterministic one failed).
+    rescued: usize,
+    median_s: Option<f64>,
+    max_s: Option<f64>,
 }
 
 /// What one retraining did.
@@ -175,6 +233,8 @@ struct Aggregate {
     kept_median: Option<f64>,
     library_kept_min: Option<f64>,
     library_kept_median: Option<f64>,
+    /// Verified sampling per K.
+    pass_at: Vec<PassAt>,
 }
 
 /// One generator's table.
@@ -220,6 +280,8 @@ struct Bench<'a> {
     base_ok: &'a [bool],
     out: &'a Path,
     device: tch::Device,
+    /// The checkpoint's exported blob, as rt-core runs it (with `--samples`).
+    mlp: Option<MlpPolicy>,
 }
 
 /// Runs `learner worlds`.
@@ -269,6 +331,23 @@ pub fn run(args: WorldsArgs, device: tch::Device) -> Result<()> {
     );
     let base_kept = evaluate(&net, &norm, &env, &kept_scenes, workers);
     let base_ok = successes(&net, &norm, &env, &kept_scenes, workers);
+    let mlp = if args.samples.is_empty() {
+        None
+    } else {
+        sampling_settings(&args, 1)
+            .validate()
+            .map_err(|(field, why)| anyhow::anyhow!("--sample {field}: {why}"))?;
+        let blob = learner::export::export_blob(&base, 1)?;
+        let loader = PolicyLoader::new(PolicyExpectation::for_task_obs(
+            env.task_hash(),
+            env.env.config().obs_dim(),
+        ));
+        Some(
+            loader
+                .prepare(&blob)
+                .map_err(|e| anyhow::anyhow!("the exported blob is refused: {e:?}"))?,
+        )
+    };
     let bench = Bench {
         args: &args,
         env: &env,
@@ -280,13 +359,25 @@ pub fn run(args: WorldsArgs, device: tch::Device) -> Result<()> {
         base_ok: &base_ok,
         out: &out,
         device,
+        mlp,
     };
     let mut tables = Vec::new();
     for source in sources {
         tables.push(bench.table(source)?);
     }
-    let md = markdown(&tables, &base_kept, args.seed);
+    let mut md = markdown(&tables, &base_kept, args.seed);
     println!("\n{}", summary_table(&tables));
+    let sampled = sampling_table(&tables, args.sample_threads);
+    if !sampled.is_empty() {
+        println!(
+            "verified sampling (sigma {}, correlation {}, via-point share {}, seed {}):\n{sampled}",
+            args.sample_sigma, args.sample_correlation, args.sample_via_share, args.sample_seed
+        );
+        md += &format!(
+            "\n## Verified sampling (sigma {}, correlation {}, via-point share {}, seed {})\n\n{sampled}",
+            args.sample_sigma, args.sample_correlation, args.sample_via_share, args.sample_seed
+        );
+    }
     write_atomic(
         &out.join("worlds.json"),
         &serde_json::to_vec_pretty(&serde_json::json!({
@@ -306,7 +397,43 @@ pub fn run(args: WorldsArgs, device: tch::Device) -> Result<()> {
     Ok(())
 }
 
+/// The sampling settings of `args` with `k` candidates.
+fn sampling_settings(args: &WorldsArgs, k: usize) -> SamplingSettings {
+    SamplingSettings {
+        candidates: k,
+        noise_sigma: args.sample_sigma,
+        noise_correlation: args.sample_correlation,
+        seed: args.sample_seed,
+        via_point_share: args.sample_via_share,
+        threads: args.sample_threads,
+    }
+}
+
 impl Bench<'_> {
+    /// Verified sampling on `scene` for each `--samples` K (none without a blob).
+    fn samples(&self, scene: &Scene) -> Vec<SampleRow> {
+        let Some(mlp) = &self.mlp else {
+            return Vec::new();
+        };
+        let policy = |o: &[f32; twin::OBS_DIM]| mlp.act(o);
+        self.args
+            .samples
+            .iter()
+            .map(|&k| {
+                let mut sampler = Sampler::new(&self.env.env, sampling_settings(self.args, k));
+                let r = sampler.run(scene, &policy, 0, None);
+                SampleRow {
+                    k,
+                    passed: r.best.is_some(),
+                    passing: r.passed,
+                    best_index: r.best.map(|b| b.index),
+                    best_steps: r.best.map(|b| b.summary.steps),
+                    elapsed_s: r.elapsed_s,
+                }
+            })
+            .collect()
+    }
+
     /// The worlds of `source`, with their verdicts; the infeasible draws skipped and why.
     fn candidates(&self, source: Source) -> Result<(Vec<Candidate>, Vec<String>)> {
         let env = &self.env.env;
@@ -422,6 +549,11 @@ impl Bench<'_> {
             .ok()
             .map(|path| worldgen::track_path(&env.env, scene, &start, path).ok());
         let feasible = c.verdict.is_ok();
+        let samples = if feasible {
+            self.samples(scene)
+        } else {
+            Vec::new()
+        };
         let retrained = if self.args.retrain && feasible && !zero_shot {
             Some(self.retrain(source, index, *scene)?)
         } else {
@@ -445,6 +577,7 @@ impl Bench<'_> {
             zero_shot_contact,
             zero_shot_timeout: !zero_shot && !zero_shot_contact,
             planner,
+            samples,
             retrained,
             scene: scene.to_file(),
         })
@@ -508,8 +641,19 @@ fn zero_shot_word(r: &WorldRow) -> &'static str {
 }
 
 fn print_row(r: &WorldRow) {
+    let sampled: String = r
+        .samples
+        .iter()
+        .map(|s| {
+            format!(
+                " @{}:{}",
+                s.k,
+                s.best_index.map_or("-".to_owned(), |i| i.to_string())
+            )
+        })
+        .collect();
     println!(
-        "{:>3} {:<20} {:>5} {:>6.2}m {:>9} {:>8} {:>9} {:>7} {:>10}  {}",
+        "{:>3} {:<20} {:>5} {:>6.2}m {:>9} {:>8} {:>9} {:>7} {:>10}  {}{sampled}",
         r.index,
         r.kind,
         r.boxes,
@@ -540,6 +684,30 @@ fn aggregate(rows: &[WorldRow]) -> Aggregate {
     let zero_shot = count(&|r| r.zero_shot);
     let zero_shot_contact = count(&|r| r.zero_shot_contact);
     let planner = count(&|r| r.planner == Some(true));
+    let ks: Vec<usize> = feasible
+        .first()
+        .map(|r| r.samples.iter().map(|s| s.k).collect())
+        .unwrap_or_default();
+    let pass_at = ks
+        .iter()
+        .enumerate()
+        .map(|(j, &k)| {
+            let rows: Vec<&SampleRow> = feasible.iter().filter_map(|r| r.samples.get(j)).collect();
+            let mut times: Vec<f64> = rows.iter().map(|s| s.elapsed_s).collect();
+            let passed = rows.iter().filter(|s| s.passed).count();
+            PassAt {
+                k,
+                passed,
+                rate: passed as f64 / nf,
+                rescued: rows
+                    .iter()
+                    .filter(|s| s.best_index.is_some_and(|i| i > 0))
+                    .count(),
+                max_s: times.iter().copied().reduce(f64::max),
+                median_s: median(&mut times),
+            }
+        })
+        .collect();
     Aggregate {
         worlds: rows.len(),
         feasible: feasible.len(),
@@ -563,6 +731,7 @@ fn aggregate(rows: &[WorldRow]) -> Aggregate {
         kept_median: median(&mut kept),
         library_kept_min: library.iter().copied().reduce(f64::min),
         library_kept_median: median(&mut library),
+        pass_at,
     }
 }
 
@@ -617,6 +786,45 @@ fn summary_table(tables: &[GeneratorTable]) -> String {
             opt_pct(a.library_kept_min),
         );
     }
+    s
+}
+
+/// Verified sampling per generator: pass@K and the wall time of the K rollouts.
+fn sampling_table(tables: &[GeneratorTable], threads: usize) -> String {
+    let Some(ks) = tables
+        .first()
+        .map(|t| t.aggregate.pass_at.iter().map(|p| p.k).collect::<Vec<_>>())
+        .filter(|k| !k.is_empty())
+    else {
+        return String::new();
+    };
+    let mut s = String::from("| generator | feasible |");
+    for k in &ks {
+        let _ = write!(s, " pass@{k} | K = {k}: median / max (ms) |");
+    }
+    s += " planner path |\n|---|---|";
+    for _ in &ks {
+        s += "---|---|";
+    }
+    s += "---|\n";
+    for t in tables {
+        let a = &t.aggregate;
+        let _ = write!(s, "| {} | {} |", t.generator, a.feasible);
+        for p in &a.pass_at {
+            let _ = write!(
+                s,
+                " {} | {} / {} |",
+                of(p.passed, a.feasible),
+                p.median_s.map_or("–".into(), |v| format!("{:.1}", 1e3 * v)),
+                p.max_s.map_or("–".into(), |v| format!("{:.1}", 1e3 * v)),
+            );
+        }
+        let _ = writeln!(s, " {} |", of(a.planner, a.feasible));
+    }
+    let _ = writeln!(
+        s,
+        "\nCandidate 0 is the deterministic rollout of the exported blob; the others add AR(1) action noise; {threads} threads."
+    );
     s
 }
 

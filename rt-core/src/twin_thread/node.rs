@@ -322,6 +322,7 @@ impl TwinNode {
             steps = verdict.steps,
             min_distance_m = verdict.min_distance_m,
             lookahead_ms = elapsed_s * 1e3,
+            sample = ?source.sample.map(|t| format!("sample {} of {}", t.index, t.of)),
             "lookahead"
         );
         self.last_verdict = Some(v);

@@ -270,6 +270,16 @@ pub fn serve<L: RobotLink + 'static>(
         .then(|| TwinPathPlanner::new(model.clone(), task, cfg));
     let mut lookahead = TwinLookahead::new(model.clone(), task, LookaheadActions::Policy);
     lookahead.blind = opts.no_lookahead;
+    if cfg.sampling.enabled && !opts.no_lookahead {
+        lookahead.set_sampling(Some(cfg.sampling.settings()));
+        tracing::info!(
+            candidates = cfg.sampling.candidates,
+            budget_s = cfg.sampling.budget_s,
+            threads = cfg.sampling.threads,
+            "verified sampling on: when no policy's rollout passes, perturbed variants are \
+             rolled out and verified before the planner fallback"
+        );
+    }
     let (twin_io, cycle_io, log_drain) = cycle::wire::<Scene>();
     let clock = MonotonicClock::new();
     let cyc = start_cycle(

@@ -4,7 +4,8 @@
 //! only on settled scenes (`settled_scene`) and only when the smoothed path reaches the goal
 //! (`goal_reach`), the policy library's fallback to the base policy (`policy_library`), and the
 //! planner fallback (`planner_fallback`), the worker's phase along an excursion (`phase`), and
-//! the re-verification of every live plan on the scene path (`plan_guard`).
+//! the re-verification of every live plan on the scene path (`plan_guard`), and verified
+//! sampling before the planner (`sampling`).
 
 #![allow(missing_docs, clippy::unwrap_used, clippy::expect_used)]
 // The tests drive the runtime from threads of their own and wait in wall time; the bans of
@@ -27,6 +28,7 @@ mod plan_guard;
 mod planner_fallback;
 mod policy_library;
 mod safety;
+mod sampling;
 mod settled_scene;
 mod shield_twin;
 mod twin_cli;

@@ -31,6 +31,10 @@
 //!   the goal target from deterministic seeds), [`plan_path`] (RRT-Connect in joint space
 //!   under the task's contact rule, [`is_safe_posture`]) and [`check_feasibility`] (both;
 //!   [`Feasibility`] or an [`InfeasibleReason`] in words and as `RetrainProgress` bytes).
+//! - Verified sampling ([`Sampler`], [`SamplingSettings`]): K perturbed rollouts of a
+//!   policy on a few threads, each verified as the lookahead verifies the deterministic
+//!   one, the best that passes kept (rt-core's twin worker before its planner fallback;
+//!   `learner worlds --samples`, pass@K).
 //!
 //! # Observation (`[f32; OBS_DIM]`, raw SI units; the policy blob carries normalisation)
 //! | index | meaning | unit |
@@ -109,6 +113,7 @@ mod ik;
 mod kinematics;
 mod model;
 mod planner;
+mod sampling;
 mod scene;
 mod task;
 
@@ -130,6 +135,9 @@ pub use model::{
     LinkName, MAX_CAPSULES, N_FRAMES, RobotModel, TOOL_FRAME, UrdfLoadError,
 };
 pub use planner::{PlanOutcome, PlannerBudget, densify_path, is_safe_posture, plan_path};
+pub use sampling::{
+    MAX_SAMPLE_THREADS, MAX_SAMPLES, Sample, SampleReport, Sampler, SamplingSettings,
+};
 pub use scene::{BoxObstacle, Goal, Obstacles, Scene, SceneError};
 pub use shm_schemas::scene_file::MAX_OBSTACLES;
 pub use task::{

@@ -120,6 +120,19 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> Approver<L, M> {
             .lookahead(policy, scene, start_q_rad, &mut self.waypoints)
     }
 
+    /// The plan of sampled candidate `index` (of the lookahead's last sampling of `policy`
+    /// in `scene`) from `start_q_rad` into [`Self::waypoints`], with its verdict.
+    pub fn sampled_plan(
+        &mut self,
+        policy: &L::Policy,
+        scene: &L::Scene,
+        start_q_rad: &Joints,
+        index: usize,
+    ) -> Option<Verdict> {
+        self.la
+            .sampled_plan(policy, scene, start_q_rad, index, &mut self.waypoints)
+    }
+
     /// Smooths [`Self::waypoints`] from `start` into a new plan and checks every sample with
     /// the shield in `scene` (what every plan passes before it reaches the cycle); unless
     /// [`GoalCheck::None`], also that the smoothed path's TCP comes within the task's

@@ -3,8 +3,8 @@
 
 use shm_schemas::{Executor, PhaseCode};
 
-use super::Verdict;
 use super::approve::PlanRejection;
+use super::{SampleTag, Verdict};
 
 /// Who produced a verdict, and the worker's phase then (diagnostics of the published
 /// verdict and the run timeline).
@@ -14,6 +14,9 @@ pub struct VerdictSource {
     pub phase: PhaseCode,
     /// A policy's lookahead or the planner fallback.
     pub executor: Executor,
+    /// A sampled candidate's verdict (verified sampling): which; `None` for the
+    /// deterministic rollout and the planner.
+    pub sample: Option<SampleTag>,
 }
 
 /// Something the twin did that the outside should know (publish, log, assert on).
@@ -40,7 +43,7 @@ pub enum TwinEvent<S> {
         joins: bool,
     },
     /// The lookahead passed but the smoothed plan did not (smoothing, shield, or its path
-    /// misses the goal).
+    /// misses the goal). For a sampled candidate, `policy_id` is its policy's.
     PlanRejected {
         /// Policy id.
         policy_id: u64,

@@ -12,8 +12,9 @@
 //! - [`phase`]: the worker's state — [`Phase`] (episode, dwell at goal, returning home,
 //!   holding after a refused return) and [`Planning`] (idle, due, back-off);
 //! - [`scene_view`]: the scene and its gates ([`SceneView::ready`] → [`Hold`]);
-//! - [`policy_library`]: the candidates tried in order (current policy, base policy, and
-//!   the planner fallback when installed: [`FallbackPlanner`]);
+//! - [`policy_library`]: the candidates tried in order (current policy, base policy, then —
+//!   with `[sampling]` — perturbed variants of each, verified alike ([`Lookahead::sample`]),
+//!   and the planner fallback when installed: [`FallbackPlanner`]);
 //! - [`path_recorder`]: the executed path and the way home;
 //! - [`approve`]: lookahead → smoothing → shield → goal check, or a [`PlanRejection`];
 //! - [`verdict`]: the [`Lookahead`] trait and its [`Verdict`]; [`event`]: [`TwinEvent`].
@@ -41,7 +42,7 @@ pub use event::{TwinEvent, VerdictSource};
 pub use phase::{Phase, Planning, Transition};
 pub use policy_library::{FallbackPlanner, PLANNER_POLICY_ID};
 pub use scene_view::{Hold, SceneView};
-pub use verdict::{GoalApproach, Lookahead, Verdict};
+pub use verdict::{GoalApproach, Lookahead, SampleTag, Sampled, Verdict};
 
 use std::sync::Arc;
 
@@ -65,6 +66,10 @@ const REFUSAL_BACKOFF_NS: u64 = 500_000_000;
 /// Live plans the worker keeps at most (a cycle holds a running, a pending and a few
 /// queued plans).
 const MAX_LIVE_PLANS: usize = 16;
+
+/// Sampled candidates that passed the twin whose smoothed plans are checked at most per
+/// policy (best first), before the next policy or the planner fallback.
+const MAX_SAMPLED_PLANS_CHECKED: usize = 4;
 
 /// What one candidate of the library did in [`TwinWorker::plan_from`].
 enum Tried {
@@ -118,6 +123,8 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     join_ahead: usize,
     /// Motion waits for a passing lookahead (off only for `--no-lookahead`).
     gate: bool,
+    /// Verified sampling's wall-time budget per planning, s (`None`: off).
+    sampling_budget_s: Option<f64>,
     report: Option<CycleReport>,
     last_mode: Mode,
     refused_seen: u64,
@@ -168,6 +175,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             },
             join_ahead: (cfg.join_ahead_s / period_s).ceil() as usize,
             gate: true,
+            sampling_budget_s: cfg.sampling.enabled.then_some(cfg.sampling.budget_s),
             report: None,
             last_mode: Mode::Idle,
             refused_seen: 0,
@@ -544,9 +552,12 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     }
 
     /// Plans the next episode from `start`: the library's candidates in order; the first
-    /// whose lookahead and smoothed plan pass is approved. When none passes, the first
-    /// failure is what counts: the running plan is revoked when that continuation is unsafe
-    /// in a changed scene, and retraining is asked for (once per policy and scene).
+    /// whose lookahead and smoothed plan pass is approved. When none passes and sampling is
+    /// on, each policy's perturbed variants (verified sampling, one budget for all), the
+    /// best that passes approved. When none passes, the first failure is what counts: the
+    /// planner fallback moves the arm when installed, the running plan is revoked when that
+    /// continuation is unsafe in a changed scene, and retraining is asked for (once per
+    /// policy and scene).
     fn plan_from(
         &mut self,
         start: MotionState,
@@ -574,6 +585,16 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let Some((verdict, lookahead_unsafe)) = first_failure else {
             return;
         };
+        if let (true, Some(budget_s)) = (self.gate, self.sampling_budget_s) {
+            let deadline = deadline_in(budget_s);
+            for candidate in Candidate::ORDER {
+                if let Tried::Done =
+                    self.try_sampled(candidate, &start, join, scene, deadline, events)
+                {
+                    return;
+                }
+            }
+        }
         if self.gate && self.library.planner_mut().is_some() {
             // No policy passes: retraining is asked for as always, and the planner's path,
             // when it passes the same checks, moves the arm meanwhile.
@@ -622,6 +643,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let source = VerdictSource {
             phase: self.phase_code(),
             executor: Executor::Planner,
+            sample: None,
         };
         let Some(planner) = self.library.planner_mut() else {
             return false;
@@ -686,6 +708,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let source = VerdictSource {
             phase: self.phase_code(),
             executor: Executor::Policy,
+            sample: None,
         };
         let t0 = std::time::Instant::now();
         let verdict = self.approver.lookahead(policy, &scene, &start.q_rad);
@@ -742,6 +765,94 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         Tried::Done
     }
 
+    /// Verified sampling of one policy of the library (its deterministic rollout failed):
+    /// its perturbed variants until `deadline`, then the smoothed, checked plans of the
+    /// passing ones best first (at most [`MAX_SAMPLED_PLANS_CHECKED`]); the first whose plan
+    /// passes is sent, with a verdict saying which sample it was. Nothing is published for
+    /// a sampling where none passes (the deterministic verdict stands).
+    // The sampling's own compute time for its verdict (the twin thread is not real-time).
+    #[allow(clippy::disallowed_methods)]
+    fn try_sampled(
+        &mut self,
+        candidate: Candidate,
+        start: &MotionState,
+        join: Option<JoinPoint>,
+        scene: L::Scene,
+        deadline: std::time::Instant,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) -> Tried {
+        let Some(policy) = self.library.get(candidate) else {
+            return Tried::NoPolicy;
+        };
+        let t0 = std::time::Instant::now();
+        let sampled = self
+            .approver
+            .lookahead_mut()
+            .sample(policy, &scene, deadline);
+        let source = |index| VerdictSource {
+            phase: phase::phase_code(
+                &self.phase,
+                &self.planning,
+                self.report.map_or(0, |r| r.t_ns),
+            ),
+            executor: Executor::Policy,
+            sample: Some(SampleTag {
+                index,
+                of: sampled.of,
+            }),
+        };
+        let mut failed = None;
+        for &index in sampled.ranked.iter().take(MAX_SAMPLED_PLANS_CHECKED) {
+            let Some(verdict) = self
+                .approver
+                .sampled_plan(policy, &scene, &start.q_rad, index)
+            else {
+                continue;
+            };
+            let checked = self.approver.smoothed_checked_plan(
+                start,
+                join,
+                verdict.policy_id,
+                &scene,
+                GoalCheck::Policy(policy),
+            );
+            match checked {
+                Ok(plan) => {
+                    events.push(TwinEvent::Verdict {
+                        verdict,
+                        scene,
+                        elapsed_s: t0.elapsed().as_secs_f64(),
+                        source: source(index),
+                    });
+                    self.send_approved(plan, start, join, scene, events);
+                    return Tried::Done;
+                }
+                Err(why) => {
+                    events.push(TwinEvent::PlanRejected {
+                        policy_id: verdict.policy_id,
+                        why,
+                    });
+                    failed.get_or_insert((why.failed_verdict(verdict), index));
+                }
+            }
+        }
+        match failed {
+            Some((verdict, index)) => {
+                events.push(TwinEvent::Verdict {
+                    verdict,
+                    scene,
+                    elapsed_s: t0.elapsed().as_secs_f64(),
+                    source: source(index),
+                });
+                Tried::Failed {
+                    verdict,
+                    lookahead_unsafe: false,
+                }
+            }
+            None => Tried::NoPolicy,
+        }
+    }
+
     /// Sends an approved episode plan (a policy's or the planner's) and records it on the
     /// executed path; when the hand-over slot is full, planning is due again.
     fn send_approved(
@@ -768,4 +879,10 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             joins: join.is_some(),
         });
     }
+}
+
+/// The instant `budget_s` from now (the twin thread's wall clock: it is not real-time).
+#[allow(clippy::disallowed_methods)]
+fn deadline_in(budget_s: f64) -> std::time::Instant {
+    std::time::Instant::now() + std::time::Duration::from_secs_f64(budget_s)
 }

@@ -1,6 +1,8 @@
 //! What the worker asks of a lookahead ([`Lookahead`]: the whole next episode in the twin
-//! with a policy, and how near a path comes to the goal) and what one answers
-//! ([`Verdict`], [`GoalApproach`]).
+//! with a policy, perturbed variants of it (verified sampling), and how near a path comes to
+//! the goal) and what one answers ([`Verdict`], [`Sampled`], [`GoalApproach`]).
+
+use std::time::Instant;
 
 use twin::Joints;
 
@@ -41,6 +43,33 @@ pub trait Lookahead: Send + 'static {
         waypoints: &mut Vec<Joints>,
     ) -> Verdict;
 
+    /// Verified sampling, after `policy`'s deterministic rollout failed in `scene`: rolls
+    /// out its perturbed variants until `deadline`, each verified as [`Lookahead::lookahead`]
+    /// verifies the deterministic one, and returns those that passed, best first. The
+    /// default samples nothing (a lookahead without a sampler).
+    fn sample(
+        &mut self,
+        _policy: &Self::Policy,
+        _scene: &Self::Scene,
+        _deadline: Instant,
+    ) -> Sampled {
+        Sampled::default()
+    }
+
+    /// The plan of candidate `index` of the last [`Lookahead::sample`] (of `policy` in
+    /// `scene`) from `start_q_rad`, written to `waypoints` as [`Lookahead::lookahead`]
+    /// writes them, with its verdict; `None` when there is no such candidate.
+    fn sampled_plan(
+        &mut self,
+        _policy: &Self::Policy,
+        _scene: &Self::Scene,
+        _start_q_rad: &Joints,
+        _index: usize,
+        _waypoints: &mut Vec<Joints>,
+    ) -> Option<Verdict> {
+        None
+    }
+
     /// How near the TCP comes to the goal along `path_q_rad` (the smoothed plan the arm
     /// would follow), judged as the lookahead judges `task_ok`: the same target point and
     /// the same tolerance, so "goal reached" has one meaning for the twin and the arm.
@@ -71,4 +100,27 @@ impl GoalApproach {
     pub fn reached(&self) -> bool {
         self.closest_m <= self.tolerance_m
     }
+}
+
+/// What one verified sampling did ([`Lookahead::sample`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Sampled {
+    /// K: the candidates configured, the deterministic rollout (index 0) included.
+    pub of: usize,
+    /// Perturbed candidates rolled out before the deadline.
+    pub tried: usize,
+    /// The candidates that passed, best first (fewest steps, then the largest clearance):
+    /// their indices.
+    pub ranked: Vec<usize>,
+    /// Wall time, s.
+    pub elapsed_s: f64,
+}
+
+/// Which sampled candidate a verdict is for: "sample `index` of `of`".
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SampleTag {
+    /// The candidate (1.. ; 0 would be the deterministic rollout).
+    pub index: usize,
+    /// K.
+    pub of: usize,
 }
