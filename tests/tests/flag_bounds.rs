@@ -194,6 +194,13 @@ fn table() -> Vec<Cmd> {
             args: &["worlds"],
             flags: cat(&[
                 &[("--worlds", I), ("--seed", I), ("--kept-eval-episodes", I)],
+                &[
+                    ("--sample-sigma", F),
+                    ("--sample-correlation", F),
+                    ("--sample-seed", I),
+                    ("--sample-via-share", F),
+                    ("--sample-threads", I),
+                ],
                 &SERVE,
             ]),
         },

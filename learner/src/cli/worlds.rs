@@ -120,20 +120,20 @@ pub struct WorldsArgs {
     samples: Vec<usize>,
     /// Standard deviation of the sampled candidates' action noise, action units (rt-core's
     /// `sampling.noise_sigma`).
-    #[arg(long, default_value_t = SamplingSettings::default().noise_sigma)]
+    #[arg(long, default_value_t = SamplingSettings::default().noise_sigma, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 2.0), allow_negative_numbers = true)]
     sample_sigma: f64,
     /// Step-to-step correlation of that noise (`sampling.noise_correlation`).
-    #[arg(long, default_value_t = SamplingSettings::default().noise_correlation)]
+    #[arg(long, default_value_t = SamplingSettings::default().noise_correlation, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 0.99), allow_negative_numbers = true)]
     sample_correlation: f64,
     /// Seed of the candidates' noise (`sampling.seed`).
-    #[arg(long, default_value_t = SamplingSettings::default().seed)]
+    #[arg(long, default_value_t = SamplingSettings::default().seed, allow_negative_numbers = true)]
     sample_seed: u64,
     /// Share of the perturbed candidates that start with a via point instead of action
     /// noise (`sampling.via_point_share`).
-    #[arg(long, default_value_t = SamplingSettings::default().via_point_share)]
+    #[arg(long, default_value_t = SamplingSettings::default().via_point_share, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
     sample_via_share: f64,
     /// Threads the candidates run on (`sampling.threads`).
-    #[arg(long, default_value_t = SamplingSettings::default().threads)]
+    #[arg(long, default_value_t = SamplingSettings::default().threads, value_parser = shm_schemas::cli_bounds::int_within(1usize, twin::MAX_SAMPLE_THREADS), allow_negative_numbers = true)]
     sample_threads: usize,
     /// The checkpoint, task, output folder (`--out`, required here) and the retraining
     /// settings, as `learner serve` takes them.

@@ -31,6 +31,9 @@
 //! with POSIX locks on the server (Linux ≥ 2.6.12) and is only as good as the server's lock
 //! manager: keep the lock folder on a local file system.
 //!
+//! The file is [`LOCK_FILE_MODE`] (0644): every user may open it to take the lock and to
+//! read who holds it; only its creator may write it.
+//!
 //! The holder writes one fixed-size record (pid, since, address, command line) at offset 0
 //! in a single write, closed by an end line that repeats the pid; a reader that catches a
 //! half-written record sees the two pids differ and reads again.
@@ -55,6 +58,14 @@ use crate::config::XArmConfig;
 
 /// Environment variable naming the lock folder (default [`DEFAULT_LOCK_DIR`]).
 pub const LOCK_DIR_ENV: &str = "FORESIGHT_LOCK_DIR";
+
+/// The lock file's mode: readable by all, writable by its creator only (issue 30 item 7).
+/// Every user may open it read-only, and a read-only descriptor takes the `flock` as well, so
+/// two users still cannot both drive one arm; only the creator can write the holder record,
+/// so nobody else can plant a false one. Not 0600: the file stays after its owner ends, and
+/// a file other users cannot open would shut them out of that arm for good (or until root
+/// removes it), while telling them nothing about who holds it.
+pub const LOCK_FILE_MODE: u32 = 0o644;
 
 /// The machine-wide lock folders, in order of preference: the first that exists is used.
 pub const DEFAULT_LOCK_DIRS: [&str; 2] = ["/run/lock", "/tmp"];
@@ -538,7 +549,7 @@ fn open(path: &Path) -> Result<File, ArmLockError> {
             .write(write)
             .create(write)
             .truncate(false)
-            .mode(0o666)
+            .mode(LOCK_FILE_MODE)
             // Never follow a link planted in a shared folder.
             // (O_NONBLOCK: a FIFO planted under the name must not block the open.)
             .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK);
@@ -550,8 +561,12 @@ fn open(path: &Path) -> Result<File, ArmLockError> {
     };
     let file = match opts(true).open(path) {
         Ok(f) => {
-            // Writable by the next user too (the mode above is cut by the umask).
-            let _ = f.set_permissions(std::fs::Permissions::from_mode(0o666));
+            // The mode above is cut by the umask; a file of ours from a version that made it
+            // writable by all (0666) is narrowed too. Another user's file keeps its mode (we
+            // may not change it).
+            if f.metadata().is_ok_and(|m| m.uid() == effective_uid()) {
+                let _ = f.set_permissions(std::fs::Permissions::from_mode(LOCK_FILE_MODE));
+            }
             f
         }
         // Another user's file we may not write: a read-only descriptor locks as well.
@@ -707,6 +722,27 @@ mod tests {
         drop(first);
         let again = ArmLock::acquire_in(&d, &cfg).unwrap();
         drop((again, other));
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    /// Issue 30 item 7: the lock file is writable by its creator only (0644), also when an
+    /// older version left it writable by all (0666); the lock still works for a second
+    /// owner (refused while held, granted after).
+    #[test]
+    fn the_lock_file_is_writable_by_its_creator_only() {
+        let d = dir("mode");
+        let cfg = XArmConfig::from_addr("127.0.0.1:5030");
+        let first = ArmLock::acquire_in(&d, &cfg).unwrap();
+        let mode = |p: &Path| std::fs::metadata(p).unwrap().mode() & 0o777;
+        assert_eq!(mode(first.path()), 0o644, "{}", first.path().display());
+        let path = first.path().to_path_buf();
+        drop(first);
+        // A file left 0666 by an older version is narrowed by its owner's next lock.
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o666)).unwrap();
+        let again = ArmLock::acquire_in(&d, &cfg).unwrap();
+        assert_eq!(mode(&path), 0o644);
+        assert!(ArmLock::acquire_in(&d, &cfg).is_err());
+        drop(again);
         std::fs::remove_dir_all(&d).ok();
     }
 

@@ -234,6 +234,48 @@ fn collision_with_the_ground_truth_scene_raises_error_31_and_stops() {
     assert_eq!(summary.error_code, 31);
 }
 
+/// A controller error raised while nothing is sent (a cycle that has latched a stop sends
+/// nothing): the driver still learns its code from what it reads, so the stop can be named
+/// by its error (C31).
+#[test]
+fn a_stopped_controller_is_asked_for_its_error_even_when_nothing_is_sent() {
+    let s = sim(Vec::new());
+    let clock = Clock(Instant::now());
+    let mut d = XArmDriver::connect(cfg(&s)).expect("connect");
+    d.start_servo_mode().expect("servo mode");
+    let q0 = d.get_joints().expect("joints");
+    let mut next = Instant::now();
+    for _ in 0..25 {
+        next += Duration::from_millis(4);
+        sleep_until(next);
+        let _ = d.read_state(clock.ns());
+        d.send_servo(clock.ns(), &q0).expect("servo");
+    }
+    s.inject_error(ControllerError::Collision);
+    let mut saw = None;
+    for _ in 0..500 {
+        next += Duration::from_millis(4);
+        sleep_until(next);
+        match d.read_state(clock.ns()) {
+            Err(XArmError::Controller(c)) => {
+                saw = Some(c);
+                break;
+            }
+            Ok(st) if st.error != ControllerError::None => {
+                saw = Some(st.error);
+                break;
+            }
+            _ => {}
+        }
+    }
+    assert_eq!(
+        saw,
+        Some(ControllerError::Collision),
+        "the code was never read"
+    );
+    drop(s.shutdown());
+}
+
 /// The driver re-opens a lost link on its helper thread (its only reconnect path) and then
 /// resumes only from the re-read joints.
 #[test]
