@@ -7,6 +7,7 @@
 // Test rigs: a failed unwrap or expect here is a failed test, with its message.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+pub mod bounded;
 pub mod rt_rig;
 pub mod runs;
 pub mod sim_proc;

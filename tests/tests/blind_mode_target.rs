@@ -13,13 +13,11 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::net::TcpListener;
-use std::process::{Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Output};
+use std::time::Duration;
 
+use foresight_tests::bounded::{REMOTE, add_remote_address, run_bounded_timed};
 use foresight_tests::{NetnsOutcome, bin_path, repo_root, run_in_private_netns, unique_prefix};
-
-/// The robot address off this machine (TEST-NET-1, never routed).
-const REMOTE: &str = "192.0.2.10";
 
 /// The driver's TCP connect timeout: a refusal decided from the address alone comes well
 /// before a connection attempt could even time out.
@@ -28,47 +26,10 @@ const CONNECT_TIMEOUT: Duration = Duration::from_secs(1);
 /// Puts [`REMOTE`] on `lo` of the private namespace and listens on it (port chosen by the
 /// OS), so that any connection attempt to it is seen.
 fn remote_listener() -> TcpListener {
-    let out = Command::new("ip")
-        .args(["addr", "add", &format!("{REMOTE}/32"), "dev", "lo"])
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run `ip` (iproute2) in the namespace: {e}"));
-    assert!(
-        out.status.success(),
-        "ip addr add {REMOTE}/32 dev lo failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    add_remote_address();
     let l = TcpListener::bind((REMOTE, 0)).expect("listening on the remote address");
     l.set_nonblocking(true).expect("non-blocking listener");
     l
-}
-
-/// Runs `cmd` (in its own process group) for at most `limit`; kills the group if it does not
-/// exit by then. Returns its output and how long it ran.
-fn run_bounded(cmd: &mut Command, limit: Duration) -> (Output, Duration) {
-    use std::os::unix::process::CommandExt;
-    let t0 = Instant::now();
-    let mut child = cmd
-        .process_group(0)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("starting the binary");
-    while t0.elapsed() < limit {
-        if let Ok(Some(_)) = child.try_wait() {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
-    let elapsed = t0.elapsed();
-    if let Ok(None) = child.try_wait() {
-        // Still running after `limit`: stop it and everything it started.
-        let _ = Command::new("kill")
-            .args(["-KILL", &format!("-{}", child.id())])
-            .status();
-    }
-    let out = child.wait_with_output().expect("collecting the output");
-    (out, elapsed)
 }
 
 /// The refusal's checks: a non-zero exit well before the connect timeout, stderr naming
@@ -111,7 +72,7 @@ fn rt_core_run_refuses_blind_mode_on_a_remote_robot() {
     }
     let listener = remote_listener();
     let port = listener.local_addr().expect("listener address").port();
-    let (out, elapsed) = run_bounded(
+    let (out, elapsed) = run_bounded_timed(
         Command::new(bin_path("rt-core"))
             .current_dir(repo_root())
             .args(["run", "--link", "xarm", "--no-mlock", "--seconds", "5"])
@@ -143,7 +104,7 @@ fn foresight_refuses_blind_mode_on_a_remote_robot() {
     let listener = remote_listener();
     let port = listener.local_addr().expect("listener address").port();
     let out_dir = std::env::temp_dir().join(unique_prefix("blind_runs"));
-    let (out, elapsed) = run_bounded(
+    let (out, elapsed) = run_bounded_timed(
         Command::new(bin_path("foresight"))
             .current_dir(repo_root())
             .arg("--robot")

@@ -15,55 +15,11 @@
 // Integration tests: a failed unwrap or expect is a failed run, with its message.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::process::{Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
-use foresight_tests::sim_proc::SimProc;
-use foresight_tests::{NetnsOutcome, bin_path, repo_root, run_in_private_netns, unique_prefix};
-
-/// The robot address off this machine (TEST-NET-1, never routed).
-const REMOTE: &str = "192.0.2.10";
-
-/// `xarm-sim` listening on [`REMOTE`] (on `lo` of the private namespace), OS-chosen ports.
-fn remote_sim() -> SimProc {
-    let out = Command::new("ip")
-        .args(["addr", "add", &format!("{REMOTE}/32"), "dev", "lo"])
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run `ip` (iproute2) in the namespace: {e}"));
-    assert!(
-        out.status.success(),
-        "ip addr add {REMOTE}/32 dev lo failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    SimProc::start([0; 6], &["--bind", REMOTE])
-}
-
-/// Runs `cmd` (own process group) for at most `limit`, then kills the group.
-fn run_bounded(cmd: &mut Command, limit: Duration) -> Output {
-    use std::os::unix::process::CommandExt;
-    let t0 = Instant::now();
-    let mut child = cmd
-        .current_dir(repo_root())
-        .env("NO_COLOR", "1")
-        .process_group(0)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("starting the binary");
-    while t0.elapsed() < limit {
-        if let Ok(Some(_)) = child.try_wait() {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    if let Ok(None) = child.try_wait() {
-        let _ = Command::new("kill")
-            .args(["-KILL", &format!("-{}", child.id())])
-            .status();
-    }
-    child.wait_with_output().expect("collecting the output")
-}
+use foresight_tests::bounded::{REMOTE, remote_sim, run_bounded};
+use foresight_tests::{NetnsOutcome, bin_path, run_in_private_netns, unique_prefix};
 
 #[test]
 fn foresight_refuses_a_remote_arm_without_a_live_camera_and_an_explicit_calibration() {

@@ -17,38 +17,12 @@
 // Integration tests: a failed unwrap or expect is a failed run, with its message.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::process::{Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Output};
+use std::time::Duration;
 
+use foresight_tests::bounded::run_bounded;
 use foresight_tests::sim_proc::{SIM_SECRET_ENV, SimProc, fresh_secret};
 use foresight_tests::{bin_path, repo_root, unique_prefix};
-
-/// Runs `cmd` (own process group) for at most `limit`, then kills the group.
-fn run_bounded(cmd: &mut Command, limit: Duration) -> Output {
-    use std::os::unix::process::CommandExt;
-    let t0 = Instant::now();
-    let mut child = cmd
-        .current_dir(repo_root())
-        .env("NO_COLOR", "1")
-        .process_group(0)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("starting the binary");
-    while t0.elapsed() < limit {
-        if let Ok(Some(_)) = child.try_wait() {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    if let Ok(None) = child.try_wait() {
-        let _ = Command::new("kill")
-            .args(["-KILL", &format!("-{}", child.id())])
-            .status();
-    }
-    child.wait_with_output().expect("collecting the output")
-}
 
 /// `rt-core run --link xarm` against `sim` on loopback for at most 3 s of run time, with
 /// `flags` and (when given) `secret` in its environment.
