@@ -125,7 +125,7 @@ PY
 if [ -n "$missing_py" ]; then
   say "installing $(echo $missing_py) (run-recording readers) into the venv"
   # shellcheck disable=SC2086
-  "$venv/bin/python" -m pip install -q $missing_py
+  "$venv/bin/python" -m pip install -q -c "$here/scripts/python-constraints.txt" $missing_py
 else
   say "mcap readers present"
 fi
