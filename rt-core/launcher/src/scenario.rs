@@ -421,9 +421,33 @@ impl Director {
             self.budgets_exhausted[scene] += 1;
         }
         if phase == Some(RetrainPhase::Infeasible) && self.infeasible[scene].is_none() {
-            let boxes = twin::Scene::from_file(&self.cfg.world[scene].1)
+            // Where the boxes were when the learner judged (a moving box's place on its
+            // path), not where the scene file starts them.
+            let t_in_scene_s = t_s - self.scene_since_s;
+            let file = &self.cfg.world[scene].1;
+            let boxes = twin::Scene::from_file(&file.at(t_in_scene_s))
                 .map(|s| s.obstacles)
                 .unwrap_or_default();
+            // A box still on its way (or standing for a while before it moves on) may make a
+            // goal unreachable only for now: the verdict is logged, but the scene is not
+            // given up while its boxes still move; rt-core plans again once they are at rest.
+            let last_motion_s = file
+                .obstacles
+                .iter()
+                .filter_map(|b| b.path.keyframes().last().map(|k| k.at_s))
+                .fold(0.0, f64::max);
+            if t_in_scene_s < last_motion_s {
+                self.log(
+                    t_s,
+                    "infeasible_for_now",
+                    format!(
+                        "no safe way while the boxes move (after {:.2} s); waiting for them to \
+                         come to rest",
+                        p.wall_time_s
+                    ),
+                );
+                return;
+            }
             let words = InfeasibleReason::from_wire(
                 p.infeasible_kind,
                 p.infeasible_blocker,
@@ -1093,6 +1117,81 @@ mod tests {
         );
         let kinds: Vec<&str> = d.events().iter().map(|e| e.kind).collect();
         assert!(kinds.contains(&"infeasible"), "{kinds:?}");
+    }
+
+    /// A box that stands on the goal's way for a while makes the goal unreachable only for
+    /// now: the learner's "infeasible" while the scene's boxes still move is logged and does
+    /// not end the scene (before, the run gave up on a goal the box left a second later);
+    /// after the last keyframe it is final as before.
+    #[test]
+    fn infeasible_while_the_boxes_move_is_not_final() {
+        use shm_schemas::scene_file::BoxPath;
+        let mut moving = scene([0.3, 0.25, 0.025], 0.12);
+        moving.obstacles[0].path = BoxPath::new(&[
+            Keyframe {
+                at_s: 0.5,
+                center_m: [0.6, 0.06, 0.06],
+            },
+            Keyframe {
+                at_s: 1.0,
+                center_m: [0.3, 0.19, 0.06],
+            },
+            Keyframe {
+                at_s: 2.0,
+                center_m: [0.3, 0.19, 0.06],
+            },
+            Keyframe {
+                at_s: 2.5,
+                center_m: [0.6, 0.06, 0.06],
+            },
+        ])
+        .unwrap();
+        let cfg = ScenarioConfig {
+            world: vec![(0.0, scene([0.4, 0.2, 0.025], 0.06)), (0.0, moving)],
+            goal_tolerance_m: 0.02,
+            goal_hover_m: 0.05,
+            phase_timeout_s: 60.0,
+            settle_s: 0.0,
+            lookahead: true,
+            home_q_rad: None,
+        };
+        let mut d = Director::new(cfg);
+        d.step(0.0, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1)));
+        assert_eq!(
+            d.step(0.1, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1))),
+            vec![Action::SwitchScene(1)]
+        );
+        let request = |id: u64| Observations {
+            retrain_requests: vec![RetrainRequest {
+                request_id: id,
+                ..RetrainRequest::default()
+            }],
+            ..Observations::default()
+        };
+        let infeasible = |id: u64| Observations {
+            progress: vec![RetrainProgress {
+                request_id: id,
+                phase: RetrainPhase::Infeasible as u8,
+                ..RetrainProgress::default()
+            }],
+            ..Observations::default()
+        };
+        // 1.5 s into the scene: the box stands on the way.
+        d.step(1.6, &request(1));
+        d.step(1.61, &infeasible(1));
+        let kinds: Vec<&str> = d.events().iter().map(|e| e.kind).collect();
+        assert!(kinds.contains(&"infeasible_for_now"), "{kinds:?}");
+        assert!(!kinds.contains(&"infeasible"), "{kinds:?}");
+        assert!(
+            d.step(1.7, &Observations::default()).is_empty(),
+            "the scene goes on"
+        );
+        // After the box's last keyframe an infeasible verdict is final.
+        d.step(3.0, &request(2));
+        d.step(3.01, &infeasible(2));
+        let kinds: Vec<&str> = d.events().iter().map(|e| e.kind).collect();
+        assert!(kinds.contains(&"infeasible"), "{kinds:?}");
+        assert_eq!(d.summary(0, None, 0, 0).outcome, Outcome::Infeasible);
     }
 
     #[test]
