@@ -876,6 +876,38 @@ mod tests {
         }
     }
 
+    /// The small box's scene, then the demo's goal with one box of height `h` moving along
+    /// `path` (time in the scene s, centre m); no settle time.
+    fn moving_world(h: f64, path: &[(f64, [f64; 3])]) -> ScenarioConfig {
+        use shm_schemas::scene_file::BoxPath;
+        let mut moving = scene([0.3, 0.25, 0.025], h);
+        let keyframes: Vec<Keyframe> = path
+            .iter()
+            .map(|&(at_s, center_m)| Keyframe { at_s, center_m })
+            .collect();
+        moving.obstacles[0].path = BoxPath::new(&keyframes).unwrap();
+        ScenarioConfig {
+            world: vec![(0.0, scene([0.4, 0.2, 0.025], 0.06)), (0.0, moving)],
+            goal_tolerance_m: 0.02,
+            goal_hover_m: 0.05,
+            phase_timeout_s: 60.0,
+            settle_s: 0.0,
+            lookahead: true,
+            home_q_rad: None,
+        }
+    }
+
+    /// A director on `cfg` whose arm rests at goal 0, switched to scene 1 at 0.1 s.
+    fn switched_to_scene_1(cfg: ScenarioConfig) -> Director {
+        let mut d = Director::new(cfg);
+        d.step(0.0, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1)));
+        assert_eq!(
+            d.step(0.1, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1))),
+            vec![Action::SwitchScene(1)]
+        );
+        d
+    }
+
     #[test]
     fn measures_the_self_improving_loop_from_the_outside() {
         let cfg = ScenarioConfig {
@@ -970,42 +1002,15 @@ mod tests {
 
     #[test]
     fn a_box_in_the_way_shows_as_a_pause_and_the_continuation() {
-        use shm_schemas::scene_file::BoxPath;
-        let mut moving = scene([0.3, 0.25, 0.025], 0.2);
-        moving.obstacles[0].path = BoxPath::new(&[
-            Keyframe {
-                at_s: 1.0,
-                center_m: [0.05, 0.2, 0.1],
-            },
-            Keyframe {
-                at_s: 2.0,
-                center_m: [0.3, 0.14, 0.1],
-            },
-            Keyframe {
-                at_s: 3.0,
-                center_m: [0.3, 0.14, 0.1],
-            },
-            Keyframe {
-                at_s: 4.0,
-                center_m: [0.55, 0.08, 0.1],
-            },
-        ])
-        .unwrap();
-        let cfg = ScenarioConfig {
-            world: vec![(0.0, scene([0.4, 0.2, 0.025], 0.06)), (0.0, moving)],
-            goal_tolerance_m: 0.02,
-            goal_hover_m: 0.05,
-            phase_timeout_s: 60.0,
-            settle_s: 0.0,
-            lookahead: true,
-            home_q_rad: None,
-        };
-        let mut d = Director::new(cfg);
-        d.step(0.0, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1)));
-        assert_eq!(
-            d.step(0.1, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1))),
-            vec![Action::SwitchScene(1)]
-        );
+        let mut d = switched_to_scene_1(moving_world(
+            0.2,
+            &[
+                (1.0, [0.05, 0.2, 0.1]),
+                (2.0, [0.3, 0.14, 0.1]),
+                (3.0, [0.3, 0.14, 0.1]),
+                (4.0, [0.55, 0.08, 0.1]),
+            ],
+        ));
         d.step(0.5, &obs_state(state([0.35, 0.1, 0.2], 0.1, 1)));
         let stopped = |q0: f64| RobotState {
             controlled_stop: 1,
@@ -1125,42 +1130,15 @@ mod tests {
     /// after the last keyframe it is final as before.
     #[test]
     fn infeasible_while_the_boxes_move_is_not_final() {
-        use shm_schemas::scene_file::BoxPath;
-        let mut moving = scene([0.3, 0.25, 0.025], 0.12);
-        moving.obstacles[0].path = BoxPath::new(&[
-            Keyframe {
-                at_s: 0.5,
-                center_m: [0.6, 0.06, 0.06],
-            },
-            Keyframe {
-                at_s: 1.0,
-                center_m: [0.3, 0.19, 0.06],
-            },
-            Keyframe {
-                at_s: 2.0,
-                center_m: [0.3, 0.19, 0.06],
-            },
-            Keyframe {
-                at_s: 2.5,
-                center_m: [0.6, 0.06, 0.06],
-            },
-        ])
-        .unwrap();
-        let cfg = ScenarioConfig {
-            world: vec![(0.0, scene([0.4, 0.2, 0.025], 0.06)), (0.0, moving)],
-            goal_tolerance_m: 0.02,
-            goal_hover_m: 0.05,
-            phase_timeout_s: 60.0,
-            settle_s: 0.0,
-            lookahead: true,
-            home_q_rad: None,
-        };
-        let mut d = Director::new(cfg);
-        d.step(0.0, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1)));
-        assert_eq!(
-            d.step(0.1, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1))),
-            vec![Action::SwitchScene(1)]
-        );
+        let mut d = switched_to_scene_1(moving_world(
+            0.12,
+            &[
+                (0.5, [0.6, 0.06, 0.06]),
+                (1.0, [0.3, 0.19, 0.06]),
+                (2.0, [0.3, 0.19, 0.06]),
+                (2.5, [0.6, 0.06, 0.06]),
+            ],
+        ));
         let request = |id: u64| Observations {
             retrain_requests: vec![RetrainRequest {
                 request_id: id,
