@@ -58,6 +58,34 @@ fn zed_camera() -> CalibrationCamera {
     }
 }
 
+/// The synthetic camera at a quarter of its resolution, the test scene, and a calibration of
+/// it (named for the ZED test camera) saved as `dir/calibration.toml`.
+fn quarter_camera_calibrated(dir: &std::path::Path) -> (SyntheticCamera, SceneFile) {
+    let mut cam =
+        SyntheticCamera::load(&foresight_tests::asset("perception/synthetic_camera.toml"))
+            .unwrap()
+            .config;
+    cam.intrinsics.fx_px /= 4.0;
+    cam.intrinsics.fy_px /= 4.0;
+    cam.intrinsics.cx_px /= 4.0;
+    cam.intrinsics.cy_px /= 4.0;
+    cam.intrinsics.width_px /= 4;
+    cam.intrinsics.height_px /= 4;
+    let cam = SyntheticCamera::new(cam).unwrap();
+    let scene = SceneFile::from_toml_str(SCENE, std::path::Path::new("<test>")).unwrap();
+    Calibration::new(CalibrationFile {
+        camera: zed_camera(),
+        intrinsics: cam.config.intrinsics,
+        workspace: cam.workspace_for(&scene),
+        corners_px: cam.workspace_corners_px(&scene).unwrap(),
+        rectified_px_per_m: 1000.0,
+    })
+    .unwrap()
+    .save(&dir.join("calibration.toml"))
+    .unwrap();
+    (cam, scene)
+}
+
 #[test]
 fn ros2_camera_topics_become_detection_frames() {
     if run_in_private_netns("ros2_camera_topics_become_detection_frames")
@@ -241,29 +269,8 @@ fn ros2_frames_carry_the_camera_stamp_on_the_monotonic_clock_and_unstamped_image
     }
     let dir = std::env::temp_dir().join(format!("foresight-perc-stamp-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let mut cam =
-        SyntheticCamera::load(&foresight_tests::asset("perception/synthetic_camera.toml"))
-            .unwrap()
-            .config;
-    cam.intrinsics.fx_px /= 4.0;
-    cam.intrinsics.fy_px /= 4.0;
-    cam.intrinsics.cx_px /= 4.0;
-    cam.intrinsics.cy_px /= 4.0;
-    cam.intrinsics.width_px /= 4;
-    cam.intrinsics.height_px /= 4;
-    let cam = SyntheticCamera::new(cam).unwrap();
-    let scene = SceneFile::from_toml_str(SCENE, std::path::Path::new("<test>")).unwrap();
+    let (cam, scene) = quarter_camera_calibrated(&dir);
     let r = cam.render(&scene);
-    Calibration::new(CalibrationFile {
-        camera: zed_camera(),
-        intrinsics: cam.config.intrinsics,
-        workspace: cam.workspace_for(&scene),
-        corners_px: cam.workspace_corners_px(&scene).unwrap(),
-        rectified_px_per_m: 1000.0,
-    })
-    .unwrap()
-    .save(&dir.join("calibration.toml"))
-    .unwrap();
     // The default networks (loopback only); a wider age bound for the 400 ms old stamps.
     let topics = Ros2Topics {
         timeout_s: 5.0,
@@ -625,29 +632,8 @@ fn images_of_another_camera_are_refused_and_never_published() {
     }
     let dir = std::env::temp_dir().join(format!("foresight-perc-camid-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let mut cam =
-        SyntheticCamera::load(&foresight_tests::asset("perception/synthetic_camera.toml"))
-            .unwrap()
-            .config;
-    cam.intrinsics.fx_px /= 4.0;
-    cam.intrinsics.fy_px /= 4.0;
-    cam.intrinsics.cx_px /= 4.0;
-    cam.intrinsics.cy_px /= 4.0;
-    cam.intrinsics.width_px /= 4;
-    cam.intrinsics.height_px /= 4;
-    let cam = SyntheticCamera::new(cam).unwrap();
-    let scene = SceneFile::from_toml_str(SCENE, std::path::Path::new("<test>")).unwrap();
+    let (cam, scene) = quarter_camera_calibrated(&dir);
     let r = cam.render(&scene);
-    Calibration::new(CalibrationFile {
-        camera: zed_camera(),
-        intrinsics: cam.config.intrinsics,
-        workspace: cam.workspace_for(&scene),
-        corners_px: cam.workspace_corners_px(&scene).unwrap(),
-        rectified_px_per_m: 1000.0,
-    })
-    .unwrap()
-    .save(&dir.join("calibration.toml"))
-    .unwrap();
     let topics = Ros2Topics {
         timeout_s: 5.0,
         ..Ros2Topics::default()
