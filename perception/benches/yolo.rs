@@ -1,7 +1,12 @@
 //! YOLOv8n on this machine's CPU: letterbox, inference, decoding and NMS of a 1280×720
-//! synthetic frame, through ONNX Runtime (at 640 and 320) and OpenCV DNN (at 640), each with
-//! the threads the process may use; and the full frame → published `DetectionFrame` path
-//! (detector + 3D measurement from depth + tracker + iceoryx2 publish) with YOLO at 640.
+//! synthetic frame, through ONNX Runtime (at 640 and 320, fp32 and int8) and OpenCV DNN (at
+//! 640), each with the threads the process may use; and the full frame → published
+//! `DetectionFrame` path (detector + 3D measurement from depth + tracker + iceoryx2 publish)
+//! with YOLO at 640 and with the project's model (fp32, the default, and int8).
+//!
+//! The int8 models are made from the fp32 ones by scripts/quantize-yolo.sh (static QDQ
+//! quantization calibrated on synthetic frames, issue 32 item 5); set
+//! FORESIGHT_YOLO_MODEL_INT8 / FORESIGHT_YOLO_MODEL_320_INT8 to use others.
 //!
 //! The models are stock Ultralytics exports with random weights made by
 //! tests/python/make_onnx_ultralytics.py (inference time does not depend on the weights);
@@ -66,6 +71,25 @@ fn model(imgsz: u32, env: &str) -> PathBuf {
     out
 }
 
+/// The int8 quantization of `fp32` (scripts/quantize-yolo.sh, next to it in the cache).
+fn int8_model(fp32: &Path, env: &str) -> PathBuf {
+    if let Ok(p) = std::env::var(env) {
+        return p.into();
+    }
+    let out = fp32.with_extension("int8.onnx");
+    if !out.is_file() {
+        let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let st = Command::new("bash")
+            .arg(repo.join("scripts/quantize-yolo.sh"))
+            .arg(fp32)
+            .arg(&out)
+            .status()
+            .unwrap();
+        assert!(st.success(), "scripts/quantize-yolo.sh {}", fp32.display());
+    }
+    out
+}
+
 fn load(model: &Path, backend: BackendChoice) -> YoloDetector {
     YoloDetector::load(
         model,
@@ -81,6 +105,8 @@ fn load(model: &Path, backend: BackendChoice) -> YoloDetector {
 fn bench(c: &mut Criterion) {
     let m640 = model(640, "FORESIGHT_YOLO_MODEL");
     let m320 = model(320, "FORESIGHT_YOLO_MODEL_320");
+    let m640_int8 = int8_model(&m640, "FORESIGHT_YOLO_MODEL_INT8");
+    let m320_int8 = int8_model(&m320, "FORESIGHT_YOLO_MODEL_320_INT8");
     let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/perception");
     let cam = SyntheticCamera::load(&assets.join("synthetic_camera.toml")).unwrap();
     let scene = SceneFile::from_toml_str(
@@ -101,10 +127,29 @@ fn bench(c: &mut Criterion) {
     g.bench_function(format!("ort_640_{threads}_threads"), |b| {
         b.iter(|| ort640.detect(std::hint::black_box(&frame), None).unwrap())
     });
+    let mut ort640_int8 = load(&m640_int8, BackendChoice::Ort);
+    g.bench_function(format!("ort_640_int8_{threads}_threads"), |b| {
+        b.iter(|| {
+            ort640_int8
+                .detect(std::hint::black_box(&frame), None)
+                .unwrap()
+        })
+    });
+    drop(ort640_int8);
     let mut ort320 = load(&m320, BackendChoice::Ort);
     g.bench_function(format!("ort_320_{threads}_threads"), |b| {
         b.iter(|| ort320.detect(std::hint::black_box(&frame), None).unwrap())
     });
+    drop(ort320);
+    let mut ort320_int8 = load(&m320_int8, BackendChoice::Ort);
+    g.bench_function(format!("ort_320_int8_{threads}_threads"), |b| {
+        b.iter(|| {
+            ort320_int8
+                .detect(std::hint::black_box(&frame), None)
+                .unwrap()
+        })
+    });
+    drop(ort320_int8);
     g.sample_size(10);
     let mut cv640 = load(&m640, BackendChoice::OpenCv);
     g.bench_function(
@@ -141,23 +186,40 @@ fn bench(c: &mut Criterion) {
         b.iter(|| pipeline.process(std::hint::black_box(&frame)).unwrap())
     });
     // The same path with the project's trained model and settings (real detections, each
-    // measured from depth).
+    // measured from depth): the bundled settings' model (fp32) and its int8 quantization
+    // (scripts/quantize-yolo.sh), both on ONNX Runtime.
     let bundled = perception::yolo::YoloFile::load(&assets.join("yolo.toml")).unwrap();
-    pipeline.detector = Detector::Yolo(Box::new(
-        YoloDetector::load(&bundled.model, bundled.labels.as_deref(), bundled.detector).unwrap(),
-    ));
-    // New objects are published once they persisted a few frames (the tracker).
-    let found = (0..5)
-        .map(|_| pipeline.process(&frame).unwrap().sent.count)
-        .last()
-        .unwrap();
-    assert_eq!(
-        found, 2,
-        "the bundled model should see the goal and the box"
-    );
-    g.bench_function("bundled_model_frame_to_published_detection_frame", |b| {
-        b.iter(|| pipeline.process(std::hint::black_box(&frame)).unwrap())
-    });
+    let int8 = assets.join("models/foresight-tiny-320-int8.onnx");
+    for (name, model) in [
+        ("bundled_model", &bundled.model),
+        ("bundled_model_int8", &int8),
+    ] {
+        pipeline.detector = Detector::Yolo(Box::new(
+            YoloDetector::load(
+                model,
+                bundled.labels.as_deref(),
+                perception::yolo::YoloConfig {
+                    backend: BackendChoice::Ort,
+                    ..bundled.detector.clone()
+                },
+            )
+            .unwrap(),
+        ));
+        // New objects are published once they persisted a few frames (the tracker).
+        let found = (0..5)
+            .map(|_| pipeline.process(&frame).unwrap().sent.count)
+            .last()
+            .unwrap();
+        assert_eq!(
+            found,
+            2,
+            "{}: the bundled model should see the goal and the box",
+            model.display()
+        );
+        g.bench_function(format!("{name}_frame_to_published_detection_frame"), |b| {
+            b.iter(|| pipeline.process(std::hint::black_box(&frame)).unwrap())
+        });
+    }
     g.finish();
 }
 

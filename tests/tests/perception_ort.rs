@@ -263,3 +263,78 @@ fn onnx_runtime_detects_with_timing_and_bad_libraries_are_clear_errors() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A settings file naming the int8 model (issue 32 item 5) with `opencv_model`: ONNX Runtime
+/// runs the int8 model, OpenCV DNN (`--backend opencv`, and `auto` without an ONNX Runtime
+/// library) the fp32 export — each finding the goal and the box; without `opencv_model`,
+/// OpenCV refuses the int8 model with its reason.
+#[test]
+fn int8_settings_run_the_fp32_export_on_opencv() {
+    let dir = tmpdir("perception-int8");
+    let frame = rendered(&dir);
+    let int8 = asset("perception/models/foresight-tiny-320-int8.onnx");
+    let fp32 = asset("perception/models/foresight-tiny-320.onnx");
+    let cfg = dir.join("yolo.toml");
+    let run = |extra: &[&str]| {
+        let out = Command::new(bin_path("perception"))
+            .arg("detect")
+            .arg("--image")
+            .arg(frame.join("colour.png"))
+            .arg("--depth")
+            .arg(frame.join("colour.depth.tiff"))
+            .arg("--calibration")
+            .arg(frame.join("calibration.toml"))
+            .arg("--yolo-config")
+            .arg(&cfg)
+            .args(extra)
+            .env_remove("ORT_DYLIB_PATH")
+            .env("NO_COLOR", "1")
+            .output()
+            .unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let objects = |stdout: &str| {
+        let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+        let mut classes: Vec<String> = v["objects"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| o["class"].as_str().unwrap().to_string())
+            .collect();
+        classes.sort();
+        classes
+    };
+    std::fs::write(
+        &cfg,
+        format!("model = {int8:?}\nopencv_model = {fp32:?}\n[detector]\nbackend = \"auto\"\n"),
+    )
+    .unwrap();
+    for (extra, engine, model) in [
+        (&["--backend", "ort"][..], "ort", &int8),
+        (&["--backend", "opencv"][..], "opencv", &fp32),
+        (
+            &["--ort-library", "/nonexistent/libonnxruntime.so"][..],
+            "opencv",
+            &fp32,
+        ),
+    ] {
+        let (ok, stdout, stderr) = run(extra);
+        assert!(ok, "{extra:?}: {stderr}");
+        assert_eq!(
+            objects(&stdout),
+            ["goal", "obstacle"],
+            "{extra:?}: {stdout}"
+        );
+        let line = format!("YOLO model {} on {engine}", model.display());
+        assert!(stderr.contains(&line), "{extra:?}: no '{line}' in {stderr}");
+    }
+    std::fs::write(&cfg, format!("model = {int8:?}\n")).unwrap();
+    let (ok, _, stderr) = run(&["--backend", "opencv"]);
+    assert!(!ok);
+    assert!(stderr.contains("OpenCV DNN cannot run model"), "{stderr}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -87,9 +87,14 @@ impl YoloArgs {
             .as_deref()
             .map(YoloFile::load)
             .transpose()?;
-        let (model, labels) = match (&self.model, &file) {
-            (Some(m), _) => (m.clone(), self.labels.clone()),
-            (None, Some(f)) => (f.model.clone(), self.labels.clone().or(f.labels.clone())),
+        // The file's `opencv_model` goes with its `model`, not with a `--model` given instead.
+        let (model, opencv_model, labels) = match (&self.model, &file) {
+            (Some(m), _) => (m.clone(), None, self.labels.clone()),
+            (None, Some(f)) => (
+                f.model.clone(),
+                f.opencv_model.clone(),
+                self.labels.clone().or(f.labels.clone()),
+            ),
             (None, None) => anyhow::bail!("no YOLO model: give --model or --yolo-config"),
         };
         let mut config = file.map(|f| f.detector).unwrap_or_default();
@@ -102,8 +107,13 @@ impl YoloArgs {
         if let Some(l) = &self.ort_library {
             config.ort_library = Some(l.clone());
         }
-        let y = YoloDetector::load(&model, labels.as_deref(), config)
-            .with_context(|| format!("loading YOLO model {}", model.display()))?;
+        let y = YoloDetector::load_with_opencv_model(
+            &model,
+            opencv_model.as_deref(),
+            labels.as_deref(),
+            config,
+        )
+        .with_context(|| format!("loading YOLO model {}", model.display()))?;
         if let Some(why) = &y.fallback_reason {
             tracing::warn!("ONNX Runtime unavailable, running the model on OpenCV DNN: {why}");
         }
@@ -115,7 +125,7 @@ impl YoloArgs {
         }
         tracing::info!(
             "YOLO model {} on {} at {} px ({:?})",
-            model.display(),
+            y.model_path().display(),
             y.backend_name(),
             y.input_px(),
             y.layout()

@@ -155,6 +155,11 @@ pub struct YoloFile {
     /// A labels file (optional when the model names its classes `goal` / `obstacle`).
     #[serde(default)]
     pub labels: Option<PathBuf>,
+    /// The model OpenCV DNN runs instead of `model` (with `backend = "opencv"`, and when
+    /// `auto` falls back to it): OpenCV 4.6 cannot run an int8 (QDQ) model, so a file naming
+    /// one gives here the fp32 export it was quantized from. Absent: `model` on both engines.
+    #[serde(default)]
+    pub opencv_model: Option<PathBuf>,
     /// Detector settings.
     #[serde(default)]
     pub detector: YoloConfig,
@@ -178,6 +183,7 @@ impl YoloFile {
         let dir = path.parent().unwrap_or(Path::new("."));
         f.model = dir.join(&f.model);
         f.labels = f.labels.map(|l| dir.join(l));
+        f.opencv_model = f.opencv_model.map(|m| dir.join(m));
         f.detector.ort_library = f.detector.ort_library.map(|l| dir.join(l));
         Ok(f)
     }
@@ -196,6 +202,8 @@ pub struct YoloDetector {
     pub rewritten_nodes: Vec<String>,
     /// Why `auto` fell back to OpenCV (for logs), if it did.
     pub fallback_reason: Option<String>,
+    /// The model file the engine runs (`model`, or the OpenCV model on OpenCV DNN).
+    model_path: PathBuf,
     padded: Mat,
     resized: Mat,
     output: Vec<f32>,
@@ -214,15 +222,70 @@ impl YoloDetector {
         labels: Option<&Path>,
         config: YoloConfig,
     ) -> Result<Self, YoloLoadError> {
+        Self::load_with_opencv_model(model, None, labels, config)
+    }
+
+    /// [`YoloDetector::load`] with another model for OpenCV DNN (`opencv_model` in
+    /// `yolo.toml`): `model` runs on ONNX Runtime, `opencv_model` (when given) on OpenCV DNN
+    /// — chosen with `backend = "opencv"` or by the `auto` fallback. Class names, input size
+    /// and layout are read from the model that runs.
+    ///
+    /// # Errors
+    /// [`YoloLoadError`].
+    pub fn load_with_opencv_model(
+        model: &Path,
+        opencv_model: Option<&Path>,
+        labels: Option<&Path>,
+        config: YoloConfig,
+    ) -> Result<Self, YoloLoadError> {
         config.validate()?;
-        let bytes = std::fs::read(model).map_err(|source| YoloLoadError::Io {
-            path: model.to_path_buf(),
-            source,
-        })?;
-        let info = model_info(&bytes).map_err(|source| YoloLoadError::Patch {
-            path: model.to_path_buf(),
-            source,
-        })?;
+        let read = |path: &Path| {
+            let bytes = std::fs::read(path).map_err(|source| YoloLoadError::Io {
+                path: path.to_path_buf(),
+                source,
+            })?;
+            let info = model_info(&bytes).map_err(|source| YoloLoadError::Patch {
+                path: path.to_path_buf(),
+                source,
+            })?;
+            Ok::<_, YoloLoadError>((bytes, info))
+        };
+        let (bytes, info) = read(model)?;
+        // OpenCV DNN's model, read only when OpenCV DNN runs.
+        let on_opencv = |fallback_reason: Option<String>| match opencv_model {
+            Some(cv) if cv != model => read(cv).and_then(|(b, i)| {
+                Ok((
+                    Engine::opencv(cv, &b)?,
+                    cv.to_path_buf(),
+                    i,
+                    fallback_reason,
+                ))
+            }),
+            _ => Ok((
+                Engine::opencv(model, &bytes)?,
+                model.to_path_buf(),
+                info.clone(),
+                fallback_reason,
+            )),
+        };
+        let (engine, model_path, info, fallback_reason) = match config.backend {
+            BackendChoice::OpenCv => on_opencv(None)?,
+            BackendChoice::Ort => {
+                let lib = ort_library_path(config.ort_library.as_deref())?;
+                let e = Engine::ort(model, &bytes, &info.input_name, &lib, config.threads)?;
+                (e, model.to_path_buf(), info, None)
+            }
+            BackendChoice::Auto => {
+                match ort_library_path(config.ort_library.as_deref()).and_then(|lib| {
+                    Engine::ort(model, &bytes, &info.input_name, &lib, config.threads)
+                }) {
+                    Ok(e) => (e, model.to_path_buf(), info, None),
+                    Err(e @ YoloLoadError::OrtLibrary { .. }) => on_opencv(Some(e.to_string()))?,
+                    Err(e) => return Err(e),
+                }
+            }
+        };
+        let model = model_path.as_path();
         let classes = resolve_classes(model, info.metadata("names"), labels)?;
         let input_px = match info.square_input_px() {
             Some(s) if (32..=4096).contains(&s) => s as i32,
@@ -243,26 +306,6 @@ impl YoloDetector {
                     .map(|a| a.replace(' ', "").contains("'nms':True"))
                     .filter(|&nms| nms)
             });
-        let mut fallback_reason = None;
-        let engine = match config.backend {
-            BackendChoice::OpenCv => Engine::opencv(model, &bytes)?,
-            BackendChoice::Ort => {
-                let lib = ort_library_path(config.ort_library.as_deref())?;
-                Engine::ort(model, &bytes, &info.input_name, &lib, config.threads)?
-            }
-            BackendChoice::Auto => {
-                match ort_library_path(config.ort_library.as_deref()).and_then(|lib| {
-                    Engine::ort(model, &bytes, &info.input_name, &lib, config.threads)
-                }) {
-                    Ok(e) => e,
-                    Err(e @ YoloLoadError::OrtLibrary { .. }) => {
-                        fallback_reason = Some(e.to_string());
-                        Engine::opencv(model, &bytes)?
-                    }
-                    Err(e) => return Err(e),
-                }
-            }
-        };
         let rewritten_nodes = match &engine {
             Engine::OpenCv {
                 rewritten_nodes, ..
@@ -278,6 +321,7 @@ impl YoloDetector {
             input_px,
             rewritten_nodes,
             fallback_reason,
+            model_path: model.to_path_buf(),
             padded: Mat::default(),
             resized: Mat::default(),
             output: Vec::new(),
@@ -326,6 +370,11 @@ impl YoloDetector {
     /// The engine that runs the model: `ort` or `opencv`.
     pub fn backend_name(&self) -> &'static str {
         self.engine.name()
+    }
+
+    /// The model file the engine runs: the loaded model, or the OpenCV model on OpenCV DNN.
+    pub fn model_path(&self) -> &Path {
+        &self.model_path
     }
 
     /// The network's square input size (px).

@@ -5,4 +5,5 @@
 
 mod accuracy;
 mod common;
+mod yolo_int8;
 mod yolo_models;
