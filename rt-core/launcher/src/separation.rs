@@ -4,7 +4,7 @@
 //! boxes on their paths, from when their scene came into force).
 //!
 //! Measured apart from the twin, like `xarm-sim`'s referee: the arm is the datasheet's (the
-//! referee's DH kinematics and unpadded link bodies, `xarm_sim::referee`), the boxes are the
+//! referee's DH kinematics and unpadded link bodies, `xarm_referee`), the boxes are the
 //! world's ground truth, not what perception saw. Zero or less is contact. The report plots
 //! it over time ([`plot_separation`], `separation.png`) and `summary.json` gives its minimum
 //! while the arm moved and while it was at rest (`min_separation_moving_m`,
@@ -14,9 +14,9 @@ use std::path::Path;
 
 use plotters::prelude::*;
 use shm_schemas::scene_file::SceneFile;
-use xarm_sim::referee::distance::{Aabb, segment_box_m};
-use xarm_sim::referee::kinematics::forward;
-use xarm_sim::referee::{ArmCapsules, LINKS};
+use xarm_referee::distance::{Aabb, segment_box_m};
+use xarm_referee::kinematics::forward;
+use xarm_referee::{ArmCapsules, LINKS};
 
 use crate::report::{ReportError, tick_text};
 

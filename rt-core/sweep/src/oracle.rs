@@ -6,9 +6,9 @@
 //! Independent of what it checks: no parry3d, no `twin::RobotGeometry`, no shield code, and
 //! not the twin's kinematics either (issue 30 item 7). The arm's pose comes from UFactory's
 //! published Denavit–Hartenberg table and its body from one unpadded capsule per link, the
-//! shapes of `xarm-sim`'s referee (`xarm_sim::referee`, written apart from the twin and
-//! checked against the published dimension drawing), so a model error shared by the twin's
-//! URDF and everything built on it shows here as penetration. A negative distance is real
+//! shapes of the referee (`xarm_referee`, the crate `xarm-sim` judges with, written apart
+//! from the twin and checked against the published dimension drawing), so a model error
+//! shared by the twin's URDF and everything built on it shows here as penetration. A negative distance is real
 //! penetration of the arm's surface, not of the twin's safety padding. The twin's model
 //! serves only to mount the task's tool (given in the URDF's flange frame) on the datasheet
 //! flange, and to place the sweep's injected boxes (never a check).
@@ -29,8 +29,8 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion};
 use twin::{DOF, Joints, LinkCapsule, RobotModel};
-use xarm_sim::referee::kinematics::{Frame, forward};
-use xarm_sim::referee::{ArmCapsules, LINKS, N_LINKS};
+use xarm_referee::kinematics::{Frame, forward};
+use xarm_referee::{ArmCapsules, LINKS, N_LINKS};
 
 use rt_core::cycle::shield::STEP_TOLERANCE;
 
@@ -137,7 +137,7 @@ pub fn segment_plane_distance_m(a: &Point, b: &Point, plane_z_m: f64) -> f64 {
 /// One nominal capsule of the arm: a link body of the datasheet arm, or the tool.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NominalCapsule {
-    /// Link body (`0` = base … `5` = link5, as `xarm_sim::referee::LINKS`); the tool is
+    /// Link body (`0` = base … `5` = link5, as `xarm_referee::LINKS`); the tool is
     /// carried by the flange (5).
     pub frame: usize,
     /// Whether it is the tool's capsule.
@@ -423,7 +423,7 @@ mod tests {
 
     /// The oracle's arm is the datasheet's, not the twin's, yet the two must describe the
     /// same arm: the TCP within 0.01 mm everywhere (the DH table's 2 µm digit slip; see
-    /// `xarm_sim::referee::kinematics`). A URDF that drifts from the datasheet fails here,
+    /// `xarm_referee::kinematics`). A URDF that drifts from the datasheet fails here,
     /// and the sweep would count its poses against the real arm's shape.
     #[test]
     fn the_datasheet_arm_and_the_twins_urdf_put_the_tcp_in_the_same_place() {

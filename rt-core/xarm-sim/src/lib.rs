@@ -19,7 +19,8 @@
 #![forbid(unsafe_code)]
 
 pub mod controller;
-pub mod referee;
+/// The referee, a crate of its own (`xarm-referee`) shared with the launcher and the sweep.
+pub use xarm_referee as referee;
 pub mod server;
 pub mod world;
 

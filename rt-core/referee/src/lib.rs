@@ -1,6 +1,9 @@
-//! The simulator's independent referee: the ground truth of "did the arm touch anything",
-//! written separately from the twin so that the twin's model errors show up instead of being
-//! graded by themselves.
+//! The independent referee of a simulated xArm5: the ground truth of "did the arm touch
+//! anything", written separately from the twin so that the twin's model errors show up
+//! instead of being graded by themselves. A library of its own (no process, no I/O): the
+//! simulator (`xarm-sim`, its world and summary) judges every physics tick with it, the
+//! launcher draws the separation plot from its kinematics and shapes, and the adversarial
+//! sweep's oracle checks every command with them.
 //!
 //! - **Kinematics** ([`kinematics`]): UFactory's published DH table of the xArm5, not the
 //!   URDF. A test holds it against the twin's URDF FK (flange within 1 µm, same
