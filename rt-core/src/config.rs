@@ -240,6 +240,8 @@ pub mod bounds {
     pub const WORKSPACE_MIN_Z_M: f64 = -0.1;
     /// Highest z of a workspace, m (the xArm5 stretched up reaches about 0.95 m).
     pub const WORKSPACE_MAX_Z_M: f64 = 1.1;
+    /// Most user ids `[operator] ack_uids` may list.
+    pub const MAX_OPERATOR_UIDS: usize = 16;
     /// Smallest goal-confidence floor.
     pub const MIN_GOAL_CONFIDENCE_FLOOR: f32 = 0.05;
     /// Allowed range of the tracking tolerance, rad: below 0.01 rad the controller's own
@@ -247,6 +249,15 @@ pub mod bounds {
     pub const TRACKING_ERROR_RANGE_RAD: (f64, f64) = (0.01, 0.5);
     /// Allowed range of the tracking check's periods in a row (1000: 4 s at 250 Hz).
     pub const TRACKING_CYCLES_RANGE: (u32, u32) = (1, 1000);
+    /// Allowed range of the separation monitor's assumed intruder speed, m/s (ISO/TS 15066
+    /// assumes 1.6 m/s for a body part approaching; ISO 13855's hand speed is 2.0 m/s).
+    pub const SEPARATION_INTRUDER_SPEED_RANGE_M_S: (f64, f64) = (0.5, 5.0);
+    /// Largest reaction time of the separation monitor, s (the lower bound is one period).
+    pub const SEPARATION_MAX_REACTION_TIME_S: f64 = 1.0;
+    /// Largest intrusion distance C, m (ISO 13855's largest, a reach over a sensing field).
+    pub const SEPARATION_MAX_INTRUSION_M: f64 = 0.85;
+    /// Largest position uncertainty Z_d + Z_r, m.
+    pub const SEPARATION_MAX_UNCERTAINTY_M: f64 = 0.2;
 }
 
 /// The whole runtime configuration.
@@ -289,6 +300,113 @@ pub struct RuntimeConfig {
     /// Verified sampling before the planner fallback.
     #[serde(default)]
     pub sampling: SamplingConfig,
+    /// Who may acknowledge a protective stop.
+    #[serde(default)]
+    pub operator: OperatorConfig,
+    /// Where the goal comes from (the camera's goal cube, or the ROS 2 `Reach` action).
+    #[serde(default)]
+    pub goal: GoalConfig,
+    /// Speed and separation monitoring (ISO/TS 15066), off by default.
+    #[serde(default)]
+    pub separation: SeparationConfig,
+}
+
+/// Speed and separation monitoring after ISO/TS 15066 (`[separation]`): while an obstacle is
+/// nearer than the protective separation distance `S_p(s) = v_h·(T_r + T_s(s)) + v_r(s)·T_r +
+/// B(s) + C + Z`, the cycle plays the plan back at the largest speed scale `s ∈ [0, 1]` with
+/// `S_p(s)` within the separation, rate-limited; at `s = 0` the arm stands on the plan and
+/// goes on by itself once the separation allows (see [`crate::cycle::separation`]).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SeparationConfig {
+    /// Scale the playback by separation (off: full speed up to the shield's clearance and the
+    /// twin's revocation, as before).
+    #[serde(default)]
+    pub enabled: bool,
+    /// v_h: the assumed speed of an intruder towards the arm, m/s.
+    #[serde(default = "default_intruder_speed_m_s")]
+    pub intruder_speed_m_s: f64,
+    /// T_r: from an intruder's move to the cycle's reaction (camera frame, perception, the
+    /// hand-over to the cycle, one period), s.
+    #[serde(default = "default_separation_reaction_time_s")]
+    pub reaction_time_s: f64,
+    /// C: how far an intruder may reach towards the arm before it is detected, m.
+    #[serde(default = "default_separation_intrusion_m")]
+    pub intrusion_distance_m: f64,
+    /// Z_d + Z_r: the position uncertainty of the detection and of the arm, m.
+    #[serde(default = "default_separation_uncertainty_m")]
+    pub position_uncertainty_m: f64,
+}
+
+impl Default for SeparationConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            intruder_speed_m_s: default_intruder_speed_m_s(),
+            reaction_time_s: default_separation_reaction_time_s(),
+            intrusion_distance_m: default_separation_intrusion_m(),
+            position_uncertainty_m: default_separation_uncertainty_m(),
+        }
+    }
+}
+
+fn default_separation_reaction_time_s() -> f64 {
+    0.1
+}
+fn default_separation_intrusion_m() -> f64 {
+    0.02
+}
+fn default_separation_uncertainty_m() -> f64 {
+    0.02
+}
+
+/// Which source gives the goal (`[goal] source`): the goal cube the camera sees
+/// (`"camera"`, the default) or the ROS 2 `Reach` action served by `ros-bridge`
+/// (`"action"`: the camera's goal cube is ignored, its obstacles still count, and nothing is
+/// planned while no action goal is active). `rt-core run --goal-source` and
+/// `foresight --goal-source` override it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GoalSource {
+    /// The goal cube in the detections.
+    #[default]
+    Camera,
+    /// The `Reach` action's goal (iceoryx2 `GoalRequest`s from the bridge).
+    Action,
+}
+
+impl GoalSource {
+    /// Its name in the configuration and on command lines.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Camera => "camera",
+            Self::Action => "action",
+        }
+    }
+}
+
+/// `[goal]`: where the goal comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GoalConfig {
+    /// The goal's source.
+    #[serde(default)]
+    pub source: GoalSource,
+}
+
+/// Who may acknowledge a protective stop (`[operator]`). The acknowledgement reaches
+/// `rt-core run` only through its operator channel ([`crate::operator_ack`]), a Unix socket
+/// beside the arm's lock whose peer's user id the kernel gives: it is accepted from rt-core's
+/// own user, root, and the user ids listed here. Run rt-core under a service account of its
+/// own and list the operators' accounts, so no other process of the operator's (and no
+/// process of rt-core's) can clear a stop on their behalf.
+#[derive(Debug, Clone, PartialEq, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OperatorConfig {
+    /// User ids allowed to acknowledge besides rt-core's own and root (at most
+    /// [`bounds::MAX_OPERATOR_UIDS`]).
+    #[serde(default)]
+    pub ack_uids: Vec<u32>,
 }
 
 /// Verified sampling (`[sampling]`): when no policy's deterministic rollout passes the
@@ -482,6 +600,19 @@ impl RuntimeConfig {
         Self::from_toml(SHIPPED_RUNTIME_TOML).expect("the shipped assets/runtime.toml is valid")
     }
 
+    /// Where a requested goal (the `Reach` action) may lie: `[intake]`'s reach and
+    /// calibrated area, `[shield]`'s workspace.
+    pub fn goal_bounds(&self) -> shm_schemas::GoalBounds {
+        shm_schemas::GoalBounds {
+            min_radius_m: self.intake.goal_min_radius_m,
+            max_radius_m: self.intake.goal_max_radius_m,
+            table_min_m: self.intake.calibrated_min_m,
+            table_max_m: self.intake.calibrated_max_m,
+            workspace_min_m: self.shield.workspace_min_m,
+            workspace_max_m: self.shield.workspace_max_m,
+        }
+    }
+
     /// The cycle period in nanoseconds.
     pub fn period_ns(&self) -> u64 {
         (1e9 / self.rate_hz).round() as u64
@@ -538,7 +669,61 @@ impl RuntimeConfig {
             );
         }
         self.validate_intake()?;
-        self.validate_tracking()
+        self.validate_tracking()?;
+        self.validate_operator()?;
+        self.validate_separation()
+    }
+
+    fn validate_separation(&self) -> Result<(), RuntimeConfigError> {
+        let bad = |field, why| Err(RuntimeConfigError::Invalid { field, why });
+        let s = &self.separation;
+        let (lo, hi) = bounds::SEPARATION_INTRUDER_SPEED_RANGE_M_S;
+        if !(s.intruder_speed_m_s.is_finite() && (lo..=hi).contains(&s.intruder_speed_m_s)) {
+            return bad(
+                "separation.intruder_speed_m_s",
+                "must be within 0.5..=5 m/s",
+            );
+        }
+        let period_s = 1.0 / self.rate_hz;
+        if !(s.reaction_time_s.is_finite()
+            && s.reaction_time_s >= period_s
+            && s.reaction_time_s <= bounds::SEPARATION_MAX_REACTION_TIME_S)
+        {
+            return bad(
+                "separation.reaction_time_s",
+                "must be at least one cycle period and at most 1 s",
+            );
+        }
+        if !(s.intrusion_distance_m.is_finite()
+            && (0.0..=bounds::SEPARATION_MAX_INTRUSION_M).contains(&s.intrusion_distance_m))
+        {
+            return bad(
+                "separation.intrusion_distance_m",
+                "must be within 0..=0.85 m",
+            );
+        }
+        if !(s.position_uncertainty_m.is_finite()
+            && (0.0..=bounds::SEPARATION_MAX_UNCERTAINTY_M).contains(&s.position_uncertainty_m))
+        {
+            return bad(
+                "separation.position_uncertainty_m",
+                "must be within 0..=0.2 m",
+            );
+        }
+        Ok(())
+    }
+
+    fn validate_operator(&self) -> Result<(), RuntimeConfigError> {
+        let bad = |field, why| Err(RuntimeConfigError::Invalid { field, why });
+        let uids = &self.operator.ack_uids;
+        if uids.len() > bounds::MAX_OPERATOR_UIDS {
+            return bad("operator.ack_uids", "lists at most 16 user ids");
+        }
+        // uid_t's (u32) -1 is "no user" to the kernel (chown's "leave as is").
+        if uids.contains(&u32::MAX) {
+            return bad("operator.ack_uids", "4294967295 (-1) is no user");
+        }
+        Ok(())
     }
 
     fn validate_tracking(&self) -> Result<(), RuntimeConfigError> {
@@ -1019,6 +1204,106 @@ mod tests {
             RuntimeConfig::from_toml(without).unwrap().tracking,
             TrackingConfig::default()
         );
+    }
+
+    #[test]
+    fn operator_uids_are_bounded_and_named() {
+        assert!(RuntimeConfig::xarm5_default().operator.ack_uids.is_empty());
+        let with = |list: &str| format!("{ASSET}\n[operator]\nack_uids = {list}\n");
+        let ok = RuntimeConfig::from_toml(&with("[1000, 1001]")).unwrap();
+        assert_eq!(ok.operator.ack_uids, vec![1000, 1001]);
+        let many = format!(
+            "[{}]",
+            (1000..1017)
+                .map(|u| u.to_string())
+                .collect::<Vec<_>>()
+                .join(",")
+        );
+        for list in [many.as_str(), "[4294967295]"] {
+            match RuntimeConfig::from_toml(&with(list)) {
+                Err(RuntimeConfigError::Invalid { field, .. }) => {
+                    assert_eq!(field, "operator.ack_uids", "{list}");
+                }
+                other => panic!("{list}: expected Invalid(operator.ack_uids), got {other:?}"),
+            }
+        }
+    }
+
+    /// Issue 32 item 1: the goal's source is explicit, `camera` by default, and anything
+    /// but `camera` or `action` is refused naming the field.
+    #[test]
+    fn the_goal_source_is_camera_or_action_and_nothing_else() {
+        assert_eq!(
+            RuntimeConfig::xarm5_default().goal.source,
+            GoalSource::Camera
+        );
+        let with = |v: &str| ASSET.replace("source = \"camera\"", &format!("source = {v}"));
+        let cfg = RuntimeConfig::from_toml(&with("\"action\"")).unwrap();
+        assert_eq!(cfg.goal.source, GoalSource::Action);
+        assert_eq!(cfg.goal.source.name(), "action");
+        match RuntimeConfig::from_toml(&with("\"both\"")) {
+            Err(RuntimeConfigError::Parse(e)) => {
+                let text = e.to_string();
+                assert!(text.contains("source") && text.contains("camera"), "{text}");
+            }
+            other => panic!("expected a parse error naming goal.source, got {other:?}"),
+        }
+    }
+
+    /// `[separation]`: off and at ISO/TS 15066's defaults when absent; each bound refuses a
+    /// bad value naming the field.
+    #[test]
+    fn separation_bounds_name_the_field() {
+        let shipped = RuntimeConfig::xarm5_default().separation;
+        assert!(!shipped.enabled);
+        assert_eq!(shipped.intruder_speed_m_s, 1.6);
+        let without = ASSET.split("[separation]").next().unwrap();
+        assert_eq!(
+            RuntimeConfig::from_toml(without).unwrap().separation,
+            SeparationConfig::default()
+        );
+        // The keys of `[separation]` only (`intruder_speed_m_s` is also an `[intake]` key).
+        let with = |key: &str, value: &str| {
+            let (head, tail) = ASSET.split_once("[separation]").unwrap();
+            let line = tail
+                .lines()
+                .find(|l| l.starts_with(&format!("{key} =")))
+                .unwrap();
+            format!(
+                "{head}[separation]{}",
+                tail.replacen(line, &format!("{key} = {value}"), 1)
+            )
+        };
+        let on = RuntimeConfig::from_toml(&with("enabled", "true")).unwrap();
+        assert!(on.separation.enabled);
+        for (key, value, field) in [
+            ("intruder_speed_m_s", "0.1", "separation.intruder_speed_m_s"),
+            ("intruder_speed_m_s", "nan", "separation.intruder_speed_m_s"),
+            ("reaction_time_s", "0.001", "separation.reaction_time_s"),
+            ("reaction_time_s", "2.0", "separation.reaction_time_s"),
+            (
+                "intrusion_distance_m",
+                "-0.01",
+                "separation.intrusion_distance_m",
+            ),
+            (
+                "intrusion_distance_m",
+                "inf",
+                "separation.intrusion_distance_m",
+            ),
+            (
+                "position_uncertainty_m",
+                "0.5",
+                "separation.position_uncertainty_m",
+            ),
+        ] {
+            match RuntimeConfig::from_toml(&with(key, value)) {
+                Err(RuntimeConfigError::Invalid { field: f, .. }) => {
+                    assert_eq!(f, field, "{key} = {value}");
+                }
+                other => panic!("{key} = {value}: expected Invalid({field}), got {other:?}"),
+            }
+        }
     }
 
     #[test]

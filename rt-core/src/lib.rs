@@ -15,6 +15,7 @@
 //! - [`rt`]: the toolkit beneath both (hand-overs, log ring, clock, RT set-up, histograms,
 //!   the counting allocator).
 //! - [`config`]: `assets/runtime.toml`, validated at load.
+//! - [`operator_ack`]: the operator's acknowledgement channel (`rt-core ack`).
 //!
 //! The libraries it builds on are crates of their own: `twin` (model, kinematics, geometry,
 //! the task), `policy` (allocation-free inference), `xarm` (the controller protocol and
@@ -22,6 +23,7 @@
 
 pub mod config;
 pub mod cycle;
+pub mod operator_ack;
 pub mod rt;
 #[cfg(any(test, feature = "testing"))]
 pub mod testing;

@@ -16,6 +16,7 @@
 //! | [`RetrainProgress`] | learner → anyone | [`services::RETRAIN_PROGRESS`] |
 //! | [`RobotState`] | rt-core → anyone | [`services::ROBOT_STATE`] |
 //! | [`TwinVerdict`] | rt-core → anyone | [`services::TWIN_VERDICTS`] |
+//! | [`GoalRequest`] | ros-bridge → rt-core | [`services::GOAL_REQUESTS`] |
 //!
 //! ```no_run
 //! use iceoryx2::prelude::*;
@@ -34,6 +35,7 @@ pub mod cli_bounds;
 pub mod clock;
 pub mod detection;
 pub mod error;
+pub mod goal_request;
 pub mod policy_blob;
 pub mod policy_builder;
 pub mod process_ties;
@@ -45,6 +47,7 @@ pub mod verdict;
 
 pub use detection::{DetectedObject, DetectionFrame, MAX_DETECTIONS, ObjectClass};
 pub use error::{SchemaError, flag_byte};
+pub use goal_request::{GoalBoundError, GoalBounds, GoalCommand, GoalRequest};
 pub use policy_blob::{
     ACT_DIM, Activation, LayerView, MAX_ACT, MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_OBS,
     MAX_WEIGHTS, OBS_DIM, PAPER_OBS_DIM, POLICY_FORMAT_VERSION, PolicyBlob, required_weights,

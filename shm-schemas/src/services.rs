@@ -34,7 +34,10 @@ use iceoryx2::service::builder::publish_subscribe::{
 };
 
 use crate::error::SchemaError;
-use crate::{DetectionFrame, PolicyBlob, RetrainProgress, RetrainRequest, RobotState, TwinVerdict};
+use crate::{
+    DetectionFrame, GoalRequest, PolicyBlob, RetrainProgress, RetrainRequest, RobotState,
+    TwinVerdict,
+};
 
 /// Detections, perception → rt-core ([`DetectionFrame`]).
 pub const DETECTIONS: &str = "foresight/detections";
@@ -48,6 +51,8 @@ pub const RETRAIN_PROGRESS: &str = "foresight/retrain_progress";
 pub const ROBOT_STATE: &str = "foresight/robot_state";
 /// Lookahead verdicts, rt-core → anyone ([`TwinVerdict`]).
 pub const TWIN_VERDICTS: &str = "foresight/twin_verdicts";
+/// Goal requests (the ROS 2 `Reach` action), ros-bridge → rt-core ([`GoalRequest`]).
+pub const GOAL_REQUESTS: &str = "foresight/goal_requests";
 
 /// The attribute key that carries the schema version.
 pub const SCHEMA_VERSION_KEY: &str = "foresight.schema_version";
@@ -143,6 +148,7 @@ message!(RetrainRequest, RETRAIN_REQUESTS, EVENTS);
 message!(RetrainProgress, RETRAIN_PROGRESS, EVENTS);
 message!(RobotState, ROBOT_STATE, LATEST);
 message!(TwinVerdict, TWIN_VERDICTS, EVENTS);
+message!(GoalRequest, GOAL_REQUESTS, EVENTS);
 
 /// Why a port could not be opened.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]

@@ -39,7 +39,9 @@ use rt_core::cycle::xarm_link::{
     XArmOpenOptions, check_auto_resume_target, check_blind_mode_target, open_xarm, sim_rights_for,
 };
 use rt_core::rt::process_stop;
-use rt_core::twin_thread::serve::{InjectedFault, SHUTDOWN_TIMEOUT, ServeOptions, serve_on};
+use rt_core::twin_thread::serve::{
+    AckChannelOptions, InjectedFault, SHUTDOWN_TIMEOUT, ServeOptions, serve_on,
+};
 use shm_schemas::cli_bounds::{f64_within, int_within};
 use twin::{RobotModel, TaskConfig};
 
@@ -140,6 +142,19 @@ pub struct RunArgs {
     /// `planner_fallback.enabled`).
     #[arg(long, value_enum)]
     planner_fallback: Option<Switch>,
+    /// Where the goal comes from: `camera` (the goal cube perception sees) or `action` (the
+    /// ROS 2 `Reach` action served by ros-bridge). Overrides the config's `goal.source`.
+    #[arg(long, value_enum)]
+    goal_source: Option<GoalSourceArg>,
+}
+
+/// `camera` or `action` (`--goal-source`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum GoalSourceArg {
+    /// The camera's goal cube.
+    Camera,
+    /// The ROS 2 `Reach` action.
+    Action,
 }
 
 /// `on` or `off`.
@@ -227,6 +242,11 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
     if let Some(switch) = args.planner_fallback {
         cfg.planner_fallback.enabled = switch == Switch::On;
     }
+    match args.goal_source {
+        Some(GoalSourceArg::Camera) => cfg.goal.source = rt_core::config::GoalSource::Camera,
+        Some(GoalSourceArg::Action) => cfg.goal.source = rt_core::config::GoalSource::Action,
+        None => {}
+    }
     let opts = ServeOptions {
         prefix: args
             .prefix
@@ -240,6 +260,7 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
         rt: args.rt.request(),
         auto_resume: args.auto_resume,
         inject: args.inject_fault,
+        ack_channel: ack_channel(args, &cfg)?,
     };
     // The recorder subscribes before the runtime starts; a recording that was asked for and
     // cannot start stops the run here, before anything moves.
@@ -262,6 +283,19 @@ fn runtime(args: &RunArgs) -> anyhow::Result<()> {
         }
     }
     served
+}
+
+/// The operator's acknowledgement channel of an xArm link: beside the arm's lock file.
+fn ack_channel(args: &RunArgs, cfg: &RuntimeConfig) -> anyhow::Result<Option<AckChannelOptions>> {
+    let (LinkKind::Xarm, Some(host)) = (args.link, args.robot.as_deref()) else {
+        return Ok(None);
+    };
+    let lock = xarm::owner::lock_path(&xarm::config::XArmConfig::from_addr(host))
+        .with_context(|| format!("--robot {host}"))?;
+    Ok(Some(AckChannelOptions {
+        path: rt_core::operator_ack::socket_path(&lock),
+        extra_uids: cfg.operator.ack_uids.clone(),
+    }))
 }
 
 /// The simulation-only rights `args` asks of an xArm link (`None` without any, or for the

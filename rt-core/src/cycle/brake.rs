@@ -3,9 +3,10 @@
 //!
 //! - [`PathStop`], the first choice: time scaling along the running plan. The plan's own
 //!   path is followed at a speed scale `s` that falls from 1 to 0 as a smoothstep
-//!   (`s = 1 − 3τ² + 2τ³`, so velocity and acceleration reach zero together), so every pose
-//!   until rest lies on the path the twin verified — the stop envelope is a stretch of the
-//!   plan, which the cycle checks ahead of the arm.
+//!   (`s = 1 − 3τ² + 2τ³`, so velocity and acceleration reach zero together; from the
+//!   playback scale instead of 1 when speed and separation monitoring slowed the plan), so
+//!   every pose until rest lies on the path the twin verified — the stop envelope is a
+//!   stretch of the plan, which the cycle checks ahead of the arm.
 //! - [`Brake`], the fallback when the plan itself is not valid at the next sample: every
 //!   joint decelerates to zero on its own (acceleration ramps at most `max_jerk`, is bounded
 //!   by `max_acceleration`, and is shaped by `a = −sign(v)·min(A, √(2J|v|))`); this leaves
@@ -115,6 +116,9 @@ pub struct PathStop {
     elapsed_s: f64,
     duration_s: f64,
     period_s: f64,
+    /// The playback scale the stop falls from (1 but during speed and separation
+    /// monitoring's scaled playback).
+    from_scale: f64,
     stopped: bool,
     state: MotionState,
     max_acceleration_rad_s2: Joints,
@@ -140,6 +144,7 @@ impl PathStop {
             elapsed_s: 0.0,
             duration_s: 0.0,
             period_s: 1.0,
+            from_scale: 1.0,
             stopped: true,
             state: MotionState::default(),
             max_acceleration_rad_s2,
@@ -160,12 +165,25 @@ impl PathStop {
 
     /// Begins stopping from `state`, the command sent for sample `sample` of the plan.
     pub fn start(&mut self, state: MotionState, sample: usize, period_s: f64) {
+        self.start_scaled(state, sample as f64, 1.0, period_s);
+    }
+
+    /// Begins stopping from `state`, the command sent at (fractional) sample `at_sample` of
+    /// the plan played back at speed scale `scale` (speed and separation monitoring,
+    /// [`crate::cycle::separation`]): the stop's scale falls from `scale`, not from 1, so
+    /// the arm never speeds up.
+    pub fn start_scaled(&mut self, state: MotionState, at_sample: f64, scale: f64, period_s: f64) {
         self.state = state;
-        self.at_sample = sample as f64;
+        self.at_sample = at_sample;
         self.elapsed_s = 0.0;
         self.duration_s =
             Self::duration_s(&state.dq_rad_s, &self.max_acceleration_rad_s2, period_s);
         self.period_s = period_s;
+        self.from_scale = if scale.is_finite() {
+            scale.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         self.stopped = false;
     }
 
@@ -179,7 +197,7 @@ impl PathStop {
         let tau = (self.elapsed_s / self.duration_s).min(1.0);
         // ∫ s dτ from τ to 1 of the smoothstep, times T, in periods of one sample each.
         let rest = 0.5 - (tau - tau.powi(3) + 0.5 * tau.powi(4));
-        rest * self.duration_s / self.period_s
+        self.from_scale * rest * self.duration_s / self.period_s
     }
 
     /// Advances by `dt_s` along `plan` (one sample per `dt_s` at full speed); returns the
@@ -191,13 +209,14 @@ impl PathStop {
             self.state.ddq_rad_s2 = [0.0; DOF];
             return &self.state;
         }
-        let scale = |tau: f64| 1.0 - 3.0 * tau * tau + 2.0 * tau * tau * tau;
+        let s0 = self.from_scale;
+        let scale = |tau: f64| s0 * (1.0 - 3.0 * tau * tau + 2.0 * tau * tau * tau);
         let t = self.duration_s;
         let tau0 = (self.elapsed_s / t).min(1.0);
         self.elapsed_s += dt_s;
         let tau1 = (self.elapsed_s / t).min(1.0);
         let s = scale(tau1);
-        let s_dot = 6.0 * (tau1 * tau1 - tau1) / t;
+        let s_dot = s0 * 6.0 * (tau1 * tau1 - tau1) / t;
         let last = (plan.len() - 1) as f64;
         self.at_sample = (self.at_sample + 0.5 * (scale(tau0) + s)).min(last);
         let i = self.at_sample.floor() as usize;

@@ -28,6 +28,13 @@ pub struct LinkState {
     /// tolerance from the TCP the controller reports (a wrong model or base calibration);
     /// `None` when they agree or the arm reports no TCP. The cycle stops and latches.
     pub model_mismatch_m: Option<f64>,
+    /// The connection to the controller this reading came through: a count that changes
+    /// whenever the link re-opens it (0 for a link that never does). On one connection the
+    /// controller takes the last target it accepted as the reference of the next one (it
+    /// holds the arm there when no target comes, and faults on a target more than one
+    /// servo period's step from it), whatever the measured joints say; a re-opened
+    /// connection enters servo mode again, which holds the arm where it stands.
+    pub session: u32,
 }
 
 /// Why the link failed (small and `Copy`: it travels through the cycle).
@@ -104,6 +111,9 @@ pub struct InProcessArm {
     controller_stops: u64,
     last_target_rad: Option<Joints>,
     max_target_step_rad: f64,
+    /// Connections so far: a read after a cut counts a new one ([`LinkState::session`]).
+    session: u32,
+    cut_seen: bool,
 }
 
 impl InProcessArm {
@@ -126,6 +136,8 @@ impl InProcessArm {
             controller_stops: 0,
             last_target_rad: None,
             max_target_step_rad: 0.0,
+            session: 0,
+            cut_seen: false,
         }
     }
 
@@ -159,7 +171,12 @@ impl InProcessArm {
 impl RobotLink for InProcessArm {
     fn read_state(&mut self, now_ns: u64) -> Result<LinkState, LinkError> {
         if !self.connected.load(Ordering::Acquire) {
+            self.cut_seen = true;
             return Err(LinkError::Disconnected);
+        }
+        if std::mem::take(&mut self.cut_seen) {
+            // The connection was cut and is back: a re-opened connection.
+            self.session = self.session.wrapping_add(1);
         }
         Ok(LinkState {
             stamp_ns: now_ns,
@@ -169,6 +186,7 @@ impl RobotLink for InProcessArm {
             mode: 1,
             state: if self.controller_stops > 0 { 4 } else { 0 },
             model_mismatch_m: None,
+            session: self.session,
         })
     }
 
@@ -178,6 +196,7 @@ impl RobotLink for InProcessArm {
 
     fn send_servo(&mut self, now_ns: u64, q_rad: &Joints) -> Result<(), LinkError> {
         if !self.connected.load(Ordering::Acquire) {
+            self.cut_seen = true;
             return Err(LinkError::Disconnected);
         }
         let dt_s = self
@@ -291,5 +310,18 @@ mod tests {
         a.connection().store(false, Ordering::Release);
         assert_eq!(a.read_state(0), Err(LinkError::Disconnected));
         assert_eq!(a.send_servo(0, &[0.0; DOF]), Err(LinkError::Disconnected));
+    }
+
+    #[test]
+    fn a_restored_connection_is_a_new_session() {
+        let mut a = arm();
+        let first = a.read_state(0).unwrap().session;
+        assert_eq!(a.read_state(4_000_000).unwrap().session, first);
+        a.connection().store(false, Ordering::Release);
+        assert!(a.read_state(8_000_000).is_err());
+        a.connection().store(true, Ordering::Release);
+        let back = a.read_state(12_000_000).unwrap().session;
+        assert_ne!(back, first, "a re-opened connection");
+        assert_eq!(a.read_state(16_000_000).unwrap().session, back);
     }
 }

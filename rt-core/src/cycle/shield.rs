@@ -39,6 +39,14 @@ pub trait ShieldModel: Send + 'static {
     /// (negative when penetrating, `f64::INFINITY` without obstacles).
     fn min_distance_m(&mut self, q_rad: &Joints, scene: &Self::Scene) -> f64;
 
+    /// Minimum distance between the robot at `q_rad` and what may move towards it (the
+    /// obstacles, not the table), m: the separation of the speed and separation monitor
+    /// ([`crate::cycle::separation`]). The default is [`ShieldModel::min_distance_m`] (a
+    /// model whose scene holds obstacles only).
+    fn intruder_distance_m(&mut self, q_rad: &Joints, scene: &Self::Scene) -> f64 {
+        self.min_distance_m(q_rad, scene)
+    }
+
     /// The arm's self-collision at `q_rad`, if any: the two links (frame indices; the tool
     /// is `twin::TOOL_FRAME`) and the distance of their padded capsules, m. Independent of
     /// the scene, so it holds in blind mode too. The default (a model without link

@@ -96,6 +96,17 @@ impl ShieldModel for TwinModel {
         }
     }
 
+    fn intruder_distance_m(&mut self, q_rad: &Joints, scene: &Scene) -> f64 {
+        // The boxes alone: the table does not move towards the arm. Blind mode has none.
+        if self.boxes_ignored {
+            return f64::INFINITY;
+        }
+        let poses = *self.fk(q_rad);
+        self.geometry
+            .distance_to_boxes(&poses, scene)
+            .map_or(f64::INFINITY, |r| r.distance_m)
+    }
+
     fn self_collision(&mut self, q_rad: &Joints) -> Option<([u8; 2], f64)> {
         let poses = *self.fk(q_rad);
         self.geometry
@@ -205,5 +216,29 @@ mod tests {
             matches!(armed, Err(ShieldViolation::Clearance { distance_m }) if distance_m < 0.0),
             "{armed:?}"
         );
+    }
+
+    /// The separation monitor's distance is to the boxes alone: the table, near the arm at
+    /// every goal, does not count (it would slow every reach); blind mode has none.
+    #[test]
+    fn the_intruder_distance_leaves_the_table_out() {
+        let mut m = TwinModel::new(model());
+        let q = start();
+        assert!(m.min_distance_m(&q, &empty()).is_finite());
+        assert_eq!(m.intruder_distance_m(&q, &empty()), f64::INFINITY);
+        let tcp = model().tcp_m(&q);
+        let mut scene = empty();
+        scene
+            .obstacles
+            .push(BoxObstacle {
+                center_m: [tcp.x, tcp.y + 0.3, tcp.z],
+                size_m: [0.05; 3],
+            })
+            .unwrap();
+        let d = m.intruder_distance_m(&q, &scene);
+        assert!(d > 0.1 && d < 0.3, "{d}");
+        assert!(m.min_distance_m(&q, &scene) <= d);
+        let mut blind = TwinModel::new(model()).with_boxes_ignored(true);
+        assert_eq!(blind.intruder_distance_m(&q, &scene), f64::INFINITY);
     }
 }

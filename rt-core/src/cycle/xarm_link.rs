@@ -576,6 +576,7 @@ impl RobotLink for XArmDriver {
             mode: s.report.mode,
             state: s.report.state,
             model_mismatch_m: None,
+            session: s.reconnects,
         })
     }
 

@@ -57,6 +57,16 @@ impl<E: Copy> RtLogger<E> {
     }
 }
 
+/// One record to `tracing` (target `rt_cycle`).
+fn trace<E: std::fmt::Debug>(r: &LogRecord<E>) {
+    tracing::info!(
+        target: "rt_cycle",
+        t_s = r.t_ns as f64 * 1e-9,
+        event = ?r.event,
+        "cycle event"
+    );
+}
+
 impl<E: Copy + Send + std::fmt::Debug + 'static> RtLogDrain<E> {
     /// Passes every pending record to `f`; returns how many.
     pub fn drain(&mut self, mut f: impl FnMut(&LogRecord<E>)) -> usize {
@@ -75,33 +85,43 @@ impl<E: Copy + Send + std::fmt::Debug + 'static> RtLogDrain<E> {
 
     /// Emits every pending record through `tracing`.
     pub fn drain_to_tracing(&mut self) -> usize {
-        self.drain(|r| {
-            tracing::info!(
-                target: "rt_cycle",
-                t_s = r.t_ns as f64 * 1e-9,
-                event = ?r.event,
-                "cycle event"
-            );
-        })
+        self.drain(trace)
     }
 
     /// Spawns a thread draining into `tracing` every `period` until `stop` is set (a final
     /// drain follows).
-    // The drain is a non-real-time thread: it sleeps between drains.
-    #[allow(clippy::disallowed_methods)]
     pub fn spawn(
-        mut self,
+        self,
         period: Duration,
         stop: Arc<AtomicBool>,
     ) -> std::io::Result<std::thread::JoinHandle<()>> {
+        self.spawn_observed(period, stop, |_| {})
+    }
+
+    /// [`RtLogDrain::spawn`], also passing every record to `observe` (on the drain's
+    /// thread, after it went to `tracing`).
+    // The drain is a non-real-time thread: it sleeps between drains.
+    #[allow(clippy::disallowed_methods)]
+    pub fn spawn_observed(
+        mut self,
+        period: Duration,
+        stop: Arc<AtomicBool>,
+        mut observe: impl FnMut(&LogRecord<E>) + Send + 'static,
+    ) -> std::io::Result<std::thread::JoinHandle<()>> {
+        let mut drain = move |d: &mut Self| {
+            d.drain(|r| {
+                trace(r);
+                observe(r);
+            })
+        };
         std::thread::Builder::new()
             .name("rt-log-drain".into())
             .spawn(move || {
                 while !stop.load(Ordering::Acquire) {
-                    self.drain_to_tracing();
+                    drain(&mut self);
                     std::thread::sleep(period);
                 }
-                self.drain_to_tracing();
+                drain(&mut self);
                 let d = self.dropped();
                 if d > 0 {
                     tracing::warn!(dropped = d, "cycle log records were dropped (ring full)");

@@ -305,6 +305,36 @@ impl Lookahead for ToyLookahead {
     }
 }
 
+/// A cycle over the [`ToyArm`] and an in-process arm standing at `start` (velocity limit
+/// 3 rad/s per joint), configured from `cfg`, with its hand-overs: the twin's end and the
+/// cycle's log. The rig the runtime's tests step on a manual clock.
+pub fn toy_cycle(
+    cfg: &crate::config::RuntimeConfig,
+    start: Joints,
+) -> (
+    crate::cycle::Cycle<ToyArm, crate::cycle::link::InProcessArm>,
+    crate::cycle::TwinIo<ToyScene>,
+    crate::rt::rt_log::RtLogDrain<crate::cycle::CycleEvent>,
+) {
+    use crate::cycle::shield::{Shield, ShieldLimits};
+    let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
+    let (twin_io, cycle_io, log) = crate::cycle::wire::<ToyScene>();
+    let arm = crate::cycle::link::InProcessArm::new(
+        start,
+        cfg.limits.joint_min_rad,
+        cfg.limits.joint_max_rad,
+        [3.0; DOF],
+    );
+    let cycle = crate::cycle::Cycle::new(
+        crate::cycle::CycleConfig::from_runtime(cfg),
+        Shield::new(ToyArm, limits),
+        crate::cycle::brake::Brake::new(&cfg.limits),
+        arm,
+        cycle_io,
+    );
+    (cycle, twin_io, log)
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {

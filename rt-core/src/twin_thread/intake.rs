@@ -18,8 +18,18 @@
 //! marked settled (`DetectionFrame::FRAME_SETTLED`: perception is still confirming a
 //! changing world) is accepted and re-verified against, but no plan is approved on it: the
 //! worker waits for a settled frame.
+//!
+//! With the goal source `action` ([`SceneIntake::with_requested_goals`]), the goal is the one
+//! the ROS 2 `Reach` action asks for ([`GoalRequest`]s from `ros-bridge`, checked here again
+//! against the same bounds the bridge checked, [`SceneIntake::request`]): the camera's goal
+//! cube is ignored, its obstacles count as always, and a frame has a goal only while an
+//! action goal is active.
 
-use shm_schemas::{DetectedObject, DetectionFrame, ObjectClass, SchemaError};
+use shm_schemas::goal_request::{REQUESTED_GOAL_SIZE_M, requested_goal_center_m};
+use shm_schemas::{
+    DetectedObject, DetectionFrame, GoalBoundError, GoalBounds, GoalCommand, GoalRequest,
+    ObjectClass, SchemaError,
+};
 use twin::{BoxObstacle, Goal, Scene};
 
 use crate::config::IntakeConfig;
@@ -162,6 +172,11 @@ pub struct IntakeCounters {
     pub without_goal: u64,
     /// Frames refused, per [`FrameRefusal::index`].
     pub refused: [u64; FrameRefusal::KINDS],
+    /// Goal requests taken (goal source `action`).
+    pub goal_requests: u64,
+    /// Goal requests refused (malformed, out of bounds, stale id, or while the source is
+    /// the camera).
+    pub goal_requests_refused: u64,
 }
 
 impl IntakeCounters {
@@ -185,6 +200,43 @@ pub struct AcceptedFrame {
     pub settled: bool,
     /// Capture time on the cycle's clock (since its origin), ns.
     pub stamp_ns: u64,
+    /// An action goal was cancelled since the last accepted frame: the plan under way is to
+    /// be revoked (the arm stops along its checked path).
+    pub stop_requested: bool,
+}
+
+/// Why a [`GoalRequest`] was refused.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum GoalRequestRefusal {
+    /// The goal source is the camera: requests are not taken.
+    #[error("the goal source is the camera ([goal] source = \"camera\")")]
+    SourceIsCamera,
+    /// The request failed its schema validation.
+    #[error("invalid goal request: {0}")]
+    Invalid(SchemaError),
+    /// The target breaks a bound of the workspace or the table.
+    #[error("goal out of bounds: {0}")]
+    OutOfBounds(GoalBoundError),
+    /// A reach request whose id is not above the last one taken.
+    #[error("goal id {found} does not follow {last}")]
+    StaleId {
+        /// The last id taken.
+        last: u64,
+        /// This request's.
+        found: u64,
+    },
+}
+
+/// The goals the `Reach` action asks for (goal source `action`).
+#[derive(Debug, Clone, Copy)]
+struct RequestedGoals {
+    bounds: GoalBounds,
+    goal_hover_m: f64,
+    /// The active goal: its id and cube.
+    active: Option<(u64, Goal)>,
+    last_id: u64,
+    /// A cancel arrived since the last accepted frame.
+    stop_pending: bool,
 }
 
 /// Turns detection frames into scenes, refusing what cannot be trusted.
@@ -199,6 +251,8 @@ pub struct SceneIntake {
     /// Camera and sequence of the last frame that passed the source checks.
     last_source: Option<(u32, u64)>,
     counters: IntakeCounters,
+    /// `Some` with the goal source `action`.
+    requested: Option<RequestedGoals>,
 }
 
 impl SceneIntake {
@@ -222,7 +276,55 @@ impl SceneIntake {
             },
             last_source: None,
             counters: IntakeCounters::default(),
+            requested: None,
         }
+    }
+
+    /// The goal source `action`: goals come from [`SceneIntake::request`] within `bounds`
+    /// (the TCP target is `goal_hover_m` above the requested goal cube's top, as for a seen
+    /// one); the camera's goal cube is ignored.
+    pub fn with_requested_goals(mut self, bounds: GoalBounds, goal_hover_m: f64) -> Self {
+        self.requested = Some(RequestedGoals {
+            bounds,
+            goal_hover_m,
+            active: None,
+            last_id: 0,
+            stop_pending: false,
+        });
+        self
+    }
+
+    /// Whether the goal source is `action` (goal requests are taken).
+    pub fn takes_requests(&self) -> bool {
+        self.requested.is_some()
+    }
+
+    /// The active requested goal's id (0 = none, or the source is the camera).
+    pub fn requested_goal_id(&self) -> u64 {
+        self.requested
+            .and_then(|r| r.active)
+            .map_or(0, |(id, _)| id)
+    }
+
+    /// Takes one goal request (validated, checked against the bounds; counted): a reach
+    /// replaces the active goal (from the next accepted frame on); a cancel or a release of
+    /// the active goal withdraws it (a cancel also stops the arm: the next accepted frame
+    /// carries [`AcceptedFrame::stop_requested`]). A withdrawal of another goal changes
+    /// nothing.
+    ///
+    /// # Errors
+    /// The [`GoalRequestRefusal`] (counted); the active goal stays as it was.
+    pub fn request(&mut self, req: &GoalRequest) -> Result<(), GoalRequestRefusal> {
+        let table_height_m = self.table_height_m;
+        let outcome = match self.requested.as_mut() {
+            None => Err(GoalRequestRefusal::SourceIsCamera),
+            Some(r) => r.take(req, table_height_m),
+        };
+        match outcome {
+            Ok(()) => self.counters.goal_requests += 1,
+            Err(_) => self.counters.goal_requests_refused += 1,
+        }
+        outcome
     }
 
     /// What was counted so far.
@@ -301,11 +403,16 @@ impl SceneIntake {
         let stamp_ns = self.check_stamp(frame.capture_time_ns, mono_now_ns)?;
         self.check_places(frame)?;
         let (scene, goal_seen) = self.scene_of(frame);
+        let stop_requested = self
+            .requested
+            .as_mut()
+            .is_some_and(|r| std::mem::take(&mut r.stop_pending));
         Ok(AcceptedFrame {
             scene,
             goal_seen,
             settled: frame.settled(),
             stamp_ns,
+            stop_requested,
         })
     }
 
@@ -363,7 +470,12 @@ impl SceneIntake {
                     center_m: o.center_m,
                 });
             }
-            if class == ObjectClass::Goal && o.confidence >= self.cfg.min_goal_confidence {
+            // With requested goals the camera's goal cube is not the goal: its reach is not
+            // checked (the request's was).
+            if class == ObjectClass::Goal
+                && self.requested.is_none()
+                && o.confidence >= self.cfg.min_goal_confidence
+            {
                 let radius_m = f64::from(o.center_m[0]).hypot(f64::from(o.center_m[1]));
                 let (min_m, max_m) = (self.cfg.goal_min_radius_m, self.cfg.goal_max_radius_m);
                 if !(min_m..=max_m).contains(&radius_m) {
@@ -384,6 +496,7 @@ impl SceneIntake {
         let table_height_m = self.table_height_m;
         let mut scene = Scene::empty(table_height_m, self.last_goal);
         let mut goal_seen = false;
+        let requested = self.requested.map(|r| r.active);
         let settled = frame.settled();
         for o in frame.objects() {
             let (o_center_m, o_size_m) = if settled {
@@ -398,6 +511,8 @@ impl SceneIntake {
             ];
             let size_m = [snap(o_size_m[0]), snap(o_size_m[1]), snap(o_size_m[2])];
             match o.class() {
+                // The action gives the goal: the camera's goal cube is ignored.
+                Ok(ObjectClass::Goal) if requested.is_some() => {}
                 Ok(ObjectClass::Goal) if o.confidence >= self.cfg.min_goal_confidence => {
                     self.last_goal = Goal {
                         center_m,
@@ -431,7 +546,60 @@ impl SceneIntake {
                 Err(_) => {}
             }
         }
+        if let Some(Some((_, goal))) = requested {
+            self.last_goal = goal;
+            scene.goal = goal;
+            goal_seen = true;
+        }
         (scene, goal_seen)
+    }
+}
+
+impl RequestedGoals {
+    fn take(&mut self, req: &GoalRequest, table_height_m: f64) -> Result<(), GoalRequestRefusal> {
+        req.validate().map_err(GoalRequestRefusal::Invalid)?;
+        let command = req.command().map_err(GoalRequestRefusal::Invalid)?;
+        match command {
+            GoalCommand::Reach => {
+                if req.goal_id <= self.last_id {
+                    return Err(GoalRequestRefusal::StaleId {
+                        last: self.last_id,
+                        found: req.goal_id,
+                    });
+                }
+                let default_height_m = REQUESTED_GOAL_SIZE_M + self.goal_hover_m;
+                self.bounds
+                    .check(
+                        req.target_m,
+                        req.approach_height_m,
+                        default_height_m,
+                        table_height_m,
+                    )
+                    .map_err(GoalRequestRefusal::OutOfBounds)?;
+                let center_m = requested_goal_center_m(
+                    req.target_m,
+                    req.approach_height_m,
+                    table_height_m,
+                    self.goal_hover_m,
+                );
+                // (On the intake's grid already, as a seen goal.)
+                self.last_id = req.goal_id;
+                self.active = Some((
+                    req.goal_id,
+                    Goal {
+                        center_m,
+                        size_m: REQUESTED_GOAL_SIZE_M,
+                    },
+                ));
+            }
+            GoalCommand::Cancel | GoalCommand::Release => {
+                if self.active.is_some_and(|(id, _)| id == req.goal_id) {
+                    self.active = None;
+                    self.stop_pending |= command == GoalCommand::Cancel;
+                }
+            }
+        }
+        Ok(())
     }
 }
 
@@ -734,6 +902,107 @@ mod tests {
         ));
         k.accept(&frame(5, now, &[goal([0.3, 0.0, 0.025])]), now, 1)
             .unwrap();
+    }
+
+    fn bounds() -> GoalBounds {
+        let cfg = IntakeConfig::default();
+        GoalBounds {
+            min_radius_m: cfg.goal_min_radius_m,
+            max_radius_m: cfg.goal_max_radius_m,
+            table_min_m: cfg.calibrated_min_m,
+            table_max_m: cfg.calibrated_max_m,
+            workspace_min_m: [-0.8, -0.8, 0.0],
+            workspace_max_m: [0.8, 0.8, 1.0],
+        }
+    }
+
+    /// Issue 32 item 1: with the goal source `action`, the action's goal overrides the
+    /// camera's goal cube (whose obstacles still count); no action goal, no goal; a new goal
+    /// replaces the old one; a cancel withdraws it and asks for a stop; the camera source
+    /// takes no requests.
+    #[test]
+    fn the_action_goal_overrides_the_camera_goal_and_a_cancel_withdraws_it() {
+        let now = ORIGIN_NS + 1_000_000_000;
+        let seen = [
+            goal([0.3, 0.2, 0.025]),
+            obstacle(2, [0.3, -0.2, 0.1], [0.05, 0.05, 0.2]),
+        ];
+        let mut camera = intake();
+        assert_eq!(
+            camera.request(&GoalRequest::reach(1, [0.4, 0.0], 0.0)),
+            Err(GoalRequestRefusal::SourceIsCamera)
+        );
+        assert_eq!(camera.counters().goal_requests_refused, 1);
+
+        let mut k = intake().with_requested_goals(bounds(), 0.05);
+        let a = k.accept(&frame(1, now, &seen), now, 1).unwrap();
+        assert!(
+            !a.goal_seen,
+            "no action goal yet: the camera's cube is not the goal"
+        );
+        assert_eq!(a.scene.obstacles.len(), 1, "the camera's obstacles count");
+
+        k.request(&GoalRequest::reach(1, [0.45, -0.1], 0.0))
+            .unwrap();
+        let a = k.accept(&frame(2, now, &seen), now, 1).unwrap();
+        assert!(a.goal_seen && !a.stop_requested);
+        assert_eq!(a.scene.goal.center_m, [0.45, -0.1, 0.025]);
+        assert_eq!(a.scene.obstacles.len(), 1);
+        assert_eq!(k.requested_goal_id(), 1);
+
+        // A second goal pre-empts the first; an approach height raises the TCP target.
+        k.request(&GoalRequest::reach(2, [0.35, 0.1], 0.3)).unwrap();
+        let a = k.accept(&frame(3, now, &seen), now, 1).unwrap();
+        let target = a.scene.goal_target_m(0.05);
+        assert!((target.z - 0.3).abs() <= SNAP_GRID_M, "{target:?}");
+        assert_eq!(k.requested_goal_id(), 2);
+        // Withdrawing the old goal changes nothing; an old id is refused.
+        k.request(&GoalRequest::withdraw(1, GoalCommand::Cancel))
+            .unwrap();
+        assert_eq!(k.requested_goal_id(), 2);
+        assert_eq!(
+            k.request(&GoalRequest::reach(2, [0.4, 0.0], 0.0)),
+            Err(GoalRequestRefusal::StaleId { last: 2, found: 2 })
+        );
+
+        k.request(&GoalRequest::withdraw(2, GoalCommand::Cancel))
+            .unwrap();
+        let a = k.accept(&frame(4, now, &seen), now, 1).unwrap();
+        assert!(!a.goal_seen && a.stop_requested, "cancelled: no goal, stop");
+        let a = k.accept(&frame(5, now, &seen), now, 1).unwrap();
+        assert!(!a.stop_requested, "the stop is asked once");
+
+        // A release withdraws without a stop.
+        k.request(&GoalRequest::reach(3, [0.4, 0.0], 0.0)).unwrap();
+        k.request(&GoalRequest::withdraw(3, GoalCommand::Release))
+            .unwrap();
+        let a = k.accept(&frame(6, now, &seen), now, 1).unwrap();
+        assert!(!a.goal_seen && !a.stop_requested);
+    }
+
+    /// Issue 32 item 1: a requested goal out of bounds or malformed is refused naming the
+    /// bound or the field; the active goal stays.
+    #[test]
+    fn a_requested_goal_out_of_bounds_or_malformed_is_refused_naming_it() {
+        let mut k = intake().with_requested_goals(bounds(), 0.05);
+        k.request(&GoalRequest::reach(1, [0.4, 0.0], 0.0)).unwrap();
+        match k.request(&GoalRequest::reach(2, [0.9, 0.0], 0.0)) {
+            Err(GoalRequestRefusal::OutOfBounds(e)) => {
+                assert_eq!(e.bound, "intake.goal_max_radius_m");
+            }
+            other => panic!("{other:?}"),
+        }
+        let mut bad = GoalRequest::reach(3, [0.4, 0.0], 0.0);
+        bad.command = 7;
+        assert_eq!(
+            k.request(&bad),
+            Err(GoalRequestRefusal::Invalid(SchemaError::BadEnum {
+                field: "command",
+                value: 7
+            }))
+        );
+        assert_eq!(k.requested_goal_id(), 1);
+        assert_eq!(k.counters().goal_requests_refused, 2);
     }
 
     /// Issue 14, item 7: a second publisher on the detection service went unnoticed.

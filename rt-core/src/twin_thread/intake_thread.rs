@@ -7,6 +7,10 @@
 //! The thread has an iceoryx2 node of its own (ports stay on the thread that made them). It
 //! polls its subscriber every [`POLL_PERIOD`] and ends when `stop` is set, returning what it
 //! counted ([`IntakeFigures`]).
+//!
+//! With the goal source `action` it also takes the bridge's [`GoalRequest`]s (the ROS 2
+//! `Reach` action) into the intake before each poll's frames, so the next accepted frame
+//! carries the requested goal.
 
 // A non-real-time thread: it polls its subscriber with a relative sleep and reads wall time
 // for the logs' throttling only.
@@ -19,8 +23,8 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use iceoryx2::prelude::*;
-use shm_schemas::DetectionFrame;
-use shm_schemas::services::{ShmOpenError, create_node, open_service};
+use shm_schemas::services::{ShmOpenError, create_node, open_service, open_subscriber};
+use shm_schemas::{DetectionFrame, GoalRequest};
 
 use crate::cycle::twin_model::TwinModel;
 use crate::rt::histogram::{Histogram, Summary};
@@ -136,9 +140,21 @@ fn run(
                     error,
                 },
             })?;
-        Ok::<_, TwinNodeError>((node, service, sub))
+        let goals = if intake.takes_requests() {
+            Some(
+                open_subscriber::<GoalRequest, _>(&node, prefix).map_err(|cause| {
+                    TwinNodeError::Open {
+                        service: "goal requests",
+                        cause,
+                    }
+                })?,
+            )
+        } else {
+            None
+        };
+        Ok::<_, TwinNodeError>((node, service, sub, goals))
     })();
-    let (_node, service, sub) = match opened {
+    let (_node, service, sub, goals) = match opened {
         Ok(ends) => {
             let _ = ready.send(Ok(()));
             ends
@@ -151,6 +167,34 @@ fn run(
     let mut age = Histogram::new();
     let mut refusals_in_a_row = 0u64;
     while !stop.load(Ordering::Acquire) {
+        while let Some(sample) = goals
+            .as_ref()
+            .map(|g| g.receive())
+            .transpose()
+            .map_err(|cause| TwinNodeError::Receive {
+                service: "goal requests",
+                cause,
+            })?
+            .flatten()
+        {
+            // Copied out of shared memory before it is checked.
+            let request = *sample.payload();
+            drop(sample);
+            match intake.request(&request) {
+                Ok(()) => tracing::info!(
+                    goal_id = request.goal_id,
+                    command = request.command,
+                    target_m = ?request.target_m,
+                    approach_height_m = request.approach_height_m,
+                    "goal request taken"
+                ),
+                Err(refusal) => tracing::warn!(
+                    goal_id = request.goal_id,
+                    refused_total = intake.counters().goal_requests_refused,
+                    "goal request refused: {refusal}"
+                ),
+            }
+        }
         while let Some(sample) = sub.receive().map_err(|cause| TwinNodeError::Receive {
             service: "detections",
             cause,

@@ -13,6 +13,7 @@
 //! - [`node`]: the thread's iceoryx2 ends (detections and policies in; robot state,
 //!   verdicts and retrain requests out);
 //! - [`command_log`]: the CSV of computed commands (dry runs);
+//! - [`reaction`]: the reaction time, from the causing frame to the changed command;
 //! - [`serve`]: `rt-core run` as a library function — the cycle thread started, and the twin
 //!   thread's loop.
 
@@ -23,6 +24,7 @@ pub mod lookahead;
 pub mod node;
 pub mod path_planner;
 pub mod plan_guard;
+pub mod reaction;
 pub mod scene_path;
 pub mod serve;
 pub mod smoother;

@@ -227,6 +227,9 @@ impl TwinNode {
             match note {
                 FrameNote::Accepted { frame, sequence } => {
                     self.scene_seq = sequence;
+                    if frame.stop_requested {
+                        twin.note_goal_cancelled(events);
+                    }
                     twin.note_detection(
                         frame.scene,
                         frame.stamp_ns,

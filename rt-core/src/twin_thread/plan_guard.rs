@@ -58,6 +58,12 @@ pub struct PlanGuard<M: ShieldModel> {
     /// Plans handed to the cycle and not handed back, oldest first.
     live: Vec<Arc<Plan>>,
     scene: Option<M::Scene>,
+    /// The current scene's capture and acceptance times, the cycle's clock, ns (0: not
+    /// known): a revocation names them as its cause.
+    scene_times_ns: (u64, u64),
+    /// The cycle clock's origin on the monotonic clock, ns, for the acceptance time (`None`:
+    /// not stamped, as in tests on a manual clock).
+    clock_origin_ns: Option<u64>,
     revocations: Vec<Revocation>,
     verifications: u64,
 }
@@ -72,9 +78,30 @@ impl<M: ShieldModel> PlanGuard<M> {
             control,
             live: Vec::with_capacity(MAX_LIVE_PLANS),
             scene: None,
+            scene_times_ns: (0, 0),
+            clock_origin_ns: None,
             revocations: Vec::new(),
             verifications: 0,
         }
+    }
+
+    /// Stamps each accepted scene with the time it reached the guard, on the cycle's clock
+    /// whose origin is `origin_ns` on the monotonic clock (`rt-core run`).
+    pub fn set_clock_origin(&mut self, origin_ns: u64) {
+        self.clock_origin_ns = Some(origin_ns);
+    }
+
+    /// An accepted scene captured at `capture_ns` (the cycle's clock): as
+    /// [`PlanGuard::scene`], and a revocation it causes carries its capture and acceptance
+    /// times to the cycle's log (the reaction time's start).
+    pub fn scene_captured(&mut self, scene: M::Scene, capture_ns: u64) {
+        let accepted_ns = self.clock_origin_ns.map_or(0, |origin| {
+            shm_schemas::clock::monotonic_now_ns().saturating_sub(origin)
+        });
+        if self.scene != Some(scene) {
+            self.scene_times_ns = (capture_ns, accepted_ns);
+        }
+        self.scene(scene);
     }
 
     /// Registers a plan about to be handed to the cycle (call it *before* the hand-over, so
@@ -183,7 +210,9 @@ impl<M: ShieldModel> PlanGuard<M> {
             }
         }
         if let Some(r) = first_bad {
-            self.control.revoke_up_to(newest_checked);
+            let (capture_ns, accepted_ns) = self.scene_times_ns;
+            self.control
+                .revoke_up_to_because(newest_checked, capture_ns, accepted_ns);
             self.revocations.push(r);
         }
     }

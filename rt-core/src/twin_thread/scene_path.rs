@@ -59,7 +59,13 @@ impl<M: ShieldModel> ScenePath<M> {
             refused: false,
         });
         self.last = Some((scene, stamp_ns));
-        lock_guard(&self.guard).scene(scene);
+        lock_guard(&self.guard).scene_captured(scene, stamp_ns);
+    }
+
+    /// Stamps the accepted scenes with the time they reach the plan guard, on the cycle's
+    /// clock whose origin is `origin_ns` on the monotonic clock.
+    pub fn set_clock_origin(&self, origin_ns: u64) {
+        lock_guard(&self.guard).set_clock_origin(origin_ns);
     }
 
     /// A refused frame: the cycle is told at once (it stops the arm, keeping the last

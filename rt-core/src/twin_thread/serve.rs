@@ -9,7 +9,8 @@
 //! arm along its plan (or brakes), reports it at rest, and puts the controller in its stop
 //! state (`SET_STATE 4`) before its thread ends; `serve` waits for that up to
 //! [`SHUTDOWN_TIMEOUT`] and returns the error, if any (the binary then exits non-zero).
-//! SIGUSR1 is the operator's acknowledgement of a protective stop.
+//! The operator acknowledges a protective stop through [`crate::operator_ack`]'s channel
+//! (`rt-core ack`); SIGUSR1 is caught and dropped.
 
 // Set-up and supervision of the process (not the cycle): watchdog, time limit, shutdown wait.
 #![allow(clippy::disallowed_methods)]
@@ -29,6 +30,7 @@ use crate::cycle::shield::{Shield, ShieldLimits};
 use crate::cycle::thread::spawn_cycle_thread;
 use crate::cycle::twin_model::TwinModel;
 use crate::cycle::{self, Cycle, CycleConfig, LoopShared, LoopSummary};
+use crate::operator_ack::{AckChannelError, AckServer};
 use crate::rt::clock::{Clock, MonotonicClock};
 use crate::rt::histogram::Summary;
 use crate::rt::rt_setup::{self, RtRequest, RtSetupReport};
@@ -38,6 +40,7 @@ use crate::twin_thread::intake_thread::{IntakeThread, spawn_intake_thread};
 use crate::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
 use crate::twin_thread::node::{ProductionWorker, TwinNode, TwinNodeError};
 use crate::twin_thread::path_planner::TwinPathPlanner;
+use crate::twin_thread::reaction::{ReactionSummary, SharedReactionMeter};
 use crate::twin_thread::{TwinEvent, TwinWorker};
 
 /// How the twin thread polls between events.
@@ -110,6 +113,18 @@ pub struct ServeOptions {
     pub auto_resume: bool,
     /// A fault to inject (tests only).
     pub inject: Option<InjectedFault>,
+    /// The operator's acknowledgement channel (an xArm link; `None`: protective stops are
+    /// cleared by no one but the process's own caller, e.g. the in-process arm's tests).
+    pub ack_channel: Option<AckChannelOptions>,
+}
+
+/// Where the operator's acknowledgement channel opens and who may use it.
+#[derive(Debug, Clone, Default)]
+pub struct AckChannelOptions {
+    /// The socket's path ([`crate::operator_ack::socket_path`] of the arm's lock file).
+    pub path: PathBuf,
+    /// User ids allowed besides rt-core's own and root (`[operator] ack_uids`).
+    pub extra_uids: Vec<u32>,
 }
 
 /// The figures of a finished run.
@@ -131,6 +146,11 @@ pub struct ServeSummary {
     pub envelope_breaches: u64,
     /// Detection frames accepted and refused (per reason).
     pub intake: IntakeCounters,
+    /// Reactions to a scene that made the running plan unsafe: from the causing frame's
+    /// capture (and acceptance) to the first changed command ([`SharedReactionMeter`]).
+    pub reaction: ReactionSummary,
+    /// Reactions seen.
+    pub reactions: u64,
 }
 
 impl ServeSummary {
@@ -144,6 +164,20 @@ impl ServeSummary {
             max_us = age.max_us,
             "detection capture -> visible in the twin thread"
         );
+        if self.reactions > 0 {
+            let (cap, acc) = (
+                &self.reaction.capture_to_command,
+                &self.reaction.accepted_to_command,
+            );
+            tracing::info!(
+                reactions = self.reactions,
+                capture_p50_us = cap.p50_us,
+                capture_max_us = cap.max_us,
+                accepted_p50_us = acc.p50_us,
+                accepted_max_us = acc.max_us,
+                "reaction: causing frame -> first changed command"
+            );
+        }
         tracing::info!(
             accepted = self.intake.accepted,
             without_goal = self.intake.without_goal,
@@ -174,6 +208,9 @@ impl ServeSummary {
             "wakeup_latency_us": h(&c.wakeup_latency_us),
             "cycle_compute_us": h(&c.cycle_compute_us),
             "detection_to_twin_us": {"p50": age.p50_us, "p99": age.p99_us, "max": age.max_us},
+            "reactions": self.reactions,
+            "reaction_capture_to_command_us": h(&self.reaction.capture_to_command),
+            "reaction_accepted_to_command_us": h(&self.reaction.accepted_to_command),
             "dry_run": opts.dry_run,
             "lookahead_gate": !opts.no_lookahead,
             "commands_logged": self.commands_logged,
@@ -212,6 +249,9 @@ pub enum ServeError {
     /// Signal handlers could not be installed.
     #[error("installing signal handlers: {0}")]
     Signals(std::io::Error),
+    /// The operator's acknowledgement channel could not open.
+    #[error("operator acknowledgement channel: {0}")]
+    AckChannel(AckChannelError),
     /// A thread could not be spawned.
     #[error("spawning a thread: {0}")]
     Spawn(std::io::Error),
@@ -320,19 +360,36 @@ pub fn serve<L: RobotLink + 'static>(
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(sig, control.shutdown_flag()).map_err(ServeError::Signals)?;
     }
-    let ack = Arc::new(AtomicBool::new(false));
-    signal_hook::flag::register(signal_hook::consts::SIGUSR1, ack.clone())
+    // SIGUSR1 (the acknowledgement of earlier versions) clears nothing: any process of the
+    // same user can send it and it names no stop. It is caught, logged and dropped; the
+    // operator acknowledges through the channel beside the arm's lock (`rt-core ack`).
+    let stray_ack_signal = Arc::new(AtomicBool::new(false));
+    signal_hook::flag::register(signal_hook::consts::SIGUSR1, stray_ack_signal.clone())
         .map_err(ServeError::Signals)?;
+    let _ack_server = match &opts.ack_channel {
+        Some(a) => Some(
+            AckServer::start(a.path.clone(), control.clone(), a.extra_uids.clone())
+                .map_err(ServeError::AckChannel)?,
+        ),
+        None => None,
+    };
     let shared = Arc::new(LoopShared::default());
+    let reactions = SharedReactionMeter::default();
+    let meter = reactions.clone();
     let log_thread = log_drain
-        .spawn(Duration::from_millis(20), stop.clone())
+        .spawn_observed(Duration::from_millis(20), stop.clone(), move |r| {
+            meter.observe(r);
+        })
         .map_err(ServeError::Spawn)?;
-    let intake = SceneIntake::new(
+    let mut intake = SceneIntake::new(
         cfg.intake,
         (cfg.stale.max_detection_age_s * 1e9) as u64,
         table_height_m,
         clock.origin_ns(),
     );
+    if cfg.goal.source == crate::config::GoalSource::Action {
+        intake = intake.with_requested_goals(cfg.goal_bounds(), task.success.goal_hover_m);
+    }
     // Detections go their own way: the intake thread hands each accepted scene to the
     // cycle and the plan guard, then notes it to the twin thread for planning.
     let (frame_notes, frames) = std::sync::mpsc::channel();
@@ -341,6 +398,7 @@ pub fn serve<L: RobotLink + 'static>(
             "the worker's scene path was taken before the intake thread started",
         ))
     })?;
+    scene_path.set_clock_origin(clock.origin_ns());
     let intake_stop = Arc::new(AtomicBool::new(false));
     let intake_thread = spawn_intake_thread(
         &opts.prefix,
@@ -373,7 +431,7 @@ pub fn serve<L: RobotLink + 'static>(
             &mut command_log,
             &mut fk,
             &shared,
-            &ack,
+            &stray_ack_signal,
             &mut events,
             &intake_thread,
         )
@@ -448,6 +506,8 @@ pub fn serve<L: RobotLink + 'static>(
         commands_refused: r.commands_refused,
         envelope_breaches: r.envelope_breaches,
         intake: intake_figures.counters,
+        reaction: reactions.summary().0,
+        reactions: reactions.summary().1,
     })
 }
 
@@ -531,7 +591,7 @@ fn twin_loop(
     command_log: &mut Option<CommandLog>,
     fk: &mut TwinModel,
     shared: &LoopShared,
-    ack: &AtomicBool,
+    stray_ack_signal: &AtomicBool,
     events: &mut Vec<TwinEvent<Scene>>,
     intake_thread: &IntakeThread,
 ) -> Result<(), ServeError> {
@@ -561,11 +621,11 @@ fn twin_loop(
         } else if now_beat > 0 && beat.1.elapsed() > WATCHDOG_TIMEOUT {
             return Err(ServeError::CycleStalled("stopped beating"));
         }
-        if ack.swap(false, Ordering::AcqRel) {
+        if stray_ack_signal.swap(false, Ordering::AcqRel) {
             tracing::warn!(
-                "operator acknowledgement (SIGUSR1): clearing the controller's error and re-enabling motion"
+                "SIGUSR1 ignored: it acknowledges nothing (any process of this user can send it, \
+                 and it names no stop); acknowledge with `rt-core ack --robot HOST`"
             );
-            control.acknowledge();
         }
         node.receive(twin, events)?;
         twin.step(events);

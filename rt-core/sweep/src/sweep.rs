@@ -1404,7 +1404,7 @@ impl<'a> Episode<'a> {
                 CycleEvent::PlanRevoked { .. } => "cycle_plans_revoked",
                 CycleEvent::CommandRefused { .. } => "cycle_commands_refused",
                 CycleEvent::SnappedToMeasured => "cycle_snapped_to_measured",
-                CycleEvent::Acknowledged => "cycle_acknowledged",
+                CycleEvent::Acknowledged { .. } => "cycle_acknowledged",
                 CycleEvent::LinkError { .. } => "cycle_link_errors",
                 _ => return,
             };
@@ -1627,7 +1627,7 @@ impl<'a> Episode<'a> {
                     && !acked
                     && c >= r + plan.ack_after
                 {
-                    self.worker.control().acknowledge();
+                    self.worker.control().acknowledge_latched();
                     acked = true;
                     self.report.bump("twist_operator_acknowledged");
                 }

@@ -91,3 +91,62 @@ fn the_cycle_allocates_nothing_over_100k_cycles_with_policy_swaps() {
     );
     assert_eq!(counted_allocs, 0, "the cycle allocated");
 }
+
+/// Speed and separation monitoring on the cycle allocates nothing either: a box above the
+/// arm, inside the protective separation distance, scales the playback (the scale moves
+/// between 0 and 1 as the arm's shape changes) over 20 000 cycles with policy swaps.
+#[test]
+fn the_speed_scaled_cycle_allocates_nothing() {
+    let _serial = crate::serial();
+    let mut cfg = rt_core::config::RuntimeConfig::xarm5_default();
+    cfg.return_home = false;
+    cfg.separation.enabled = true;
+    let mut rig = Rig::with_config(cfg);
+    rig.scene
+        .push_obstacle([0.0, 0.0, 1.45], [0.02, 0.02, 0.02]);
+    rig.policy(1, TARGET_A);
+    rig.run(500);
+    let period = rig.cfg.period_ns();
+    let mut counted_allocs = 0;
+    let (mut lowest, mut highest) = (1.0f64, 0.0f64);
+    let mut next_policy = 2;
+    for cycles in 0..20_000u64 {
+        if cycles.is_multiple_of(1_000) {
+            let target = if next_policy % 2 == 0 {
+                TARGET_B
+            } else {
+                TARGET_A
+            };
+            rig.policy(next_policy, target);
+            next_policy += 1;
+        }
+        let now = rig.clock.now_ns();
+        if cycles.is_multiple_of(8) {
+            rig.twin
+                .on_detection(rig.scene, now, true, true, &mut rig.events);
+        }
+        rig.twin.step(&mut rig.events);
+        alloc_count::count_this_thread(true);
+        let b = alloc_count::counted();
+        rig.cycle.process(now);
+        counted_allocs += alloc_count::counted() - b;
+        alloc_count::count_this_thread(false);
+        let r = rig.cycle.report();
+        if r.mode == rt_core::cycle::Mode::Following {
+            lowest = lowest.min(r.speed_scale);
+            highest = highest.max(r.speed_scale);
+        }
+        rig.clock.advance_ns(period);
+        if rig.events.len() > 10_000 {
+            rig.events.clear();
+        }
+        rig.log.drain(|_| {});
+    }
+    println!(
+        "speed scale while following {lowest:.3}..{highest:.3}, plans taken {}, allocations in the cycle {counted_allocs}",
+        rig.cycle.report().plans_taken
+    );
+    assert!(lowest < highest && highest > 0.0, "{lowest}..{highest}");
+    assert!(lowest < 1.0, "the playback was never scaled");
+    assert_eq!(counted_allocs, 0, "the cycle allocated");
+}

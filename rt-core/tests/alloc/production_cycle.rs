@@ -38,7 +38,7 @@ fn the_production_cycle_moving_on_the_xarm_driver_does_not_allocate() {
             }
         }
         rig.run_for(Duration::from_millis(100));
-        rig.cycle.control().acknowledge();
+        rig.cycle.control().acknowledge_latched();
         rig.run_for(Duration::from_millis(200));
     });
     // The latch is named by the error code when its reply came first, or as a stop the cycle

@@ -84,24 +84,30 @@ impl Rewrite {
     }
 }
 
-/// Copies `from` to `to`, rewriting each whole frame/packet with `rule`.
-fn pump(mut from: TcpStream, mut to: TcpStream, rule: Rewrite) {
+/// Copies `from` to `to`, rewriting each whole frame/packet with `rule`. While `held` is
+/// set, what arrives is kept back; once it is cleared, everything kept goes out (oldest
+/// first) with the next bytes that arrive.
+fn pump(mut from: TcpStream, mut to: TcpStream, rule: Rewrite, held: Arc<AtomicBool>) {
     let mut buf = [0_u8; 4096];
     let mut pending: Vec<u8> = Vec::new();
+    let mut out = Vec::new();
     while let Ok(n) = from.read(&mut buf) {
         if n == 0 {
             break;
         }
         pending.extend_from_slice(&buf[..n]);
-        let mut out = Vec::new();
         while let Some(len) = rule.frame_len(&pending) {
             let mut frame: Vec<u8> = pending.drain(..len).collect();
             rule.apply(&mut frame);
             out.extend_from_slice(&frame);
         }
+        if held.load(Ordering::Acquire) {
+            continue;
+        }
         if to.write_all(&out).is_err() {
             break;
         }
+        out.clear();
     }
     let _ = to.shutdown(Shutdown::Both);
     let _ = from.shutdown(Shutdown::Both);
@@ -115,6 +121,7 @@ pub struct Proxy {
     refuse_until_ns: Arc<AtomicU64>,
     origin: Instant,
     stop: Arc<AtomicBool>,
+    held: Arc<AtomicBool>,
 }
 
 impl Proxy {
@@ -130,8 +137,14 @@ impl Proxy {
         let conns: Arc<Mutex<Vec<TcpStream>>> = Arc::default();
         let refuse_until_ns = Arc::new(AtomicU64::new(0));
         let stop = Arc::new(AtomicBool::new(false));
+        let held = Arc::new(AtomicBool::new(false));
         let origin = Instant::now();
-        let (c, r, s) = (conns.clone(), refuse_until_ns.clone(), stop.clone());
+        let (c, r, s, h) = (
+            conns.clone(),
+            refuse_until_ns.clone(),
+            stop.clone(),
+            held.clone(),
+        );
         std::thread::spawn(move || {
             while !s.load(Ordering::Acquire) {
                 match listener.accept() {
@@ -147,19 +160,21 @@ impl Proxy {
                             continue;
                         };
                         let _ = server.set_nodelay(true);
-                        for (from, to, rule) in [
+                        for (from, to, rule, held) in [
                             (
                                 client.try_clone().expect("clone"),
                                 server.try_clone().expect("clone"),
                                 Rewrite::None,
+                                Arc::new(AtomicBool::new(false)),
                             ),
                             (
                                 server.try_clone().expect("clone"),
                                 client.try_clone().expect("clone"),
                                 rule.clone(),
+                                h.clone(),
                             ),
                         ] {
-                            std::thread::spawn(move || pump(from, to, rule));
+                            std::thread::spawn(move || pump(from, to, rule, held));
                         }
                         if let Ok(mut v) = c.lock() {
                             v.push(client);
@@ -176,7 +191,15 @@ impl Proxy {
             refuse_until_ns,
             origin,
             stop,
+            held,
         }
+    }
+
+    /// Holds back what the controller sends (`true`: a stalled stream, e.g. a controller
+    /// starved of CPU or a congested path; the connection stays up) or lets it through
+    /// again, everything held back first (`false`).
+    pub fn hold(&self, held: bool) {
+        self.held.store(held, Ordering::Release);
     }
 
     /// Cuts every connection now and refuses new ones for `for_dur`.

@@ -154,7 +154,7 @@ fn a_reported_tcp_10_mm_off_while_moving_stops_the_arm_under_control_and_latches
     // The operator fixes the model (here: the offset goes) and acknowledges.
     mm.store(0.0_f64.to_bits(), Ordering::Release);
     rig.run_for(Duration::from_millis(100));
-    rig.cycle.control().acknowledge();
+    rig.cycle.control().acknowledge_latched();
     rig.run_for(Duration::from_millis(300));
     let r = *rig.cycle.report();
     assert!(!r.awaiting_ack, "{r:?}");

@@ -291,7 +291,7 @@ fn after_a_stop_on_the_way_the_arm_still_finds_its_way_home() {
 
 /// A rig whose link was cut 150 cycles into plan 1 (while following) and then run 300 more
 /// cycles; the link's connection flag is returned to restore it.
-fn link_lost_while_following() -> (Rig, std::sync::Arc<std::sync::atomic::AtomicBool>) {
+pub(crate) fn link_lost_while_following() -> (Rig, std::sync::Arc<std::sync::atomic::AtomicBool>) {
     let mut rig = Rig::new();
     rig.policy(1, TARGET_A);
     rig.run(150);
@@ -341,7 +341,7 @@ fn when_the_link_returns_the_arm_is_held_where_it_is_and_a_fresh_plan_moves_it()
         rig.arm_q()
     );
     // The acknowledgement releases it; a fresh plan starts from there and reaches its target.
-    rig.cycle.control().acknowledge();
+    rig.cycle.control().acknowledge_latched();
     rig.run(1);
     assert!(!rig.cycle.report().awaiting_ack);
     rig.policy(3, TARGET_B);
@@ -351,6 +351,53 @@ fn when_the_link_returns_the_arm_is_held_where_it_is_and_a_fresh_plan_moves_it()
         "{:?}",
         rig.arm_q()
     );
+}
+
+#[test]
+fn an_acknowledgement_clears_only_the_stop_it_names() {
+    let (mut rig, conn) = link_lost_while_following();
+    conn.store(true, Ordering::Release);
+    rig.run(1);
+    let control = rig.cycle.control().clone();
+    let (seq, code) = control.latched().expect("a lost link latches");
+    assert_eq!(seq, 1, "the run's first latch");
+    assert_eq!(code, StopReason::LinkLost.code());
+    // A stop that is not the one latched (a later number, never latched) clears nothing.
+    control.acknowledge(seq + 1);
+    rig.run(1);
+    let r = rig.cycle.report();
+    assert!(
+        r.awaiting_ack,
+        "an acknowledgement of another stop cleared the latch"
+    );
+    assert_eq!(r.acks_refused, 1);
+    // The named one does.
+    control.acknowledge(seq);
+    rig.run(1);
+    assert!(!rig.cycle.report().awaiting_ack);
+    assert_eq!(control.latched(), None);
+    // The next latch has the next number; the earlier acknowledgement, replayed (a script
+    // that acknowledges whatever happens, a stale request), does not clear it.
+    rig.policy(2, TARGET_B);
+    rig.run(150);
+    conn.store(false, Ordering::Release);
+    rig.run(300);
+    conn.store(true, Ordering::Release);
+    rig.run(1);
+    assert_eq!(
+        control.latched().map(|l| l.0),
+        Some(2),
+        "{:?}",
+        rig.cycle.report()
+    );
+    control.acknowledge(seq);
+    rig.run(1);
+    let r = rig.cycle.report();
+    assert!(
+        r.awaiting_ack,
+        "a replayed acknowledgement of stop #1 cleared stop #2"
+    );
+    assert_eq!(r.acks_refused, 2);
 }
 
 #[test]

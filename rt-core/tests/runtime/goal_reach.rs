@@ -10,13 +10,12 @@
 //! waypoints reach the target exactly, the smoothed path passes it a few millimetres off.
 
 use rt_core::config::RuntimeConfig;
-use rt_core::cycle::brake::{Brake, MotionState};
-use rt_core::cycle::link::InProcessArm;
+use rt_core::cycle::Mode;
+use rt_core::cycle::brake::MotionState;
 use rt_core::cycle::plan::Plan;
 use rt_core::cycle::shield::{Shield, ShieldLimits};
-use rt_core::cycle::{self, Cycle, CycleConfig, Mode};
 use rt_core::rt::clock::{Clock, ManualClock};
-use rt_core::testing::toy::{ToyArm, ToyPolicy, ToyScene, toy_closest_approach_m};
+use rt_core::testing::toy::{ToyArm, ToyPolicy, ToyScene, toy_closest_approach_m, toy_cycle};
 use rt_core::twin_thread::smoother::PlanSmoother;
 use rt_core::twin_thread::worker::PlanRejection;
 use rt_core::twin_thread::{GoalApproach, Lookahead, TwinEvent, TwinWorker, Verdict};
@@ -119,21 +118,8 @@ fn smoothed_closest_m(cfg: &RuntimeConfig, waypoints: &[Joints], target_m: &[f64
 fn run(cfg: &RuntimeConfig, tolerance_m: f64) -> (Vec<TwinEvent<ToyScene>>, Mode, u64) {
     let (waypoints, goal_pose) = waypoints();
     let target_m = ToyArm::points_m(&goal_pose)[4];
+    let (mut cycle, twin_io, _log) = toy_cycle(cfg, START);
     let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
-    let (twin_io, cycle_io, _log) = cycle::wire::<ToyScene>();
-    let arm = InProcessArm::new(
-        START,
-        cfg.limits.joint_min_rad,
-        cfg.limits.joint_max_rad,
-        [3.0; DOF],
-    );
-    let mut cycle = Cycle::new(
-        CycleConfig::from_runtime(cfg),
-        Shield::new(ToyArm, limits),
-        Brake::new(&cfg.limits),
-        arm,
-        cycle_io,
-    );
     let clock = ManualClock::new(1_000_000_000);
     cycle.start(clock.now_ns()).unwrap();
     let lookahead = CornerLookahead {

@@ -5,7 +5,9 @@
 //! (`goal_reach`), the policy library's fallback to the base policy (`policy_library`), and the
 //! planner fallback (`planner_fallback`), the worker's phase along an excursion (`phase`), and
 //! the re-verification of every live plan on the scene path (`plan_guard`), and verified
-//! sampling before the planner (`sampling`).
+//! sampling before the planner (`sampling`), and the operator's acknowledgement channel
+//! (`operator_ack`), and a controller starved of CPU while the arm moves
+//! (`starved_controller`).
 
 #![allow(missing_docs, clippy::unwrap_used, clippy::expect_used)]
 // The tests drive the runtime from threads of their own and wait in wall time; the bans of
@@ -23,6 +25,7 @@ mod arm_owner;
 mod cycle;
 mod goal_reach;
 mod limits;
+mod operator_ack;
 mod phase;
 mod plan_guard;
 mod planner_fallback;
@@ -31,5 +34,6 @@ mod safety;
 mod sampling;
 mod settled_scene;
 mod shield_twin;
+mod starved_controller;
 mod twin_cli;
 mod xarm_paths;

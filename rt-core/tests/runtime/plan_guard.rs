@@ -13,15 +13,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, mpsc};
 
 use rt_core::config::RuntimeConfig;
-use rt_core::cycle::brake::Brake;
-use rt_core::cycle::link::InProcessArm;
 use rt_core::cycle::shield::{Shield, ShieldLimits, ShieldModel};
-use rt_core::cycle::{self, Cycle, CycleConfig, Mode, StopReason};
+use rt_core::cycle::{Mode, StopReason};
 use rt_core::rt::clock::{Clock, ManualClock};
-use rt_core::testing::toy::{ToyArm, ToyPolicy, ToyScene, toy_closest_approach_m};
+use rt_core::testing::toy::{ToyArm, ToyPolicy, ToyScene, toy_closest_approach_m, toy_cycle};
 use rt_core::twin_thread::worker::{FallbackPlanner, PLANNER_POLICY_ID};
 use rt_core::twin_thread::{GoalApproach, Lookahead, TwinEvent, TwinWorker, Verdict};
-use twin::{DOF, Joints};
+use twin::Joints;
 
 use crate::common::{Rig, START, TARGET_A};
 
@@ -213,21 +211,8 @@ impl FallbackPlanner<ToyScene> for BlockedPlanner {
 fn a_frame_during_a_long_planner_search_reaches_the_cycle_and_the_guard_within_one_cycle() {
     let mut cfg = RuntimeConfig::xarm5_default();
     cfg.return_home = false;
+    let (mut cycle, twin_io, _log) = toy_cycle(&cfg, START);
     let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
-    let (twin_io, cycle_io, _log) = cycle::wire::<ToyScene>();
-    let arm = InProcessArm::new(
-        START,
-        cfg.limits.joint_min_rad,
-        cfg.limits.joint_max_rad,
-        [3.0; DOF],
-    );
-    let mut cycle = Cycle::new(
-        CycleConfig::from_runtime(&cfg),
-        Shield::new(ToyArm, limits),
-        Brake::new(&cfg.limits),
-        arm,
-        cycle_io,
-    );
     let clock = ManualClock::new(1_000_000_000);
     cycle.start(clock.now_ns()).unwrap();
     let solvable = Arc::new(AtomicBool::new(true));

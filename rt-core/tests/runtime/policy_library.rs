@@ -5,14 +5,11 @@
 //! retraining again.
 
 use rt_core::config::RuntimeConfig;
-use rt_core::cycle::brake::Brake;
-use rt_core::cycle::link::InProcessArm;
 use rt_core::cycle::shield::{Shield, ShieldLimits};
-use rt_core::cycle::{self, Cycle, CycleConfig};
 use rt_core::rt::clock::{Clock, ManualClock};
-use rt_core::testing::toy::{ToyArm, ToyPolicy, ToyScene};
+use rt_core::testing::toy::{ToyArm, ToyPolicy, ToyScene, toy_cycle};
 use rt_core::twin_thread::{GoalApproach, Lookahead, TwinEvent, TwinWorker, Verdict};
-use twin::{DOF, Joints};
+use twin::Joints;
 
 use crate::common::{START, TARGET_A};
 
@@ -71,21 +68,8 @@ impl Lookahead for ScriptedLookahead {
 fn run(solves: Vec<u64>, policies: &[u64]) -> Vec<TwinEvent<ToyScene>> {
     let mut cfg = RuntimeConfig::xarm5_default();
     cfg.return_home = false;
+    let (mut cycle, twin_io, _log) = toy_cycle(&cfg, START);
     let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
-    let (twin_io, cycle_io, _log) = cycle::wire::<ToyScene>();
-    let arm = InProcessArm::new(
-        START,
-        cfg.limits.joint_min_rad,
-        cfg.limits.joint_max_rad,
-        [3.0; DOF],
-    );
-    let mut cycle = Cycle::new(
-        CycleConfig::from_runtime(&cfg),
-        Shield::new(ToyArm, limits),
-        Brake::new(&cfg.limits),
-        arm,
-        cycle_io,
-    );
     let clock = ManualClock::new(1_000_000_000);
     cycle.start(clock.now_ns()).unwrap();
     let la = ScriptedLookahead { solves };

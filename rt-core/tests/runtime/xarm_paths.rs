@@ -74,7 +74,7 @@ fn after_a_link_cut_a_real_arm_waits_for_the_acknowledgement() {
         s.counters.servo_accepted, accepted,
         "targets reached the arm before the acknowledgement: {s:?}"
     );
-    rig.cycle.control().acknowledge();
+    rig.cycle.control().acknowledge_latched();
     rig.run_for(Duration::from_millis(100));
     assert!(!rig.cycle.report().awaiting_ack);
     rig.send_plan([0.1, 0.0, 0.0, 0.0, 0.0], 1.0);
@@ -120,7 +120,7 @@ fn a_collision_error_is_an_arm_error_and_nothing_moves_until_acknowledged() {
     assert_eq!(s.q_rad, before.q_rad, "the arm moved: {s:?}");
     assert_eq!(s.error_code, 31, "{s:?}");
     // The operator acknowledges: the error is cleared once, and a fresh plan moves.
-    rig.cycle.control().acknowledge();
+    rig.cycle.control().acknowledge_latched();
     rig.run_for(Duration::from_millis(300));
     let r = *rig.cycle.report();
     assert!(!r.awaiting_ack, "{r:?}");
@@ -202,7 +202,7 @@ fn a_stop_from_another_client_latches_until_acknowledged() {
     assert_eq!(s.q_rad, before.q_rad, "{s:?}");
     assert!(rig.cycle.report().awaiting_ack);
     // The operator acknowledges: servo mode again, and a fresh plan moves.
-    rig.cycle.control().acknowledge();
+    rig.cycle.control().acknowledge_latched();
     rig.run_for(Duration::from_millis(300));
     assert!(!rig.cycle.report().awaiting_ack, "{:?}", rig.cycle.report());
     rig.send_plan([0.1, 0.0, 0.0, 0.0, 0.0], 1.0);
@@ -247,7 +247,7 @@ fn a_frozen_arm_is_a_latched_stop_not_a_resumed_stream() {
         s.counters.servo_accepted, before.counters.servo_accepted,
         "streamed on after a frozen arm: {s:?}"
     );
-    rig.cycle.control().acknowledge();
+    rig.cycle.control().acknowledge_latched();
     rig.run_for(Duration::from_millis(300));
     assert!(!rig.cycle.report().awaiting_ack, "{:?}", rig.cycle.report());
     assert_eq!(rig.sim_summary().protective_faults, 0);
@@ -271,7 +271,7 @@ fn an_acknowledgement_while_the_link_is_down_is_dropped() {
         }
     }
     assert!(rig.cycle.report().awaiting_ack);
-    rig.cycle.control().acknowledge();
+    rig.cycle.control().acknowledge_latched();
     rig.run_for(Duration::from_millis(1200));
     let r = *rig.cycle.report();
     assert!(r.acks_dropped >= 1, "{r:?}");
@@ -282,7 +282,7 @@ fn an_acknowledgement_while_the_link_is_down_is_dropped() {
     let s = rig.sim_summary();
     assert!(s.connections >= 2, "the link never came back: {s:?}");
     // A new acknowledgement, on a live link with the arm at rest, counts.
-    rig.cycle.control().acknowledge();
+    rig.cycle.control().acknowledge_latched();
     rig.run_for(Duration::from_millis(300));
     assert!(!rig.cycle.report().awaiting_ack, "{:?}", rig.cycle.report());
 }

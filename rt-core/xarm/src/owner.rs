@@ -455,13 +455,24 @@ where
     Ok(SocketAddr::new(ip, port))
 }
 
+/// The path of the lock file of the controller at `cfg.host:cfg.command_port` in the
+/// lock folder ([`lock_dir`]), whoever holds it. The operator's acknowledgement channel
+/// lies beside it (`rt-core`'s `operator_ack`).
+///
+/// # Errors
+/// When the name does not resolve.
+pub fn lock_path(cfg: &XArmConfig) -> Result<PathBuf, ArmLockError> {
+    let addr = canonical_addr(&cfg.host, cfg.command_port)?;
+    Ok(lock_dir().join(lock_file_name(addr)))
+}
+
 /// `foresight-xarm-<ip>-<port>.lock`, the IPv6 colons as underscores.
 fn lock_file_name(addr: SocketAddr) -> String {
     format!("{LOCK_FILE_PREFIX}{}-{}.lock", addr.ip(), addr.port()).replace(':', "_")
 }
 
 /// The effective user id of this process.
-fn effective_uid() -> u32 {
+pub fn effective_uid() -> u32 {
     // SAFETY: geteuid(2) takes no argument, touches no memory of ours and cannot fail.
     unsafe { libc::geteuid() }
 }

@@ -3,6 +3,7 @@
 
 use crate::config::RuntimeConfig;
 use crate::cycle::brake::PathStop;
+use crate::cycle::separation::SeparationParams;
 use twin::DOF;
 
 /// Timing parameters of the cycle.
@@ -34,6 +35,8 @@ pub struct CycleConfig {
     /// ([`super::StopReason::Frozen`]), never a resumption from where the plan's clock left
     /// off. [`FREEZE_BOUND_PERIODS`] periods, at least [`FREEZE_BOUND_MIN_NS`].
     pub max_cycle_gap_ns: u64,
+    /// Speed and separation monitoring (`[separation]`): the playback scale by separation.
+    pub separation: SeparationParams,
 }
 
 /// Periods a cycle may come late before it counts as a freeze.
@@ -74,6 +77,7 @@ impl CycleConfig {
             auto_resume_after_link_loss: false,
             max_tracking_error_rad: cfg.tracking.max_error_rad,
             tracking_error_cycles: cfg.tracking.max_error_cycles,
+            separation: SeparationParams::from_runtime(cfg),
         }
     }
 }

@@ -53,10 +53,15 @@ pub enum CycleEvent {
         /// Plan id.
         plan_id: u64,
     },
-    /// The twin revoked the running plan.
+    /// The twin revoked the running plan (or a pending one).
     PlanRevoked {
         /// Plan id.
         plan_id: u64,
+        /// The revocation's cause: capture time of the scene that made it, the cycle's
+        /// clock, ns (0 = not known).
+        capture_ns: u64,
+        /// … and when that scene was accepted, ns (0 = not known).
+        accepted_ns: u64,
     },
     /// A controlled stop began.
     StopBegun {
@@ -74,6 +79,9 @@ pub enum CycleEvent {
     CommandRefused {
         /// Why.
         violation: ShieldViolation,
+        /// Capture time of the scene it was checked against, the cycle's clock, ns (0:
+        /// none).
+        scene_capture_ns: u64,
     },
     /// The controller reports an error; the cycle is latched until acknowledged.
     ArmError {
@@ -87,6 +95,10 @@ pub enum CycleEvent {
     },
     /// The link returned while stopping: the stop ends at the measured joints.
     SnappedToMeasured,
+    /// A stop ended at once at the last command sent, whatever the (possibly lagging)
+    /// measured joints say: the controller holds it as its target (the robot state returned
+    /// on the same connection after it had been late or missing, or the cycle itself froze).
+    HeldAtLastSent,
     /// The controller left its ready state without the cycle asking (the pendant's stop,
     /// the SDK, `SET_STATE` from another client): latched until acknowledged.
     ControllerStopped {
@@ -102,7 +114,7 @@ pub enum CycleEvent {
     },
     /// The cycle itself was not run for longer than the freeze bound (the process stopped
     /// by SIGSTOP or a terminal's Ctrl-Z, a paused VM, a long page fault): the controller got
-    /// no target meanwhile, so the arm stands where measured; the stop ends there.
+    /// no target meanwhile, so it holds the arm at the last command sent; the stop ends there.
     Frozen {
         /// Time since the cycle before, ns.
         gap_ns: u64,
@@ -110,12 +122,29 @@ pub enum CycleEvent {
     /// An acknowledgement arrived while the link was down or the arm was still stopping:
     /// dropped (an operator acknowledges an arm at rest they can see; a new one is needed).
     AcknowledgementDropped,
+    /// An acknowledgement named a stop other than the one latched (an earlier one, or one
+    /// that never was): refused, the latch stands.
+    AcknowledgementRefused {
+        /// The stop the acknowledgement named.
+        named_seq: u64,
+        /// The stop latched now (0 for none).
+        latched_seq: u64,
+    },
     /// An operator acknowledged the protective stop; motion was re-enabled.
-    Acknowledged,
+    Acknowledged {
+        /// The stop cleared.
+        latch_seq: u64,
+    },
     /// An acknowledgement could not be passed to the controller.
     AcknowledgeFailed {
         /// The link's error.
         error: LinkError,
+    },
+    /// Speed and separation monitoring changed the plan's playback scale by a step (or it
+    /// reached 0, the arm at rest on the plan, or 1, full speed again).
+    SpeedScaled {
+        /// The new scale, 0..=1.
+        scale: f64,
     },
     /// The cycle stopped.
     Finished,
@@ -185,6 +214,27 @@ impl StopReason {
             StopReason::ControllerStopped { .. } => 20,
             StopReason::TrackingLost => 21,
             StopReason::Frozen => 22,
+        }
+    }
+
+    /// What a [`StopReason::code`] means, in words (for the operator's acknowledgement,
+    /// which names the stop it clears).
+    pub fn describe_code(code: u8) -> &'static str {
+        match code {
+            0 => "no stop",
+            2 => "stale detection",
+            3 => "stale robot state",
+            4 => "lost link to the controller",
+            5 => "plan revoked by the twin",
+            6 => "controller error",
+            7 => "shutdown",
+            8 => "detection refused",
+            9 => "model mismatch (twin and controller TCPs differ)",
+            10..=19 => "a command the shield refused",
+            20 => "controller left its ready state (pendant, SDK or another client)",
+            21 => "tracking lost (the arm did not follow its commands)",
+            22 => "frozen cycle (the process was not run)",
+            _ => "unknown stop",
         }
     }
 }

@@ -29,6 +29,11 @@ pub struct SceneUpdate<S> {
 pub struct CycleControl {
     /// Every plan with an id up to this one is revoked (0 = none).
     revoked_up_to: AtomicU64,
+    /// The newest revocation's cause: the capture time of the scene that made it, on the
+    /// cycle's clock (0 = not known), ns.
+    revoke_capture_ns: AtomicU64,
+    /// … and when that scene was accepted (0 = not known), ns.
+    revoke_accepted_ns: AtomicU64,
     /// Plan id (upper 40 bits) and next sample index (lower 24 bits) of the plan the cycle
     /// is following, written every cycle: the twin re-verifies from here.
     pub(super) progress: AtomicU64,
@@ -37,8 +42,13 @@ pub struct CycleControl {
     adopted_up_to: AtomicU64,
     /// A controlled stop of the whole process was requested.
     shutdown: Arc<AtomicBool>,
-    /// Operator acknowledgements so far.
-    acks: AtomicU64,
+    /// The latched protective stop an operator's acknowledgement names (its
+    /// [`CycleReport::latch_seq`](super::CycleReport::latch_seq)), 0 for none: taken (and
+    /// zeroed) by the cycle at its next period.
+    ack_request: AtomicU64,
+    /// The stop latched now, written by the cycle every period: its sequence number (upper
+    /// 56 bits) and [`StopReason::code`](super::StopReason::code) (lower 8), 0 when none.
+    latched: AtomicU64,
 }
 
 /// Bits of the sample index in [`CycleControl`]'s progress word.
@@ -48,6 +58,25 @@ impl CycleControl {
     /// Revokes every plan with an id up to `plan_id` (running and pending).
     pub fn revoke_up_to(&self, plan_id: u64) {
         self.revoked_up_to.fetch_max(plan_id, Ordering::AcqRel);
+    }
+
+    /// [`CycleControl::revoke_up_to`] because of the scene captured at `capture_ns` and
+    /// accepted at `accepted_ns` (the cycle's clock; 0 where not known): the cycle logs the
+    /// cause with the revocation it acts on, so the reaction time can be measured off the
+    /// cycle ([`crate::twin_thread::reaction`]).
+    pub fn revoke_up_to_because(&self, plan_id: u64, capture_ns: u64, accepted_ns: u64) {
+        self.revoke_capture_ns.store(capture_ns, Ordering::Release);
+        self.revoke_accepted_ns
+            .store(accepted_ns, Ordering::Release);
+        self.revoke_up_to(plan_id);
+    }
+
+    /// The newest revocation's cause: capture and acceptance times of its scene, ns.
+    pub fn revoke_cause(&self) -> (u64, u64) {
+        (
+            self.revoke_capture_ns.load(Ordering::Acquire),
+            self.revoke_accepted_ns.load(Ordering::Acquire),
+        )
     }
 
     /// The highest revoked plan id.
@@ -98,13 +127,40 @@ impl CycleControl {
         self.shutdown.clone()
     }
 
-    /// An operator acknowledges a protective stop (controller error, lost link).
-    pub fn acknowledge(&self) {
-        self.acks.fetch_add(1, Ordering::AcqRel);
+    /// An operator acknowledges the protective stop number `latch_seq` (controller error,
+    /// lost link, …), as named by [`CycleControl::latched`]. The cycle clears that stop and
+    /// no other: an acknowledgement naming an earlier or later stop is refused
+    /// ([`super::CycleEvent::AcknowledgementRefused`]), one given while the link is down or
+    /// the arm still stopping is dropped. Only the operator's channel
+    /// ([`crate::operator_ack`]) calls this in `rt-core run`.
+    pub fn acknowledge(&self, latch_seq: u64) {
+        self.ack_request.store(latch_seq, Ordering::Release);
     }
 
-    pub(super) fn acks(&self) -> u64 {
-        self.acks.load(Ordering::Acquire)
+    /// Acknowledges whatever stop is latched now (tests and the in-process sweep, which
+    /// play the operator themselves; `rt-core run` names the stop through
+    /// [`crate::operator_ack`]). Does nothing when none is.
+    pub fn acknowledge_latched(&self) {
+        if let Some((seq, _)) = self.latched() {
+            self.acknowledge(seq);
+        }
+    }
+
+    /// The protective stop latched as of the last cycle: its sequence number and its
+    /// [`StopReason::code`](super::StopReason::code); `None` when none is.
+    pub fn latched(&self) -> Option<(u64, u8)> {
+        let w = self.latched.load(Ordering::Acquire);
+        (w != 0).then_some((w >> 8, (w & 0xff) as u8))
+    }
+
+    pub(super) fn set_latched(&self, latch: Option<(u64, u8)>) {
+        let w = latch.map_or(0, |(seq, code)| (seq << 8) | u64::from(code));
+        self.latched.store(w, Ordering::Release);
+    }
+
+    /// Takes the pending acknowledgement request (0 for none).
+    pub(super) fn take_ack_request(&self) -> u64 {
+        self.ack_request.swap(0, Ordering::AcqRel)
     }
 }
 

@@ -29,8 +29,13 @@
 //! which clears the controller's error and re-enables motion through the link. The cycle
 //! never clears an error on its own. A model mismatch ([`StopReason::ModelMismatch`]: the
 //! twin's TCP and the controller's disagree) stops under control first, then latches the
-//! same way once the arm is at rest. When the link returns while stopping, the cycle snaps
-//! to the measured joints and finishes the stop there (the arm got no command meanwhile).
+//! same way once the arm is at rest. When the link returns on a re-opened connection while
+//! stopping, the cycle snaps to the measured joints and finishes the stop there (the arm got
+//! no command meanwhile, and servo mode, entered again, holds it where it stands). When the
+//! robot state returns on the same connection (it was late or missing: a starved or
+//! congested controller that still took every command), and after the cycle itself froze,
+//! the stop ends at the last command sent instead: the controller holds that target and
+//! checks the next one against it, whatever the possibly lagging measured joints say.
 //!
 //! The controller and the arm are watched too: a controller that leaves its ready state
 //! without the cycle asking ([`StopReason::ControllerStopped`]: the pendant's stop, the SDK,
@@ -65,6 +70,7 @@ use std::sync::atomic::Ordering;
 use crate::cycle::brake::{Brake, MotionState, PathStop};
 use crate::cycle::link::{LinkError, RobotLink};
 use crate::cycle::plan::Plan;
+use crate::cycle::separation::SeparationMonitor;
 use crate::cycle::shield::{Shield, ShieldModel, ShieldViolation};
 use twin::{Joints, max_joint_gap_rad};
 
@@ -103,7 +109,9 @@ pub struct Cycle<M: ShieldModel, L: RobotLink> {
     fresh_after_id: u64,
     link_ok: bool,
     started: bool,
-    acks_seen: u64,
+    /// The stop an operator's acknowledgement named, taken from [`CycleControl`] and kept
+    /// while the link cannot pass it on (0 for none).
+    pending_ack: u64,
     ack_failures: u32,
     /// A model-mismatch stop is under way: latched once the arm is at rest.
     mismatch_latch_pending: bool,
@@ -116,6 +124,17 @@ pub struct Cycle<M: ShieldModel, L: RobotLink> {
     /// Time of the cycle before (0 before the first), ns: a longer gap than
     /// [`CycleConfig::max_cycle_gap_ns`] is a freeze.
     last_cycle_ns: u64,
+    /// Speed and separation monitoring: the running plan's playback scale.
+    separation: SeparationMonitor,
+    /// Where the last command lies beyond plan sample `next − 1`, in samples (0 on a
+    /// sample; between samples only during scaled playback).
+    play_frac: f64,
+    /// The playback scale of the last command taken along the plan (a stop along the plan
+    /// falls from it).
+    play_scale: f64,
+    /// The link's connection of the last reading ([`crate::cycle::link::LinkState::session`]):
+    /// while it stays the same, the controller's reference is the last command sent.
+    session: u32,
 }
 
 impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
@@ -148,12 +167,16 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             fresh_after_id: 0,
             link_ok: true,
             started: false,
-            acks_seen: 0,
+            pending_ack: 0,
             ack_failures: 0,
             mismatch_latch_pending: false,
             controller_ready_seen: false,
             tracking_bad_cycles: 0,
             last_cycle_ns: 0,
+            separation: SeparationMonitor::new(cfg.separation),
+            play_frac: 0.0,
+            play_scale: 1.0,
+            session: 0,
         }
     }
 
@@ -166,9 +189,11 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         self.cmd = MotionState::at_rest(st.q_rad);
         self.last_sent = MotionState::at_rest(st.q_rad);
         self.report.measured_q_rad = st.q_rad;
+        self.session = st.session;
         self.mode = Mode::Idle;
         self.started = true;
-        self.acks_seen = self.io.control.acks();
+        // An acknowledgement given before the cycle ran names no stop of this run.
+        let _ = self.io.control.take_ack_request();
         self.io.log.log(
             now_ns,
             CycleEvent::Started {
@@ -228,8 +253,9 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             Mode::Following => {
                 let along = motion == StopMotion::AlongPlan && self.plan.is_some();
                 if along {
+                    let at = self.next.saturating_sub(1) as f64 + self.play_frac;
                     self.path_stop
-                        .start(self.cmd, self.next.saturating_sub(1), self.dt_s());
+                        .start_scaled(self.cmd, at, self.play_scale, self.dt_s());
                     self.stop_motion = StopMotion::AlongPlan;
                 } else {
                     self.brake.start(self.cmd);
@@ -244,6 +270,20 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         self.report.stop_reason = reason;
         self.report.stops += 1;
         self.io.log.log(now_ns, CycleEvent::StopBegun { reason });
+    }
+
+    /// Ends any stop at once at the last command sent, at rest: the controller still holds
+    /// it as its target (the same connection, no stop or reset of the controller since), so
+    /// it is the reference the controller checks the next target against.
+    fn stop_at_last_sent(&mut self, now_ns: u64) {
+        let q = self.last_sent.q_rad;
+        self.cmd = MotionState::at_rest(q);
+        self.last_sent = MotionState::at_rest(q);
+        if self.mode == Mode::Stopping || self.mode == Mode::Following {
+            self.mode = Mode::Stopped;
+            self.io.log.log(now_ns, CycleEvent::HeldAtLastSent);
+            self.io.log.log(now_ns, CycleEvent::Stopped);
+        }
     }
 
     /// Ends any stop at once at `q_rad` (the arm stands there: a controller that stopped
@@ -267,7 +307,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             // The controller has stopped the arm itself: the stop ends where it stands.
             self.begin_stop(now_ns, StopReason::ArmError(code), StopMotion::Brake);
             self.report.stop_reason = StopReason::ArmError(code);
-            self.report.awaiting_ack = true;
+            self.latch();
         }
         self.snap_to(now_ns, measured_q_rad);
     }
@@ -292,7 +332,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         let reason = StopReason::ControllerStopped { state };
         self.begin_stop(now_ns, reason, StopMotion::Brake);
         self.report.stop_reason = reason;
-        self.report.awaiting_ack = true;
+        self.latch();
         self.mismatch_latch_pending = false;
         self.snap_to(now_ns, measured_q_rad);
         false
@@ -329,7 +369,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         self.link.hold_controller(now_ns);
         self.begin_stop(now_ns, StopReason::TrackingLost, StopMotion::Brake);
         self.report.stop_reason = StopReason::TrackingLost;
-        self.report.awaiting_ack = true;
+        self.latch();
         self.mismatch_latch_pending = false;
         self.tracking_bad_cycles = 0;
         self.snap_to(now_ns, *measured_q_rad);
@@ -349,9 +389,11 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
     }
 
     /// The cycle was not run for `gap_ns` (longer than the freeze bound). While the arm
-    /// moved (or stopped), the controller got no target meanwhile and holds the arm where it
-    /// stands: the stop ends at the measured joints at once — streaming on from where the
-    /// plan's clock left off would jump the arm from rest to the plan's speed. Latched until
+    /// moved (or stopped), the controller got no target meanwhile and holds the arm at the
+    /// last one: the stop ends at the last command sent at once — streaming on from where
+    /// the plan's clock left off would jump the arm from rest to the plan's speed, and the
+    /// measured joints may lag that target (a state late after a stall of the whole machine),
+    /// so a command at them would be a jump back the controller faults on. Latched until
     /// an operator acknowledges, unless the arm is simulated and auto-resumes
     /// ([`CycleConfig::auto_resume_after_link_loss`]). At rest a gap changes nothing.
     fn on_freeze(&mut self, now_ns: u64, gap_ns: u64) {
@@ -362,10 +404,17 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         self.begin_stop(now_ns, StopReason::Frozen, StopMotion::Brake);
         self.report.stop_reason = StopReason::Frozen;
         if !self.cfg.auto_resume_after_link_loss && self.link.commands_reach_arm() {
-            self.report.awaiting_ack = true;
+            self.latch();
         }
-        let q = self.report.measured_q_rad;
-        self.snap_to(now_ns, q);
+        if self.link.commands_reach_arm() {
+            // A link that returned on a re-opened connection this period has already put
+            // the last command sent at the measured joints (`read_inputs`).
+            self.stop_at_last_sent(now_ns);
+        } else {
+            // A dry run: the arm got none of the commands; it stands where measured.
+            let q = self.report.measured_q_rad;
+            self.snap_to(now_ns, q);
+        }
     }
 
     fn refuse(&mut self, now_ns: u64, p: Box<Plan>) {
@@ -395,6 +444,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                         self.io.plans.give_back(old);
                     }
                     self.next = 0;
+                    self.play_frac = 0.0;
                     self.mode = Mode::Following;
                     self.report.plans_taken += 1;
                     let (id, pol) = self.plan.as_ref().map_or((0, 0), |p| (p.id, p.policy_id));
@@ -442,15 +492,31 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         match self.link.read_state(now_ns) {
             Ok(st) => {
                 let returned = !self.link_ok;
+                let same_connection = st.session == self.session;
+                self.session = st.session;
                 self.link_ok = true;
                 self.report.measured_q_rad = st.q_rad;
                 self.report.arm_mode = st.mode;
                 self.report.arm_state = st.state;
-                if returned {
-                    // The link is back: hold where the arm is, not where the commands left
-                    // off (the arm got none while the link was down, a stop may have run on
-                    // without it, and a restarted controller may report the arm elsewhere).
-                    // A stop under way ends here; a fresh plan must start from this pose.
+                if returned
+                    && same_connection
+                    && !self.report.awaiting_ack
+                    && self.link.commands_reach_arm()
+                {
+                    // The state was late or missing on the same connection (a starved or
+                    // congested controller): the controller kept every command sent and
+                    // holds the arm at the last one, its reference for the next target.
+                    // The measured joints may lag it (reports from before the stall), and
+                    // a command at them would be a jump back the controller faults on
+                    // (error 24). A stop under way ends there.
+                    self.stop_at_last_sent(now_ns);
+                } else if returned {
+                    // The link is back on a re-opened connection (or after a latched stop):
+                    // hold where the arm is, not where the commands left off (the arm got
+                    // none while the link was down, a stop may have run on without it, and
+                    // a restarted controller may report the arm elsewhere; servo mode,
+                    // entered again, holds it where it stands). A stop under way ends here;
+                    // a fresh plan must start from this pose.
                     self.snap_to(now_ns, st.q_rad);
                     // A re-opened connection may report the state from before servo mode.
                     self.controller_ready_seen = false;
@@ -490,7 +556,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                 if let LinkError::ControllerError(code) = e {
                     // An error without a readable state: latched like any controller error.
                     self.report.arm_error_code = code;
-                    self.report.awaiting_ack = true;
+                    self.latch();
                     self.begin_stop(now_ns, StopReason::ArmError(code), StopMotion::Brake);
                 } else {
                     // A lost connection latches; a reading that is late or pending (no
@@ -499,7 +565,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                         && !self.cfg.auto_resume_after_link_loss
                         && self.started
                     {
-                        self.report.awaiting_ack = true;
+                        self.latch();
                     }
                     self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
                 }
@@ -508,28 +574,57 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         inputs_ok
     }
 
-    /// Takes an operator's acknowledgement: clears the controller's error and re-enables
-    /// motion through the link, then holds where the arm is until a fresh plan arrives.
+    /// Latches the stop under way: nothing is sent until an operator acknowledges it by
+    /// its number ([`CycleReport::latch_seq`], counted here once per latch).
+    fn latch(&mut self) {
+        if !self.report.awaiting_ack {
+            self.report.latch_seq += 1;
+        }
+        self.report.awaiting_ack = true;
+    }
+
+    /// Takes an operator's acknowledgement of the stop latched now, by its number: clears
+    /// the controller's error and re-enables motion through the link, then holds where the
+    /// arm is until a fresh plan arrives. One naming another stop is refused; one given
+    /// while the link is down or the arm still stopping is dropped.
     fn take_acknowledgement(&mut self, now_ns: u64) {
-        let acks = self.io.control.acks();
-        if acks == self.acks_seen {
+        let named = self.io.control.take_ack_request();
+        if named != 0 {
+            self.pending_ack = named;
+            self.ack_failures = 0;
+        }
+        if self.pending_ack == 0 {
             return;
         }
-        if !self.report.awaiting_ack {
-            self.acks_seen = acks;
+        let latched_seq = if self.report.awaiting_ack {
+            self.report.latch_seq
+        } else {
+            0
+        };
+        if self.pending_ack != latched_seq {
+            // An earlier stop's acknowledgement (or one for none) never clears this one.
+            self.io.log.log(
+                now_ns,
+                CycleEvent::AcknowledgementRefused {
+                    named_seq: self.pending_ack,
+                    latched_seq,
+                },
+            );
+            self.pending_ack = 0;
+            self.report.acks_refused += 1;
             return;
         }
         if !self.link_ok || self.mode == Mode::Stopping {
             // Dropped, never kept for later: an operator acknowledges an arm at rest on a
             // live link, and a new acknowledgement is needed once it is.
-            self.acks_seen = acks;
+            self.pending_ack = 0;
             self.report.acks_dropped += 1;
             self.io.log.log(now_ns, CycleEvent::AcknowledgementDropped);
             return;
         }
         match self.link.acknowledge(now_ns) {
             Ok(()) => {
-                self.acks_seen = acks;
+                self.pending_ack = 0;
                 self.ack_failures = 0;
                 self.report.awaiting_ack = false;
                 self.report.arm_error_code = 0;
@@ -540,7 +635,12 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                 let q = self.report.measured_q_rad;
                 self.snap_to(now_ns, q);
                 self.fresh_after_id = self.newest_plan_id_seen;
-                self.io.log.log(now_ns, CycleEvent::Acknowledged);
+                self.io.log.log(
+                    now_ns,
+                    CycleEvent::Acknowledged {
+                        latch_seq: latched_seq,
+                    },
+                );
             }
             Err(error) => {
                 // Tried again next period (e.g. a full pipeline); logged once.
@@ -551,7 +651,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                 }
                 self.ack_failures = self.ack_failures.saturating_add(1);
                 if self.ack_failures > ACK_ATTEMPTS {
-                    self.acks_seen = acks;
+                    self.pending_ack = 0;
                     self.ack_failures = 0;
                 }
             }
@@ -595,16 +695,31 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         if self.pending.as_ref().is_some_and(|p| p.id <= revoked)
             && let Some(p) = self.pending.take()
         {
-            self.io
-                .log
-                .log(now_ns, CycleEvent::PlanRevoked { plan_id: p.id });
+            let (capture_ns, accepted_ns) = self.io.control.revoke_cause();
+            self.io.log.log(
+                now_ns,
+                CycleEvent::PlanRevoked {
+                    plan_id: p.id,
+                    capture_ns,
+                    accepted_ns,
+                },
+            );
             self.io.plans.give_back(p);
         }
         if self.mode == Mode::Following && self.plan.as_ref().is_some_and(|p| p.id <= revoked) {
             let plan_id = self.plan.as_ref().map_or(0, |p| p.id);
-            self.io.log.log(now_ns, CycleEvent::PlanRevoked { plan_id });
+            let (capture_ns, accepted_ns) = self.io.control.revoke_cause();
+            self.io.log.log(
+                now_ns,
+                CycleEvent::PlanRevoked {
+                    plan_id,
+                    capture_ns,
+                    accepted_ns,
+                },
+            );
             self.begin_stop(now_ns, StopReason::Revoked, StopMotion::AlongPlan);
         }
+        self.watch_separation(now_ns, dt_s);
         while let Some(p) = self.io.plans.take() {
             self.consider(now_ns, p, inputs_ok);
         }
@@ -628,7 +743,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                     } else if e == LinkError::Disconnected {
                         self.link_ok = false;
                         if !self.cfg.auto_resume_after_link_loss {
-                            self.report.awaiting_ack = true;
+                            self.latch();
                         }
                         self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
                     } else {
@@ -642,7 +757,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         }
         if self.mismatch_latch_pending && matches!(self.mode, Mode::Idle | Mode::Stopped) {
             self.mismatch_latch_pending = false;
-            self.report.awaiting_ack = true;
+            self.latch();
         }
         self.report.shutdown_complete =
             self.io.control.shutdown_requested() && matches!(self.mode, Mode::Idle | Mode::Stopped);
@@ -674,9 +789,14 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                 Err(v) => v,
             };
             self.report.commands_refused += 1;
-            self.io
-                .log
-                .log(now_ns, CycleEvent::CommandRefused { violation });
+            let scene_capture_ns = self.scene.map_or(0, |s| s.stamp_ns);
+            self.io.log.log(
+                now_ns,
+                CycleEvent::CommandRefused {
+                    violation,
+                    scene_capture_ns,
+                },
+            );
             if matches!(violation, ShieldViolation::Clearance { .. })
                 && matches!(self.mode, Mode::Following | Mode::Stopping)
             {
@@ -740,7 +860,9 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             if let Some(old) = self.plan.replace(p) {
                 self.io.plans.give_back(old);
             }
-            self.next = 0;
+            // The new plan's first sample is the running plan's join sample: between
+            // samples (scaled playback) the arm goes on from there, not back to it.
+            self.next = usize::from(self.play_frac > 0.0);
         }
         let Some(plan) = self.plan.as_ref() else {
             self.mode = Mode::Idle;
@@ -754,15 +876,13 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             self.cmd = MotionState::at_rest(self.cmd.q_rad);
             return;
         }
-        let k = self.next;
+        // The next sample, or during scaled playback the point between samples `k` and
+        // `k + 1` (`frac` beyond `k`) the playback reached.
+        let (k, frac, candidate) = self.separation.playback(plan, self.next, self.play_frac);
         // The stop envelope's far end: a stop begun now ends before it, so it must be
         // clear of the live scene (checked here one sample further each period).
-        let ahead = plan.q_rad[(k + self.cfg.brake_horizon_samples).min(plan.len() - 1)];
-        let candidate = MotionState {
-            q_rad: plan.q_rad[k],
-            dq_rad_s: plan.dq_rad_s[k],
-            ddq_rad_s2: plan.ddq_rad_s2[k],
-        };
+        let ahead_k = k + usize::from(frac > 0.0) + self.cfg.brake_horizon_samples;
+        let ahead = plan.q_rad[ahead_k.min(plan.len() - 1)];
         let ahead_ok = match &self.scene {
             Some(s) => self.shield.check_pose(&ahead, &s.scene).map(|_| ()),
             None => Err(ShieldViolation::NoScene),
@@ -770,13 +890,36 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         match ahead_ok {
             Ok(()) => {
                 self.cmd = candidate;
-                self.next += 1;
+                self.next = k + 1;
+                self.play_frac = frac;
+                self.play_scale = self.separation.scale();
             }
             Err(v) => {
                 // The path is valid up to here: stop along it.
                 self.begin_stop(now_ns, StopReason::Shield(v), StopMotion::AlongPlan);
                 self.stop_step(now_ns, dt_s);
             }
+        }
+    }
+
+    /// Speed and separation monitoring ([`crate::cycle::separation`]): the separation of
+    /// the last command sent from the live scene's obstacles sets the playback scale of the
+    /// running plan (rate-limited); a change by a step is logged. No trusted scene counts as
+    /// no separation (the stale-input stop brakes meanwhile). Off, nothing is computed.
+    fn watch_separation(&mut self, now_ns: u64, dt_s: f64) {
+        if !self.separation.enabled() {
+            return;
+        }
+        let separation_m = match &self.scene {
+            Some(s) if !s.refused => self
+                .shield
+                .model_mut()
+                .intruder_distance_m(&self.last_sent.q_rad, &s.scene),
+            _ => 0.0,
+        };
+        // The cycle's scene carries no obstacle velocities: the configured intruder speed.
+        if let Some(scale) = self.separation.update(separation_m, 0.0, dt_s) {
+            self.io.log.log(now_ns, CycleEvent::SpeedScaled { scale });
         }
     }
 
@@ -791,10 +934,16 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         }
         r.next_index = self.next;
         r.cmd = self.cmd;
+        r.speed_scale = self.separation.scale();
+        r.separation_m = self.separation.separation_m();
         match (&self.plan, self.mode) {
             (Some(p), Mode::Following) => self.io.control.set_progress(p.id, self.next),
             _ => self.io.control.progress.store(0, Ordering::Release),
         }
+        let latch = r
+            .awaiting_ack
+            .then_some((r.latch_seq, r.stop_reason.code()));
+        self.io.control.set_latched(latch);
         let report = *r;
         self.io.reports.send(report);
     }

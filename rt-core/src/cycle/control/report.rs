@@ -42,6 +42,9 @@ pub struct CycleReport {
     pub arm_state: u8,
     /// Latched after a protective stop: nothing is sent until an operator acknowledges.
     pub awaiting_ack: bool,
+    /// Protective stops latched so far: the number of the one latched now, which an
+    /// operator's acknowledgement must name.
+    pub latch_seq: u64,
     /// Commands that failed the check and were not sent as picked.
     pub commands_refused: u64,
     /// Stops where the next command already failed the clearance check: an obstacle
@@ -54,4 +57,12 @@ pub struct CycleReport {
     pub tracking_error_rad: f64,
     /// Acknowledgements dropped (given while the link was down or the arm stopping).
     pub acks_dropped: u64,
+    /// The plan's playback speed scale, 0..=1 (speed and separation monitoring; 1 when
+    /// off).
+    pub speed_scale: f64,
+    /// The separation the scale was set by: the last command's distance to the live
+    /// scene's obstacles, m (infinite when the monitoring is off).
+    pub separation_m: f64,
+    /// Acknowledgements refused: they named a stop other than the one latched.
+    pub acks_refused: u64,
 }

@@ -260,6 +260,14 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         self.planning.request();
     }
 
+    /// The goal the arm was moving toward was cancelled (the `Reach` action, goal source
+    /// `action`): the running and any pending plan are revoked — the cycle stops along the
+    /// checked path — and nothing new is planned until a goal is given again.
+    pub fn note_goal_cancelled(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
+        self.revoke_under_way(events);
+        self.planning.request();
+    }
+
     /// The plan guard's revocations since the last look, as events; planning is due again.
     fn take_revocations(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
         let revocations = lock_guard(&self.guard).take_revocations();
@@ -402,7 +410,11 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         if newest <= self.io.control.revoked_up_to() {
             return;
         }
-        self.io.control.revoke_up_to(newest);
+        // The cause: the scene the lookahead ran on (its acceptance time is the intake
+        // thread's, not known here).
+        self.io
+            .control
+            .revoke_up_to_because(newest, self.scene.stamp_ns(), 0);
         events.push(TwinEvent::Revoked {
             plan_id: running_id,
             at_index: next,
