@@ -110,7 +110,8 @@ sweep: setup
 # The dynamic sweep (issue 33): an intruder during each motion (enters and stops on the path,
 # crosses it, stops then leaves, appears at once; 0.1-1.6 m/s), 60 Hz frames with tracked
 # velocities; exits non-zero on any avoidable contact while the arm moves.
-SWEEP_DYNAMIC_ARGS ?= --dynamic --episodes 1000 --seed 1 --out runs/sweep-dynamic
+# The planner fallback on, as the product runs (README, "What runs by default").
+SWEEP_DYNAMIC_ARGS ?= --dynamic --episodes 1000 --seed 1 --planner-fallback --out runs/sweep-dynamic
 sweep-dynamic: setup
 	$(CARGO) run --release -p sweep -- $(or $(ARGS),$(SWEEP_DYNAMIC_ARGS))
 

@@ -2,10 +2,10 @@
 # The main job (`make demo`): the self-improving loop on the simulated arm.
 # Usage: scripts/demo.sh <bin-dir> [foresight options...]
 #   e.g. make demo ARGS="--no-lookahead"   or   make demo ARGS="--runs 20 --seed 7"
-#   The planner fallback is off by default (the paper's story: collision predicted,
-#   retraining, swap); on, the planner's checked path moves the arm while the learner
-#   retrains, and the retrained policy replaces it:
-#   make demo ARGS="--planner-fallback on"
+#   The planner fallback is on by default: when the lookahead predicts a collision, the
+#   planner's checked path moves the arm while the learner retrains, and the retrained
+#   policy replaces it. The paper's story (the arm waits for the retrained policy):
+#   make demo ARGS="--planner-fallback off"
 #   The default policy is the distilled generalist (assets/policy-distilled); the research
 #   system's setting (its PPO generalist and its tall box):
 #   make demo ARGS="--checkpoint assets/policy --world assets/scenes/paper_world.toml"

@@ -126,6 +126,32 @@ impl SimProc {
         self.ports[4]
     }
 
+    /// `rt-core run --link xarm` against this simulator for 60 s at most, from the
+    /// repository root, with `extra` options, the simulator's secret in its environment,
+    /// a fresh service prefix, stdout piped and stderr into `log`.
+    ///
+    /// # Panics
+    /// When `log` cannot be created.
+    pub fn rt_core_run(&self, extra: &[&str], log: &std::path::Path) -> Command {
+        let mut cmd = Command::new(bin_path("rt-core"));
+        cmd.current_dir(repo_root())
+            .args(["run", "--link", "xarm", "--no-mlock", "--seconds", "60"])
+            .args(extra)
+            .arg("--robot")
+            .arg(format!("127.0.0.1:{}", self.command_port()))
+            .arg("--report-port")
+            .arg(self.report_real_port().to_string())
+            .arg("--prefix")
+            .arg(crate::unique_prefix("rtcore"))
+            .env("NO_COLOR", "1")
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(log).expect("rt-core log file"));
+        if let Some(secret) = &self.secret {
+            cmd.env(SIM_SECRET_ENV, secret);
+        }
+        cmd
+    }
+
     /// Interrupts it and returns its summary (the last JSON line on stdout).
     ///
     /// # Panics

@@ -144,14 +144,14 @@ fn wait_line(rx: &mpsc::Receiver<String>, needle: &str, limit: Duration) -> Stri
     panic!("no line with {needle:?} within {limit:?}");
 }
 
-#[test]
-fn the_self_improving_loop_predicts_retrains_and_reaches_the_goal_without_collision() {
-    let _one = one_at_a_time();
-    let out = scratch("loop");
-    let _logs = logs_on_failure(&out);
-    let (mut guard, _rx) = launch(&out, 60, &[]);
+/// Runs the fast world with `extra` options and checks what every run of the loop shows:
+/// the goal reached without collision, the collision predicted before the arm moved in the
+/// new scene, a policy swap, the run folder's files. Returns the summary and the timeline's
+/// event kinds in order.
+fn run_the_loop(out: &Path, extra: &[&str]) -> (serde_json::Value, Vec<String>) {
+    let (mut guard, _rx) = launch(out, 60, extra);
     let code = guard.wait_exit(Duration::from_secs(240));
-    let run = run_folder(&out);
+    let run = run_folder(out);
     let s = summary(&run);
     assert_eq!(code, 0, "foresight exit code; summary: {s}");
     assert_eq!(s["goal_reached"], true, "{s}");
@@ -192,15 +192,54 @@ fn the_self_improving_loop_predicts_retrains_and_reaches_the_goal_without_collis
         .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
         .filter_map(|v| v["kind"].as_str().map(str::to_owned))
         .collect();
-    let at = |k: &str| kinds.iter().position(|x| x == k);
+    (s, kinds)
+}
+
+/// Where the first event of `kind` is in `kinds`.
+fn first(kinds: &[String], kind: &str) -> usize {
+    kinds
+        .iter()
+        .position(|x| x == kind)
+        .unwrap_or_else(|| panic!("no {kind} in {kinds:?}"))
+}
+
+#[test]
+fn the_self_improving_loop_moves_on_the_planners_path_while_it_retrains_and_swaps() {
+    let _one = one_at_a_time();
+    let out = scratch("loop");
+    let _logs = logs_on_failure(&out);
+    // The defaults: the planner fallback on.
+    let (s, kinds) = run_the_loop(&out, &[]);
+    assert_eq!(s["planner_fallback"], true, "{s}");
+    assert_eq!(s["executor"], "planner, then policy", "{s}");
     let (pred, req, swap, motion) = (
-        at("collision_predicted").expect("collision_predicted"),
-        at("retrain_request").expect("retrain_request"),
-        at("policy_swap").expect("policy_swap"),
-        kinds
-            .iter()
-            .rposition(|x| x == "motion")
-            .expect("motion in the new scene"),
+        first(&kinds, "collision_predicted"),
+        first(&kinds, "retrain_request"),
+        first(&kinds, "policy_swap"),
+        first(&kinds, "motion"),
+    );
+    // Predicted before anything moved; the planner's path moves the arm while the learner
+    // retrains; the retrained policy takes over after the request.
+    assert!(pred <= req && req < swap && pred < motion, "{kinds:?}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn with_the_planner_fallback_off_the_arm_waits_for_the_retrained_policy() {
+    let _one = one_at_a_time();
+    let out = scratch("paper");
+    let _logs = logs_on_failure(&out);
+    let (s, kinds) = run_the_loop(&out, &["--planner-fallback", "off"]);
+    assert_eq!(s["planner_fallback"], false, "{s}");
+    assert_eq!(s["executor"], "policy", "{s}");
+    let motion = kinds
+        .iter()
+        .rposition(|x| x == "motion")
+        .expect("motion in the new scene");
+    let (pred, req, swap) = (
+        first(&kinds, "collision_predicted"),
+        first(&kinds, "retrain_request"),
+        first(&kinds, "policy_swap"),
     );
     assert!(pred <= req && req < swap && swap <= motion, "{kinds:?}");
     let _ = std::fs::remove_dir_all(&out);

@@ -286,6 +286,24 @@ fn table() -> Vec<Cmd> {
             args: &[],
             flags: &[("--domain-id", I), ("--rate-hz", F), ("--seconds", F)],
         },
+        Cmd {
+            bin: "foresight",
+            args: &["reach"],
+            flags: &[
+                (
+                    "--goal",
+                    Kind::FloatIn {
+                        template: "{},0.1",
+                        neg: "-20",
+                    },
+                ),
+                ("--approach-height-m", F),
+                ("--deadline-s", F),
+                ("--cancel-after-s", F),
+                ("--connect-timeout-s", F),
+                ("--domain-id", I),
+            ],
+        },
     ]
 }
 

@@ -113,6 +113,15 @@ fn the_arm_pauses_for_the_box_and_reaches_the_goal(test: &str, world: &str) {
             .position(|k| *k == "paused")
             .unwrap_or_else(|| panic!("the arm never paused for the box: {kinds:?}"));
     assert!(s["pauses"].as_u64().unwrap_or(0) >= 1, "{s}");
+    // rt-core measured that reaction from the causing camera frame's capture to the changed
+    // command (the figure itself is a benchmark's: README "Results").
+    assert!(s["reaction"]["reactions"].as_u64().unwrap_or(0) >= 1, "{s}");
+    assert!(
+        s["reaction"]["capture_to_command_us"]["max"]
+            .as_f64()
+            .is_some_and(|us| us > 0.0),
+        "{s}"
+    );
     // The continuation: the arm moved on, and reached the goal after the box came to rest
     // for good.
     assert!(

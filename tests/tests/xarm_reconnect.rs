@@ -8,11 +8,10 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::Path;
-use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use foresight_tests::sim_proc::{SIM_SECRET_ENV, SimProc};
-use foresight_tests::{ChildGuard, bin_path, repo_root, unique_prefix, wait_for};
+use foresight_tests::sim_proc::SimProc;
+use foresight_tests::{ChildGuard, unique_prefix, wait_for};
 
 fn read(path: &Path) -> String {
     std::fs::read_to_string(path).unwrap_or_default()
@@ -24,37 +23,13 @@ fn rt_core_run_rides_out_a_controller_restart() {
     std::fs::create_dir_all(&dir).expect("scratch dir");
     let log = dir.join("rt-core.log");
     let mut sim = SimProc::start([0; 6], &[]);
-    let (ports, command_port, report_real_port) =
-        (sim.ports, sim.command_port(), sim.report_real_port());
+    let ports = sim.ports;
 
-    let mut rt = ChildGuard::spawn(
-        "rt-core",
-        Command::new(bin_path("rt-core"))
-            .current_dir(repo_root())
-            // A simulated controller: servo mode comes back after the reconnect without an
-            // operator's acknowledgement (a real arm waits for one).
-            .args([
-                "run",
-                "--link",
-                "xarm",
-                "--auto-resume",
-                "--no-mlock",
-                "--seconds",
-                "60",
-            ])
-            .arg("--robot")
-            .arg(format!("127.0.0.1:{command_port}"))
-            .arg("--report-port")
-            .arg(report_real_port.to_string())
-            .arg("--prefix")
-            .arg(unique_prefix("reconnect"))
-            // `--auto-resume` is granted only to a controller that proves it is xarm-sim
-            // holding this secret, at connect and at every reconnect.
-            .env(SIM_SECRET_ENV, sim.secret())
-            .env("NO_COLOR", "1")
-            .stdout(Stdio::piped())
-            .stderr(std::fs::File::create(&log).expect("log file")),
-    );
+    // A simulated controller: servo mode comes back after the reconnect without an
+    // operator's acknowledgement (a real arm waits for one). `--auto-resume` is granted
+    // only to a controller that proves it is xarm-sim holding the run's secret, at connect
+    // and at every reconnect.
+    let mut rt = ChildGuard::spawn("rt-core", &mut sim.rt_core_run(&["--auto-resume"], &log));
     let wait_log = |needle: &str, secs: u64| {
         wait_for(Duration::from_secs(secs), || {
             read(&log).contains(needle).then_some(())

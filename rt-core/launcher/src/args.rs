@@ -64,16 +64,24 @@ pub struct LaunchArgs {
     #[arg(long)]
     pub no_lookahead: bool,
     /// Planner fallback: when no policy passes the lookahead, rt-core moves the arm along
-    /// the feasibility planner's checked path while the learner retrains (`off`: the arm
-    /// holds until a retrained policy passes, the paper's behaviour).
-    #[arg(long, value_enum, default_value_t = OnOff::Off)]
+    /// the feasibility planner's checked path while the learner retrains, and the retrained
+    /// policy replaces it once it passes (`off`: the arm holds until a retrained policy
+    /// passes, the paper's behaviour). On by default: README, "Results".
+    #[arg(long, value_enum, default_value_t = OnOff::On)]
     pub planner_fallback: OnOff,
+    /// Where the goal comes from: `camera` (the goal cube perception sees) or `action` (the
+    /// ROS 2 `Reach` action served by the bridge: needs `--ros`; send goals with
+    /// `foresight reach --goal X,Y` or any ROS 2 action client). Default: the runtime
+    /// configuration's `[goal] source`. The run's summary.json says which was used.
+    #[arg(long, value_enum)]
+    pub goal_source: Option<GoalSourceChoice>,
     /// Compute and log every command but send none to the arm.
     #[arg(long)]
     pub dry_run: bool,
     /// Operator action: let rt-core clear the controller's error and warning at start
     /// (it never does on its own). Acknowledge a protective stop while running with
-    /// `rt-core ack --robot HOST` (it signals only the rt-core that owns that arm).
+    /// `rt-core ack --robot HOST` (it shows the latched stop and clears that one, on the
+    /// rt-core that owns that arm).
     #[arg(long)]
     pub clear_errors: bool,
     /// Also publish to ROS 2 (starts the `ros-bridge` process).
@@ -151,6 +159,59 @@ impl OnOff {
             Self::On => "on",
             Self::Off => "off",
         }
+    }
+}
+
+/// Where the goal comes from (`--goal-source`, `[goal] source` of the runtime
+/// configuration).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GoalSourceChoice {
+    /// The camera's goal cube.
+    #[default]
+    Camera,
+    /// The ROS 2 `Reach` action.
+    Action,
+}
+
+impl GoalSourceChoice {
+    /// The word on the command line and in the configuration.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Camera => "camera",
+            Self::Action => "action",
+        }
+    }
+}
+
+/// `--goal-source action` (or `[goal] source = "action"`) without `--ros`: nothing would
+/// serve the Reach action, so no goal could ever be given.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "the goal source is `action` but --ros is not given: the Reach action is served by the \
+     ROS 2 bridge (add --ros, or use --goal-source camera)"
+)]
+pub struct GoalSourceWithoutRos;
+
+impl LaunchArgs {
+    /// The goal source in force: `--goal-source`, else the runtime configuration's.
+    pub fn goal_source(&self, configured: GoalSourceChoice) -> GoalSourceChoice {
+        self.goal_source.unwrap_or(configured)
+    }
+
+    /// Checks that an `action` goal source has the bridge that serves the action.
+    ///
+    /// # Errors
+    /// [`GoalSourceWithoutRos`].
+    pub fn check_goal_source(
+        &self,
+        configured: GoalSourceChoice,
+    ) -> Result<GoalSourceChoice, GoalSourceWithoutRos> {
+        let source = self.goal_source(configured);
+        if source == GoalSourceChoice::Action && !self.ros {
+            return Err(GoalSourceWithoutRos);
+        }
+        Ok(source)
     }
 }
 

@@ -214,6 +214,8 @@ fn run_scenario(
         settle_s: 1.0,
         lookahead: !args.no_lookahead,
         home_q_rad: runtime.return_home.then_some(task.start.joints_rad),
+        goals_from_action: args.goal_source(runtime.goal.source)
+            == crate::args::GoalSourceChoice::Action,
     });
     let mut watch = Watch {
         args,
@@ -235,6 +237,7 @@ fn run_scenario(
     watch.direct(&mut director, &observer, stop)?;
     let notes = std::mem::take(&mut watch.notes);
     let (mut summary, referee) = finish(args, &setup, started, &mut sup, &director, notes)?;
+    summary.goal_source = args.goal_source(runtime.goal.source).name().to_owned();
     // The processes are stopped: the recording holds everything they published.
     crate::recording::stop(recording, &mut summary.notes);
     summary.notes.extend(record_notes);
@@ -457,6 +460,15 @@ fn finish(
     summary.detector = args.detector.name().to_owned();
     summary.planner_fallback = args.planner_fallback == crate::args::OnOff::On;
     summary.cycle_p99_us = p99.or(summary.cycle_p99_us);
+    summary.reaction = rt_core_line.as_ref().and_then(|v| {
+        (v["reactions"].as_u64()? > 0).then(|| {
+            serde_json::json!({
+                "reactions": v["reactions"],
+                "capture_to_command_us": v["reaction_capture_to_command_us"],
+                "accepted_to_command_us": v["reaction_accepted_to_command_us"],
+            })
+        })
+    });
     summary.rt_core_realtime = rt_core_line.map(|v| {
         serde_json::json!({
             "rt": v["rt"],

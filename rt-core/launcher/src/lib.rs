@@ -9,7 +9,8 @@
 //! - [`report`]: summary, plots and Markdown; [`worlds`]: the unseen-worlds benchmark's
 //!   table and plot over `--runs N --worlds random`; [`run_dir`]: the run folder, atomic writes;
 //!   [`runtime_view`]: what the launcher reads of rt-core's configuration; [`recording`]:
-//!   the run's MCAP recording (`runs/<run>/run.mcap`).
+//!   the run's MCAP recording (`runs/<run>/run.mcap`); [`reach`]: `foresight reach`, the ROS 2
+//!   `Reach` action's client.
 
 #![forbid(unsafe_code)]
 
@@ -17,6 +18,7 @@ pub mod args;
 pub mod launch;
 pub mod observer;
 pub mod processes;
+pub mod reach;
 pub mod recording;
 pub mod report;
 pub mod run_dir;

@@ -67,6 +67,12 @@ pub fn start_all(
     args.check_real_arm_sensors()?;
     let robot_secret = args.check_sim_identity()?;
     args.check_learner_host()?;
+    // An `action` goal source needs the bridge that serves the Reach action.
+    let configured = crate::runtime_view::RuntimeView::load(&args.runtime)
+        .with_context(|| format!("loading {}", args.runtime.display()))?
+        .goal
+        .source;
+    let goal_source = args.check_goal_source(configured)?;
     // Before anything starts: a `--detector yolo` without its model is refused here, not
     // discovered as a perception process that keeps failing.
     let perception = perception_args(args, prefix, live)?;
@@ -115,6 +121,12 @@ pub fn start_all(
                 prefix.to_owned(),
                 "--urdf".into(),
                 s(&args.urdf),
+                "--runtime".into(),
+                s(&args.runtime),
+                "--task".into(),
+                s(&args.task),
+                "--goal-source".into(),
+                goal_source.name().into(),
             ],
             env: vec![],
             restart: true,
@@ -378,7 +390,7 @@ fn start_rt_core(
     ];
     if let Some(p) = sim {
         // xarm-sim: a lost link may resume without an operator (a real arm waits for the
-        // acknowledgement, `kill -USR1` of rt-core).
+        // acknowledgement, `rt-core ack --robot HOST`).
         rt_args.extend([
             "--report-port".into(),
             p.report_real.to_string(),
@@ -408,6 +420,9 @@ fn start_rt_core(
         "--planner-fallback".into(),
         args.planner_fallback.name().into(),
     ]);
+    if let Some(source) = args.goal_source {
+        rt_args.extend(["--goal-source".into(), source.name().into()]);
+    }
     if args.clear_errors {
         rt_args.push("--clear-errors".into());
     }

@@ -66,6 +66,11 @@ pub struct Summary {
     /// OS's errno), and its wake-up latency (µs); from rt-core's summary line.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rt_core_realtime: Option<serde_json::Value>,
+    /// rt-core's reactions to a scene that made the running plan unsafe: how many, and
+    /// from the causing frame's capture (through perception) and from its acceptance to the
+    /// first changed command, µs (p50, p99, p99.9, max); from rt-core's summary line.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reaction: Option<serde_json::Value>,
     /// Whether the lookahead gate was on (`--no-lookahead` turns it off).
     pub lookahead: bool,
     /// Whether the planner fallback was on (`--planner-fallback`).
@@ -80,6 +85,10 @@ pub struct Summary {
     /// before the option existed.
     #[serde(default)]
     pub detector: String,
+    /// Where the goal came from: `camera` (the goal cube perception saw) or `action` (the
+    /// ROS 2 `Reach` action); empty in summaries written before the option existed.
+    #[serde(default)]
+    pub goal_source: String,
     /// Seed of the scenario.
     pub seed: u64,
     /// Processes restarted by the supervisor.
@@ -657,10 +666,23 @@ pub fn write_markdown(
             "world change → motion resumed",
             fmt_opt(summary.world_change_to_motion_s, "s"),
         ),
+        (
+            "reaction: causing frame's capture → changed command (median, max; reactions)",
+            summary.reaction.as_ref().map_or("–".to_owned(), |r| {
+                let c = &r["capture_to_command_us"];
+                format!(
+                    "{:.1} ms, {:.1} ms ({})",
+                    c["p50"].as_f64().unwrap_or(f64::NAN) / 1e3,
+                    c["max"].as_f64().unwrap_or(f64::NAN) / 1e3,
+                    r["reactions"]
+                )
+            }),
+        ),
         ("cycle compute p99", fmt_opt(summary.cycle_p99_us, "µs")),
         ("cycle compute p99.9", fmt_opt(summary.cycle_p999_us, "µs")),
         ("process restarts", summary.restarts.to_string()),
         ("detector (perception)", summary.detector.clone()),
+        ("goal source", summary.goal_source.clone()),
     ];
     for (k, v) in rows {
         let _ = writeln!(md, "| {k} | {v} |");
@@ -750,6 +772,7 @@ mod tests {
             goal_reached: true,
             world_change_to_detection_s: Some(0.05),
             detector: "yolo".into(),
+            goal_source: "action".into(),
             ..Summary::default()
         };
         write_summary(&dir.join("summary.json"), &summary, None).unwrap();

@@ -6,12 +6,25 @@ use std::path::Path;
 
 use serde::Deserialize;
 
+use crate::args::GoalSourceChoice;
+
 /// The launcher's view of the runtime configuration.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 pub struct RuntimeView {
     /// Whether rt-core brings the arm home after each goal (rt-core's default: true).
     #[serde(default = "yes")]
     pub return_home: bool,
+    /// `[goal]`: where the goal comes from (rt-core's default: the camera).
+    #[serde(default)]
+    pub goal: GoalView,
+}
+
+/// `[goal]` of the runtime configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+pub struct GoalView {
+    /// `source`: `camera` or `action`.
+    #[serde(default)]
+    pub source: GoalSourceChoice,
 }
 
 fn yes() -> bool {
@@ -59,5 +72,10 @@ mod tests {
         assert!(RuntimeView::load(&p).unwrap().return_home);
         let off: RuntimeView = toml::from_str("return_home = false\nrate_hz = 250.0").unwrap();
         assert!(!off.return_home);
+        assert_eq!(off.goal.source, GoalSourceChoice::Camera);
+        let action: RuntimeView = toml::from_str("[goal]\nsource = \"action\"").unwrap();
+        assert_eq!(action.goal.source, GoalSourceChoice::Action);
+        let bad = toml::from_str::<RuntimeView>("[goal]\nsource = \"both\"").unwrap_err();
+        assert!(bad.to_string().contains("source"), "{bad}");
     }
 }

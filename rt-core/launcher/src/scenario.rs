@@ -48,6 +48,10 @@ pub struct ScenarioConfig {
     /// posture), rad; the world changes only once the arm has settled there. `None`: the
     /// world changes wherever the arm has settled.
     pub home_q_rad: Option<[f64; 5]>,
+    /// The goal comes from the ROS 2 `Reach` action (`--goal-source action`): a scene's goal
+    /// cube is not the arm's goal, so a scene ends only at its phase timeout (or when the
+    /// run is stopped), never on reaching the cube or on an infeasible answer.
+    pub goals_from_action: bool,
 }
 
 /// Joints within this of home count as home, rad.
@@ -506,9 +510,10 @@ impl Director {
                 let last = scene + 1 == self.cfg.world.len();
                 // A scene the learner proved infeasible is over: the arm is held, nothing
                 // more will come for it.
-                let reached = self.goals_reached[scene] || self.infeasible[scene].is_some();
+                let reached = !self.cfg.goals_from_action
+                    && (self.goals_reached[scene] || self.infeasible[scene].is_some());
                 let timed_out = t_s - since_s > self.cfg.phase_timeout_s;
-                if timed_out && !reached {
+                if timed_out && !reached && !self.cfg.goals_from_action {
                     self.log(
                         t_s,
                         "timeout",
@@ -617,9 +622,12 @@ impl Director {
                 format!("the arm moves in the new scene (+{dt:.3} s)"),
             );
         }
-        if self.active_policy != Some(s.active_policy_id) {
-            // The start policy taking over from none (id 0) is not a swap.
-            if self.active_policy.is_some_and(|p| p != 0) {
+        // Id 0 is no policy: none yet, or the planner fallback's path. A swap is a policy
+        // taking over from another policy, whatever ran in between: the start policy's
+        // first plan is not one, and neither is the planner taking over (old → 0) or
+        // handing back to the same policy.
+        if s.active_policy_id != 0 && self.active_policy != Some(s.active_policy_id) {
+            if self.active_policy.is_some() {
                 self.policy_swaps += 1;
                 if self.published_s.is_none() && self.request_s.is_some() {
                     self.published_s = Some(t_s);
@@ -825,8 +833,10 @@ impl Director {
             cycle_p99_us: self.p99_us,
             cycle_p999_us,
             rt_core_realtime: None,
+            reaction: None,
             lookahead: self.cfg.lookahead,
             detector: String::new(),
+            goal_source: String::new(),
             seed,
             restarts,
             arm_rejected_commands: None,
@@ -894,6 +904,7 @@ mod tests {
             settle_s: 0.0,
             lookahead: true,
             home_q_rad: None,
+            goals_from_action: false,
         }
     }
 
@@ -921,6 +932,7 @@ mod tests {
             settle_s: 0.5,
             lookahead: true,
             home_q_rad: None,
+            goals_from_action: false,
         };
         let g0 = [0.4, 0.2, 0.1];
         let g1 = [0.4, -0.2, 0.1];
@@ -1001,6 +1013,26 @@ mod tests {
     }
 
     #[test]
+    fn the_planner_taking_over_is_not_a_swap_and_the_retrained_policy_after_it_is() {
+        let mut d = switched_to_scene_1(moving_world(0.2, &[(0.0, [0.3, 0.25, 0.1])]));
+        // Policy 1 → the planner's path (id 0) → back to policy 1: no swap.
+        d.step(0.5, &obs_state(state([0.4, 0.2, 0.1], 0.0, 0)));
+        d.step(1.0, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1)));
+        assert_eq!(d.summary(0, None, 0, 1).policy_swaps, 0);
+        // The planner again, then the retrained policy 2: one swap, logged when 2 runs.
+        d.step(1.5, &obs_state(state([0.4, 0.2, 0.1], 0.0, 0)));
+        d.step(2.0, &obs_state(state([0.4, 0.2, 0.1], 0.0, 2)));
+        assert_eq!(d.summary(0, None, 0, 1).policy_swaps, 1);
+        let swaps: Vec<&str> = d
+            .events()
+            .iter()
+            .filter(|e| e.kind == "policy_swap")
+            .map(|e| e.detail.as_str())
+            .collect();
+        assert_eq!(swaps, vec!["policy 2 now active"]);
+    }
+
+    #[test]
     fn a_box_in_the_way_shows_as_a_pause_and_the_continuation() {
         let mut d = switched_to_scene_1(moving_world(
             0.2,
@@ -1059,6 +1091,7 @@ mod tests {
             settle_s: 0.0,
             lookahead: true,
             home_q_rad: None,
+            goals_from_action: false,
         };
         let mut d = Director::new(cfg);
         // Scene 0 asked for retraining (request 7) before its goal was reached.
@@ -1185,6 +1218,7 @@ mod tests {
             settle_s: 0.0,
             lookahead: false,
             home_q_rad: None,
+            goals_from_action: false,
         };
         let mut d = Director::new(cfg);
         d.step(0.0, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1)));

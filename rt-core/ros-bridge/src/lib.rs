@@ -9,6 +9,12 @@
 //! | `/robot_description` | `std_msgs/String` (transient local) | `assets/xarm5.urdf` |
 //! | `/foresight/scene_markers` | `visualization_msgs/MarkerArray` | goal and obstacle boxes (from `DetectionFrame`s), the TCP trail, and the last `TwinVerdict` as text |
 //!
+//! and serves one action, `/foresight/reach` (`foresight_msgs/action/Reach`, [`reach`]): a
+//! goal on the table from any ROS 2 program (or `foresight reach`, [`reach_client`]), checked
+//! against the workspace, handed to rt-core as an iceoryx2 `GoalRequest`, with feedback
+//! and a result (reached, infeasible with the reason, stopped and why, cancelled). rt-core
+//! takes it only with the goal source `action` (`foresight --ros --goal-source action`).
+//!
 //! The bridge never touches the cycle: it reads the same shared-memory samples as any other
 //! subscriber, so a slow DDS peer cannot delay a control cycle.
 //!
@@ -20,6 +26,9 @@
 #![forbid(unsafe_code)]
 
 pub mod msgs;
+pub mod reach;
+pub mod reach_client;
+pub mod reach_msgs;
 
 use std::collections::VecDeque;
 use std::net::IpAddr;
@@ -35,7 +44,9 @@ use ros2_client::{
     qos::{Durability, History, WhenFull},
 };
 use serde::{Deserialize, Serialize};
-use shm_schemas::{DetectionFrame, ObjectClass, RobotState, TwinVerdict, services};
+use shm_schemas::{
+    DetectionFrame, ObjectClass, RetrainProgress, RetrainRequest, RobotState, TwinVerdict, services,
+};
 
 use msgs::{
     ColorRgba, Header, JointState, Marker, MarkerArray, Point, Pose, Quaternion, Time,
@@ -71,6 +82,8 @@ pub struct RosBridgeConfig {
     pub urdf: String,
     /// Node name.
     pub node_name: String,
+    /// The `Reach` action's settings.
+    pub reach: reach::ReachSettings,
 }
 
 /// What the bridge did (returned when it stops).
@@ -84,6 +97,8 @@ pub struct RosBridgeStats {
     pub marker_arrays: u64,
     /// Shared-memory samples rejected by `validate()`.
     pub rejected_samples: u64,
+    /// The `Reach` action's goals.
+    pub reach: reach::ReachStats,
 }
 
 /// `geometry_msgs/Transform`.
@@ -451,6 +466,13 @@ pub fn run(
         .map_err(|e| shm(&e))?;
     let verdict_sub =
         services::open_subscriber::<TwinVerdict, _>(&shm_node, &cfg.prefix).map_err(|e| shm(&e))?;
+    let retrain_req_sub = services::open_subscriber::<RetrainRequest, _>(&shm_node, &cfg.prefix)
+        .map_err(|e| shm(&e))?;
+    let retrain_prog_sub = services::open_subscriber::<RetrainProgress, _>(&shm_node, &cfg.prefix)
+        .map_err(|e| shm(&e))?;
+    let mut reach = reach::ReachServer::new(&mut node, &shm_node, &cfg.prefix, cfg.reach)?;
+    let mut retrain_requests: Vec<RetrainRequest> = Vec::new();
+    let mut retrain_progress: Vec<RetrainProgress> = Vec::new();
 
     let mut stats = RosBridgeStats::default();
     let mut latest_state: Option<RobotState> = None;
@@ -463,9 +485,29 @@ pub fn run(
     let mut next_markers = Instant::now();
 
     while !stop.load(Ordering::Relaxed) {
+        let mut fresh_state = false;
         while let Ok(Some(s)) = state_sub.receive() {
             if s.validate().is_ok() {
                 latest_state = Some(*s);
+                fresh_state = true;
+            } else {
+                stats.rejected_samples += 1;
+            }
+        }
+        retrain_requests.clear();
+        while let Ok(Some(s)) = retrain_req_sub.receive() {
+            let r = *s;
+            drop(s);
+            if r.validate().is_ok() {
+                retrain_requests.push(r);
+            } else {
+                stats.rejected_samples += 1;
+            }
+        }
+        retrain_progress.clear();
+        while let Ok(Some(s)) = retrain_prog_sub.receive() {
+            if s.validate().is_ok() {
+                retrain_progress.push(*s);
             } else {
                 stats.rejected_samples += 1;
             }
@@ -511,6 +553,12 @@ pub fn run(
                 trail.push_back([tcp.x, tcp.y, tcp.z]);
             }
         }
+        reach.poll(&reach::ReachInputs {
+            state: latest_state.as_ref().map(|s| (s, fresh_state)),
+            verdict: latest_verdict.as_ref(),
+            retrain_requests: &retrain_requests,
+            retrain_progress: &retrain_progress,
+        });
         let now = Instant::now();
         if now >= next_markers {
             let msg = scene_markers(
@@ -532,5 +580,7 @@ pub fn run(
             next = now;
         }
     }
+    reach.shut_down();
+    stats.reach = reach.stats();
     Ok(stats)
 }

@@ -11,8 +11,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::Parser;
 use ros_bridge::RosBridgeConfig;
+use ros_bridge::reach::{ReachSettings, runtime_goal_settings};
 use shm_schemas::cli_bounds::{f64_within, int_within};
-use twin::RobotModel;
+use twin::{RobotModel, TaskConfig};
 
 /// Republishes a Foresight run's robot state, scene and verdicts over ROS 2.
 #[derive(Debug, Parser)]
@@ -37,6 +38,18 @@ pub struct RosBridgeArgs {
     /// Fixed frame of all published poses (the URDF's base link).
     #[arg(long, default_value = "link_base")]
     frame_id: String,
+    /// rt-core's runtime configuration: the bounds a `Reach` goal is checked against, and
+    /// the goal source.
+    #[arg(long, default_value = "assets/runtime.toml")]
+    runtime: PathBuf,
+    /// Task configuration: the table height, the goal hover and the tolerance of "reached".
+    #[arg(long, default_value = "assets/task.toml")]
+    task: PathBuf,
+    /// Where rt-core takes its goal from (overrides the runtime configuration's
+    /// `goal.source`, as the launcher's `--goal-source` does for rt-core): with `camera`,
+    /// every `Reach` goal is refused.
+    #[arg(long, value_parser = ["camera", "action"])]
+    goal_source: Option<String>,
     /// Stop after this many seconds (0 = run until SIGINT/SIGTERM).
     #[arg(long, default_value_t = 0.0, value_parser = f64_within(0.0, 1e7), allow_negative_numbers = true)]
     seconds: f64,
@@ -72,6 +85,13 @@ fn run(args: RosBridgeArgs) -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    let reach = match reach_settings(&args) {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("ros-bridge: {e}");
+            return ExitCode::from(2);
+        }
+    };
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         if let Err(e) = signal_hook::flag::register(sig, stop.clone()) {
@@ -94,6 +114,7 @@ fn run(args: RosBridgeArgs) -> ExitCode {
         frame_id: args.frame_id,
         urdf,
         node_name: "foresight_bridge".into(),
+        reach,
     };
     match ros_bridge::run(&cfg, &model, &stop) {
         Ok(stats) => {
@@ -105,4 +126,24 @@ fn run(args: RosBridgeArgs) -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// The `Reach` action's settings from `--runtime`, `--task` and `--goal-source`.
+fn reach_settings(args: &RosBridgeArgs) -> Result<ReachSettings, String> {
+    let text = std::fs::read_to_string(&args.runtime)
+        .map_err(|e| format!("cannot read {}: {e}", args.runtime.display()))?;
+    let (bounds, action) = runtime_goal_settings(&text)
+        .map_err(|e| format!("invalid {}: {e}", args.runtime.display()))?;
+    let task = TaskConfig::load(&args.task)
+        .map_err(|e| format!("invalid task {}: {e}", args.task.display()))?;
+    Ok(ReachSettings {
+        goal_source_action: match args.goal_source.as_deref() {
+            Some(source) => source == "action",
+            None => action,
+        },
+        bounds,
+        table_height_m: task.sampling.table_height_m,
+        goal_hover_m: task.success.goal_hover_m,
+        tolerance_m: task.success.tolerance_m,
+    })
 }
