@@ -45,6 +45,8 @@ fn bridge_publishes_joint_states_and_scene_markers_over_dds() {
         Command::new(bin_path("ros-bridge"))
             .args(["--prefix", &prefix, "--rate-hz", "100", "--seconds", "60"])
             .args(["--urdf", asset("xarm5.urdf").to_str().unwrap()])
+            .args(["--runtime", asset("runtime.toml").to_str().unwrap()])
+            .args(["--task", asset("task.toml").to_str().unwrap()])
             .stdout(Stdio::piped()),
     );
 

@@ -93,6 +93,9 @@ fn two_host_run(
     robot_cmd
         .args(["--world", "assets/scenes/fast_world.toml"])
         .args(["--phase-timeout-s", "60", "--retrain-budget-s", "40"])
+        // The retraining link is what these tests exercise: the arm waits for the retrained
+        // policy (with the default planner fallback it would reach the goal without it).
+        .args(["--planner-fallback", "off"])
         .arg("--learner-host")
         .arg("--peer")
         .arg(format!("tcp/{}:{port}", hosts.learner_addr))
