@@ -68,7 +68,8 @@ pub struct Summary {
     pub rt_core_realtime: Option<serde_json::Value>,
     /// rt-core's reactions to a scene that made the running plan unsafe: how many, and
     /// from the causing frame's capture (through perception) and from its acceptance to the
-    /// first changed command, µs (p50, p99, p99.9, max); from rt-core's summary line.
+    /// first changed command, µs (count, p50, max; p99 from 100 and p99.9 from 1 000
+    /// reactions, else null); from rt-core's summary line.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reaction: Option<serde_json::Value>,
     /// Whether the lookahead gate was on (`--no-lookahead` turns it off).

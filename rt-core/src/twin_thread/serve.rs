@@ -209,8 +209,8 @@ impl ServeSummary {
             "cycle_compute_us": h(&c.cycle_compute_us),
             "detection_to_twin_us": {"p50": age.p50_us, "p99": age.p99_us, "max": age.max_us},
             "reactions": self.reactions,
-            "reaction_capture_to_command_us": h(&self.reaction.capture_to_command),
-            "reaction_accepted_to_command_us": h(&self.reaction.accepted_to_command),
+            "reaction_capture_to_command_us": few_samples(&self.reaction.capture_to_command),
+            "reaction_accepted_to_command_us": few_samples(&self.reaction.accepted_to_command),
             "dry_run": opts.dry_run,
             "lookahead_gate": !opts.no_lookahead,
             "commands_logged": self.commands_logged,
@@ -226,6 +226,20 @@ impl ServeSummary {
                 .collect::<serde_json::Map<_, _>>(),
         })
     }
+}
+
+/// A summary of a handful of samples (a run's reactions: one per intrusion) as JSON: the
+/// count, median and maximum always; p99 only from 100 samples and p99.9 only from 1 000
+/// (`null` below), so a tail percentile is never read off a few samples.
+fn few_samples(x: &Summary) -> serde_json::Value {
+    let tail = |q: f64, min_count: u64| (x.count >= min_count).then_some(q);
+    serde_json::json!({
+        "count": x.count,
+        "p50": x.p50_us,
+        "p99": tail(x.p99_us, 100),
+        "p999": tail(x.p999_us, 1_000),
+        "max": x.max_us,
+    })
 }
 
 /// Why the runtime stopped with an error.
@@ -650,4 +664,30 @@ fn twin_loop(
         std::thread::sleep(POLL_PERIOD);
     }
     Ok(())
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_few_reactions_give_no_tail_percentile() {
+        let s = |count| Summary {
+            count,
+            p50_us: 1.0,
+            p99_us: 2.0,
+            p999_us: 3.0,
+            max_us: 4.0,
+        };
+        let one = few_samples(&s(16));
+        assert_eq!(one["count"], 16);
+        assert_eq!(one["p50"], 1.0);
+        assert_eq!(one["max"], 4.0);
+        assert!(one["p99"].is_null() && one["p999"].is_null(), "{one}");
+        let many = few_samples(&s(150));
+        assert_eq!(many["p99"], 2.0);
+        assert!(many["p999"].is_null(), "{many}");
+        assert_eq!(few_samples(&s(1_000))["p999"], 3.0);
+    }
 }
