@@ -54,6 +54,27 @@ use msgs::{
 };
 use twin::{DOF, LinkPoses, RobotModel};
 
+/// A verdict in words, as the scene markers show it: the policy, whether it reaches the
+/// goal, whether safely, its smallest clearance and length.
+pub fn verdict_text(v: &TwinVerdict) -> String {
+    format!(
+        "policy {}: {} {} (min {:.3} m, {} steps)",
+        v.policy_id,
+        if v.is_task_ok() {
+            "reaches goal"
+        } else {
+            "misses goal"
+        },
+        if v.is_safe() {
+            "safely"
+        } else {
+            "WITH CONTACT"
+        },
+        v.min_distance_m,
+        v.steps
+    )
+}
+
 /// Why the bridge could not start or stopped.
 #[derive(Debug, thiserror::Error)]
 pub enum RosBridgeError {
@@ -388,22 +409,7 @@ pub fn scene_markers(
         });
     }
     if let Some(v) = verdict {
-        let text = format!(
-            "policy {}: {} {} (min {:.3} m, {} steps)",
-            v.policy_id,
-            if v.is_task_ok() {
-                "reaches goal"
-            } else {
-                "misses goal"
-            },
-            if v.is_safe() {
-                "safely"
-            } else {
-                "WITH CONTACT"
-            },
-            v.min_distance_m,
-            v.steps
-        );
+        let text = verdict_text(v);
         let c = if v.is_plan_approved() {
             color(0.1, 0.8, 0.2, 1.0)
         } else {

@@ -285,19 +285,25 @@ pub struct ReachServer {
     stats: ReachStats,
 }
 
-fn dds(e: impl std::fmt::Debug) -> RosBridgeError {
+pub(crate) fn dds(e: impl std::fmt::Debug) -> RosBridgeError {
     RosBridgeError::Dds(format!("{e:?}"))
 }
 
-/// The action's QoS: volatile services and feedback, transient-local status (what ROS 2
-/// action clients ask for).
-pub fn reach_server_qos() -> ActionServerQosPolicies {
+/// The action's two QoS profiles, for both ends: volatile services and feedback (keep the
+/// last 10), transient-local status (keep the last one) — what ROS 2 action clients ask for.
+pub(crate) fn action_qos_profiles() -> (QosProfile, QosProfile) {
     let service = QosProfile::publisher_default()
         .durability(Durability::Volatile)
         .history(History::KeepLast { depth: 10 });
     let status = QosProfile::publisher_default()
         .durability(Durability::TransientLocal)
         .history(History::KeepLast { depth: 1 });
+    (service, status)
+}
+
+/// The action server's QoS ([`action_qos_profiles`]).
+pub fn reach_server_qos() -> ActionServerQosPolicies {
+    let (service, status) = action_qos_profiles();
     ActionServerQosPolicies {
         goal_service: service.clone(),
         result_service: service.clone(),
@@ -332,23 +338,11 @@ fn distance_m(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
-/// The verdict in words (as the scene markers show it).
+/// The verdict in words, with whether its plan was approved (the action's feedback).
 pub fn verdict_words(v: &TwinVerdict) -> String {
     format!(
-        "policy {}: {} {} (min {:.3} m, {} steps){}",
-        v.policy_id,
-        if v.is_task_ok() {
-            "reaches goal"
-        } else {
-            "misses goal"
-        },
-        if v.is_safe() {
-            "safely"
-        } else {
-            "WITH CONTACT"
-        },
-        v.min_distance_m,
-        v.steps,
+        "{}{}",
+        crate::verdict_text(v),
         if v.is_plan_approved() {
             ", approved"
         } else {

@@ -13,10 +13,9 @@ use std::time::{Duration, Instant};
 
 use ros2_client::action::{ActionClientQosPolicies, GoalStatusEnum};
 use ros2_client::action_msgs::GoalId;
-use ros2_client::qos::{Durability, History};
-use ros2_client::{ActionClient, NodeName, NodeOptions, QosProfile, RmwRequestId, ServiceMapping};
+use ros2_client::{ActionClient, NodeName, NodeOptions, RmwRequestId, ServiceMapping};
 
-use crate::reach::{reach_action_name, reach_action_type};
+use crate::reach::{action_qos_profiles, dds, reach_action_name, reach_action_type};
 use crate::reach_msgs::{ReachFeedback, ReachGoal, ReachResult};
 use crate::{RosBridgeError, ros_context};
 
@@ -63,18 +62,9 @@ pub struct ReachEnd {
     pub result: ReachResult,
 }
 
-fn dds(e: impl std::fmt::Debug) -> RosBridgeError {
-    RosBridgeError::Dds(format!("{e:?}"))
-}
-
-/// The client QoS (volatile services and feedback, transient-local status).
+/// The client QoS, the server's ([`crate::reach::action_qos_profiles`]).
 pub fn reach_client_qos() -> ActionClientQosPolicies {
-    let service = QosProfile::publisher_default()
-        .durability(Durability::Volatile)
-        .history(History::KeepLast { depth: 10 });
-    let status = QosProfile::publisher_default()
-        .durability(Durability::TransientLocal)
-        .history(History::KeepLast { depth: 1 });
+    let (service, status) = action_qos_profiles();
     ActionClientQosPolicies {
         goal_service: service.clone(),
         result_service: service.clone(),
