@@ -273,6 +273,12 @@ pub struct RuntimeConfig {
     /// How far ahead of the running plan a replacement plan joins it, s.
     #[serde(default = "default_join_ahead_s")]
     pub join_ahead_s: f64,
+    /// When a new scene makes the running plan unsafe far enough ahead, schedule its stop
+    /// where the stop still ends before the danger instead of stopping now, so a
+    /// re-verified replacement joining it can take over without stopping
+    /// ([`crate::twin_thread::plan_guard`]); off: stop at once.
+    #[serde(default = "default_join_before_stopping")]
+    pub join_before_stopping: bool,
     /// After an episode reaches its goal, the arm rests `dwell_at_goal_s` and then returns
     /// to where the episode began along its own executed path, re-checked by the shield in
     /// the scene then in force. Every episode thus starts from the task's start posture,
@@ -557,6 +563,9 @@ fn default_prefix() -> String {
 }
 fn default_join_ahead_s() -> f64 {
     0.1
+}
+fn default_join_before_stopping() -> bool {
+    true
 }
 
 fn default_return_home() -> bool {

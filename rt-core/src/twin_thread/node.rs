@@ -505,6 +505,16 @@ fn log_event(e: &TwinEvent<Scene>, rate_hz: f64) {
             at_index,
             "scene change: running plan unsafe, controlled stop"
         ),
+        TwinEvent::StopScheduled {
+            plan_id,
+            at_index,
+            stop_due_index,
+        } => tracing::info!(
+            plan_id,
+            at_index,
+            stop_due_index,
+            "scene change: running plan unsafe ahead, stop scheduled unless a joining plan takes over"
+        ),
         TwinEvent::PolicySwapped { policy_id } => tracing::info!(policy_id, "policy swapped in"),
         TwinEvent::ReturningHome { plan_id, samples } => tracing::info!(
             plan_id,

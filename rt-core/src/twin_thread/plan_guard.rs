@@ -11,6 +11,19 @@
 //! ([`CycleControl::progress`], [`CycleControl::adopted_up_to`]). A plan the cycle refused
 //! therefore never replaces the running one in the guard's view.
 //!
+//! Join before stopping (issue 33 item 5, `join_before_stopping`): when only the running
+//! plan fails, and its first unsafe sample lies far enough ahead that the arm can go on
+//! for a while and still stop along the plan before it, the guard does not revoke it: it
+//! schedules the stop at the last sample from which the stop envelope
+//! ([`CycleConfig::brake_horizon_samples`]) still ends before the unsafe one
+//! ([`CycleControl::schedule_stop`]). Meanwhile the worker plans a replacement joining the
+//! running plan (policy, verified sampling or planner fallback), verified like any plan;
+//! the cycle switches to it at its join point and the arm never stops. Without one in time
+//! the cycle stops at the scheduled sample. Nothing is given up: every sample the arm
+//! passes through before the stop, and the stop's own, was verified clear in this scene,
+//! which is the criterion by which a plan found safe everywhere goes on today; each later
+//! frame is re-verified the same way and can only move the stop earlier.
+//!
 //! The guard is shared by the scene path (the intake thread in `rt-core run`, which calls
 //! [`PlanGuard::scene`] for every accepted frame) and the twin worker (which registers each
 //! plan *before* handing it over and reports returned ones). A plan approved in an older
@@ -20,9 +33,9 @@
 
 use std::sync::Arc;
 
-use crate::cycle::CycleControl;
 use crate::cycle::plan::Plan;
 use crate::cycle::shield::{Shield, ShieldModel};
+use crate::cycle::{CycleConfig, CycleControl};
 
 /// Live plans kept at most; older ones are forgotten (a cycle holds at most a running, a
 /// pending and a few queued plans; more means boxes were leaked rather than returned).
@@ -35,6 +48,42 @@ pub struct Revocation {
     pub plan_id: u64,
     /// Its first unsafe sample.
     pub at_index: usize,
+    /// `Some(k)`: not revoked but its stop scheduled from sample `k`, so that a joining
+    /// plan may take over first (see the module docs).
+    pub stop_due_index: Option<usize>,
+}
+
+/// Samples kept between the scheduled stop's envelope and the first unsafe sample (the
+/// cycle's own envelope check looks one sample further, between samples during scaled
+/// playback), so the scheduled stop, a pause, comes first.
+const STOP_DUE_SLACK_SAMPLES: usize = 3;
+
+/// When the guard schedules a stop instead of revoking (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct JoinWindow {
+    /// The stop envelope's length, samples ([`CycleConfig::brake_horizon_samples`]).
+    pub brake_horizon_samples: usize,
+    /// The scheduled stop must lie at least this far ahead of the arm, samples: room for
+    /// the worker to plan and for its join point (`join_ahead_s` ahead of the arm).
+    pub min_lead_samples: usize,
+}
+
+impl JoinWindow {
+    /// From the runtime configuration: `None` when `join_before_stopping` is off. The lead
+    /// is twice `join_ahead_s`: the join point itself, and as long again to plan.
+    pub fn from_runtime(cfg: &crate::config::RuntimeConfig) -> Option<Self> {
+        cfg.join_before_stopping.then(|| Self {
+            brake_horizon_samples: CycleConfig::from_runtime(cfg).brake_horizon_samples,
+            min_lead_samples: 2 * (cfg.join_ahead_s * cfg.rate_hz).ceil() as usize,
+        })
+    }
+
+    /// Where the stop of a running plan whose next sample is `next` and first unsafe one
+    /// `first_unsafe` is due, when it can wait (`None`: revoke now).
+    pub fn stop_due(&self, next: usize, first_unsafe: usize) -> Option<usize> {
+        let due = first_unsafe.checked_sub(self.brake_horizon_samples + STOP_DUE_SLACK_SAMPLES)?;
+        (due >= next + self.min_lead_samples).then_some(due)
+    }
 }
 
 /// How a live plan stands with the cycle.
@@ -66,6 +115,8 @@ pub struct PlanGuard<M: ShieldModel> {
     clock_origin_ns: Option<u64>,
     revocations: Vec<Revocation>,
     verifications: u64,
+    /// Schedule the running plan's stop rather than revoke it, where it can wait.
+    join_window: Option<JoinWindow>,
 }
 
 impl<M: ShieldModel> PlanGuard<M> {
@@ -82,7 +133,14 @@ impl<M: ShieldModel> PlanGuard<M> {
             clock_origin_ns: None,
             revocations: Vec::new(),
             verifications: 0,
+            join_window: None,
         }
+    }
+
+    /// Lets a running plan that fails far enough ahead go on until a scheduled stop, so a
+    /// joining plan may take over without stopping (`None`: revoke at once, as without).
+    pub fn set_join_window(&mut self, window: Option<JoinWindow>) {
+        self.join_window = window;
     }
 
     /// Stamps each accepted scene with the time it reached the guard, on the cycle's clock
@@ -168,19 +226,29 @@ impl<M: ShieldModel> PlanGuard<M> {
     /// revokes every live plan up to the newest one checked.
     fn verify(&mut self, scene: M::Scene) {
         let mut first_bad: Option<Revocation> = None;
+        // The running plan failing where its stop can wait: (plan, next, first unsafe).
+        let mut running_bad: Option<(u64, usize, usize)> = None;
         let mut newest_checked = 0;
         for i in 0..self.live.len() {
             let plan = self.live[i].clone();
             let bad = match self.standing(&plan) {
                 Standing::Inert => continue,
                 Standing::Running { next } => {
-                    if next >= plan.len() {
+                    let bad = if next >= plan.len() {
                         None
                     } else {
                         let prev = plan.q_rad[next.saturating_sub(1)];
                         self.first_unsafe(&prev, &plan.q_rad[next..], &scene)
                             .map(|k| next + k)
+                    };
+                    if let (Some(k), Some(w)) = (bad, self.join_window)
+                        && w.stop_due(next, k).is_some()
+                    {
+                        newest_checked = newest_checked.max(plan.id);
+                        running_bad = Some((plan.id, next, k));
+                        continue;
                     }
+                    bad
                 }
                 Standing::Joining { join_index } => {
                     let running = self
@@ -206,8 +274,32 @@ impl<M: ShieldModel> PlanGuard<M> {
                 first_bad.get_or_insert(Revocation {
                     plan_id: plan.id,
                     at_index,
+                    stop_due_index: None,
                 });
             }
+        }
+        // Only the running plan fails, far enough ahead: its stop is scheduled (any other
+        // failure revokes all, the running plan with them, as below).
+        if first_bad.is_none()
+            && let (Some((plan_id, next, k)), Some(w)) = (running_bad, self.join_window)
+            && let Some(due) = w.stop_due(next, k)
+        {
+            self.control.schedule_stop(plan_id, due);
+            self.revocations.push(Revocation {
+                plan_id,
+                at_index: k,
+                stop_due_index: Some(due),
+            });
+            return;
+        }
+        if first_bad.is_none()
+            && let Some((plan_id, _, at_index)) = running_bad
+        {
+            first_bad = Some(Revocation {
+                plan_id,
+                at_index,
+                stop_due_index: None,
+            });
         }
         if let Some(r) = first_bad {
             let (capture_ns, accepted_ns) = self.scene_times_ns;
@@ -228,5 +320,41 @@ impl<M: ShieldModel> PlanGuard<M> {
             .check_path(prev, path, self.period_s, scene)
             .err()
             .map(|(i, _)| i)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_stop_waits_only_where_it_still_ends_before_the_danger_with_room_to_join() {
+        let w = JoinWindow {
+            brake_horizon_samples: 50,
+            min_lead_samples: 50,
+        };
+        // Unsafe at 200, arm at 10: the stop is due at 200 − 50 − slack.
+        assert_eq!(w.stop_due(10, 200), Some(200 - 50 - STOP_DUE_SLACK_SAMPLES));
+        // Too near: no room to plan and join before the stop — revoke now.
+        assert_eq!(w.stop_due(100, 200), None);
+        // Inside the stop envelope already.
+        assert_eq!(w.stop_due(0, 40), None);
+    }
+
+    #[test]
+    fn a_scheduled_stop_only_moves_earlier_for_the_same_plan() {
+        let c = CycleControl::default();
+        assert_eq!(c.stop_due(), None);
+        c.schedule_stop(7, 300);
+        c.schedule_stop(7, 400);
+        assert_eq!(c.stop_due(), Some((7, 300)), "a later frame moved it later");
+        c.schedule_stop(7, 250);
+        assert_eq!(c.stop_due(), Some((7, 250)));
+        c.schedule_stop(8, 500);
+        assert_eq!(
+            c.stop_due(),
+            Some((8, 500)),
+            "a new plan's stop replaces it"
+        );
     }
 }

@@ -144,6 +144,9 @@ pub struct ServeSummary {
     pub commands_refused: u64,
     /// Stops with an obstacle already inside the stop envelope (the unavoidable case).
     pub envelope_breaches: u64,
+    /// Stops the plan guard scheduled that a joining plan made unnecessary (the arm went
+    /// on without stopping).
+    pub joins_before_stop: u64,
     /// Detection frames accepted and refused (per reason).
     pub intake: IntakeCounters,
     /// Reactions to a scene that made the running plan unsafe: from the causing frame's
@@ -216,6 +219,7 @@ impl ServeSummary {
             "commands_logged": self.commands_logged,
             "commands_refused": self.commands_refused,
             "envelope_breaches": self.envelope_breaches,
+            "joins_before_stop": self.joins_before_stop,
             "detections_accepted": self.intake.accepted,
             "detections_without_goal": self.intake.without_goal,
             "detections_refused": FrameRefusal::NAMES
@@ -519,6 +523,7 @@ pub fn serve<L: RobotLink + 'static>(
         commands_logged: commands_logged?,
         commands_refused: r.commands_refused,
         envelope_breaches: r.envelope_breaches,
+        joins_before_stop: r.joins_before_stop,
         intake: intake_figures.counters,
         reaction: reactions.summary().0,
         reactions: reactions.summary().1,

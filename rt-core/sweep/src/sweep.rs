@@ -1383,6 +1383,7 @@ impl<'a> Episode<'a> {
                 }
                 TwinEvent::PlanRejected { .. } => "twin_plans_rejected",
                 TwinEvent::Revoked { .. } => "twin_plans_revoked",
+                TwinEvent::StopScheduled { .. } => "twin_stops_scheduled",
                 TwinEvent::Retrain { .. } => "twin_retrain_requests",
                 TwinEvent::ReturningHome { .. } => "twin_returns_home",
                 TwinEvent::ReturnHomeRefused { .. } => "twin_returns_home_refused",
@@ -1402,6 +1403,8 @@ impl<'a> Episode<'a> {
                 CycleEvent::PlanAdopted { .. } => "cycle_plans_adopted",
                 CycleEvent::PlanRefused { .. } => "cycle_plans_refused",
                 CycleEvent::PlanRevoked { .. } => "cycle_plans_revoked",
+                CycleEvent::StopDue { .. } => "cycle_stops_due",
+                CycleEvent::JoinedBeforeStop { .. } => "cycle_joins_before_stop",
                 CycleEvent::CommandRefused { .. } => "cycle_commands_refused",
                 CycleEvent::SnappedToMeasured => "cycle_snapped_to_measured",
                 CycleEvent::Acknowledged { .. } => "cycle_acknowledged",

@@ -7,7 +7,8 @@
 //! the re-verification of every live plan on the scene path (`plan_guard`), and verified
 //! sampling before the planner (`sampling`), and the operator's acknowledgement channel
 //! (`operator_ack`), and a controller starved of CPU while the arm moves
-//! (`starved_controller`).
+//! (`starved_controller`), and a plan unsafe far ahead joined by a safe one without
+//! stopping (`join_before_stop`).
 
 #![allow(missing_docs, clippy::unwrap_used, clippy::expect_used)]
 // The tests drive the runtime from threads of their own and wait in wall time; the bans of
@@ -24,6 +25,7 @@ mod xarm_rig;
 mod arm_owner;
 mod cycle;
 mod goal_reach;
+mod join_before_stop;
 mod limits;
 mod operator_ack;
 mod phase;

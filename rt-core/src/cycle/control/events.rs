@@ -53,6 +53,23 @@ pub enum CycleEvent {
         /// Plan id.
         plan_id: u64,
     },
+    /// The running plan reached the sample where the plan guard scheduled its stop
+    /// ([`super::CycleControl::schedule_stop`]) with no joining plan taken over: the
+    /// cycle stops along it.
+    StopDue {
+        /// Plan id.
+        plan_id: u64,
+        /// The sample the stop was due from.
+        index: usize,
+    },
+    /// A joining plan took over from a running plan with a stop scheduled: the arm went on
+    /// without stopping.
+    JoinedBeforeStop {
+        /// The plan left.
+        from_plan_id: u64,
+        /// The plan joined.
+        plan_id: u64,
+    },
     /// The twin revoked the running plan (or a pending one).
     PlanRevoked {
         /// Plan id.

@@ -49,6 +49,10 @@ pub struct CycleControl {
     /// The stop latched now, written by the cycle every period: its sequence number (upper
     /// 56 bits) and [`StopReason::code`](super::StopReason::code) (lower 8), 0 when none.
     latched: AtomicU64,
+    /// A stop the plan guard scheduled on the running plan (issue 33 item 5): plan id
+    /// (upper 40 bits) and the sample index (lower 24 bits) from which the cycle stops
+    /// along it unless a joining plan has taken over first; 0 for none.
+    stop_due: AtomicU64,
 }
 
 /// Bits of the sample index in [`CycleControl`]'s progress word.
@@ -107,6 +111,33 @@ impl CycleControl {
         let index = (next_index as u64).min((1 << PROGRESS_INDEX_BITS) - 1);
         self.progress
             .store((plan_id << PROGRESS_INDEX_BITS) | index, Ordering::Release);
+    }
+
+    /// Schedules a stop of plan `plan_id` once its next sample reaches `index`, instead of
+    /// revoking it now: its samples up to the stop envelope's far end from there were
+    /// verified clear, and a re-verified plan joining it before then takes over without
+    /// stopping. A later call for the same plan only moves the stop earlier; one for
+    /// another plan replaces it.
+    pub fn schedule_stop(&self, plan_id: u64, index: usize) {
+        let index = (index as u64).min((1 << PROGRESS_INDEX_BITS) - 1);
+        let word = (plan_id << PROGRESS_INDEX_BITS) | index;
+        // Single writer (the plan guard, under its lock); the update keeps the rule in
+        // one place all the same.
+        let _ = self
+            .stop_due
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |old| {
+                let same_plan = old != 0 && old >> PROGRESS_INDEX_BITS == plan_id;
+                (!same_plan || word < old).then_some(word)
+            });
+    }
+
+    /// The scheduled stop: plan id and the sample index it stops from (`None`: none).
+    pub fn stop_due(&self) -> Option<(u64, usize)> {
+        let w = self.stop_due.load(Ordering::Acquire);
+        (w != 0).then_some((
+            w >> PROGRESS_INDEX_BITS,
+            (w & ((1 << PROGRESS_INDEX_BITS) - 1)) as usize,
+        ))
     }
 
     /// Asks for a controlled stop of the whole process: the cycle stops the arm, takes no

@@ -858,6 +858,23 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                 },
             );
             if let Some(old) = self.plan.replace(p) {
+                if self
+                    .io
+                    .control
+                    .stop_due()
+                    .is_some_and(|(id, _)| id == old.id)
+                {
+                    // The guard had scheduled a stop on the plan just left: the joining
+                    // plan, re-verified, took over before it (issue 33 item 5).
+                    self.report.joins_before_stop += 1;
+                    self.io.log.log(
+                        now_ns,
+                        CycleEvent::JoinedBeforeStop {
+                            from_plan_id: old.id,
+                            plan_id: self.plan.as_ref().map_or(0, |p| p.id),
+                        },
+                    );
+                }
                 self.io.plans.give_back(old);
             }
             // The new plan's first sample is the running plan's join sample: between
@@ -868,6 +885,24 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             self.mode = Mode::Idle;
             return;
         };
+        // A stop the guard scheduled on this plan, no joining plan having taken over by
+        // its sample: stop along the plan now (a pause, as a revocation).
+        if let Some((due_id, due_index)) = self.io.control.stop_due()
+            && due_id == plan.id
+            && self.next >= due_index
+        {
+            let plan_id = plan.id;
+            self.io.log.log(
+                now_ns,
+                CycleEvent::StopDue {
+                    plan_id,
+                    index: due_index,
+                },
+            );
+            self.begin_stop(now_ns, StopReason::Revoked, StopMotion::AlongPlan);
+            self.stop_step(now_ns, dt_s);
+            return;
+        }
         if self.next >= plan.len() {
             self.io
                 .log

@@ -65,4 +65,7 @@ pub struct CycleReport {
     pub separation_m: f64,
     /// Acknowledgements refused: they named a stop other than the one latched.
     pub acks_refused: u64,
+    /// Stops the plan guard scheduled that a joining plan made unnecessary: the arm went
+    /// on without stopping (issue 33 item 5).
+    pub joins_before_stop: u64,
 }

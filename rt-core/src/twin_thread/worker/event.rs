@@ -57,6 +57,17 @@ pub enum TwinEvent<S> {
         /// The first unsafe sample.
         at_index: usize,
     },
+    /// The running plan fails ahead in the new scene, far enough ahead that its stop was
+    /// scheduled rather than made at once: a joining plan may take over first (issue 33
+    /// item 5, [`crate::twin_thread::plan_guard`]).
+    StopScheduled {
+        /// Plan id.
+        plan_id: u64,
+        /// The first unsafe sample.
+        at_index: usize,
+        /// The sample the cycle stops from unless a joining plan took over.
+        stop_due_index: usize,
+    },
     /// The policy failed the lookahead: retraining is requested for this scene.
     Retrain {
         /// Request id (increasing).

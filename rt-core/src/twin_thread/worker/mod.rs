@@ -54,7 +54,7 @@ use crate::cycle::plan::{JoinPoint, Plan};
 use crate::cycle::shield::{Shield, ShieldModel};
 use crate::cycle::{CycleControl, CycleReport, Mode, TwinIo};
 use crate::rt::handoff::{BoxSender, LatestReceiver};
-use crate::twin_thread::plan_guard::PlanGuard;
+use crate::twin_thread::plan_guard::{JoinWindow, PlanGuard};
 use crate::twin_thread::scene_path::{ScenePath, SharedGuard, lock_guard, share_guard};
 use approve::{Approver, GoalCheck};
 use path_recorder::PathRecorder;
@@ -134,6 +134,9 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     /// The newest plan id handed to the cycle.
     newest_sent_id: u64,
     next_request_id: u64,
+    /// This planning joins a plan with a stop scheduled on a scene still changing: a
+    /// failure asks for no retraining (the scene is a moment of a moving world).
+    no_retrain_this_planning: bool,
 }
 
 impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
@@ -144,11 +147,13 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         M: Clone,
     {
         let period_s = 1.0 / cfg.rate_hz;
-        let guard = share_guard(PlanGuard::new(
+        let mut plan_guard = PlanGuard::new(
             Shield::new(shield.model().clone(), *shield.limits()),
             period_s,
             io.control.clone(),
-        ));
+        );
+        plan_guard.set_join_window(JoinWindow::from_runtime(cfg));
+        let guard = share_guard(plan_guard);
         let TwinIo {
             plans,
             scenes,
@@ -182,6 +187,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             live: Vec::new(),
             newest_sent_id: 0,
             next_request_id: 1,
+            no_retrain_this_planning: false,
         }
     }
 
@@ -273,9 +279,16 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let revocations = lock_guard(&self.guard).take_revocations();
         for r in revocations {
             self.planning.request();
-            events.push(TwinEvent::Revoked {
-                plan_id: r.plan_id,
-                at_index: r.at_index,
+            events.push(match r.stop_due_index {
+                None => TwinEvent::Revoked {
+                    plan_id: r.plan_id,
+                    at_index: r.at_index,
+                },
+                Some(stop_due_index) => TwinEvent::StopScheduled {
+                    plan_id: r.plan_id,
+                    at_index: r.at_index,
+                    stop_due_index,
+                },
             });
         }
     }
@@ -427,7 +440,23 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         if self.library.current().is_none() {
             return;
         }
-        let scene = match self.scene.ready() {
+        // A stop scheduled on the running plan: a joining plan may be made on a scene
+        // still changing (its moving boxes are their predicted occupancy), without asking
+        // for retraining on it; every later frame re-verifies it like any plan.
+        let stop_due = r.mode == Mode::Following
+            && self
+                .io
+                .control
+                .stop_due()
+                .is_some_and(|(id, _)| id == r.plan_id);
+        let ready = match self.scene.ready() {
+            Err(Hold::Unsettled) if stop_due => {
+                self.no_retrain_this_planning = true;
+                self.scene.scene().ok_or(Hold::NoScene)
+            }
+            other => other,
+        };
+        let scene = match ready {
             Ok(scene) => scene,
             Err(Hold::NoGoal) => {
                 if self.scene.report_once(Hold::NoGoal) {
@@ -457,6 +486,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         };
         self.planning.taken();
         self.plan_from(start, join, scene, events);
+        self.no_retrain_this_planning = false;
     }
 
     /// Whether the way home is in hand this iteration (planned now, or waiting out the
@@ -630,6 +660,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         scene: L::Scene,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) {
+        if self.no_retrain_this_planning {
+            return;
+        }
         if self.library.should_ask_retrain(verdict.policy_id, scene) {
             events.push(TwinEvent::Retrain {
                 request_id: self.next_request_id,

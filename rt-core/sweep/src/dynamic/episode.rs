@@ -381,6 +381,7 @@ impl<'a> Run<'a> {
                 TwinEvent::PlanApproved { .. } => "twin_plans_approved",
                 TwinEvent::PlanRejected { .. } => "twin_plans_rejected",
                 TwinEvent::Revoked { .. } => "twin_plans_revoked",
+                TwinEvent::StopScheduled { .. } => "twin_stops_scheduled",
                 TwinEvent::Retrain { .. } => "twin_retrain_requests",
                 TwinEvent::ReturningHome { .. } => "twin_returns_home",
                 TwinEvent::ReturnHomeRefused { .. } => "twin_returns_home_refused",
@@ -400,6 +401,8 @@ impl<'a> Run<'a> {
                 CycleEvent::PlanAdopted { .. } => "cycle_plans_adopted",
                 CycleEvent::PlanRefused { .. } => "cycle_plans_refused",
                 CycleEvent::PlanRevoked { .. } => "cycle_plans_revoked",
+                CycleEvent::StopDue { .. } => "cycle_stops_due",
+                CycleEvent::JoinedBeforeStop { .. } => "cycle_joins_before_stop",
                 CycleEvent::CommandRefused { .. } => "cycle_commands_refused",
                 _ => return,
             };
