@@ -18,7 +18,9 @@
 //! distance of the scale's own ramp to 0 from `s` (upper bounds, reversing a rise under way
 //! included): the time grows with `s`, the distance with `s²`. Each period the monitor takes
 //! the separation `d` (the shield model's distance from the last command sent to the live
-//! scene's obstacles, [`ShieldModel::intruder_distance_m`](super::shield::ShieldModel::intruder_distance_m)),
+//! scene's *moving* obstacles, those perception tracks with a velocity
+//! ([`super::Intruders`], from the intake); a still box is no intruder, the plans are
+//! verified against it: [`ShieldModel::intruder_distance_m`](super::shield::ShieldModel::intruder_distance_m)),
 //! computes the largest `s` with `S_p(s) ≤ d` ([`SeparationParams::allowed_scale`]) and moves
 //! its scale towards it, rate-limited so the joints stay within the plan's own limits:
 //!
@@ -318,7 +320,7 @@ mod tests {
     use super::*;
     use crate::cycle::link::InProcessArm;
     use crate::cycle::shield::ShieldModel;
-    use crate::cycle::{Cycle, CycleEvent, Mode, SceneUpdate, StopReason, TwinIo};
+    use crate::cycle::{Cycle, CycleEvent, Intruders, Mode, SceneUpdate, StopReason, TwinIo};
     use crate::rt::rt_log::RtLogDrain;
     use crate::testing::toy::{ToyArm, ToyScene};
 
@@ -521,6 +523,7 @@ mod tests {
                     scene: self.scene,
                     stamp_ns: self.now_ns,
                     refused: false,
+                    intruders: Intruders::ALL_UNKNOWN,
                 });
                 self.cycle.process(self.now_ns);
                 self.cmds.push(self.cycle.report().cmd);

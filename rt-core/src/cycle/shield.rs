@@ -39,11 +39,20 @@ pub trait ShieldModel: Send + 'static {
     /// (negative when penetrating, `f64::INFINITY` without obstacles).
     fn min_distance_m(&mut self, q_rad: &Joints, scene: &Self::Scene) -> f64;
 
-    /// Minimum distance between the robot at `q_rad` and what may move towards it (the
-    /// obstacles, not the table), m: the separation of the speed and separation monitor
-    /// ([`crate::cycle::separation`]). The default is [`ShieldModel::min_distance_m`] (a
-    /// model whose scene holds obstacles only).
-    fn intruder_distance_m(&mut self, q_rad: &Joints, scene: &Self::Scene) -> f64 {
+    /// Minimum distance between the robot at `q_rad` and what moves towards it (the
+    /// obstacles whose bit is set in `moving_mask`, never the table), m: the separation of
+    /// the speed and separation monitor ([`crate::cycle::separation`]); infinite when none
+    /// moves. The default is [`ShieldModel::min_distance_m`] over every obstacle when any
+    /// moves (a model whose scene holds obstacles only; conservative).
+    fn intruder_distance_m(
+        &mut self,
+        q_rad: &Joints,
+        scene: &Self::Scene,
+        moving_mask: u32,
+    ) -> f64 {
+        if moving_mask == 0 {
+            return f64::INFINITY;
+        }
         self.min_distance_m(q_rad, scene)
     }
 

@@ -96,14 +96,24 @@ impl ShieldModel for TwinModel {
         }
     }
 
-    fn intruder_distance_m(&mut self, q_rad: &Joints, scene: &Scene) -> f64 {
-        // The boxes alone: the table does not move towards the arm. Blind mode has none.
-        if self.boxes_ignored {
+    fn intruder_distance_m(&mut self, q_rad: &Joints, scene: &Scene, moving_mask: u32) -> f64 {
+        // The moving boxes alone: the table does not move towards the arm, a still box is
+        // verified against. Blind mode has none.
+        if self.boxes_ignored || moving_mask == 0 {
             return f64::INFINITY;
+        }
+        // The moving ones in a copy on the stack (a `Scene` is `Copy`, fixed capacity).
+        let mut moving = *scene;
+        moving.obstacles.clear();
+        for (i, b) in scene.obstacles.iter().enumerate() {
+            if i < 32 && moving_mask & (1 << i) != 0 {
+                // Cannot fail: at most as many as the scene held.
+                let _ = moving.obstacles.push(*b);
+            }
         }
         let poses = *self.fk(q_rad);
         self.geometry
-            .distance_to_boxes(&poses, scene)
+            .distance_to_boxes(&poses, &moving)
             .map_or(f64::INFINITY, |r| r.distance_m)
     }
 
@@ -218,14 +228,15 @@ mod tests {
         );
     }
 
-    /// The separation monitor's distance is to the boxes alone: the table, near the arm at
-    /// every goal, does not count (it would slow every reach); blind mode has none.
+    /// The separation monitor's distance is to the moving boxes alone: the table, near the
+    /// arm at every goal, does not count (it would slow every reach), nor does a still box
+    /// (the plans are verified against it); blind mode has none.
     #[test]
-    fn the_intruder_distance_leaves_the_table_out() {
+    fn the_intruder_distance_counts_only_the_moving_boxes() {
         let mut m = TwinModel::new(model());
         let q = start();
         assert!(m.min_distance_m(&q, &empty()).is_finite());
-        assert_eq!(m.intruder_distance_m(&q, &empty()), f64::INFINITY);
+        assert_eq!(m.intruder_distance_m(&q, &empty(), u32::MAX), f64::INFINITY);
         let tcp = model().tcp_m(&q);
         let mut scene = empty();
         scene
@@ -235,10 +246,22 @@ mod tests {
                 size_m: [0.05; 3],
             })
             .unwrap();
-        let d = m.intruder_distance_m(&q, &scene);
+        let d = m.intruder_distance_m(&q, &scene, 0b1);
         assert!(d > 0.1 && d < 0.3, "{d}");
         assert!(m.min_distance_m(&q, &scene) <= d);
+        // A still box nearer than the moving one: the moving one's distance still.
+        scene
+            .obstacles
+            .push(BoxObstacle {
+                center_m: [tcp.x, tcp.y - 0.15, tcp.z],
+                size_m: [0.05; 3],
+            })
+            .unwrap();
+        assert!(m.min_distance_m(&q, &scene) < d - 0.05);
+        assert_eq!(m.intruder_distance_m(&q, &scene, 0b1), d);
+        assert!(m.intruder_distance_m(&q, &scene, 0b11) < d - 0.05);
+        assert_eq!(m.intruder_distance_m(&q, &scene, 0), f64::INFINITY);
         let mut blind = TwinModel::new(model()).with_boxes_ignored(true);
-        assert_eq!(blind.intruder_distance_m(&q, &scene), f64::INFINITY);
+        assert_eq!(blind.intruder_distance_m(&q, &scene, 0b1), f64::INFINITY);
     }
 }

@@ -33,6 +33,7 @@ use shm_schemas::{
 use twin::{BoxObstacle, Goal, Scene};
 
 use crate::config::IntakeConfig;
+use crate::cycle::Intruders;
 use crate::cycle::shield::ShieldModel;
 use crate::twin_thread::{Lookahead, TwinEvent, TwinWorker};
 
@@ -186,6 +187,11 @@ impl IntakeCounters {
     }
 }
 
+/// An obstacle of a frame that is not settled whose measured speed plus one standard
+/// deviation reaches this counts as moving (an intruder for speed and separation
+/// monitoring), m/s: below it, the jitter of a still box's estimate.
+pub const MOVING_SPEED_M_S: f64 = 0.05;
+
 /// An accepted frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AcceptedFrame {
@@ -200,6 +206,10 @@ pub struct AcceptedFrame {
     pub settled: bool,
     /// Capture time on the cycle's clock (since its origin), ns.
     pub stamp_ns: u64,
+    /// The obstacles seen moving (bit `i` for obstacle `i` of `scene`) and the fastest one's
+    /// measured speed: none in a settled frame; in one that is not, each obstacle whose
+    /// measured speed plus one standard deviation reaches [`MOVING_SPEED_M_S`].
+    pub intruders: Intruders,
     /// An action goal was cancelled since the last accepted frame: the plan under way is to
     /// be revoked (the arm stops along its checked path).
     pub stop_requested: bool,
@@ -377,7 +387,14 @@ impl SceneIntake {
     {
         let outcome = self.accept(frame, mono_now_ns, publishers);
         match &outcome {
-            Ok(a) => twin.on_detection(a.scene, a.stamp_ns, a.goal_seen, a.settled, events),
+            Ok(a) => twin.on_moving_detection(
+                a.scene,
+                a.stamp_ns,
+                a.goal_seen,
+                a.settled,
+                a.intruders,
+                events,
+            ),
             Err(_) => twin.on_refused_detection(),
         }
         outcome
@@ -402,7 +419,7 @@ impl SceneIntake {
         frame.validate().map_err(FrameRefusal::Invalid)?;
         let stamp_ns = self.check_stamp(frame.capture_time_ns, mono_now_ns)?;
         self.check_places(frame)?;
-        let (scene, goal_seen) = self.scene_of(frame);
+        let (scene, goal_seen, intruders) = self.scene_of(frame);
         let stop_requested = self
             .requested
             .as_mut()
@@ -412,6 +429,7 @@ impl SceneIntake {
             goal_seen,
             settled: frame.settled(),
             stamp_ns,
+            intruders,
             stop_requested,
         })
     }
@@ -490,8 +508,9 @@ impl SceneIntake {
         Ok(())
     }
 
-    /// The scene of a checked frame; whether it has a goal.
-    fn scene_of(&mut self, frame: &DetectionFrame) -> (Scene, bool) {
+    /// The scene of a checked frame; whether it has a goal; its obstacles seen moving.
+    fn scene_of(&mut self, frame: &DetectionFrame) -> (Scene, bool, Intruders) {
+        let mut intruders = Intruders::NONE;
         let snap = |v: f32| (f64::from(v) / SNAP_GRID_M).round() * SNAP_GRID_M;
         let table_height_m = self.table_height_m;
         let mut scene = Scene::empty(table_height_m, self.last_goal);
@@ -533,6 +552,7 @@ impl SceneIntake {
                     // Cannot fail: a valid frame carries at most MAX_DETECTIONS objects and
                     // the scene holds as many obstacles (one capacity, asserted in
                     // shm-schemas).
+                    let index = scene.obstacles.len();
                     let pushed = scene.obstacles.push(BoxObstacle {
                         center_m: [center_m[0], center_m[1], bottom + height / 2.0],
                         size_m: [
@@ -542,6 +562,22 @@ impl SceneIntake {
                         ],
                     });
                     debug_assert!(pushed.is_ok(), "scene capacity below frame capacity");
+                    let speed_m_s = f64::from(
+                        (o.velocity_m_s[0].powi(2)
+                            + o.velocity_m_s[1].powi(2)
+                            + o.velocity_m_s[2].powi(2))
+                        .sqrt(),
+                    );
+                    let sigma_m_s =
+                        f64::from(o.velocity_sigma_m_s.max(0.0)).min(self.cfg.intruder_speed_m_s);
+                    if !settled
+                        && pushed.is_ok()
+                        && index < 32
+                        && speed_m_s + sigma_m_s >= MOVING_SPEED_M_S
+                    {
+                        intruders.mask |= 1 << index;
+                        intruders.speed_m_s = intruders.speed_m_s.max(speed_m_s);
+                    }
                 }
                 Err(_) => {}
             }
@@ -551,7 +587,7 @@ impl SceneIntake {
             scene.goal = goal;
             goal_seen = true;
         }
-        (scene, goal_seen)
+        (scene, goal_seen, intruders)
     }
 }
 
@@ -828,6 +864,33 @@ mod tests {
         f.set_settled(true);
         let b = k.accept(&f, now, 1).unwrap().scene.obstacles[0];
         assert_eq!((b.center_m[1], b.size_m[1]), (0.0, 0.10));
+    }
+
+    /// Issue 33 item 5: the cycle's speed and separation monitoring watches the obstacles
+    /// perception sees moving, never a still box (before: none was known, so every box
+    /// would have counted as an intruder).
+    #[test]
+    fn the_obstacles_seen_moving_are_named_for_speed_and_separation_monitoring() {
+        let now = ORIGIN_NS + 1_000_000_000;
+        let still = obstacle(2, [0.40, -0.20, 0.10], [0.10, 0.10, 0.20]);
+        let moving = obstacle(3, [0.30, 0.00, 0.10], [0.10, 0.10, 0.20])
+            .with_velocity([0.0, 0.6, 0.8], 0.05);
+        let unknown = obstacle(4, [0.20, 0.30, 0.10], [0.10, 0.10, 0.20])
+            .with_velocity([0.0; 3], shm_schemas::detection::UNKNOWN_VELOCITY_SIGMA_M_S);
+        let mut k = intake();
+        let mut f = frame(1, now, &[goal([0.3, 0.2, 0.025]), still, moving, unknown]);
+        let a = k.accept(&f, now, 1).unwrap();
+        // Obstacles 0 (still), 1 (moving at 1 m/s), 2 (velocity not known yet: moving).
+        assert_eq!(a.intruders.mask, 0b110, "{:?}", a.intruders);
+        assert!(
+            (a.intruders.speed_m_s - 1.0).abs() < 1e-6,
+            "{:?}",
+            a.intruders
+        );
+        // A settled frame: nothing moves.
+        f.sequence = 2;
+        f.set_settled(true);
+        assert_eq!(k.accept(&f, now, 1).unwrap().intruders, Intruders::NONE);
     }
 
     /// Issue 14, item 3: zero, future, old and pre-start stamps looked fresh.

@@ -207,7 +207,7 @@ fn run(
             let mono_now_ns = shm_schemas::clock::monotonic_now_ns();
             match intake.accept(&frame, mono_now_ns, publishers) {
                 Ok(accepted) => {
-                    path.accepted(accepted.scene, accepted.stamp_ns);
+                    path.accepted(accepted.scene, accepted.stamp_ns, accepted.intruders);
                     age.record_ns(
                         shm_schemas::clock::monotonic_now_ns()
                             .saturating_sub(frame.capture_time_ns),

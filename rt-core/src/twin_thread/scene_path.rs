@@ -13,8 +13,8 @@
 
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 
-use crate::cycle::SceneUpdate;
 use crate::cycle::shield::ShieldModel;
+use crate::cycle::{Intruders, SceneUpdate};
 use crate::rt::handoff::LatestSender;
 use crate::twin_thread::plan_guard::PlanGuard;
 
@@ -36,8 +36,9 @@ pub fn lock_guard<M: ShieldModel>(guard: &SharedGuard<M>) -> MutexGuard<'_, Plan
 pub struct ScenePath<M: ShieldModel> {
     scenes: LatestSender<SceneUpdate<M::Scene>>,
     guard: SharedGuard<M>,
-    /// The last accepted scene and its capture stamp (kept for the shield after a refusal).
-    last: Option<(M::Scene, u64)>,
+    /// The last accepted scene, its capture stamp and moving obstacles (kept for the
+    /// shield after a refusal).
+    last: Option<(M::Scene, u64, Intruders)>,
 }
 
 impl<M: ShieldModel> ScenePath<M> {
@@ -50,15 +51,17 @@ impl<M: ShieldModel> ScenePath<M> {
         }
     }
 
-    /// An accepted frame's scene, captured at `stamp_ns` on the cycle's clock: to the cycle
-    /// first (the shield checks the next command against it), then re-verification.
-    pub fn accepted(&mut self, scene: M::Scene, stamp_ns: u64) {
+    /// An accepted frame's scene, captured at `stamp_ns` on the cycle's clock, with its
+    /// obstacles seen moving: to the cycle first (the shield checks the next command against
+    /// it, speed and separation monitoring watches the moving ones), then re-verification.
+    pub fn accepted(&mut self, scene: M::Scene, stamp_ns: u64, intruders: Intruders) {
         self.scenes.send(SceneUpdate {
             scene,
             stamp_ns,
             refused: false,
+            intruders,
         });
-        self.last = Some((scene, stamp_ns));
+        self.last = Some((scene, stamp_ns, intruders));
         lock_guard(&self.guard).scene_captured(scene, stamp_ns);
     }
 
@@ -71,11 +74,12 @@ impl<M: ShieldModel> ScenePath<M> {
     /// A refused frame: the cycle is told at once (it stops the arm, keeping the last
     /// trusted scene for the shield's clearance while stopping).
     pub fn refused(&mut self) {
-        if let Some((scene, stamp_ns)) = self.last {
+        if let Some((scene, stamp_ns, intruders)) = self.last {
             self.scenes.send(SceneUpdate {
                 scene,
                 stamp_ns,
                 refused: true,
+                intruders,
             });
         }
     }

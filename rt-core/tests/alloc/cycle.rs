@@ -122,8 +122,15 @@ fn the_speed_scaled_cycle_allocates_nothing() {
         }
         let now = rig.clock.now_ns();
         if cycles.is_multiple_of(8) {
-            rig.twin
-                .on_detection(rig.scene, now, true, true, &mut rig.events);
+            // The box counts as moving: it is what the monitor watches.
+            rig.twin.on_moving_detection(
+                rig.scene,
+                now,
+                true,
+                true,
+                rt_core::cycle::Intruders::ALL_UNKNOWN,
+                &mut rig.events,
+            );
         }
         rig.twin.step(&mut rig.events);
         alloc_count::count_this_thread(true);

@@ -326,6 +326,7 @@ impl XRig {
             scene: self.scene,
             stamp_ns: now,
             refused: false,
+            intruders: rt_core::cycle::Intruders::NONE,
         });
         self.cycle.process(now);
         self.twin_io.plans.collect_returned();

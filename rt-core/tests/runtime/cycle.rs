@@ -462,6 +462,7 @@ fn the_cycle_shield_stops_a_plan_that_runs_into_the_live_scene_without_the_twin(
             scene,
             stamp_ns: now,
             refused: false,
+            intruders: cycle::Intruders::NONE,
         });
         cyc.process(now);
         now += period;
@@ -476,6 +477,7 @@ fn the_cycle_shield_stops_a_plan_that_runs_into_the_live_scene_without_the_twin(
             scene,
             stamp_ns: now,
             refused: false,
+            intruders: cycle::Intruders::NONE,
         });
         cyc.process(now);
         let q = cyc.report().cmd.q_rad;

@@ -262,7 +262,7 @@ fn a_frame_during_a_long_planner_search_reaches_the_cycle_and_the_guard_within_o
                    scene: ToyScene,
                    now: u64,
                    events: &mut Vec<TwinEvent<ToyScene>>| {
-        path.accepted(scene, now);
+        path.accepted(scene, now, rt_core::cycle::Intruders::NONE);
         if let Some(w) = worker {
             w.note_detection(scene, now, true, true, events);
         }

@@ -12,6 +12,38 @@ use crate::rt::handoff::{self, BoxReceiver, BoxSender, LatestReceiver, LatestSen
 use crate::rt::process_stop;
 use crate::rt::rt_log::{self, RtLogDrain, RtLogger};
 
+/// The obstacles of a scene seen moving (perception's tracked velocities, issue 33 item 3):
+/// what speed and separation monitoring watches ([`crate::cycle::separation`]). A still
+/// scene has none: a box standing on the table does not approach the arm, and the plans
+/// are verified against it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Intruders {
+    /// Bit `i` set: obstacle `i` of the scene is moving.
+    pub mask: u32,
+    /// The fastest moving obstacle's measured speed, m/s (0 when none).
+    pub speed_m_s: f64,
+}
+
+impl Intruders {
+    /// None moving.
+    pub const NONE: Self = Self {
+        mask: 0,
+        speed_m_s: 0.0,
+    };
+
+    /// Every obstacle of a scene moving at an unknown speed (the configured intruder speed
+    /// counts): a source that cannot tell still boxes from moving ones.
+    pub const ALL_UNKNOWN: Self = Self {
+        mask: u32::MAX,
+        speed_m_s: 0.0,
+    };
+
+    /// Whether any obstacle moves.
+    pub fn any(&self) -> bool {
+        self.mask != 0
+    }
+}
+
 /// A scene snapshot handed to the cycle with the capture time of its detection.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SceneUpdate<S> {
@@ -22,6 +54,8 @@ pub struct SceneUpdate<S> {
     /// The latest frame was refused: `scene` is the last trusted one (kept for the
     /// shield's clearance while stopping), but it is not fresh — the cycle stops.
     pub refused: bool,
+    /// Its obstacles seen moving.
+    pub intruders: Intruders,
 }
 
 /// Control flags shared by the cycle, the twin thread and the process (relaxed atomics).

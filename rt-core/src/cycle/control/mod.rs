@@ -60,7 +60,7 @@ mod run_loop;
 
 pub use config::CycleConfig;
 pub use events::{CycleEvent, Mode, StopReason};
-pub use io::{CycleControl, CycleIo, SceneUpdate, TwinIo, wire};
+pub use io::{CycleControl, CycleIo, Intruders, SceneUpdate, TwinIo, wire};
 pub use report::CycleReport;
 pub use run_loop::{LoopShared, LoopStats, LoopSummary, run_loop};
 
@@ -945,15 +945,23 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         if !self.separation.enabled() {
             return;
         }
-        let separation_m = match &self.scene {
-            Some(s) if !s.refused => self
-                .shield
-                .model_mut()
-                .intruder_distance_m(&self.last_sent.q_rad, &s.scene),
-            _ => 0.0,
+        let (separation_m, tracked_speed_m_s) = match &self.scene {
+            Some(s) if !s.refused => (
+                self.shield.model_mut().intruder_distance_m(
+                    &self.last_sent.q_rad,
+                    &s.scene,
+                    s.intruders.mask,
+                ),
+                s.intruders.speed_m_s,
+            ),
+            _ => (0.0, 0.0),
         };
-        // The cycle's scene carries no obstacle velocities: the configured intruder speed.
-        if let Some(scale) = self.separation.update(separation_m, 0.0, dt_s) {
+        // The moving obstacles only, at the configured intruder speed or their measured
+        // one when larger.
+        if let Some(scale) = self
+            .separation
+            .update(separation_m, tracked_speed_m_s, dt_s)
+        {
             self.io.log.log(now_ns, CycleEvent::SpeedScaled { scale });
         }
     }

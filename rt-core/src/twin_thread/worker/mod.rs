@@ -52,7 +52,7 @@ use crate::config::RuntimeConfig;
 use crate::cycle::brake::MotionState;
 use crate::cycle::plan::{JoinPoint, Plan};
 use crate::cycle::shield::{Shield, ShieldModel};
-use crate::cycle::{CycleControl, CycleReport, Mode, TwinIo};
+use crate::cycle::{CycleControl, CycleReport, Intruders, Mode, TwinIo};
 use crate::rt::handoff::{BoxSender, LatestReceiver};
 use crate::twin_thread::plan_guard::{JoinWindow, PlanGuard};
 use crate::twin_thread::scene_path::{ScenePath, SharedGuard, lock_guard, share_guard};
@@ -225,8 +225,23 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         settled: bool,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) {
+        self.on_moving_detection(scene, stamp_ns, goal_seen, settled, Intruders::NONE, events);
+    }
+
+    /// [`TwinWorker::on_detection`] with the obstacles perception saw moving (the intake's
+    /// [`crate::twin_thread::intake::AcceptedFrame::intruders`]), for speed and separation
+    /// monitoring on the cycle.
+    pub fn on_moving_detection(
+        &mut self,
+        scene: L::Scene,
+        stamp_ns: u64,
+        goal_seen: bool,
+        settled: bool,
+        intruders: Intruders,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) {
         if let Some(path) = self.scene_path.as_mut() {
-            path.accepted(scene, stamp_ns);
+            path.accepted(scene, stamp_ns, intruders);
         }
         self.note_detection(scene, stamp_ns, goal_seen, settled, events);
     }
