@@ -51,25 +51,41 @@ fn revoked(events: &[TwinEvent<ToyScene>]) -> usize {
 }
 
 /// The arm on its way to TARGET_A; then a box lands late on that path and, with it, the goal
-/// moves to TARGET_B (policy 2), away from the box. Returns the rig after the run.
-fn box_late_on_the_path_and_a_way_around(join_before_stopping: bool) -> Rig {
+/// moves to TARGET_B (policy 2), away from the box. The frames from then on are `settled` or
+/// not (the world still changing: no plan but a joining one is made on them). Returns the
+/// rig after the run.
+fn box_late_on_the_path_and_a_way_around(join_before_stopping: bool, settled: bool) -> Rig {
     let mut rig = rig(join_before_stopping);
     rig.policy(1, TARGET_A);
     rig.run(20);
     assert_eq!(rig.mode(), Mode::Following);
     let blocked = with_box_on_the_path(rig.scene, 0.85);
     rig.scene = blocked;
+    rig.settled = settled;
     let now = rig.clock.now_ns();
     rig.twin
-        .on_detection(blocked, now, true, true, &mut rig.events);
+        .on_detection(blocked, now, true, settled, &mut rig.events);
     rig.policy(2, TARGET_B);
-    rig.run(1500);
+    rig.run(300);
+    rig.settled = true;
+    rig.run(1200);
     rig
 }
 
 #[test]
 fn a_plan_unsafe_far_ahead_is_joined_by_a_safe_plan_without_stopping() {
-    let rig = box_late_on_the_path_and_a_way_around(true);
+    joined_without_stopping(true);
+}
+
+/// The same while the world still changes (frames not settled): before, no plan of any kind
+/// was made on such a scene, so the stop came whatever the way around.
+#[test]
+fn a_joining_plan_is_made_while_the_scene_still_changes() {
+    joined_without_stopping(false);
+}
+
+fn joined_without_stopping(settled: bool) {
+    let rig = box_late_on_the_path_and_a_way_around(true, settled);
     let report = *rig.cycle.report();
     let stops = scheduled(&rig.events);
     assert_eq!(stops.len(), 1, "{:?}", rig.events);
@@ -84,7 +100,7 @@ fn a_plan_unsafe_far_ahead_is_joined_by_a_safe_plan_without_stopping() {
     rig.assert_commands_within_velocity_limits();
     // Before this change (and with `join_before_stopping = false`): the guard revoked the
     // running plan at once and the arm stopped before going on.
-    let before = box_late_on_the_path_and_a_way_around(false);
+    let before = box_late_on_the_path_and_a_way_around(false, settled);
     assert!(scheduled(&before.events).is_empty());
     assert!(revoked(&before.events) >= 1, "{:?}", before.events);
     assert!(before.cycle.report().stops >= 1);

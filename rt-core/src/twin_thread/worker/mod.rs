@@ -374,6 +374,18 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         self.take_revocations(events);
         match self.scene.ready() {
             Err(Hold::Refused | Hold::NoScene) => return,
+            Err(Hold::Unsettled) if self.stop_due_on_running() => {
+                // The one plan made on a scene still changing: one joining the running plan
+                // before its scheduled stop (see `plan_due`).
+                if let Some(r) = self.report
+                    && self.planning.is_due()
+                    && !self.planning.backing_off(r.t_ns)
+                    && !self.io.control.shutdown_requested()
+                {
+                    self.plan_due(r, events);
+                }
+                return;
+            }
             Err(Hold::Unsettled) => {
                 // No plan of any kind reaches the cycle from an unsettled scene; the running
                 // plan was re-verified against it on arrival.
@@ -449,6 +461,19 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         });
     }
 
+    /// Whether the plan guard has scheduled a stop on the plan the cycle runs (as of its
+    /// last report): a joining plan may then be made on a scene still changing.
+    fn stop_due_on_running(&self) -> bool {
+        self.report.is_some_and(|r| {
+            r.mode == Mode::Following
+                && self
+                    .io
+                    .control
+                    .stop_due()
+                    .is_some_and(|(id, _)| id == r.plan_id)
+        })
+    }
+
     /// A plan is due and the gates are open: where it starts (at rest, or joining the
     /// running plan `join_ahead` samples ahead of the arm), then the library's candidates.
     fn plan_due(&mut self, r: CycleReport, events: &mut Vec<TwinEvent<L::Scene>>) {
@@ -458,12 +483,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         // A stop scheduled on the running plan: a joining plan may be made on a scene
         // still changing (its moving boxes are their predicted occupancy), without asking
         // for retraining on it; every later frame re-verifies it like any plan.
-        let stop_due = r.mode == Mode::Following
-            && self
-                .io
-                .control
-                .stop_due()
-                .is_some_and(|(id, _)| id == r.plan_id);
+        let stop_due = self.stop_due_on_running();
         let ready = match self.scene.ready() {
             Err(Hold::Unsettled) if stop_due => {
                 self.no_retrain_this_planning = true;
@@ -660,7 +680,12 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 return;
             }
         }
-        if lookahead_unsafe && self.live.iter().any(|(_, s)| *s != scene) {
+        // With a stop scheduled on the running plan the guard has bounded it already (safe
+        // up to the stop's end): it stops there unless a later frame's plan joins it first.
+        if lookahead_unsafe
+            && self.live.iter().any(|(_, s)| *s != scene)
+            && !self.stop_due_on_running()
+        {
             self.revoke_under_way(events);
         }
         if self.gate {

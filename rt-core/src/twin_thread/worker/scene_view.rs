@@ -4,8 +4,9 @@
 //! Plans are made only on a *settled* scene (perception's `FRAME_SETTLED`: every object
 //! confirmed, nothing appearing, disappearing or moving): an intermediate view of a
 //! changing world is re-verified against (and may revoke the running plan) but never gets a
-//! plan approved. Scenes that do not come from a camera (a fixed scene, a bench) are
-//! settled.
+//! plan approved — but one: a plan joining the running one before the stop the plan guard
+//! scheduled on it (`TwinWorker`'s join before stopping). Scenes that do not come from a
+//! camera (a fixed scene, a bench) are settled.
 
 /// Why no plan can be made on the scene now.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
