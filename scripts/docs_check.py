@@ -41,7 +41,7 @@ MAX_README_LINES = 400
 # Top-level folders whose paths, written in backticks, must exist.
 TREE = ("assets/", "scripts/", "rt-core/", "learner/", "perception/", "shm-schemas/", "tests/", "docs/", ".ci/")
 # Binaries whose flags are checked against their --help.
-BINARIES = {"foresight", "rt-core", "learner", "perception", "xarm-sim", "zenoh-relay", "ros-bridge", "sweep"}
+BINARIES = {"foresight", "rt-core", "learner", "unseen-worlds", "perception", "xarm-sim", "zenoh-relay", "ros-bridge", "sweep"}
 
 
 class Problems:

@@ -40,9 +40,46 @@ pub enum CheckpointError {
     /// torch could not encode or decode the tensors.
     #[error("checkpoint tensors: {0}")]
     Tensor(#[from] tch::TchError),
-    /// The content is not a consistent checkpoint.
-    #[error("invalid checkpoint: {0}")]
-    Invalid(String),
+    /// The checkpoint's network is not the trainer's.
+    #[error("checkpoint network {checkpoint:?} does not match the trainer's {trainer:?}")]
+    SpecMismatch {
+        /// The checkpoint's.
+        checkpoint: NetSpec,
+        /// The trainer's.
+        trainer: NetSpec,
+    },
+    /// A tensor is missing from the file.
+    #[error("invalid checkpoint: missing tensor {0}")]
+    MissingTensor(&'static str),
+    /// The metadata could not be encoded or decoded.
+    #[error("invalid checkpoint: metadata: {0}")]
+    Meta(#[from] serde_json::Error),
+    /// Another format version (the file's own text, hence a `String`).
+    #[error("invalid checkpoint: format {found:?}, expected {FORMAT:?}")]
+    Format {
+        /// The file's format.
+        found: String,
+    },
+    /// The weight or Adam tensors do not have the network's length.
+    #[error(
+        "invalid checkpoint: tensor lengths {theta}/{adam_m}/{adam_v} do not match the network's {expected}"
+    )]
+    Lengths {
+        /// Weights.
+        theta: usize,
+        /// Adam's first moments.
+        adam_m: usize,
+        /// Adam's second moments.
+        adam_v: usize,
+        /// The network's parameter count.
+        expected: usize,
+    },
+    /// The observation statistics do not have the network's input width.
+    #[error("invalid checkpoint: observation statistics have the wrong length")]
+    StatsLength,
+    /// A weight is NaN or infinite.
+    #[error("invalid checkpoint: non-finite weights")]
+    NonFinite,
     /// The weights do not make a network of the stored shape.
     #[error("checkpoint weights: {0}")]
     Network(#[from] NetFromFlatError),
@@ -163,13 +200,13 @@ impl Checkpoint {
     /// Restores a trainer (same network shape) to this state; episodes restart.
     ///
     /// # Errors
-    /// [`CheckpointError::Invalid`] when shapes do not match.
+    /// [`CheckpointError::SpecMismatch`] when shapes do not match.
     pub fn restore<E: Env + Clone>(&self, t: &mut Trainer<E>) -> Result<(), CheckpointError> {
         if self.meta.spec != t.net.spec {
-            return Err(CheckpointError::Invalid(format!(
-                "network {:?} does not match the trainer's {:?}",
-                self.meta.spec, t.net.spec
-            )));
+            return Err(CheckpointError::SpecMismatch {
+                checkpoint: self.meta.spec.clone(),
+                trainer: t.net.spec.clone(),
+            });
         }
         let dev = t.net.device();
         t.net = ActorCritic::from_flat(self.meta.spec.clone(), &self.theta, dev)?;
@@ -202,8 +239,7 @@ impl Checkpoint {
     /// # Errors
     /// [`CheckpointError::Tensor`] if torch fails.
     pub fn to_bytes(&self) -> Result<Vec<u8>, CheckpointError> {
-        let meta =
-            serde_json::to_vec(&self.meta).map_err(|e| CheckpointError::Invalid(e.to_string()))?;
+        let meta = serde_json::to_vec(&self.meta)?;
         let named = [
             ("meta", Tensor::from_slice(&meta)),
             ("theta", Tensor::from_slice(&self.theta)),
@@ -221,24 +257,20 @@ impl Checkpoint {
     /// [`CheckpointError`] for undecodable or inconsistent content.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, CheckpointError> {
         let named = Tensor::load_multi_from_stream(Cursor::new(bytes))?;
-        let get = |name: &str| {
+        let get = |name: &'static str| {
             named
                 .iter()
                 .find(|(n, _)| n == name)
                 .map(|(_, t)| t.shallow_clone())
-                .ok_or_else(|| CheckpointError::Invalid(format!("missing tensor {name}")))
+                .ok_or(CheckpointError::MissingTensor(name))
         };
         let meta_t = get("meta")?;
         let n = meta_t.numel();
         let mut meta = vec![0u8; n];
         meta_t.copy_data(&mut meta, n);
-        let meta: CheckpointMeta = serde_json::from_slice(&meta)
-            .map_err(|e| CheckpointError::Invalid(format!("metadata: {e}")))?;
+        let meta: CheckpointMeta = serde_json::from_slice(&meta)?;
         if meta.format != FORMAT {
-            return Err(CheckpointError::Invalid(format!(
-                "format {:?}, expected {FORMAT:?}",
-                meta.format
-            )));
+            return Err(CheckpointError::Format { found: meta.format });
         }
         let ck = Self {
             theta: to_vec(&get("theta")?),
@@ -248,20 +280,18 @@ impl Checkpoint {
         };
         let len = ck.meta.spec.layout().len;
         if ck.theta.len() != len || ck.adam_m.len() != len || ck.adam_v.len() != len {
-            return Err(CheckpointError::Invalid(format!(
-                "tensor lengths {}/{}/{} do not match the network's {len}",
-                ck.theta.len(),
-                ck.adam_m.len(),
-                ck.adam_v.len()
-            )));
+            return Err(CheckpointError::Lengths {
+                theta: ck.theta.len(),
+                adam_m: ck.adam_m.len(),
+                adam_v: ck.adam_v.len(),
+                expected: len,
+            });
         }
         if ck.meta.obs_rms.mean.len() != ck.meta.spec.obs_dim {
-            return Err(CheckpointError::Invalid(
-                "observation statistics have the wrong length".into(),
-            ));
+            return Err(CheckpointError::StatsLength);
         }
         if ck.theta.iter().any(|x| !x.is_finite()) {
-            return Err(CheckpointError::Invalid("non-finite weights".into()));
+            return Err(CheckpointError::NonFinite);
         }
         Ok(ck)
     }

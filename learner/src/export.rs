@@ -10,9 +10,10 @@
 //! A `.blob` file is the blob's `repr(C)` bytes in the machine's (little-endian) byte order,
 //! `size_of::<PolicyBlob>()` bytes, as it sits in shared memory; readers validate it.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use shm_schemas::{Activation, PolicyBlob, PolicyBlobBuilder, PolicyBuildError};
+use shm_schemas::checksum::Fnv1a64;
+use shm_schemas::{Activation, PolicyBlob, PolicyBlobBuilder, PolicyBuildError, SchemaError};
 
 use crate::checkpoint::{Checkpoint, CheckpointError, write_atomic};
 use crate::normalize::ObsNormalizer;
@@ -27,16 +28,26 @@ pub enum ExportError {
     #[error("{0}")]
     Write(#[from] CheckpointError),
     /// Reading failed.
-    #[error("cannot read {path}: {source}")]
+    #[error("cannot read {}: {source}", .path.display())]
     Read {
         /// File.
-        path: String,
+        path: PathBuf,
         /// OS error.
         source: std::io::Error,
     },
-    /// The file is not a valid blob.
+    /// The file is not a valid blob (wrong length, or a field fails validation).
     #[error("invalid policy blob file: {0}")]
-    Invalid(String),
+    Invalid(#[source] SchemaError),
+}
+
+/// A policy id for a checkpoint (what `learner export` and `learner serve` give it): FNV-1a
+/// of its weights, step count and task hash, never 0.
+pub fn policy_id_for(ck: &Checkpoint) -> u64 {
+    let mut h = Fnv1a64::new();
+    h.write_f32s(&ck.theta);
+    h.write_u64(ck.meta.steps);
+    h.write_u64(ck.meta.task_hash);
+    h.finish().max(1)
 }
 
 /// A builder holding the checkpoint's actor and normalisation.
@@ -100,7 +111,7 @@ pub fn blob_bytes(blob: &PolicyBlob) -> &[u8] {
 /// # Errors
 /// [`ExportError::Invalid`] for a wrong length or a blob that fails validation.
 pub fn blob_from_bytes(bytes: &[u8]) -> Result<Box<PolicyBlob>, ExportError> {
-    PolicyBlob::from_bytes(bytes).map_err(|e| ExportError::Invalid(format!("{e}")))
+    PolicyBlob::from_bytes(bytes).map_err(ExportError::Invalid)
 }
 
 /// Writes a blob file atomically.
@@ -117,8 +128,77 @@ pub fn write_blob(path: &Path, blob: &PolicyBlob) -> Result<(), ExportError> {
 /// [`ExportError`].
 pub fn read_blob(path: &Path) -> Result<Box<PolicyBlob>, ExportError> {
     let bytes = std::fs::read(path).map_err(|source| ExportError::Read {
-        path: path.display().to_string(),
+        path: path.to_path_buf(),
         source,
     })?;
     blob_from_bytes(&bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::checkpoint::{CheckpointMeta, FORMAT, StatsState};
+    use crate::net::NetSpec;
+    use crate::ppo::PpoConfig;
+    use crate::random::RngState;
+
+    /// The policy id as it was computed before the shared hasher (FNV-1a written out here).
+    fn old_policy_id(ck: &Checkpoint) -> u64 {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |b: &[u8]| {
+            for x in b {
+                h ^= u64::from(*x);
+                h = h.wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        };
+        for w in &ck.theta {
+            eat(&w.to_le_bytes());
+        }
+        eat(&ck.meta.steps.to_le_bytes());
+        eat(&ck.meta.task_hash.to_le_bytes());
+        h.max(1)
+    }
+
+    #[test]
+    fn policy_id_is_unchanged_by_the_shared_fnv_hasher() {
+        let stats = StatsState {
+            mean: vec![0.0],
+            var: vec![1.0],
+            count: 1.0,
+        };
+        let rng = RngState {
+            seed: [0; 32],
+            stream: 0,
+            word_pos: [0, 0],
+        };
+        let mut ck = Checkpoint {
+            meta: CheckpointMeta {
+                format: FORMAT.into(),
+                spec: NetSpec {
+                    obs_dim: 1,
+                    act_dim: 1,
+                    hidden: vec![1],
+                },
+                ppo: PpoConfig::default(),
+                seed: 1,
+                task_hash: 0xfeed_beef_0123_4567,
+                steps: 123_456,
+                iteration: 0,
+                adam_t: 0,
+                obs_rms: stats.clone(),
+                ret_rms: stats,
+                trainer_rng: rng,
+                env_rngs: vec![],
+                eval: None,
+                best_eval: None,
+            },
+            theta: vec![0.5, -1.25, 3.0e-7, f32::MIN_POSITIVE, -0.0, 1.0e9],
+            adam_m: vec![],
+            adam_v: vec![],
+        };
+        assert_eq!(policy_id_for(&ck), old_policy_id(&ck));
+        ck.theta.clear();
+        ck.meta.steps = 0;
+        assert_eq!(policy_id_for(&ck), old_policy_id(&ck));
+    }
 }

@@ -3,7 +3,8 @@
 //!
 //! # Map
 //! Start with [`ppo::Trainer`] (one [`ppo::Trainer::iterate`] = one rollout + one update),
-//! then [`run::train`] (the loop around it) and [`service`] (retraining on request).
+//! then [`run::train`] (the loop around it) and [`retrain::RetrainJob`] (one retraining on a
+//! reported scene).
 //!
 //! - [`env`]: the environment interface ([`env::Env`], [`env::SceneSampler`]) and a toy task
 //!   for tests; [`twin_env`]: the twin behind it and the scene distributions (pre-training
@@ -17,7 +18,8 @@
 //!   [`checkpoint`]: atomic one-file checkpoints; [`metrics`]: `metrics.csv` and the
 //!   `reward.svg` curve, drawn by [`chart`];
 //! - [`export`]: checkpoint → `PolicyBlob` and the blob file format;
-//! - [`service`]: the iceoryx2 retraining service behind `learner serve`;
+//! - [`retrain`]: the retraining recipe ([`retrain::RetrainJob`], its settings and flags);
+//!   [`service`]: the iceoryx2 node around it behind `learner serve`;
 //!   [`demonstrations`]: the feasibility planner's path re-tracked into the task's actions
 //!   (what a retraining imitates first, [`ppo::bc`]); [`distil`]: the planner distilled
 //!   into the generalist by DAgger over a broad world mix (`learner distil`).
@@ -44,6 +46,7 @@ pub mod net;
 pub mod normalize;
 pub mod ppo;
 pub mod random;
+pub mod retrain;
 pub mod run;
 pub mod service;
 pub mod twin_env;

@@ -1,5 +1,7 @@
-//! The `learner` binary: pre-training, evaluation, benchmarking, export and the retraining
-//! service. Thin: parses arguments and dispatches to one module per subcommand under `cli/`.
+//! The `learner` binary: pre-training, evaluation, benchmarking, export, distillation and the
+//! retraining service. Thin: parses arguments and dispatches to one module per subcommand
+//! under `cli/`. (The unseen-worlds benchmark is its own binary, `unseen-worlds`, so that the
+//! learner does not depend on the benchmark's world generators.)
 
 mod cli;
 
@@ -33,10 +35,6 @@ enum Cmd {
     /// One retraining on a scene file, offline (what `serve` does for one request); prints
     /// a JSON summary. Output goes to --out (default: `retrain/` beside the checkpoint).
     Retrain(cli::retrain::RetrainArgs),
-    /// The offline unseen-worlds benchmark: feasibility, straight line, zero-shot and
-    /// (with --retrain) retraining on random worlds of the task's [world]; table and
-    /// worlds.json / worlds.md in --out.
-    Worlds(cli::worlds::WorldsArgs),
     /// Distil the feasibility planner (and the straight line where it suffices) into a
     /// checkpoint's policy: DAgger over worlds of the task's [world]; best.ckpt, last.ckpt
     /// and distil.json in --out (then `pretrain --resume` for PPO).
@@ -60,7 +58,6 @@ fn main() -> Result<()> {
         Cmd::Export(a) => cli::export::run(a),
         Cmd::Serve(a) => cli::serve::run(a, device),
         Cmd::Retrain(a) => cli::retrain::run(a, device),
-        Cmd::Worlds(a) => cli::worlds::run(a, device),
         Cmd::Distil(a) => cli::distil::run(a, device),
     }
 }

@@ -3,12 +3,14 @@
 //! random goal with one random small box between start and goal) and the retraining mix (the reported scene with randomisation around it, plus a
 //! share of the old distribution so the policy does not forget it).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU32, Ordering};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use twin::{ACT_DIM, ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
+use twin::{
+    ACT_DIM, ObstacleClass, RobotModel, Scene, TaskConfig, TaskConfigError, TwinEnv, UrdfLoadError,
+};
 
 use crate::env::{Env, SceneSampler, StepInfo};
 
@@ -16,20 +18,22 @@ use crate::env::{Env, SceneSampler, StepInfo};
 #[derive(Debug, thiserror::Error)]
 pub enum TaskLoadError {
     /// The task file.
-    #[error("task config {path}: {message}")]
+    #[error("task config {}: {source}", .path.display())]
     Task {
         /// File.
-        path: String,
+        path: PathBuf,
         /// What was wrong.
-        message: String,
+        #[source]
+        source: TaskConfigError,
     },
     /// The robot model.
-    #[error("robot model {path}: {message}")]
+    #[error("robot model {}: {source}", .path.display())]
     Model {
         /// File.
-        path: String,
+        path: PathBuf,
         /// What was wrong.
-        message: String,
+        #[source]
+        source: UrdfLoadError,
     },
 }
 
@@ -47,16 +51,16 @@ impl TwinTask {
     /// # Errors
     /// [`TaskLoadError`].
     pub fn load(task: &Path, urdf: Option<&Path>) -> Result<Self, TaskLoadError> {
-        let cfg = TaskConfig::load(task).map_err(|e| TaskLoadError::Task {
-            path: task.display().to_string(),
-            message: format!("{e:?}"),
+        let cfg = TaskConfig::load(task).map_err(|source| TaskLoadError::Task {
+            path: task.to_path_buf(),
+            source,
         })?;
         let urdf_path = urdf
             .map(Path::to_path_buf)
             .unwrap_or_else(|| task.parent().unwrap_or(Path::new(".")).join("xarm5.urdf"));
-        let model = RobotModel::load(&urdf_path).map_err(|e| TaskLoadError::Model {
-            path: urdf_path.display().to_string(),
-            message: format!("{e:?}"),
+        let model = RobotModel::load(&urdf_path).map_err(|source| TaskLoadError::Model {
+            path: urdf_path.clone(),
+            source,
         })?;
         Ok(Self {
             env: TwinEnv::new(model, cfg),
@@ -268,6 +272,11 @@ impl SceneSampler<Scene> for RetrainSampler {
         s
     }
 }
+
+/// Seed of the fixed evaluation scenes of the pre-training distribution (`learner eval`,
+/// `pretrain`, `distil`, `retrain` and the unseen-worlds benchmark's kept scenes; distinct
+/// from every training stream).
+pub const EVAL_SEED: u64 = 0x00E0_A15E;
 
 /// `n` scenes from `sampler` with a fixed seed (the evaluation set).
 pub fn fixed_scenes<S: SceneSampler<Scene>>(sampler: &S, n: usize, seed: u64) -> Vec<Scene> {

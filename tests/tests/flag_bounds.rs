@@ -2,7 +2,7 @@
 //! with a clear error naming the flag, a non-zero exit and no panic (issue 25 item 13).
 //!
 //! The table below lists the numeric flags of `foresight`, `rt-core`, `learner`,
-//! `perception`, `xarm-sim`, `zenoh-relay` and `ros-bridge`; a completeness check reads each
+//! `unseen-worlds`, `perception`, `xarm-sim`, `zenoh-relay` and `ros-bridge`; a completeness check reads each
 //! command's `--help` and fails for a flag whose default is a number but that the table does
 //! not list (a new numeric flag needs a row, and a bound: `shm_schemas::cli_bounds`).
 //!
@@ -10,7 +10,7 @@
 //! repository) inside a private network namespace (`run_in_private_netns`), and is killed
 //! after 20 s: a command that accepted the value and went on to run fails the test. Needs the
 //! binaries built (`scripts/cargo.sh build --release -p launcher -p rt-core -p learner
-//! -p perception -p xarm-sim -p zenoh-relay -p ros-bridge --bins`).
+//! -p unseen-worlds -p perception -p xarm-sim -p zenoh-relay -p ros-bridge --bins`).
 
 // Integration tests: a failed unwrap or expect is a failed run, with its message.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -74,15 +74,15 @@ const PPO: [(&str, Kind); 9] = [
     ("--torch-threads", I),
 ];
 
-/// The flags of `learner serve` (also `retrain` and `worlds`).
-const SERVE: [(&str, Kind); 17] = [
+/// The flags of one retraining (`learner::retrain::RetrainFlags`: `learner serve`,
+/// `learner retrain`, `unseen-worlds`).
+const RETRAIN: [(&str, Kind); 16] = [
     ("--max-steps", I),
     ("--time-budget-s", F),
     ("--eval-every", I),
     ("--eval-episodes", I),
     ("--eval-jitter", F),
     ("--old-share", F),
-    ("--max-requests", I),
     ("--explore-std", F),
     ("--batch", I),
     ("--lr", F),
@@ -182,16 +182,16 @@ fn table() -> Vec<Cmd> {
         Cmd {
             bin: "learner",
             args: &["serve"],
-            flags: &SERVE,
+            flags: cat(&[&RETRAIN, &[("--max-requests", I)]]),
         },
         Cmd {
             bin: "learner",
             args: &["retrain", "--scene", "scene.toml"],
-            flags: cat(&[&SERVE, &[("--world-seed", I)]]),
+            flags: cat(&[&RETRAIN, &[("--world-seed", I)]]),
         },
         Cmd {
-            bin: "learner",
-            args: &["worlds"],
+            bin: "unseen-worlds",
+            args: &[],
             flags: cat(&[
                 &[("--worlds", I), ("--seed", I), ("--kept-eval-episodes", I)],
                 &[
@@ -201,7 +201,7 @@ fn table() -> Vec<Cmd> {
                     ("--sample-via-share", F),
                     ("--sample-threads", I),
                 ],
-                &SERVE,
+                &RETRAIN,
             ]),
         },
         Cmd {

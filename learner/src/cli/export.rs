@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use learner::checkpoint::Checkpoint;
-use learner::{export, service};
+use learner::export;
 
 /// Arguments of `learner export`.
 #[derive(clap::Args)]
@@ -27,9 +27,7 @@ pub struct ExportArgs {
 /// Checkpoint, blob or write failures.
 pub fn run(args: ExportArgs) -> Result<()> {
     let ck = Checkpoint::load(&args.checkpoint)?;
-    let id = args
-        .policy_id
-        .unwrap_or_else(|| service::policy_id_for(&ck));
+    let id = args.policy_id.unwrap_or_else(|| export::policy_id_for(&ck));
     let blob = export::export_blob(&ck, id)?;
     export::write_blob(&args.out, &blob)?;
     println!(

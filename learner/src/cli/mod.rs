@@ -7,13 +7,14 @@
 //! - [`eval`]: evaluate a checkpoint (JSON);
 //! - [`bench`]: training throughput (JSON);
 //! - [`export`]: a checkpoint's policy as a `PolicyBlob` file;
-//! - [`serve`]: the retraining service over iceoryx2 (also owns the retraining flags);
+//! - [`serve`]: the retraining service over iceoryx2;
 //! - [`retrain`]: one retraining offline, as `serve` does for one request;
-//! - [`worlds`]: the offline unseen-worlds benchmark;
 //! - [`distil`]: the planner distilled into a policy (DAgger).
 //!
 //! Shared here: the PPO flags of `pretrain` and `bench` ([`PpoArgs`]), the seed of the fixed
-//! evaluation scenes and scene-file loading.
+//! evaluation scenes (re-exported from [`learner::twin_env::EVAL_SEED`]) and scene-file
+//! loading. The flags of a retraining are the library's ([`learner::retrain::RetrainFlags`]);
+//! the unseen-worlds benchmark is its own binary (`learner/unseen-worlds`).
 
 pub mod bench;
 pub mod distil;
@@ -22,7 +23,6 @@ pub mod export;
 pub mod pretrain;
 pub mod retrain;
 pub mod serve;
-pub mod worlds;
 
 use std::path::Path;
 
@@ -31,8 +31,7 @@ use learner::ppo::PpoConfig;
 use shm_schemas::scene_file::SceneFile;
 use twin::Scene;
 
-/// Seed of the fixed evaluation scenes (distinct from every training stream).
-pub const EVAL_SEED: u64 = 0x00E0_A15E;
+pub use learner::twin_env::EVAL_SEED;
 
 /// PPO overrides shared by `pretrain` and `bench` (unset: [`PpoConfig::default`]).
 #[derive(clap::Args, Clone)]

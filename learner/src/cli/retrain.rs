@@ -1,5 +1,5 @@
 //! `learner retrain`: one retraining on a scene file (or one world of the unseen-worlds
-//! benchmark's generator), offline (what `serve` does for one request), then the best
+//! benchmark's task generator), offline (what `serve` does for one request), then the best
 //! checkpoint evaluated on the exact scene and on the fixed pre-training scenes (the task's
 //! `[world]`: the retrained policy alone, the base, and both as the policy library rt-core
 //! runs); prints a JSON summary.
@@ -10,13 +10,12 @@ use anyhow::{Context, Result};
 use learner::checkpoint::{self, Checkpoint};
 use learner::normalize::ObsNormalizer;
 use learner::ppo::{evaluate, successes};
-use learner::service;
-use learner::twin_env::{CurriculumSampler, TwinTask, fixed_scenes};
+use learner::retrain::{RetrainFlags, RetrainJob};
+use learner::twin_env::{CurriculumSampler, EVAL_SEED, TwinTask, fixed_scenes};
 use rand::SeedableRng;
 use twin::{Feasibility, Scene, check_feasibility};
 
-use super::serve::ServeArgs;
-use super::{EVAL_SEED, load_scene};
+use super::load_scene;
 
 /// Arguments of `learner retrain`.
 #[derive(clap::Args)]
@@ -28,18 +27,20 @@ pub struct RetrainArgs {
         conflicts_with = "world_index"
     )]
     scene: Option<PathBuf>,
-    /// Instead of `--scene`: world number N (0-based) of the worlds `learner worlds --seed S`
+    /// Instead of `--scene`: world number N (0-based) of the worlds `unseen-worlds --seed S`
     /// draws (the task's `[world]` generator), e.g. `--world-index 34 --world-seed 7`.
     #[arg(long, allow_negative_numbers = true)]
     world_index: Option<usize>,
     /// The generator seed of `--world-index`.
     #[arg(long, default_value_t = 7, allow_negative_numbers = true)]
     world_seed: u64,
+    /// The checkpoint, task, output folder and the retraining's settings (as `learner serve`
+    /// takes them).
     #[command(flatten)]
-    args: ServeArgs,
+    args: RetrainFlags,
 }
 
-/// World `index` of the `[world]` generator with `seed` (as `learner worlds` draws them).
+/// World `index` of the `[world]` generator with `seed` (as `unseen-worlds` draws them).
 fn benchmark_world(env: &TwinTask, seed: u64, index: usize) -> Scene {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let mut scene = env.env.sample_world(&mut rng);
@@ -60,7 +61,6 @@ pub fn run(args: RetrainArgs, device: tch::Device) -> Result<()> {
         world_seed,
         args,
     } = args;
-    args.check()?;
     tch::set_num_threads(1);
     let env = TwinTask::load(&args.task, None)?;
     let base = Checkpoint::load(&args.checkpoint)?;
@@ -96,17 +96,17 @@ pub fn run(args: RetrainArgs, device: tch::Device) -> Result<()> {
             reason.display_with(&scene.obstacles)
         );
     }
-    let outcome = service::retrain_with(
-        &base,
-        &env,
+    let outcome = RetrainJob {
+        base: &base,
+        env: &env,
         scene,
-        verdict.path(),
-        &args.settings(),
-        &out,
-        1,
+        planner_path: verdict.path(),
+        settings: &args.settings(),
+        out_dir: &out,
+        eval_seed: 1,
         device,
-        |_, _| true,
-    )?;
+    }
+    .run(|_, _| true)?;
     let best = Checkpoint::load(&out.join(checkpoint::BEST))
         .with_context(|| format!("best checkpoint in {}", out.display()))?;
     let norm = ObsNormalizer::from_stats(&best.meta.obs_rms.to_rms(), best.meta.ppo.clip_obs);

@@ -18,10 +18,17 @@
 //! from the states its own mistakes lead to, not only the teacher's states.
 //!
 //! Measured on generators that share no code with this one (the benchmark's, under
-//! `tests/`: `learner worlds --generator all`); figures in the README ("Independent world
+//! `tests/`: `unseen-worlds --generator all`); figures in the README ("Independent world
 //! generators").
 //!
+//! [`DistilJob`] is one whole run (`learner distil`): teachers, DAgger, evaluation and the
+//! checkpoints.
+//!
 //! Training code: it allocates and is not for the real-time cycle.
+
+mod job;
+
+pub use job::{DistilEvent, DistilJob, DistilJobError, DistilRecord, DistilSummary, SUMMARY};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -1,5 +1,7 @@
 //! The generators: deterministic, within their documented ranges, every world proven
-//! feasible and its path re-tracked, and no code shared with (or used by) training.
+//! feasible and its path re-tracked, and no code shared with (or used by) training: the
+//! generators name none of the training samplers, and Cargo's dependency graph keeps them
+//! out of the learner (only the `unseen-worlds` benchmark depends on them).
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -150,8 +152,9 @@ fn sources(dir: &Path) -> Vec<(PathBuf, String)> {
 }
 
 #[test]
-fn no_code_shared_with_training_and_training_does_not_use_it() {
-    // The generators call none of the training samplers.
+fn the_generators_call_none_of_the_training_samplers() {
+    // worldgen depends on the twin (for its planner and rollouts), so the dependency graph
+    // cannot keep it from the twin's training samplers: their names must not appear.
     for (p, text) in sources(&root().join("tests/worldgen/src")) {
         for banned in [
             "sample_world",
@@ -162,18 +165,84 @@ fn no_code_shared_with_training_and_training_does_not_use_it() {
             assert!(!text.contains(banned), "{} uses {banned}", p.display());
         }
     }
-    // Training (the twin and the learner's library) never names the crate; only the
-    // benchmark subcommand of the learner binary does.
-    for dir in ["rt-core/twin/src", "learner/src"] {
-        for (p, text) in sources(&root().join(dir)) {
-            let allowed = p.ends_with("cli/worlds.rs");
-            assert!(
-                allowed || !text.contains("worldgen"),
-                "{} uses the benchmark's world generators",
-                p.display()
-            );
+}
+
+/// The workspace's packages with their declared dependencies (`cargo metadata --no-deps`:
+/// offline, nothing resolved or downloaded).
+fn metadata() -> serde_json::Value {
+    let out = std::process::Command::new(env!("CARGO"))
+        .args([
+            "metadata",
+            "--format-version",
+            "1",
+            "--no-deps",
+            "--offline",
+        ])
+        .arg("--manifest-path")
+        .arg(root().join("Cargo.toml"))
+        .output()
+        .expect("cargo metadata runs");
+    assert!(
+        out.status.success(),
+        "cargo metadata: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("cargo metadata's JSON")
+}
+
+/// The workspace packages in the normal (not dev, not build) dependency closure of the
+/// workspace package `name`, itself included. Only workspace packages can depend on
+/// `worldgen` (a path crate no registry crate knows), so the walk stays among them; a
+/// dependency is followed whatever its platform or optionality.
+fn normal_closure(meta: &serde_json::Value, name: &str) -> std::collections::BTreeSet<String> {
+    let packages = meta["packages"].as_array().expect("packages");
+    let package = |n: &str| packages.iter().find(|p| p["name"] == n);
+    assert!(package(name).is_some(), "{name} is not a workspace package");
+    let mut names = std::collections::BTreeSet::new();
+    let mut stack = vec![name.to_owned()];
+    while let Some(n) = stack.pop() {
+        let Some(p) = package(&n) else {
+            continue; // a registry crate
+        };
+        if !names.insert(n) {
+            continue;
+        }
+        for dep in p["dependencies"].as_array().expect("dependencies") {
+            if dep["kind"].is_null() {
+                stack.push(dep["name"].as_str().expect("a dependency name").to_owned());
+            }
         }
     }
-    let twin_toml = std::fs::read_to_string(root().join("rt-core/twin/Cargo.toml")).expect("toml");
-    assert!(!twin_toml.contains("worldgen"));
+    names
+}
+
+#[test]
+fn training_cannot_reach_the_benchmark_worlds_by_cargos_dependency_graph() {
+    // The guarantee is Cargo's: a crate that does not depend on `worldgen`, directly or
+    // through another, cannot name it. Training (the learner, the twin it trains on) and
+    // the policy rt-core runs must not; the benchmark (`unseen-worlds`) must, which also
+    // shows that the walk finds `worldgen` where it is.
+    let meta = metadata();
+    let bench = normal_closure(&meta, "unseen-worlds");
+    assert!(
+        bench.contains("worldgen") && bench.contains("learner"),
+        "the benchmark's closure: {bench:?}"
+    );
+    for training in ["learner", "twin", "policy"] {
+        let deps = normal_closure(&meta, training);
+        assert!(
+            deps.contains(training) && deps.len() > 1,
+            "{training}: {deps:?}"
+        );
+        assert!(
+            !deps.contains("worldgen"),
+            "{training} depends on the benchmark's world generators (worldgen)"
+        );
+    }
+    // Nor the other way round: the generators share no code with training.
+    let generators = normal_closure(&meta, "worldgen");
+    assert!(
+        !generators.contains("learner"),
+        "worldgen depends on the learner: {generators:?}"
+    );
 }

@@ -1,5 +1,5 @@
-//! The short version of the README's per-generator unseen-worlds benchmark (`learner
-//! worlds --generator all`): 3 worlds per generator, seed 1, the bundled policy, no
+//! The short version of the README's per-generator unseen-worlds benchmark (`unseen-worlds
+//! --generator all`): 3 worlds per generator, seed 1, the bundled policy, no
 //! retraining. Asserts outcomes, not times: every independent world proven feasible and
 //! reached by the planner's path, the same worlds as `worldgen` generates for the seed
 //! (deterministic), and a table listing each generator with the policy and straight-line
@@ -17,28 +17,22 @@ const WORLDS: usize = 3;
 const SEED: u64 = 1;
 
 fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
 #[test]
 fn every_generator_is_reported_with_policy_line_and_planner_columns() {
     let out = std::env::temp_dir().join(format!("foresight-worlds-gen-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let status = Command::new(env!("CARGO_BIN_EXE_learner"))
+    let status = Command::new(env!("CARGO_BIN_EXE_unseen-worlds"))
         .current_dir(root())
-        .args([
-            "worlds",
-            "--checkpoint",
-            "assets/policy",
-            "--generator",
-            "all",
-        ])
+        .args(["--checkpoint", "assets/policy", "--generator", "all"])
         .args(["--worlds", &WORLDS.to_string(), "--seed", &SEED.to_string()])
         .args(["--kept-eval-episodes", "20", "--out"])
         .arg(&out)
         .status()
-        .expect("learner runs");
-    assert!(status.success(), "learner worlds failed: {status}");
+        .expect("unseen-worlds runs");
+    assert!(status.success(), "unseen-worlds failed: {status}");
 
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("worlds.json")).expect("worlds.json"))
@@ -77,7 +71,7 @@ fn every_generator_is_reported_with_policy_line_and_planner_columns() {
         };
         assert_eq!(a["feasible"], WORLDS, "{name}: every world proven feasible");
         // Deterministic: the benchmark ran exactly the worlds the generator gives for the seed.
-        // `learner worlds`' default planner budget (`--planner-budget-s 20`).
+        // `unseen-worlds`' default planner budget (`--planner-budget-s 20`).
         let mut cfg = FeasibilityConfig::default();
         cfg.planner.max_time_s = 20.0;
         let set = worldgen::generate(&env, g, SEED, WORLDS, cfg).expect("worlds");
@@ -110,7 +104,7 @@ fn every_generator_is_reported_with_policy_line_and_planner_columns() {
 }
 
 /// Zero-shot successes per independent generator (uniform, cluttered, adversarial) and the
-/// straight line's, from `learner worlds --checkpoint <checkpoint> --generator all`.
+/// straight line's, from `unseen-worlds --checkpoint <checkpoint> --generator all`.
 fn zero_shot_by_generator(checkpoint: &str, worlds: usize, seed: u64) -> Vec<(String, u64, u64)> {
     let out = std::env::temp_dir().join(format!(
         "foresight-worlds-{}-{}",
@@ -118,17 +112,17 @@ fn zero_shot_by_generator(checkpoint: &str, worlds: usize, seed: u64) -> Vec<(St
         std::process::id()
     ));
     let _ = std::fs::remove_dir_all(&out);
-    let status = Command::new(env!("CARGO_BIN_EXE_learner"))
+    let status = Command::new(env!("CARGO_BIN_EXE_unseen-worlds"))
         .current_dir(root())
-        .args(["worlds", "--checkpoint", checkpoint, "--generator", "all"])
+        .args(["--checkpoint", checkpoint, "--generator", "all"])
         .args(["--worlds", &worlds.to_string(), "--seed", &seed.to_string()])
         .args(["--kept-eval-episodes", "20", "--out"])
         .arg(&out)
         .status()
-        .expect("learner runs");
+        .expect("unseen-worlds runs");
     assert!(
         status.success(),
-        "learner worlds --checkpoint {checkpoint} failed: {status}"
+        "unseen-worlds --checkpoint {checkpoint} failed: {status}"
     );
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("worlds.json")).expect("worlds.json"))
@@ -175,7 +169,7 @@ fn the_distilled_generalist_beats_the_line_and_the_ppo_generalist_on_unseen_worl
     );
 }
 
-/// The short version of verified sampling's pass@K (`learner worlds --samples`): on 20
+/// The short version of verified sampling's pass@K (`unseen-worlds --samples`): on 20
 /// adversarial worlds of seed 1 the distilled generalist's deterministic rollout (pass@1,
 /// the exported blob rt-core runs) solves as many as its zero-shot evaluation, sampling
 /// never loses a world (pass@K grows with K: the first K candidates are the same for every
@@ -186,9 +180,9 @@ fn verified_sampling_rescues_worlds_the_deterministic_rollout_fails() {
     let out =
         std::env::temp_dir().join(format!("foresight-worlds-sampling-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let status = Command::new(env!("CARGO_BIN_EXE_learner"))
+    let status = Command::new(env!("CARGO_BIN_EXE_unseen-worlds"))
         .current_dir(root())
-        .args(["worlds", "--checkpoint", "assets/policy-distilled"])
+        .args(["--checkpoint", "assets/policy-distilled"])
         .args([
             "--generator",
             "adversarial",
@@ -200,11 +194,8 @@ fn verified_sampling_rescues_worlds_the_deterministic_rollout_fails() {
         .args(["--samples", "1,8,32", "--kept-eval-episodes", "0", "--out"])
         .arg(&out)
         .status()
-        .expect("learner runs");
-    assert!(
-        status.success(),
-        "learner worlds --samples failed: {status}"
-    );
+        .expect("unseen-worlds runs");
+    assert!(status.success(), "unseen-worlds --samples failed: {status}");
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("worlds.json")).expect("worlds.json"))
             .expect("JSON");

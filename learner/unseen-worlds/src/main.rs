@@ -1,4 +1,9 @@
-//! `learner worlds`: the offline unseen-worlds benchmark, per world generator.
+//! `unseen-worlds`: the offline unseen-worlds benchmark, per world generator.
+//!
+//! Its own binary, not a `learner` subcommand: it is the only code that uses the independent
+//! world generators (`worldgen`) and the plots (`plotters`), so the learner, which trains, does
+//! not depend on them, and Cargo's dependency graph keeps the benchmark's worlds out of
+//! training (`tests/worldgen/tests/worldgen.rs` checks it).
 //!
 //! `--generator task` (the default) draws `--worlds` worlds of the task's own `[world]`
 //! sampler from `--seed` (the stream `foresight --runs N --seed S --worlds random` uses, so
@@ -12,7 +17,7 @@
 //! timeout), the planner — the feasibility proof's joint path re-tracked in the twin
 //! (`worldgen::track_path`): 100 % of feasible worlds by construction, the ceiling of the
 //! planner fallback, not a learned skill — and, with `--retrain`, for each feasible world
-//! the policy fails, one retraining as `learner serve` runs it (the adaptation benchmark:
+//! the policy fails, one retraining as `learner serve` runs it ([`learner::retrain::RetrainJob`]) (the adaptation benchmark:
 //! world change → learned policy, steps, success on the world) and the retrained policy's
 //! success on the pre-training evaluation scenes ("kept"), alone and as rt-core runs it — in
 //! a policy library with the base policy (a scene counts when either policy solves it).
@@ -28,28 +33,33 @@
 //! `worlds.json`, `worlds.md`, `worlds.png` (per generator: policy vs straight line vs
 //! planner) and, with `--retrain`, `adaptation.png` (retraining time per failed world).
 
-use std::fmt::Write as _;
+mod plot;
+mod report;
+
 use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
+use clap::Parser;
 use learner::checkpoint::{self, Checkpoint, write_atomic};
 use learner::net::ActorCritic;
 use learner::normalize::ObsNormalizer;
 use learner::ppo::{EvalResult, evaluate, successes};
-use learner::service;
-use learner::twin_env::{CurriculumSampler, TwinTask, fixed_scenes};
-use plotters::prelude::*;
+use learner::retrain::{RetrainFlags, RetrainJob};
+use learner::run::StopReason;
+use learner::twin_env::{CurriculumSampler, EVAL_SEED, TwinTask, fixed_scenes};
 use policy::{MlpPolicy, PolicyExpectation, PolicyLoader};
 use rand::SeedableRng;
 use serde::Serialize;
-use twin::{Feasibility, Joints, Sampler, SamplingSettings, Scene, check_feasibility};
+use twin::{
+    Feasibility, InfeasibleReason, Joints, Sampler, SamplingSettings, Scene, check_feasibility,
+};
 use worldgen::Generator;
 
-use super::EVAL_SEED;
-use super::serve::ServeArgs;
+use plot::{plot_adaptation, plot_rates, png_atomic};
+use report::{aggregate, markdown, print_row, sampling_table, summary_table};
 
-/// Which worlds `learner worlds` runs on (`--generator`).
+/// Which worlds the benchmark runs on (`--generator`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum GeneratorChoice {
     /// The task's own `[world]` sampler (what the generalist was trained on).
@@ -94,9 +104,13 @@ impl GeneratorChoice {
     }
 }
 
-/// Arguments of `learner worlds`.
-#[derive(clap::Args)]
-pub struct WorldsArgs {
+/// Arguments of `unseen-worlds`.
+#[derive(Parser)]
+#[command(
+    name = "unseen-worlds",
+    about = "The offline unseen-worlds benchmark: feasibility, straight line, planner, zero-shot, verified sampling and (with --retrain) retraining on worlds of the task's [world] sampler and of the independent generators; table and worlds.json / worlds.md / worlds.png in --out"
+)]
+struct WorldsArgs {
     /// Worlds per generator (for the independent generators: feasible worlds).
     #[arg(long, default_value_t = 40, value_parser = shm_schemas::cli_bounds::int_within(1usize, 100_000), allow_negative_numbers = true)]
     worlds: usize,
@@ -138,7 +152,7 @@ pub struct WorldsArgs {
     /// The checkpoint, task, output folder (`--out`, required here) and the retraining
     /// settings, as `learner serve` takes them.
     #[command(flatten)]
-    args: ServeArgs,
+    args: RetrainFlags,
 }
 
 /// One world's row.
@@ -147,10 +161,11 @@ struct WorldRow {
     generator: &'static str,
     index: usize,
     /// The generator's case (`near_path`, …; the generator's name otherwise).
-    kind: String,
+    kind: &'static str,
     boxes: usize,
     tallest_box_m: f64,
     feasible: bool,
+    /// Why the world is infeasible, in words (naming the blocking boxes).
     infeasible_reason: Option<String>,
     feasibility_s: f64,
     straight_line: bool,
@@ -199,7 +214,7 @@ struct RetrainRow {
     success: bool,
     wall_s: f64,
     steps: u64,
-    stop: String,
+    stop: StopReason,
     /// The retrained policy alone on the pre-training scenes.
     kept: EvalResult,
     /// The library (retrained policy, then the base) on the pre-training scenes: the share
@@ -253,10 +268,10 @@ struct GeneratorTable {
 
 /// A world to run: the scene and the feasibility verdict.
 struct Candidate {
-    kind: String,
+    kind: &'static str,
     scene: Scene,
     /// The planner's path, or why the world is infeasible.
-    verdict: Result<Vec<Joints>, String>,
+    verdict: Result<Vec<Joints>, InfeasibleReason>,
     feasibility_s: f64,
 }
 
@@ -284,23 +299,30 @@ struct Bench<'a> {
     mlp: Option<MlpPolicy>,
 }
 
-/// Runs `learner worlds`.
+fn main() -> Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    run(WorldsArgs::parse(), tch::Device::cuda_if_available())
+}
+
+/// Runs the benchmark.
 ///
 /// # Errors
 /// Task, checkpoint, generation, training or output failures.
-pub fn run(args: WorldsArgs, device: tch::Device) -> Result<()> {
+fn run(args: WorldsArgs, device: tch::Device) -> Result<()> {
     tch::set_num_threads(1);
     let serve = &args.args;
-    serve.check()?;
     anyhow::ensure!(
         (1..=10_000).contains(&args.worlds),
         "--worlds must be in 1..=10000 (got {})",
         args.worlds
     );
-    let out = serve
-        .out
-        .clone()
-        .context("learner worlds needs --out DIR")?;
+    let out = serve.out.clone().context("unseen-worlds needs --out DIR")?;
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let env = TwinTask::load(&serve.task, None)?;
     let sources = args.generator.sources();
@@ -451,12 +473,10 @@ impl Bench<'_> {
                         let t0 = Instant::now();
                         let verdict = match check_feasibility(env, &scene, &start, fcfg) {
                             Feasibility::Feasible { path, .. } => Ok(path),
-                            Feasibility::Infeasible(r) => {
-                                Err(r.display_with(&scene.obstacles).to_string())
-                            }
+                            Feasibility::Infeasible(r) => Err(r),
                         };
                         Candidate {
-                            kind: "task".into(),
+                            kind: "task",
                             scene,
                             verdict,
                             feasibility_s: t0.elapsed().as_secs_f64(),
@@ -483,7 +503,7 @@ impl Bench<'_> {
                     .worlds
                     .into_iter()
                     .map(|w| Candidate {
-                        kind: w.kind.name().into(),
+                        kind: w.kind.name(),
                         scene: w.scene,
                         verdict: Ok(w.path),
                         feasibility_s: w.feasibility_s,
@@ -570,7 +590,10 @@ impl Bench<'_> {
                 .map(|b| b.size_m[2])
                 .fold(0.0, f64::max),
             feasible,
-            infeasible_reason: c.verdict.err(),
+            infeasible_reason: c
+                .verdict
+                .err()
+                .map(|r| r.display_with(&scene.obstacles).to_string()),
             feasibility_s: c.feasibility_s,
             straight_line: straight.success && straight.safe,
             zero_shot,
@@ -587,16 +610,19 @@ impl Bench<'_> {
     fn retrain(&self, source: Source, index: usize, scene: Scene) -> Result<RetrainRow> {
         let serve = &self.args.args;
         let dir = self.out.join(format!("retrain-{}-{index}", source.name()));
-        let (sum, _) = service::retrain(
-            self.base,
-            self.env,
+        // No path handed over: the feasibility check runs again inside, as the service's would.
+        let sum = RetrainJob {
+            base: self.base,
+            env: self.env,
             scene,
-            &serve.settings(),
-            &dir,
-            1,
-            self.device,
-            |_, _| true,
-        )?;
+            planner_path: None,
+            settings: &serve.settings(),
+            out_dir: &dir,
+            eval_seed: 1,
+            device: self.device,
+        }
+        .run(|_, _| true)?
+        .summary;
         let best = Checkpoint::load(&dir.join(checkpoint::BEST))?;
         let bnet = best.network(self.device)?;
         let bnorm = ObsNormalizer::from_stats(&best.meta.obs_rms.to_rms(), best.meta.ppo.clip_obs);
@@ -619,491 +645,21 @@ impl Bench<'_> {
             success: exact.success_rate > 0.5,
             wall_s: sum.wall_s,
             steps: best.meta.steps.saturating_sub(self.base.meta.steps),
-            stop: format!("{:?}", sum.stop),
+            stop: sum.stop,
             kept,
             library_kept: either as f64 / self.base_ok.len().max(1) as f64,
         })
     }
 }
 
-fn yes(b: bool) -> &'static str {
-    if b { "yes" } else { "no" }
-}
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
 
-fn zero_shot_word(r: &WorldRow) -> &'static str {
-    if r.zero_shot {
-        "yes"
-    } else if r.zero_shot_contact {
-        "contact"
-    } else {
-        "timeout"
+    /// clap's own consistency checks (a flag defined twice, e.g. by the flattened retraining
+    /// flags and the benchmark's own, fails here instead of at a user's call).
+    #[test]
+    fn the_command_line_is_consistent() {
+        super::WorldsArgs::command().debug_assert();
     }
-}
-
-fn print_row(r: &WorldRow) {
-    let sampled: String = r
-        .samples
-        .iter()
-        .map(|s| {
-            format!(
-                " @{}:{}",
-                s.k,
-                s.best_index.map_or("-".to_owned(), |i| i.to_string())
-            )
-        })
-        .collect();
-    println!(
-        "{:>3} {:<20} {:>5} {:>6.2}m {:>9} {:>8} {:>9} {:>7} {:>10}  {}{sampled}",
-        r.index,
-        r.kind,
-        r.boxes,
-        r.tallest_box_m,
-        yes(r.feasible),
-        yes(r.straight_line),
-        zero_shot_word(r),
-        r.planner.map_or("-", yes),
-        r.retrained.as_ref().map_or("-".to_string(), |t| format!(
-            "{} {:.1}s",
-            yes(t.success),
-            t.wall_s
-        )),
-        r.infeasible_reason.as_deref().unwrap_or("")
-    );
-}
-
-fn aggregate(rows: &[WorldRow]) -> Aggregate {
-    let feasible: Vec<&WorldRow> = rows.iter().filter(|r| r.feasible).collect();
-    let nf = feasible.len().max(1) as f64;
-    let count = |f: &dyn Fn(&WorldRow) -> bool| feasible.iter().filter(|r| f(r)).count();
-    let re: Vec<&RetrainRow> = rows.iter().filter_map(|r| r.retrained.as_ref()).collect();
-    let mut times: Vec<f64> = re.iter().map(|r| r.wall_s).collect();
-    let mut steps: Vec<f64> = re.iter().map(|r| r.steps as f64).collect();
-    let mut kept: Vec<f64> = re.iter().map(|r| r.kept.success_rate).collect();
-    let mut library: Vec<f64> = re.iter().map(|r| r.library_kept).collect();
-    let straight_line = count(&|r| r.straight_line);
-    let zero_shot = count(&|r| r.zero_shot);
-    let zero_shot_contact = count(&|r| r.zero_shot_contact);
-    let planner = count(&|r| r.planner == Some(true));
-    let ks: Vec<usize> = feasible
-        .first()
-        .map(|r| r.samples.iter().map(|s| s.k).collect())
-        .unwrap_or_default();
-    let pass_at = ks
-        .iter()
-        .enumerate()
-        .map(|(j, &k)| {
-            let rows: Vec<&SampleRow> = feasible.iter().filter_map(|r| r.samples.get(j)).collect();
-            let mut times: Vec<f64> = rows.iter().map(|s| s.elapsed_s).collect();
-            let passed = rows.iter().filter(|s| s.passed).count();
-            PassAt {
-                k,
-                passed,
-                rate: passed as f64 / nf,
-                rescued: rows
-                    .iter()
-                    .filter(|s| s.best_index.is_some_and(|i| i > 0))
-                    .count(),
-                max_s: times.iter().copied().reduce(f64::max),
-                median_s: median(&mut times),
-            }
-        })
-        .collect();
-    Aggregate {
-        worlds: rows.len(),
-        feasible: feasible.len(),
-        infeasible: rows.len() - feasible.len(),
-        straight_line,
-        zero_shot,
-        zero_shot_contact,
-        zero_shot_timeout: count(&|r| r.zero_shot_timeout),
-        planner,
-        straight_line_rate: straight_line as f64 / nf,
-        zero_shot_rate: zero_shot as f64 / nf,
-        zero_shot_contact_rate: zero_shot_contact as f64 / nf,
-        planner_rate: planner as f64 / nf,
-        line_not_policy: count(&|r| r.straight_line && !r.zero_shot),
-        retrained: re.len(),
-        retrain_success: re.iter().filter(|r| r.success).count(),
-        retrain_max_s: times.iter().copied().reduce(f64::max),
-        retrain_median_s: median(&mut times),
-        retrain_median_steps: median(&mut steps),
-        kept_min: kept.iter().copied().reduce(f64::min),
-        kept_median: median(&mut kept),
-        library_kept_min: library.iter().copied().reduce(f64::min),
-        library_kept_median: median(&mut library),
-        pass_at,
-    }
-}
-
-fn pct(v: f64) -> String {
-    format!("{:.0} %", 100.0 * v)
-}
-
-fn of(n: usize, d: usize) -> String {
-    format!("{n}/{d} ({})", pct(n as f64 / d.max(1) as f64))
-}
-
-fn opt_s(v: Option<f64>) -> String {
-    v.map_or("–".to_owned(), |s| format!("{s:.1}"))
-}
-
-fn opt_pct(v: Option<f64>) -> String {
-    v.map_or("–".to_owned(), pct)
-}
-
-/// The per-generator table (Markdown).
-fn summary_table(tables: &[GeneratorTable]) -> String {
-    let mut s = String::from(
-        "| generator | feasible worlds | infeasible skipped | policy zero-shot | contact | timeout | straight line | line, not policy | planner (path re-tracked) | retrained: learned | retraining median / max (s) | kept in library (min) |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
-    );
-    for t in tables {
-        let a = &t.aggregate;
-        let skipped = if t.generator == "task" {
-            format!("{} (kept as rows)", a.infeasible)
-        } else {
-            t.skipped_infeasible.to_string()
-        };
-        let _ = writeln!(
-            s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} | {} |",
-            t.generator,
-            a.feasible,
-            skipped,
-            of(a.zero_shot, a.feasible),
-            a.zero_shot_contact,
-            a.zero_shot_timeout,
-            of(a.straight_line, a.feasible),
-            a.line_not_policy,
-            of(a.planner, a.feasible),
-            if a.retrained > 0 {
-                format!("{}/{}", a.retrain_success, a.retrained)
-            } else {
-                "–".into()
-            },
-            opt_s(a.retrain_median_s),
-            opt_s(a.retrain_max_s),
-            opt_pct(a.library_kept_min),
-        );
-    }
-    s
-}
-
-/// Verified sampling per generator: pass@K and the wall time of the K rollouts.
-fn sampling_table(tables: &[GeneratorTable], threads: usize) -> String {
-    let Some(ks) = tables
-        .first()
-        .map(|t| t.aggregate.pass_at.iter().map(|p| p.k).collect::<Vec<_>>())
-        .filter(|k| !k.is_empty())
-    else {
-        return String::new();
-    };
-    let mut s = String::from("| generator | feasible |");
-    for k in &ks {
-        let _ = write!(s, " pass@{k} | K = {k}: median / max (ms) |");
-    }
-    s += " planner path |\n|---|---|";
-    for _ in &ks {
-        s += "---|---|";
-    }
-    s += "---|\n";
-    for t in tables {
-        let a = &t.aggregate;
-        let _ = write!(s, "| {} | {} |", t.generator, a.feasible);
-        for p in &a.pass_at {
-            let _ = write!(
-                s,
-                " {} | {} / {} |",
-                of(p.passed, a.feasible),
-                p.median_s.map_or("–".into(), |v| format!("{:.1}", 1e3 * v)),
-                p.max_s.map_or("–".into(), |v| format!("{:.1}", 1e3 * v)),
-            );
-        }
-        let _ = writeln!(s, " {} |", of(a.planner, a.feasible));
-    }
-    let _ = writeln!(
-        s,
-        "\nCandidate 0 is the deterministic rollout of the exported blob; the others add AR(1) action noise; {threads} threads."
-    );
-    s
-}
-
-/// The adaptation table: every retrained world.
-fn adaptation_table(tables: &[GeneratorTable]) -> String {
-    let mut s = String::from(
-        "| generator | world | kind | boxes | tallest (m) | zero-shot | world change → learned policy (s) | steps | learned | stop | kept alone | kept in library |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
-    );
-    for t in tables {
-        for r in &t.worlds {
-            if let Some(re) = &r.retrained {
-                let _ = writeln!(
-                    s,
-                    "| {} | {} | {} | {} | {:.2} | {} | {:.1} | {} | {} | {} | {} | {} |",
-                    t.generator,
-                    r.index,
-                    r.kind,
-                    r.boxes,
-                    r.tallest_box_m,
-                    zero_shot_word(r),
-                    re.wall_s,
-                    re.steps,
-                    yes(re.success),
-                    re.stop,
-                    pct(re.kept.success_rate),
-                    pct(re.library_kept),
-                );
-            }
-        }
-    }
-    s
-}
-
-fn markdown(tables: &[GeneratorTable], base_kept: &EvalResult, seed: u64) -> String {
-    let mut s = format!(
-        "# Unseen worlds per generator (seed {seed})\n\n\
-         `task` is the task's own `[world]` sampler (the generalist's training distribution); \
-         `uniform`, `cluttered` and `adversarial` are the independent generators of the \
-         `worldgen` crate, each world proven feasible by the twin's planner. Rates are over \
-         the feasible worlds. The planner column re-tracks the feasibility proof's path in \
-         the twin: 100 % by construction, the ceiling of the planner fallback. The base \
-         policy solves {} of the pre-training scenes.\n\n",
-        pct(base_kept.success_rate)
-    );
-    s += &summary_table(tables);
-    s += "\n![policy vs straight line vs planner per generator](worlds.png)\n";
-    if tables.iter().any(|t| t.aggregate.retrained > 0) {
-        s += "\n## Adaptation: the worlds the policy does not solve zero-shot\n\n";
-        s += &adaptation_table(tables);
-        s += "\n![retraining time per world](adaptation.png)\n";
-    }
-    for t in tables {
-        let _ = write!(
-            s,
-            "\n## {} ({} worlds, {} infeasible draws skipped, generated and proven in {:.1} s)\n\n",
-            t.generator,
-            t.worlds.len(),
-            t.skipped_infeasible,
-            t.generation_s
-        );
-        s += "| # | kind | boxes | tallest (m) | feasible | straight line | zero-shot | planner | retrained (s) | kept in library | note |\n";
-        s += "|---|---|---|---|---|---|---|---|---|---|---|\n";
-        for r in &t.worlds {
-            let (re, library) = match &r.retrained {
-                Some(x) => (
-                    format!("{} ({:.1})", yes(x.success), x.wall_s),
-                    pct(x.library_kept),
-                ),
-                None => ("–".into(), "–".into()),
-            };
-            let _ = writeln!(
-                s,
-                "| {} | {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {} |",
-                r.index,
-                r.kind,
-                r.boxes,
-                r.tallest_box_m,
-                yes(r.feasible),
-                yes(r.straight_line),
-                zero_shot_word(r),
-                r.planner.map_or("–", yes),
-                re,
-                library,
-                r.infeasible_reason
-                    .as_deref()
-                    .unwrap_or("")
-                    .replace('|', "/")
-            );
-        }
-        if !t.skipped_reasons.is_empty() {
-            s += "\nSkipped as infeasible:\n\n";
-            for why in &t.skipped_reasons {
-                let _ = writeln!(s, "- {why}");
-            }
-        }
-    }
-    s
-}
-
-fn plot_err(path: &Path, e: impl std::fmt::Display) -> anyhow::Error {
-    anyhow::anyhow!("plotting {}: {e}", path.display())
-}
-
-/// Draws a PNG with `draw` into a scratch file beside `path`, then writes it to `path`
-/// atomically ([`write_atomic`]): a reader never sees half a picture.
-fn png_atomic(path: &Path, draw: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let name = path
-        .file_name()
-        .and_then(|n| n.to_str())
-        .unwrap_or("plot.png");
-    let scratch = path.with_file_name(format!(".{name}.{}.tmp.png", std::process::id()));
-    let drawn = draw(&scratch).and_then(|()| {
-        let bytes =
-            std::fs::read(&scratch).with_context(|| format!("reading {}", scratch.display()))?;
-        write_atomic(path, &bytes)?;
-        Ok(())
-    });
-    let _ = std::fs::remove_file(&scratch);
-    drawn
-}
-
-/// One series of bars: legend, colour and the rate it shows.
-type Bars = (&'static str, RGBColor, fn(&Aggregate) -> f64);
-
-/// Grouped bars: per generator, the policy zero-shot, the straight line and the planner
-/// (success rate over the feasible worlds), each labelled with its value.
-fn plot_rates(path: &Path, tables: &[GeneratorTable], seed: u64) -> Result<()> {
-    let err = |e: &dyn std::fmt::Display| plot_err(path, e);
-    let root = BitMapBackend::new(path, (1000, 520)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(&e))?;
-    let n = tables.len().max(1);
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            format!("Zero-shot success on feasible unseen worlds per generator (seed {seed})"),
-            ("sans-serif", 22),
-        )
-        .margin(15)
-        .x_label_area_size(45)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.0f64..n as f64, 0.0f64..130.0)
-        .map_err(|e| err(&e))?;
-    let names: Vec<String> = tables
-        .iter()
-        .map(|t| format!("{} ({} worlds)", t.generator, t.aggregate.feasible))
-        .collect();
-    chart
-        .configure_mesh()
-        .disable_x_mesh()
-        .x_labels(n * 2 + 1)
-        .x_label_formatter(&|x| {
-            let i = x.floor() as usize;
-            if (x - i as f64 - 0.5).abs() < 1e-6 {
-                names.get(i).cloned().unwrap_or_default()
-            } else {
-                String::new()
-            }
-        })
-        .y_desc("success (% of feasible worlds)")
-        .y_labels(14)
-        .y_label_formatter(&|y| {
-            if *y <= 100.0 {
-                format!("{y:.0}")
-            } else {
-                String::new()
-            }
-        })
-        .label_style(("sans-serif", 15))
-        .light_line_style(RGBColor(235, 235, 235))
-        .draw()
-        .map_err(|e| err(&e))?;
-    let series: [Bars; 3] = [
-        ("policy zero-shot", RGBColor(31, 119, 180), |a| {
-            a.zero_shot_rate
-        }),
-        ("scripted straight line", RGBColor(255, 127, 14), |a| {
-            a.straight_line_rate
-        }),
-        ("planner path (ceiling)", RGBColor(150, 150, 150), |a| {
-            a.planner_rate
-        }),
-    ];
-    for (k, (label, colour, value)) in series.into_iter().enumerate() {
-        let bars: Vec<(f64, f64)> = tables
-            .iter()
-            .enumerate()
-            .map(|(i, t)| {
-                (
-                    i as f64 + 0.15 + 0.24 * k as f64,
-                    100.0 * value(&t.aggregate),
-                )
-            })
-            .collect();
-        chart
-            .draw_series(
-                bars.iter()
-                    .map(|&(x, v)| Rectangle::new([(x, 0.0), (x + 0.22, v)], colour.filled())),
-            )
-            .map_err(|e| err(&e))?
-            .label(label)
-            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], colour.filled()));
-        chart
-            .draw_series(bars.iter().map(|&(x, v)| {
-                Text::new(
-                    format!("{v:.0}"),
-                    (x + 0.04, v + 5.0),
-                    ("sans-serif", 14).into_font(),
-                )
-            }))
-            .map_err(|e| err(&e))?;
-    }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 15))
-        .draw()
-        .map_err(|e| err(&e))?;
-    root.present().map_err(|e| err(&e))?;
-    Ok(())
-}
-
-/// One bar per retrained world: world change → learned policy (s), green learned, red not.
-fn plot_adaptation(path: &Path, tables: &[GeneratorTable]) -> Result<()> {
-    let err = |e: &dyn std::fmt::Display| plot_err(path, e);
-    let rows: Vec<(String, &RetrainRow)> = tables
-        .iter()
-        .flat_map(|t| {
-            t.worlds.iter().filter_map(move |r| {
-                r.retrained
-                    .as_ref()
-                    .map(|re| (format!("{}{}", &t.generator[..1], r.index), re))
-            })
-        })
-        .collect();
-    let top = rows.iter().map(|(_, r)| r.wall_s).fold(1.0f64, f64::max) * 1.15;
-    let n = rows.len().max(1);
-    let root = BitMapBackend::new(path, (1000, 520)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(&e))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "Retraining per failed world (t task, u uniform, c cluttered, a adversarial; green learned, red not)",
-            ("sans-serif", 20),
-        )
-        .margin(15)
-        .x_label_area_size(70)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.0f64..n as f64, 0.0f64..top)
-        .map_err(|e| err(&e))?;
-    chart
-        .configure_mesh()
-        .disable_x_mesh()
-        .x_labels(n * 2 + 1)
-        .x_label_formatter(&|x| {
-            let i = x.floor() as usize;
-            if (x - i as f64 - 0.5).abs() < 1e-6 {
-                rows.get(i).map(|r| r.0.clone()).unwrap_or_default()
-            } else {
-                String::new()
-            }
-        })
-        .y_desc("retraining wall time (s)")
-        .label_style(("sans-serif", 13))
-        .draw()
-        .map_err(|e| err(&e))?;
-    chart
-        .draw_series(rows.iter().enumerate().map(|(i, (_, r))| {
-            let colour = if r.success {
-                RGBColor(46, 160, 67)
-            } else {
-                RGBColor(214, 39, 40)
-            };
-            Rectangle::new(
-                [(i as f64 + 0.15, 0.0), (i as f64 + 0.85, r.wall_s)],
-                colour.filled(),
-            )
-        }))
-        .map_err(|e| err(&e))?;
-    root.present().map_err(|e| err(&e))?;
-    Ok(())
 }
