@@ -58,7 +58,7 @@ pub fn run_all(args: &LaunchArgs) -> Result<bool> {
         );
     }
     // The unseen worlds come from their own stream, so that `--seed S` gives the worlds
-    // `learner worlds --seed S` draws (the warm-up scenes use the other stream).
+    // `unseen-worlds --seed S` draws (the warm-up scenes use the other stream).
     let mut world_rng = rand_chacha::ChaCha8Rng::seed_from_u64(args.seed);
     let mut rows = Vec::new();
     for i in 0..args.runs {

@@ -34,7 +34,7 @@
 //! - Verified sampling ([`Sampler`], [`SamplingSettings`]): K perturbed rollouts of a
 //!   policy on a few threads, each verified as the lookahead verifies the deterministic
 //!   one, the best that passes kept (rt-core's twin worker before its planner fallback;
-//!   `learner worlds --samples`, pass@K).
+//!   `unseen-worlds --samples`, pass@K).
 //!
 //! # Observation (`[f32; OBS_DIM]`, raw SI units; the policy blob carries normalisation)
 //! | index | meaning | unit |

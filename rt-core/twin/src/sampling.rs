@@ -19,7 +19,7 @@
 //! The candidates run on `threads` scoped threads (candidate `i` on thread `i mod threads`,
 //! each with its own [`TwinEnv`] and waypoint buffers made once in [`Sampler::new`]); a
 //! deadline stops each thread before its next candidate. The same code serves rt-core's twin
-//! worker (in its time budget) and `learner worlds --samples` (pass@K).
+//! worker (in its time budget) and `unseen-worlds --samples` (pass@K).
 //!
 //! # Example
 //! ```no_run
