@@ -12,7 +12,9 @@
 //! therefore never replaces the running one in the guard's view.
 //!
 //! Join before stopping (issue 33 item 5, `join_before_stopping`): when only the running
-//! plan fails, and its first unsafe sample lies far enough ahead that the arm can go on
+//! plan fails, nothing in the scene is seen moving (a box set down, a still scene; a moving
+//! one is predicted only a short horizon ahead, so the arm stops at once), and its first
+//! unsafe sample lies far enough ahead that the arm can go on
 //! for a while and still stop along the plan before it, the guard does not revoke it: it
 //! schedules the stop at the last sample from which the stop envelope
 //! ([`CycleConfig::brake_horizon_samples`]) still ends before the unsafe one
@@ -117,6 +119,8 @@ pub struct PlanGuard<M: ShieldModel> {
     verifications: u64,
     /// Schedule the running plan's stop rather than revoke it, where it can wait.
     join_window: Option<JoinWindow>,
+    /// Obstacles of the current scene are seen moving: no stop waits.
+    scene_moving: bool,
 }
 
 impl<M: ShieldModel> PlanGuard<M> {
@@ -134,6 +138,7 @@ impl<M: ShieldModel> PlanGuard<M> {
             revocations: Vec::new(),
             verifications: 0,
             join_window: None,
+            scene_moving: false,
         }
     }
 
@@ -153,6 +158,16 @@ impl<M: ShieldModel> PlanGuard<M> {
     /// [`PlanGuard::scene`], and a revocation it causes carries its capture and acceptance
     /// times to the cycle's log (the reaction time's start).
     pub fn scene_captured(&mut self, scene: M::Scene, capture_ns: u64) {
+        self.scene_captured_moving(scene, capture_ns, false);
+    }
+
+    /// [`PlanGuard::scene_captured`] for a scene in which obstacles are seen moving
+    /// (`moving`): then no stop is scheduled, a failing plan is revoked at once. A moving
+    /// obstacle is predicted only over the intake's horizon (`prediction_horizon_s`, 0.25 s),
+    /// shorter than any wait for a join plus the stop: where it will be when the arm passes
+    /// is not verified, so the arm does not go on towards it.
+    pub fn scene_captured_moving(&mut self, scene: M::Scene, capture_ns: u64, moving: bool) {
+        self.scene_moving = moving;
         let accepted_ns = self.clock_origin_ns.map_or(0, |origin| {
             shm_schemas::clock::monotonic_now_ns().saturating_sub(origin)
         });
@@ -241,7 +256,7 @@ impl<M: ShieldModel> PlanGuard<M> {
                         self.first_unsafe(&prev, &plan.q_rad[next..], &scene)
                             .map(|k| next + k)
                     };
-                    if let (Some(k), Some(w)) = (bad, self.join_window)
+                    if let (Some(k), Some(w), false) = (bad, self.join_window, self.scene_moving)
                         && w.stop_due(next, k).is_some()
                     {
                         newest_checked = newest_checked.max(plan.id);

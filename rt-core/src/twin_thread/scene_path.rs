@@ -62,7 +62,7 @@ impl<M: ShieldModel> ScenePath<M> {
             intruders,
         });
         self.last = Some((scene, stamp_ns, intruders));
-        lock_guard(&self.guard).scene_captured(scene, stamp_ns);
+        lock_guard(&self.guard).scene_captured_moving(scene, stamp_ns, intruders.any());
     }
 
     /// Stamps the accepted scenes with the time they reach the plan guard, on the cycle's

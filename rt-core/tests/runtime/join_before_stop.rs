@@ -168,3 +168,31 @@ fn without_a_joining_plan_in_time_the_arm_stops_where_scheduled_short_of_the_dan
     assert!((0..DOF).any(|j| (report.cmd.q_rad[j] - START[j]).abs() > 0.01));
     rig.assert_commands_within_velocity_limits();
 }
+
+/// A box seen *moving* onto the path far ahead: no stop waits (its occupancy is predicted
+/// only over a short horizon, so where it will be when the arm gets there is unknown); the
+/// plan is revoked at once and the arm pauses.
+#[test]
+fn a_moving_box_far_ahead_stops_the_arm_at_once() {
+    let mut rig = rig(true);
+    rig.policy(1, TARGET_A);
+    rig.run(20);
+    assert_eq!(rig.mode(), Mode::Following);
+    let blocked = with_box_on_the_path(rig.scene, 0.85);
+    rig.scene = blocked;
+    let now = rig.clock.now_ns();
+    rig.twin.on_moving_detection(
+        blocked,
+        now,
+        true,
+        false,
+        rt_core::cycle::Intruders::ALL_UNKNOWN,
+        &mut rig.events,
+    );
+    assert!(scheduled(&rig.events).is_empty(), "{:?}", rig.events);
+    assert_eq!(revoked(&rig.events), 1, "{:?}", rig.events);
+    let now = rig.clock.now_ns();
+    rig.cycle.process(now);
+    assert_eq!(rig.mode(), Mode::Stopping);
+    assert_eq!(rig.cycle.report().stop_reason, StopReason::Revoked);
+}
