@@ -28,6 +28,80 @@ use crate::workspace::WorkspaceRect;
 /// Largest accepted mean reprojection error of the four corners (px).
 pub const MAX_REPROJECTION_ERROR_PX: f64 = 2.0;
 
+/// What is wrong with a calibration's numbers or geometry, or with the image it is made
+/// from.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationDefect {
+    /// The `[camera]` table.
+    #[error(transparent)]
+    Camera(#[from] crate::camera_id::CameraIdentityError),
+    /// The intrinsics.
+    #[error(transparent)]
+    Intrinsics(#[from] crate::geometry::IntrinsicsValidateError),
+    /// The workspace rectangle.
+    #[error(transparent)]
+    Workspace(#[from] crate::workspace::WorkspaceValidateError),
+    /// The calibration could not be written as TOML.
+    #[error(transparent)]
+    Encode(#[from] toml::ser::Error),
+    /// `rectified_px_per_m` is out of bounds.
+    #[error("rectified_px_per_m = {0} must be in 10..=10000")]
+    PxPerM(f64),
+    /// A corner lies outside the image.
+    #[error("corners_px[{index}] = {corner:?} lies outside the {width}x{height} image")]
+    CornerOutside {
+        /// Which corner.
+        index: usize,
+        /// Where (px).
+        corner: [f64; 2],
+        /// The image's width (px).
+        width: f64,
+        /// The image's height (px).
+        height: f64,
+    },
+    /// The corners are not a convex quadrilateral.
+    #[error(
+        "corners_px {0:?} do not form a convex quadrilateral (wrong order or a misplaced corner?)"
+    )]
+    NotConvex([[f64; 2]; 4]),
+    /// The solved camera is below the table.
+    #[error(
+        "the solved camera lies below the table (z = {0:.3} m): are the corners in the documented order?"
+    )]
+    BelowTable(f64),
+    /// The corners reproject too far from where they were given.
+    #[error(
+        "corners reproject with a mean error of {0:.2} px (> {MAX_REPROJECTION_ERROR_PX} px): intrinsics and corners disagree"
+    )]
+    Reprojection(f64),
+    /// solvePnP found no pose.
+    #[error("solvePnP found no camera pose for these corners")]
+    NoPose,
+    /// solvePnP returned a vector of the wrong length.
+    #[error("solvePnP returned {0} values for a 3-vector")]
+    PoseLength(usize),
+    /// A workspace corner projects from behind the camera.
+    #[error("a workspace corner lies behind the camera")]
+    BehindCamera,
+    /// No pixel has the tape's colour.
+    #[error("no tape-coloured pixels in the image")]
+    NoTape,
+    /// The tape region is too small to be the taped rectangle.
+    #[error(
+        "the largest tape-coloured region covers only {0:.0} px²: is the taped rectangle in view?"
+    )]
+    TapeTooSmall(f64),
+    /// The tape outline is not a 4-gon.
+    #[error("the tape outline has {0} corners, expected 4 (occluded corner?)")]
+    TapeCorners(usize),
+    /// A side of the tape outline has too few points for a line.
+    #[error("side {0} of the tape outline is too short to fit")]
+    TapeSideShort(usize),
+    /// Two sides of the tape outline do not meet.
+    #[error("two tape sides are parallel")]
+    TapeSidesParallel,
+}
+
 /// Why a calibration could not be loaded, built or saved.
 #[derive(Debug, thiserror::Error)]
 pub enum CalibrationError {
@@ -47,9 +121,19 @@ pub enum CalibrationError {
         /// What the parser said.
         message: String,
     },
-    /// Values out of range or geometrically inconsistent.
-    #[error("invalid calibration: {0}")]
-    Invalid(String),
+    /// Values out of range or geometrically inconsistent (in the file `path`, when loaded
+    /// from one).
+    #[error(
+        "invalid calibration: {}{defect}",
+        .path.as_ref().map(|p| format!("{}: ", p.display())).unwrap_or_default()
+    )]
+    Invalid {
+        /// The calibration file, if any.
+        path: Option<PathBuf>,
+        /// What is wrong.
+        #[source]
+        defect: CalibrationDefect,
+    },
     /// The file has no `[camera]` table (made before it existed, or by hand): which camera
     /// it belongs to is unknown.
     #[error(
@@ -102,6 +186,14 @@ pub struct Calibration {
     pub reprojection_error_px: f64,
 }
 
+/// [`CalibrationError::Invalid`] with `defect`, before the file is known.
+fn invalid(defect: impl Into<CalibrationDefect>) -> CalibrationError {
+    CalibrationError::Invalid {
+        path: None,
+        defect: defect.into(),
+    }
+}
+
 impl Calibration {
     /// Validates `file` and solves the homography and the camera pose.
     ///
@@ -112,9 +204,7 @@ impl Calibration {
     /// reprojection error above [`MAX_REPROJECTION_ERROR_PX`]; [`CalibrationError::OpenCv`]
     /// when OpenCV fails.
     pub fn new(file: CalibrationFile) -> Result<Self, CalibrationError> {
-        file.camera
-            .validate(CalibratedAt::now())
-            .map_err(|e| CalibrationError::Invalid(e.to_string()))?;
+        file.camera.validate(CalibratedAt::now()).map_err(invalid)?;
         check_file(&file)?;
         let pixel_to_table = pixel_to_table_homography(&file)?;
         let z = file.workspace.table_height_m;
@@ -124,16 +214,11 @@ impl Calibration {
             pose,
         };
         if pose.eye_m().z <= z {
-            return Err(CalibrationError::Invalid(format!(
-                "the solved camera lies below the table (z = {:.3} m): are the corners in the documented order?",
-                pose.eye_m().z
-            )));
+            return Err(invalid(CalibrationDefect::BelowTable(pose.eye_m().z)));
         }
         let err = reprojection_error_px(&model, &file)?;
         if err > MAX_REPROJECTION_ERROR_PX {
-            return Err(CalibrationError::Invalid(format!(
-                "corners reproject with a mean error of {err:.2} px (> {MAX_REPROJECTION_ERROR_PX} px): intrinsics and corners disagree"
-            )));
+            return Err(invalid(CalibrationDefect::Reprojection(err)));
         }
         Ok(Self {
             file,
@@ -167,9 +252,10 @@ impl Calibration {
             }
         })?;
         Self::new(file).map_err(|e| match e {
-            CalibrationError::Invalid(m) => {
-                CalibrationError::Invalid(format!("{}: {m}", path.display()))
-            }
+            CalibrationError::Invalid { defect, .. } => CalibrationError::Invalid {
+                path: Some(path.to_path_buf()),
+                defect,
+            },
             other => other,
         })
     }
@@ -179,8 +265,7 @@ impl Calibration {
     /// # Errors
     /// [`CalibrationError::Io`].
     pub fn save(&self, path: &Path) -> Result<(), CalibrationError> {
-        let text = toml::to_string_pretty(&self.file)
-            .map_err(|e| CalibrationError::Invalid(e.to_string()))?;
+        let text = toml::to_string_pretty(&self.file).map_err(invalid)?;
         let header = format!(
             "# Foresight perception calibration of camera {:?}, made {}. It is used only with that camera.\n\
              # Corner order: (xmin,ymin), (xmin,ymax), (xmax,ymax), (xmax,ymin).\n\
@@ -267,19 +352,12 @@ fn lacks_only_camera(text: &str) -> bool {
 /// Checks the numbers of a calibration file: intrinsics, workspace, scale, corners inside
 /// the image and forming a convex quadrilateral.
 fn check_file(file: &CalibrationFile) -> Result<(), CalibrationError> {
-    file.intrinsics
-        .validate()
-        .map_err(|e| CalibrationError::Invalid(e.to_string()))?;
-    file.workspace
-        .validate()
-        .map_err(|e| CalibrationError::Invalid(e.to_string()))?;
+    file.intrinsics.validate().map_err(invalid)?;
+    file.workspace.validate().map_err(invalid)?;
     if !(file.rectified_px_per_m.is_finite()
         && (10.0..=10_000.0).contains(&file.rectified_px_per_m))
     {
-        return Err(CalibrationError::Invalid(format!(
-            "rectified_px_per_m = {} must be in 10..=10000",
-            file.rectified_px_per_m
-        )));
+        return Err(invalid(CalibrationDefect::PxPerM(file.rectified_px_per_m)));
     }
     let (w, h) = (
         f64::from(file.intrinsics.width_px),
@@ -291,16 +369,16 @@ fn check_file(file: &CalibrationFile) -> Result<(), CalibrationError> {
             && (0.0..w).contains(&c[0])
             && (0.0..h).contains(&c[1]))
         {
-            return Err(CalibrationError::Invalid(format!(
-                "corners_px[{i}] = {c:?} lies outside the {w}x{h} image"
-            )));
+            return Err(invalid(CalibrationDefect::CornerOutside {
+                index: i,
+                corner: *c,
+                width: w,
+                height: h,
+            }));
         }
     }
     if !is_convex_quad(&file.corners_px) {
-        return Err(CalibrationError::Invalid(format!(
-            "corners_px {:?} do not form a convex quadrilateral (wrong order or a misplaced corner?)",
-            file.corners_px
-        )));
+        return Err(invalid(CalibrationDefect::NotConvex(file.corners_px)));
     }
     Ok(())
 }
@@ -355,9 +433,7 @@ fn solve_pose(file: &CalibrationFile) -> Result<CameraPose, CalibrationError> {
         opencv::calib3d::SOLVEPNP_IPPE,
     )?;
     if !ok {
-        return Err(CalibrationError::Invalid(
-            "solvePnP found no camera pose for these corners".into(),
-        ));
+        return Err(invalid(CalibrationDefect::NoPose));
     }
     Ok(CameraPose {
         rotation: Rotation3::from_scaled_axis(vec3_from_cv(&rvec)?),
@@ -378,9 +454,9 @@ fn reprojection_error_px(
         .iter()
         .zip(file.corners_px.iter())
     {
-        let (p, _) = model.project([c[0], c[1], z]).ok_or_else(|| {
-            CalibrationError::Invalid("a workspace corner lies behind the camera".into())
-        })?;
+        let (p, _) = model
+            .project([c[0], c[1], z])
+            .ok_or_else(|| invalid(CalibrationDefect::BehindCamera))?;
         err += ((p[0] - px[0]).powi(2) + (p[1] - px[1]).powi(2)).sqrt() / 4.0;
     }
     Ok(err)
@@ -399,10 +475,7 @@ fn mat3_from_cv(m: &Mat) -> Result<Matrix3<f64>, CalibrationError> {
 fn vec3_from_cv(m: &Mat) -> Result<Vector3<f64>, CalibrationError> {
     let d = m.data_typed::<f64>()?;
     if d.len() != 3 {
-        return Err(CalibrationError::Invalid(format!(
-            "solvePnP returned {} values for a 3-vector",
-            d.len()
-        )));
+        return Err(invalid(CalibrationDefect::PoseLength(d.len())));
     }
     Ok(Vector3::new(d[0], d[1], d[2]))
 }
@@ -470,14 +543,13 @@ pub fn find_workspace_corners(
         .collect();
     let mut lines = [([0.0; 2], 0.0); 4];
     for (i, line) in lines.iter_mut().enumerate() {
-        *line = fit_side(&pts, rough[i], rough[(i + 1) % 4], centroid).ok_or_else(|| {
-            CalibrationError::Invalid(format!("side {i} of the tape outline is too short to fit"))
-        })?;
+        *line = fit_side(&pts, rough[i], rough[(i + 1) % 4], centroid)
+            .ok_or_else(|| invalid(CalibrationDefect::TapeSideShort(i)))?;
     }
     let mut corners = [[0.0; 2]; 4];
     for (i, corner) in corners.iter_mut().enumerate() {
         *corner = intersect(lines[(i + 3) % 4], lines[i])
-            .ok_or_else(|| CalibrationError::Invalid("two tape sides are parallel".into()))?;
+            .ok_or_else(|| invalid(CalibrationDefect::TapeSidesParallel))?;
     }
     Ok(order_image_corners(corners))
 }
@@ -515,12 +587,9 @@ fn largest_tape_contour(
             best = Some((area, c));
         }
     }
-    let (area, contour) = best
-        .ok_or_else(|| CalibrationError::Invalid("no tape-coloured pixels in the image".into()))?;
+    let (area, contour) = best.ok_or_else(|| invalid(CalibrationDefect::NoTape))?;
     if area < 1000.0 {
-        return Err(CalibrationError::Invalid(format!(
-            "the largest tape-coloured region covers only {area:.0} px²: is the taped rectangle in view?"
-        )));
+        return Err(invalid(CalibrationDefect::TapeTooSmall(area)));
     }
     Ok(contour)
 }
@@ -535,10 +604,7 @@ fn rough_quad(contour: &Vector<opencv::core::Point>) -> Result<Vec<[f64; 2]>, Ca
     let perimeter = imgproc::arc_length(&hull, true)?;
     imgproc::approx_poly_dp(&hull, &mut approx, 0.02 * perimeter, true)?;
     if approx.len() != 4 {
-        return Err(CalibrationError::Invalid(format!(
-            "the tape outline has {} corners, expected 4 (occluded corner?)",
-            approx.len()
-        )));
+        return Err(invalid(CalibrationDefect::TapeCorners(approx.len())));
     }
     Ok(approx
         .iter()

@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::calibration::Calibration;
 use crate::detection::{Detection, ObjectKind};
-use crate::frame::{Frame, FrameError};
+use crate::frame::{Frame, FrameError, ImageDefect};
 use crate::measure::{Blob, MeasureScratch, measure_blob};
 use crate::runs::{DepthCut, RunLabeller};
 
@@ -214,9 +214,17 @@ pub enum DetectError {
     /// OpenCV failed.
     #[error("OpenCV: {0}")]
     OpenCv(#[from] opencv::Error),
-    /// The model could not run.
-    #[error("model: {0}")]
-    Model(String),
+    /// ONNX Runtime could not run the model.
+    #[error("model: ONNX Runtime: {0}")]
+    Ort(#[source] ort::Error),
+    /// The model's output changed shape since it was loaded.
+    #[error("model: output shape {got:?} differs from the one seen at load ({expected:?})")]
+    OutputShape {
+        /// The shape now.
+        got: Vec<i64>,
+        /// The shape at load.
+        expected: Vec<i64>,
+    },
 }
 
 /// The colour detector with its reusable buffers.
@@ -305,10 +313,14 @@ impl ColourDetector {
         if let Some(cal) = calibration {
             let k = cal.file.intrinsics;
             if k.width_px as i32 != w || k.height_px as i32 != h {
-                return Err(FrameError::BadColour(format!(
-                    "the image is {w}x{h} but the calibration is for {}x{}",
-                    k.width_px, k.height_px
-                ))
+                return Err(FrameError::BadColour(ImageDefect::Size {
+                    what: "the image",
+                    width: w,
+                    height: h,
+                    other: "the calibration is for",
+                    other_width: k.width_px as i32,
+                    other_height: k.height_px as i32,
+                })
                 .into());
             }
         }

@@ -22,12 +22,104 @@ pub enum FrameError {
     },
     /// The colour image was empty or of the wrong type.
     #[error("bad colour image: {0}")]
-    BadColour(String),
+    BadColour(#[source] ImageDefect),
     /// The depth image was of the wrong type or size.
     #[error("bad depth image: {0}")]
-    BadDepth(String),
+    BadDepth(#[source] ImageDefect),
+    /// A depth image file is of the wrong type.
+    #[error("bad depth image: {}: {defect}", .path.display())]
+    BadDepthFile {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        #[source]
+        defect: ImageDefect,
+    },
     /// OpenCV failed.
     #[error("OpenCV: {0}")]
+    OpenCv(#[from] opencv::Error),
+}
+
+/// What is wrong with a colour or depth image.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageDefect {
+    /// No pixels.
+    #[error("the image is empty")]
+    Empty,
+    /// Not stored in one block.
+    #[error("the image is not stored contiguously")]
+    NotContiguous,
+    /// The wrong pixel type.
+    #[error("expected {expected}, got OpenCV type {got}")]
+    WrongType {
+        /// What the image must be.
+        expected: &'static str,
+        /// The OpenCV type it is.
+        got: i32,
+    },
+    /// The wrong size for what it goes with.
+    #[error("{what} is {width}x{height} but {other} {other_width}x{other_height}")]
+    Size {
+        /// The image (`depth`, `the image`).
+        what: &'static str,
+        /// Its columns.
+        width: i32,
+        /// Its rows.
+        height: i32,
+        /// What it must match (`colour is`, `the calibration is for`).
+        other: &'static str,
+        /// Columns it must have.
+        other_width: i32,
+        /// Rows it must have.
+        other_height: i32,
+    },
+    /// A `sensor_msgs/Image` encoding not handled (as received from the topic).
+    #[error("unsupported encoding {0:?}")]
+    Encoding(String),
+    /// A `sensor_msgs/Image` that does not fit its own header.
+    #[error(transparent)]
+    Message(#[from] ImageMsgConvertError),
+}
+
+/// Why a `sensor_msgs/Image` could not be copied into a `Mat`; each message names the field.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageMsgConvertError {
+    /// `is_bigendian` is set on a multi-byte encoding.
+    #[error("is_bigendian = {is_bigendian}: big-endian {encoding} images are not supported")]
+    BigEndian {
+        /// The flag as received.
+        is_bigendian: u8,
+        /// The encoding.
+        encoding: String,
+    },
+    /// `width` or `height` is 0.
+    #[error("empty image (0 rows or columns): width = {width}, height = {height}")]
+    Empty {
+        /// Columns.
+        width: u32,
+        /// Rows.
+        height: u32,
+    },
+    /// `step` is shorter than a row or `data` shorter than the image.
+    #[error(
+        "{width}x{height} {encoding} image needs {row_bytes} bytes per row, got step {step} and {data_len} bytes"
+    )]
+    TooShort {
+        /// Columns.
+        width: u32,
+        /// Rows.
+        height: u32,
+        /// The encoding.
+        encoding: String,
+        /// Bytes one row needs.
+        row_bytes: usize,
+        /// `step` as received.
+        step: u32,
+        /// `data.len()` as received.
+        data_len: usize,
+    },
+    /// OpenCV could not allocate or expose the `Mat`.
+    #[error("OpenCV: {}", .0.message)]
     OpenCv(#[from] opencv::Error),
 }
 
@@ -51,34 +143,33 @@ impl Frame {
     /// [`FrameError::BadColour`] / [`FrameError::BadDepth`].
     pub fn validate(&self) -> Result<(), FrameError> {
         if self.bgr.empty() {
-            return Err(FrameError::BadColour("the image is empty".into()));
+            return Err(FrameError::BadColour(ImageDefect::Empty));
         }
         if self.bgr.typ() != CV_8UC3 {
-            return Err(FrameError::BadColour(format!(
-                "expected 8-bit BGR (CV_8UC3), got OpenCV type {}",
-                self.bgr.typ()
-            )));
+            return Err(FrameError::BadColour(ImageDefect::WrongType {
+                expected: "8-bit BGR (CV_8UC3)",
+                got: self.bgr.typ(),
+            }));
         }
         if !self.bgr.is_continuous() {
-            return Err(FrameError::BadColour(
-                "the image is not stored contiguously".into(),
-            ));
+            return Err(FrameError::BadColour(ImageDefect::NotContiguous));
         }
         if let Some(d) = &self.depth_m {
             if d.typ() != CV_32FC1 || !d.is_continuous() {
-                return Err(FrameError::BadDepth(format!(
-                    "expected contiguous CV_32FC1 metres, got type {}",
-                    d.typ()
-                )));
+                return Err(FrameError::BadDepth(ImageDefect::WrongType {
+                    expected: "contiguous CV_32FC1 metres",
+                    got: d.typ(),
+                }));
             }
             if d.rows() != self.bgr.rows() || d.cols() != self.bgr.cols() {
-                return Err(FrameError::BadDepth(format!(
-                    "depth is {}x{} but colour is {}x{}",
-                    d.cols(),
-                    d.rows(),
-                    self.bgr.cols(),
-                    self.bgr.rows()
-                )));
+                return Err(FrameError::BadDepth(ImageDefect::Size {
+                    what: "depth",
+                    width: d.cols(),
+                    height: d.rows(),
+                    other: "colour is",
+                    other_width: self.bgr.cols(),
+                    other_height: self.bgr.rows(),
+                }));
             }
         }
         Ok(())
@@ -161,10 +252,13 @@ pub fn read_depth(path: &Path) -> Result<Mat, FrameError> {
             }
             Ok(out)
         }
-        t => Err(FrameError::BadDepth(format!(
-            "{}: expected a 1-channel 32-bit float (m) or 16-bit (mm) image, got OpenCV type {t}",
-            path.display()
-        ))),
+        got => Err(FrameError::BadDepthFile {
+            path: path.to_path_buf(),
+            defect: ImageDefect::WrongType {
+                expected: "a 1-channel 32-bit float (m) or 16-bit (mm) image",
+                got,
+            },
+        }),
     }
 }
 

@@ -45,7 +45,7 @@ use crate::handoff::{ConsumerGuard, Handoff, Popped, ProducerGuard};
 use crate::log_limit::LogLimiter;
 use crate::publisher::{DetectionPublisher, PublishError};
 use crate::selection::{FloorTally, SelectionConfig, apply_confidence_floors};
-use crate::source::{FrameSource, SourceError};
+use crate::source::{FrameSource, SourceError, SourceFailure};
 use crate::tracker::Tracker;
 use crate::yolo::YoloDetector;
 use shm_schemas::clock::monotonic_now_ns;
@@ -302,7 +302,7 @@ fn run_with(
                     stop,
                 )
             })
-            .map_err(|e| SourceError::Failed(format!("cannot start the capture thread: {e}")))?;
+            .map_err(|e| SourceError::Failed(SourceFailure::CaptureThread(e)))?;
         {
             let _closes = ConsumerGuard(&handoff);
             detect_loop(&handoff, &interrupted_at_ns, process, &mut stats, stop);
@@ -900,13 +900,11 @@ mod tests {
             self.next += 1;
             if !good {
                 self.last_refusal_ns = monotonic_now_ns();
-                return Err(SourceError::Depth(
-                    crate::ros2_source::DepthPairError::Stale {
-                        topic: "/depth".into(),
-                        skew_ms: 2_000.0,
-                        max_ms: 10.0,
-                    },
-                ));
+                return Err(SourceError::Depth(crate::source::DepthPairError::Stale {
+                    topic: "/depth".into(),
+                    skew_ms: 2_000.0,
+                    max_ms: 10.0,
+                }));
             }
             let now = monotonic_now_ns();
             Ok(Some(Frame::from_rendered(

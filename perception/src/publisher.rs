@@ -32,7 +32,7 @@ pub enum PublishError {
     Open(#[from] services::ShmOpenError),
     /// Loaning or sending a sample failed.
     #[error("cannot send a DetectionFrame: {0}")]
-    Send(String),
+    Send(#[source] iceoryx2::port::SendError),
     /// The frame failed its own validation (a bug or a wild measurement).
     #[error("DetectionFrame failed validation: {0}")]
     Invalid(#[from] shm_schemas::SchemaError),
@@ -170,11 +170,9 @@ impl DetectionPublisher {
         let sample = self
             .publisher
             .loan_uninit()
-            .map_err(|e| PublishError::Send(format!("{e:?}")))?;
+            .map_err(|e| PublishError::Send(e.into()))?;
         let sample = sample.write_payload(frame);
-        sample
-            .send()
-            .map_err(|e| PublishError::Send(format!("{e:?}")))?;
+        sample.send().map_err(PublishError::Send)?;
         Ok(built)
     }
 

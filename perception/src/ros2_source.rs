@@ -66,9 +66,9 @@ use ros2_client::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::frame::{Frame, FrameError};
+use crate::frame::{Frame, FrameError, ImageDefect, ImageMsgConvertError};
 use crate::log_limit::LogLimiter;
-use crate::source::{FrameSource, SourceError};
+use crate::source::{DepthPairError, FrameSource, SourceError, SourceFailure, WrongCameraError};
 use crate::stamp::{ClockPair, StampLimits, StampLimitsError, ros_stamp_to_monotonic_ns};
 
 /// `builtin_interfaces/Time`.
@@ -298,12 +298,6 @@ pub enum Ros2TopicsError {
     DepthSkew(f64),
 }
 
-impl From<Ros2TopicsError> for SourceError {
-    fn from(e: Ros2TopicsError) -> Self {
-        SourceError::Open(e.to_string())
-    }
-}
-
 impl Ros2Topics {
     /// Loads topic settings from TOML and checks the values that do not depend on the
     /// network access ([`Ros2Topics::validate`] checks all).
@@ -385,6 +379,12 @@ fn qos() -> QosProfile {
         .history(History::KeepLast { depth: 2 })
 }
 
+impl From<Ros2TopicsError> for SourceError {
+    fn from(e: Ros2TopicsError) -> Self {
+        SourceError::Open(e.to_string())
+    }
+}
+
 /// Creates a ROS 2 context, restricted to `networks` when not empty (every interface when
 /// empty: [`Ros2Source::open`] allows that only with [`NetworkAccess::Open`]).
 ///
@@ -459,13 +459,10 @@ pub fn colour_from_msg(msg: &Image) -> Result<Mat, FrameError> {
         "bgra8" => (4, CV_8UC4, Some(opencv::imgproc::COLOR_BGRA2BGR)),
         "rgba8" => (4, CV_8UC4, Some(opencv::imgproc::COLOR_RGBA2BGR)),
         e => {
-            return Err(FrameError::BadColour(format!(
-                "unsupported colour encoding {e:?}"
-            )));
+            return Err(FrameError::BadColour(ImageDefect::Encoding(e.to_owned())));
         }
     };
-    let m =
-        image_mat(msg, channels, 1, cv_type).map_err(|e| FrameError::BadColour(e.to_string()))?;
+    let m = image_mat(msg, channels, 1, cv_type).map_err(|e| FrameError::BadColour(e.into()))?;
     match code {
         None => Ok(m),
         Some(c) => {
@@ -482,10 +479,9 @@ pub fn colour_from_msg(msg: &Image) -> Result<Mat, FrameError> {
 /// [`FrameError::BadDepth`].
 pub fn depth_from_msg(msg: &Image) -> Result<Mat, FrameError> {
     match msg.encoding.as_str() {
-        "32FC1" => image_mat(msg, 1, 4, CV_32FC1).map_err(|e| FrameError::BadDepth(e.to_string())),
+        "32FC1" => image_mat(msg, 1, 4, CV_32FC1).map_err(|e| FrameError::BadDepth(e.into())),
         "16UC1" | "mono16" => {
-            let m =
-                image_mat(msg, 1, 2, CV_16UC1).map_err(|e| FrameError::BadDepth(e.to_string()))?;
+            let m = image_mat(msg, 1, 2, CV_16UC1).map_err(|e| FrameError::BadDepth(e.into()))?;
             let mut out = Mat::default();
             m.convert_to(&mut out, CV_32FC1, 1e-3, 0.0)?;
             for d in out.data_typed_mut::<f32>()?.iter_mut() {
@@ -495,52 +491,8 @@ pub fn depth_from_msg(msg: &Image) -> Result<Mat, FrameError> {
             }
             Ok(out)
         }
-        e => Err(FrameError::BadDepth(format!(
-            "unsupported depth encoding {e:?}"
-        ))),
+        e => Err(FrameError::BadDepth(ImageDefect::Encoding(e.to_owned()))),
     }
-}
-
-/// Why a `sensor_msgs/Image` could not be copied into a `Mat`; each message names the field.
-#[derive(Debug, thiserror::Error)]
-pub enum ImageMsgConvertError {
-    /// `is_bigendian` is set on a multi-byte encoding.
-    #[error("is_bigendian = {is_bigendian}: big-endian {encoding} images are not supported")]
-    BigEndian {
-        /// The flag as received.
-        is_bigendian: u8,
-        /// The encoding.
-        encoding: String,
-    },
-    /// `width` or `height` is 0.
-    #[error("empty image (0 rows or columns): width = {width}, height = {height}")]
-    Empty {
-        /// Columns.
-        width: u32,
-        /// Rows.
-        height: u32,
-    },
-    /// `step` is shorter than a row or `data` shorter than the image.
-    #[error(
-        "{width}x{height} {encoding} image needs {row_bytes} bytes per row, got step {step} and {data_len} bytes"
-    )]
-    TooShort {
-        /// Columns.
-        width: u32,
-        /// Rows.
-        height: u32,
-        /// The encoding.
-        encoding: String,
-        /// Bytes one row needs.
-        row_bytes: usize,
-        /// `step` as received.
-        step: u32,
-        /// `data.len()` as received.
-        data_len: usize,
-    },
-    /// OpenCV could not allocate or expose the `Mat`.
-    #[error("OpenCV: {}", .0.message)]
-    OpenCv(#[from] opencv::Error),
 }
 
 fn image_mat(
@@ -587,23 +539,6 @@ fn image_mat(
     Ok(m)
 }
 
-/// A colour image from another camera than the calibration's: its `header.frame_id` is not
-/// the calibration's `[camera] frame_id`.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error(
-    "the image on {topic} has header.frame_id {got:?}, but the calibration was made for camera \
-     frame_id {expected:?}: a camera is measured only with its own calibration (calibrate this \
-     camera with `perception calibrate --frame-id {got} …`, or publish the calibrated camera)"
-)]
-pub struct WrongCameraError {
-    /// The colour topic.
-    pub topic: String,
-    /// The image's `header.frame_id`.
-    pub got: String,
-    /// The calibration's `[camera] frame_id`.
-    pub expected: String,
-}
-
 /// Checks an image's `header.frame_id` against the calibration's camera `expected`.
 ///
 /// # Errors
@@ -621,31 +556,6 @@ pub fn check_frame_id(
         got: header.frame_id.clone(),
         expected: expected.to_owned(),
     })
-}
-
-/// Why a colour image has no depth image to be measured with.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum DepthPairError {
-    /// No depth image has arrived (yet, or for longer than the kept history).
-    #[error("no depth image received on {topic}")]
-    NoDepth {
-        /// The depth topic.
-        topic: String,
-    },
-    /// The depth images at hand are from other times than the colour image (a stalled or
-    /// lagging depth topic).
-    #[error(
-        "the depth image nearest in stamp on {topic} is {skew_ms:.1} ms from the colour image \
-         (max_depth_skew_ms = {max_ms}): stale or unpaired depth"
-    )]
-    Stale {
-        /// The depth topic.
-        topic: String,
-        /// The smallest stamp difference at hand (ms).
-        skew_ms: f64,
-        /// The bound (ms).
-        max_ms: f64,
-    },
 }
 
 /// A ROS stamp in ns since the epoch (`sec` may be negative in a malformed message; the
@@ -820,18 +730,17 @@ impl FrameSource for Ros2Source {
                     // The clocks are read as each image is taken, for its stamp's conversion.
                     Ok(Some((m, _))) => colour = Some((m, ClockPair::now())),
                     Ok(None) => break,
-                    Err(e) => return Err(SourceError::Failed(format!("colour topic: {e:?}"))),
+                    Err(e) => return Err(SourceError::Failed(SourceFailure::ColourTopic(e))),
                 }
             }
             if colour.is_some() {
                 break;
             }
             if Instant::now() >= deadline {
-                return Err(SourceError::Failed(format!(
-                    "no image on {} within {:.1} s",
-                    self.topics.colour,
-                    self.timeout.as_secs_f64()
-                )));
+                return Err(SourceError::Failed(SourceFailure::NoImage {
+                    topic: self.topics.colour.clone(),
+                    within_s: self.timeout.as_secs_f64(),
+                }));
             }
             std::thread::sleep(Duration::from_millis(2));
         }

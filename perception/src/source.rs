@@ -59,9 +59,25 @@ impl FromStr for SourceSpec {
 /// Why a source could not be opened or a frame obtained.
 #[derive(Debug, thiserror::Error)]
 pub enum SourceError {
-    /// Opening failed.
+    /// A ROS 2 source could not open. (Text: the failures come from a dozen ros2_client
+    /// and rustdds error types, several with only `Debug`.)
     #[error("cannot open source: {0}")]
     Open(String),
+    /// The synthetic camera's description is refused.
+    #[error("cannot open source: {0}")]
+    Camera(#[source] crate::synthetic::SyntheticCameraLoadError),
+    /// The synthetic camera's world (a script or a scene file) is refused.
+    #[error("cannot open source: {0}")]
+    World(#[source] shm_schemas::scene_file::SceneFileError),
+    /// An image file, folder or video could not open.
+    #[error("cannot open source: {}: {problem}", .path.display())]
+    Path {
+        /// As given.
+        path: PathBuf,
+        /// What is wrong.
+        #[source]
+        problem: PathProblem,
+    },
     /// This frame was bad; the source goes on.
     #[error(transparent)]
     Frame(#[from] FrameError),
@@ -72,14 +88,108 @@ pub enum SourceError {
     /// This colour image has no depth image of the same moment (none received, or only
     /// stale ones: [`crate::ros2_source::pair_depth`]); the source goes on.
     #[error("frame refused: {0}")]
-    Depth(#[from] crate::ros2_source::DepthPairError),
+    Depth(#[from] DepthPairError),
     /// This image comes from another camera than the calibration's (its `header.frame_id`
-    /// differs: [`crate::ros2_source::WrongCameraError`]); the source goes on.
+    /// differs: [`WrongCameraError`]); the source goes on.
     #[error("image refused: {0}")]
-    WrongCamera(#[from] crate::ros2_source::WrongCameraError),
+    WrongCamera(#[from] WrongCameraError),
     /// A transport failure.
     #[error("source failed: {0}")]
-    Failed(String),
+    Failed(#[source] SourceFailure),
+}
+
+/// What is wrong with an image file, folder or video given as a source.
+#[derive(Debug, thiserror::Error)]
+pub enum PathProblem {
+    /// Neither a file nor a folder.
+    #[error("no such file or folder")]
+    Missing,
+    /// The folder cannot be listed.
+    #[error("{0}")]
+    ReadDir(#[source] std::io::Error),
+    /// The folder holds no image.
+    #[error("no images in the folder")]
+    NoImages,
+    /// OpenCV refused the video.
+    #[error("{}", .0.message)]
+    Video(#[source] opencv::Error),
+    /// OpenCV opened nothing.
+    #[error("OpenCV cannot open this video")]
+    VideoNotOpened,
+}
+
+/// Why a source gave no frame this time (the capture retries a few times in a row).
+#[derive(Debug, thiserror::Error)]
+pub enum SourceFailure {
+    /// The synthetic camera has no render at hand.
+    #[error("no render")]
+    NoRender,
+    /// A video frame could not be read.
+    #[error("{}", .0.message)]
+    Video(#[source] opencv::Error),
+    /// The colour topic could not be read.
+    #[error("colour topic: {0:?}")]
+    ColourTopic(#[source] ros2_client::ReadError),
+    /// No colour image arrived in time.
+    #[error("no image on {topic} within {within_s:.1} s")]
+    NoImage {
+        /// The colour topic.
+        topic: String,
+        /// The wait (s).
+        within_s: f64,
+    },
+    /// The capture thread could not start.
+    #[error("cannot start the capture thread: {0}")]
+    CaptureThread(#[source] std::io::Error),
+}
+
+/// A colour image from another camera than the calibration's: its `header.frame_id` is not
+/// the calibration's `[camera] frame_id`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "the image on {topic} has header.frame_id {got:?}, but the calibration was made for camera \
+     frame_id {expected:?}: a camera is measured only with its own calibration (calibrate this \
+     camera with `perception calibrate --frame-id {got} …`, or publish the calibrated camera)"
+)]
+pub struct WrongCameraError {
+    /// The colour topic.
+    pub topic: String,
+    /// The image's `header.frame_id`.
+    pub got: String,
+    /// The calibration's `[camera] frame_id`.
+    pub expected: String,
+}
+
+/// Why a colour image has no depth image to be measured with.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DepthPairError {
+    /// No depth image has arrived (yet, or for longer than the kept history).
+    #[error("no depth image received on {topic}")]
+    NoDepth {
+        /// The depth topic.
+        topic: String,
+    },
+    /// The depth images at hand are from other times than the colour image (a stalled or
+    /// lagging depth topic).
+    #[error(
+        "the depth image nearest in stamp on {topic} is {skew_ms:.1} ms from the colour image \
+         (max_depth_skew_ms = {max_ms}): stale or unpaired depth"
+    )]
+    Stale {
+        /// The depth topic.
+        topic: String,
+        /// The smallest stamp difference at hand (ms).
+        skew_ms: f64,
+        /// The bound (ms).
+        max_ms: f64,
+    },
+}
+
+fn open_path(path: &Path, problem: PathProblem) -> SourceError {
+    SourceError::Path {
+        path: path.to_path_buf(),
+        problem,
+    }
 }
 
 /// What the capture does with a new frame while the detector is still busy and the
@@ -145,9 +255,9 @@ impl SyntheticSource {
     /// Loads the camera and a world script (or a single scene file).
     ///
     /// # Errors
-    /// [`SourceError::Open`].
+    /// [`SourceError::Camera`] / [`SourceError::World`].
     pub fn open(camera: &Path, world: &Path) -> Result<Self, SourceError> {
-        let cam = SyntheticCamera::load(camera).map_err(|e| SourceError::Open(e.to_string()))?;
+        let cam = SyntheticCamera::load(camera).map_err(SourceError::Camera)?;
         let mut live = None;
         let mut live_since_ns = 0;
         let script = match WorldScript::load(world) {
@@ -158,7 +268,7 @@ impl SyntheticSource {
                     live_since_ns = scene.in_force_since_or(monotonic_now_ns());
                     WorldScript::single(scene.scene)
                 }
-                Err(_) => return Err(SourceError::Open(script_err.to_string())),
+                Err(_) => return Err(SourceError::World(script_err)),
             },
         };
         Ok(Self {
@@ -238,7 +348,7 @@ impl FrameSource for SyntheticSource {
         self.last_step = step;
         self.sequence += 1;
         let Some((_, rendered)) = &self.cache else {
-            return Err(SourceError::Failed("no render".into()));
+            return Err(SourceError::Failed(SourceFailure::NoRender));
         };
         Ok(Some(Frame::from_rendered(
             rendered,
@@ -286,7 +396,7 @@ impl FileSource {
     /// video.
     ///
     /// # Errors
-    /// [`SourceError::Open`].
+    /// [`SourceError::Path`].
     pub fn open(path: &Path) -> Result<Self, SourceError> {
         let ext = |p: &Path| {
             p.extension()
@@ -295,7 +405,7 @@ impl FileSource {
         };
         if path.is_dir() {
             let mut paths: Vec<PathBuf> = std::fs::read_dir(path)
-                .map_err(|e| SourceError::Open(format!("{}: {e}", path.display())))?
+                .map_err(|e| open_path(path, PathProblem::ReadDir(e)))?
                 .filter_map(|e| e.ok().map(|e| e.path()))
                 .filter(|p| IMAGE_EXTENSIONS.contains(&ext(p).as_str()))
                 .filter(|p| {
@@ -305,10 +415,7 @@ impl FileSource {
                 .collect();
             paths.sort();
             if paths.is_empty() {
-                return Err(SourceError::Open(format!(
-                    "{}: no images in the folder",
-                    path.display()
-                )));
+                return Err(open_path(path, PathProblem::NoImages));
             }
             return Ok(Self::Images {
                 paths,
@@ -317,19 +424,13 @@ impl FileSource {
             });
         }
         if !path.is_file() {
-            return Err(SourceError::Open(format!(
-                "{}: no such file or folder",
-                path.display()
-            )));
+            return Err(open_path(path, PathProblem::Missing));
         }
         if VIDEO_EXTENSIONS.contains(&ext(path).as_str()) {
             let capture = opencv::videoio::VideoCapture::from_file(path, opencv::videoio::CAP_ANY)
-                .map_err(|e| SourceError::Open(format!("{}: {}", path.display(), e.message)))?;
+                .map_err(|e| open_path(path, PathProblem::Video(e)))?;
             if !capture.is_opened().unwrap_or(false) {
-                return Err(SourceError::Open(format!(
-                    "{}: OpenCV cannot open this video",
-                    path.display()
-                )));
+                return Err(open_path(path, PathProblem::VideoNotOpened));
             }
             return Ok(Self::Video {
                 capture,
@@ -381,7 +482,7 @@ impl FrameSource for FileSource {
                 let mut bgr = opencv::core::Mat::default();
                 let ok = capture
                     .read(&mut bgr)
-                    .map_err(|e| SourceError::Failed(e.message))?;
+                    .map_err(|e| SourceError::Failed(SourceFailure::Video(e)))?;
                 if !ok || bgr.empty() {
                     return Ok(None);
                 }

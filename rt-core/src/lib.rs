@@ -15,6 +15,8 @@
 //! - [`rt`]: the toolkit beneath both (hand-overs, log ring, clock, RT set-up, histograms,
 //!   the counting allocator).
 //! - [`config`]: `assets/runtime.toml`, validated at load.
+//! - [`launch`]: `rt-core run`'s start-up (configuration, signals, simulation-only rights,
+//!   the recorder, the link) around [`twin_thread::serve`], and its summary.
 //! - [`operator_ack`]: the operator's acknowledgement channel (`rt-core ack`).
 //!
 //! The libraries it builds on are crates of their own: `twin` (model, kinematics, geometry,
@@ -23,6 +25,7 @@
 
 pub mod config;
 pub mod cycle;
+pub mod launch;
 pub mod operator_ack;
 pub mod rt;
 #[cfg(any(test, feature = "testing"))]

@@ -230,7 +230,7 @@ impl Engine {
             } => {
                 let dims: Vec<usize> = blob.mat_size().iter().map(|&d| d as usize).collect();
                 let data = blob.data_typed::<f32>()?;
-                let model = |e: ort::Error| DetectError::Model(format!("ONNX Runtime: {e}"));
+                let model = DetectError::Ort;
                 let input = TensorRef::from_array_view((dims, data)).map_err(model)?;
                 let outputs = session
                     .run(ort::inputs![input_name.as_str() => input])

@@ -75,9 +75,38 @@ pub enum YoloLoadError {
         /// What is wrong.
         message: String,
     },
-    /// Bad settings.
-    #[error("invalid YOLO settings: {0}")]
-    Config(String),
+    /// A setting is out of bounds (in the file `path`, when loaded from one).
+    #[error(
+        "invalid YOLO settings: {}{field} = {value} must be {allowed}",
+        .path.as_ref().map(|p| format!("{}: ", p.display())).unwrap_or_default()
+    )]
+    Setting {
+        /// The settings file, if any.
+        path: Option<PathBuf>,
+        /// The setting (`[detector]` key).
+        field: &'static str,
+        /// Its value.
+        value: f64,
+        /// Its bounds.
+        allowed: &'static str,
+    },
+    /// The settings file is not valid TOML for [`YoloFile`].
+    #[error("invalid YOLO settings: {}: {source}", .path.display())]
+    Toml {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: toml::de::Error,
+    },
+    /// The model's square input is outside 32..=4096 px.
+    #[error("invalid YOLO settings: {}: input size {size_px} px is outside 32..=4096", .path.display())]
+    ModelInputSize {
+        /// The model.
+        path: PathBuf,
+        /// Its input size (px).
+        size_px: i64,
+    },
 }
 
 /// Detector settings (`[detector]` in `yolo.toml`).
@@ -117,29 +146,38 @@ impl YoloConfig {
     /// Checks every bound; the error names the field.
     ///
     /// # Errors
-    /// [`YoloLoadError::Config`].
+    /// [`YoloLoadError::Setting`].
     pub fn validate(&self) -> Result<(), YoloLoadError> {
         let s = self.input_size_px;
         if !(32..=4096).contains(&s) || s % 32 != 0 {
-            return Err(YoloLoadError::Config(format!(
-                "input_size_px = {s} must be a multiple of 32 in 32..=4096"
-            )));
+            return Err(YoloLoadError::Setting {
+                path: None,
+                field: "input_size_px",
+                value: f64::from(s),
+                allowed: "a multiple of 32 in 32..=4096",
+            });
         }
         for (name, v) in [
             ("confidence_threshold", self.confidence_threshold),
             ("nms_iou", self.nms_iou),
         ] {
             if !(0.0..=1.0).contains(&v) {
-                return Err(YoloLoadError::Config(format!(
-                    "{name} = {v} must be in [0, 1]"
-                )));
+                return Err(YoloLoadError::Setting {
+                    path: None,
+                    field: name,
+                    // The value as written (an f32 widened would print its binary tail).
+                    value: v.to_string().parse().unwrap_or(f64::NAN),
+                    allowed: "in [0, 1]",
+                });
             }
         }
         if self.threads > 64 {
-            return Err(YoloLoadError::Config(format!(
-                "threads = {} must be in 0..=64 (0: the cores given)",
-                self.threads
-            )));
+            return Err(YoloLoadError::Setting {
+                path: None,
+                field: "threads",
+                value: self.threads as f64,
+                allowed: "in 0..=64 (0: the cores given)",
+            });
         }
         Ok(())
     }
@@ -169,17 +207,31 @@ impl YoloFile {
     /// Reads and validates the file; relative paths are resolved against its folder.
     ///
     /// # Errors
-    /// [`YoloLoadError::Io`] / [`YoloLoadError::Config`] naming the file and the field.
+    /// [`YoloLoadError::Io`] / [`YoloLoadError::Toml`] / [`YoloLoadError::Setting`] naming the
+    /// file (and the field).
     pub fn load(path: &Path) -> Result<Self, YoloLoadError> {
         let text = std::fs::read_to_string(path).map_err(|source| YoloLoadError::Io {
             path: path.to_path_buf(),
             source,
         })?;
-        let mut f: Self = toml::from_str(&text)
-            .map_err(|e| YoloLoadError::Config(format!("{}: {e}", path.display())))?;
-        f.detector
-            .validate()
-            .map_err(|e| YoloLoadError::Config(format!("{}: {e}", path.display())))?;
+        let mut f: Self = toml::from_str(&text).map_err(|source| YoloLoadError::Toml {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        f.detector.validate().map_err(|e| match e {
+            YoloLoadError::Setting {
+                field,
+                value,
+                allowed,
+                ..
+            } => YoloLoadError::Setting {
+                path: Some(path.to_path_buf()),
+                field,
+                value,
+                allowed,
+            },
+            e => e,
+        })?;
         let dir = path.parent().unwrap_or(Path::new("."));
         f.model = dir.join(&f.model);
         f.labels = f.labels.map(|l| dir.join(l));
@@ -290,10 +342,10 @@ impl YoloDetector {
         let input_px = match info.square_input_px() {
             Some(s) if (32..=4096).contains(&s) => s as i32,
             Some(s) => {
-                return Err(YoloLoadError::Config(format!(
-                    "{}: input size {s} px is outside 32..=4096",
-                    model.display()
-                )));
+                return Err(YoloLoadError::ModelInputSize {
+                    path: model.to_path_buf(),
+                    size_px: s,
+                });
             }
             None => config.input_size_px,
         };
@@ -459,10 +511,10 @@ impl YoloDetector {
     pub fn boxes(&mut self, bgr: &Mat) -> Result<Vec<RawBox>, DetectError> {
         let (dims, lb) = self.infer(bgr)?;
         if dims != self.output_dims || self.output.len() < self.layout.len() {
-            return Err(DetectError::Model(format!(
-                "output shape {dims:?} differs from the one seen at load ({:?})",
-                self.output_dims
-            )));
+            return Err(DetectError::OutputShape {
+                got: dims,
+                expected: self.output_dims.clone(),
+            });
         }
         let threshold = self.config.confidence_threshold;
         Ok(match self.layout {

@@ -90,7 +90,7 @@ impl std::fmt::Debug for Observer {
 pub enum ObserverError {
     /// The iceoryx2 node could not be created.
     #[error("cannot create the launcher's iceoryx2 node: {0}")]
-    Node(String),
+    Node(#[source] services::NodeCreateError),
     /// A subscriber could not be opened.
     #[error(transparent)]
     Open(#[from] ShmOpenError),
@@ -115,7 +115,7 @@ impl Observer {
     /// [`ObserverError`].
     pub fn open(prefix: &str) -> Result<Self, ObserverError> {
         let (node, _cleanup) = services::create_node::<ipc::Service>("foresight-launcher")
-            .map_err(|e| ObserverError::Node(format!("{e:?}")))?;
+            .map_err(ObserverError::Node)?;
         Ok(Self {
             states: services::open_subscriber::<RobotState, _>(&node, prefix)?,
             verdicts: services::open_subscriber::<TwinVerdict, _>(&node, prefix)?,

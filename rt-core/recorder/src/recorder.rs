@@ -165,7 +165,7 @@ pub enum RecorderStartError {
     Config(#[from] RecorderConfigError),
     /// The URDF could not be read as a robot model.
     #[error("the recorder cannot read the URDF: {0}")]
-    Urdf(String),
+    Urdf(#[source] twin::UrdfLoadError),
     /// The file could not be created.
     #[error(transparent)]
     Create(#[from] McapCreateError),
@@ -175,12 +175,18 @@ pub enum RecorderStartError {
     /// The bag's first `metadata.yaml` could not be written.
     #[error(transparent)]
     Metadata(#[from] BagMetadataWriteError),
-    /// The iceoryx2 node or a subscriber could not be opened.
+    /// The iceoryx2 node could not be created.
     #[error("the recorder cannot subscribe to the run's services: {0}")]
-    Subscribe(String),
-    /// The thread could not be started or ended before it was ready.
+    Node(#[source] shm_schemas::services::NodeCreateError),
+    /// A subscriber could not be opened.
+    #[error("the recorder cannot subscribe to the run's services: {0}")]
+    Subscribe(#[source] shm_schemas::ShmOpenError),
+    /// The thread could not be started.
     #[error("the recorder thread could not start: {0}")]
-    Thread(String),
+    Thread(#[source] std::io::Error),
+    /// The thread ended before it was ready.
+    #[error("the recorder thread could not start: ended before it was ready")]
+    ThreadEnded,
 }
 
 /// Why a recording ended badly.
@@ -242,8 +248,7 @@ impl Recorder {
     /// [`RecorderStartError`]; nothing runs after an error.
     pub fn start(cfg: RecorderConfig) -> Result<Self, RecorderStartError> {
         cfg.validate()?;
-        let model = RobotModel::from_urdf_str(&cfg.urdf)
-            .map_err(|e| RecorderStartError::Urdf(format!("{e:?}")))?;
+        let model = RobotModel::from_urdf_str(&cfg.urdf).map_err(RecorderStartError::Urdf)?;
         let mut file = McapFile::create(
             &cfg.path,
             McapFileOptions {
@@ -272,7 +277,7 @@ impl Recorder {
                 let subs = match Subscriptions::open(&cfg.prefix) {
                     Ok(s) => s,
                     Err(e) => {
-                        let _ = ready_tx.send(Err(RecorderStartError::Subscribe(e)));
+                        let _ = ready_tx.send(Err(e));
                         return Ok(file.finish()?);
                     }
                 };
@@ -290,7 +295,7 @@ impl Recorder {
                 session.run(&subs, &facts_rx, &thread_stop);
                 session.finish()
             })
-            .map_err(|e| RecorderStartError::Thread(e.to_string()))?;
+            .map_err(RecorderStartError::Thread)?;
         match ready_rx.recv() {
             Ok(Ok(())) => Ok(Self {
                 stop,
@@ -304,9 +309,7 @@ impl Recorder {
             }
             Err(_) => {
                 let _ = thread.join();
-                Err(RecorderStartError::Thread(
-                    "ended before it was ready".to_owned(),
-                ))
+                Err(RecorderStartError::ThreadEnded)
             }
         }
     }
@@ -381,10 +384,10 @@ struct Subscriptions {
 }
 
 impl Subscriptions {
-    fn open(prefix: &str) -> Result<Self, String> {
+    fn open(prefix: &str) -> Result<Self, RecorderStartError> {
         let (node, _cleanup) = services::create_node::<ipc::Service>("foresight-recorder")
-            .map_err(|e| e.to_string())?;
-        let open = |e: shm_schemas::ShmOpenError| e.to_string();
+            .map_err(RecorderStartError::Node)?;
+        let open = RecorderStartError::Subscribe;
         Ok(Self {
             states: services::open_subscriber::<RobotState, _>(&node, prefix).map_err(open)?,
             verdicts: services::open_subscriber::<TwinVerdict, _>(&node, prefix).map_err(open)?,

@@ -78,12 +78,21 @@ pub fn verdict_text(v: &TwinVerdict) -> String {
 /// Why the bridge could not start or stopped.
 #[derive(Debug, thiserror::Error)]
 pub enum RosBridgeError {
-    /// DDS participant, node, topic or publisher creation failed.
+    /// DDS participant, node, topic or publisher creation failed. (Text: the failures come
+    /// from a dozen ros2_client and rustdds error types, several without `Error`.)
     #[error("ROS 2 / DDS set-up failed: {0}")]
     Dds(String),
+    /// No `Reach` action server answered the client's goal in time.
+    #[error(
+        "ROS 2 / DDS set-up failed: no Reach action server answered within {0:?} (is `foresight --ros --goal-source action` running, on this DDS domain and network?)"
+    )]
+    NoReachServer(std::time::Duration),
+    /// The iceoryx2 node could not be created.
+    #[error("shared-memory set-up failed: {0}")]
+    ShmNode(#[source] services::NodeCreateError),
     /// An iceoryx2 port could not be opened.
     #[error("shared-memory set-up failed: {0}")]
-    Shm(String),
+    Shm(#[from] shm_schemas::ShmOpenError),
 }
 
 /// Bridge settings.
@@ -463,19 +472,19 @@ pub fn run(
         .map_err(dds)?;
     let publishers = make_publishers(&mut node, &cfg.urdf)?;
 
-    let shm = |e: &dyn std::fmt::Debug| RosBridgeError::Shm(format!("{e:?}"));
+    let shm = RosBridgeError::Shm;
     let (shm_node, _cleanup) =
-        services::create_node::<ipc::Service>("ros-bridge").map_err(|e| shm(&e))?;
+        services::create_node::<ipc::Service>("ros-bridge").map_err(RosBridgeError::ShmNode)?;
     let state_sub =
-        services::open_subscriber::<RobotState, _>(&shm_node, &cfg.prefix).map_err(|e| shm(&e))?;
-    let det_sub = services::open_subscriber::<DetectionFrame, _>(&shm_node, &cfg.prefix)
-        .map_err(|e| shm(&e))?;
+        services::open_subscriber::<RobotState, _>(&shm_node, &cfg.prefix).map_err(shm)?;
+    let det_sub =
+        services::open_subscriber::<DetectionFrame, _>(&shm_node, &cfg.prefix).map_err(shm)?;
     let verdict_sub =
-        services::open_subscriber::<TwinVerdict, _>(&shm_node, &cfg.prefix).map_err(|e| shm(&e))?;
-    let retrain_req_sub = services::open_subscriber::<RetrainRequest, _>(&shm_node, &cfg.prefix)
-        .map_err(|e| shm(&e))?;
-    let retrain_prog_sub = services::open_subscriber::<RetrainProgress, _>(&shm_node, &cfg.prefix)
-        .map_err(|e| shm(&e))?;
+        services::open_subscriber::<TwinVerdict, _>(&shm_node, &cfg.prefix).map_err(shm)?;
+    let retrain_req_sub =
+        services::open_subscriber::<RetrainRequest, _>(&shm_node, &cfg.prefix).map_err(shm)?;
+    let retrain_prog_sub =
+        services::open_subscriber::<RetrainProgress, _>(&shm_node, &cfg.prefix).map_err(shm)?;
     let mut reach = reach::ReachServer::new(&mut node, &shm_node, &cfg.prefix, cfg.reach)?;
     let mut retrain_requests: Vec<RetrainRequest> = Vec::new();
     let mut retrain_progress: Vec<RetrainProgress> = Vec::new();

@@ -383,7 +383,7 @@ impl ReachServer {
             )
             .map_err(dds)?;
         let goals = shm_schemas::services::open_publisher::<GoalRequest, _>(shm_node, prefix)
-            .map_err(|e| RosBridgeError::Shm(format!("{e:?}")))?;
+            .map_err(RosBridgeError::Shm)?;
         Ok(Self {
             server,
             goals,

@@ -106,10 +106,7 @@ pub fn reach(
     let started = Instant::now();
     let (goal_id, accepted) = loop {
         if started.elapsed() > opts.connect_timeout {
-            return Err(RosBridgeError::Dds(format!(
-                "no Reach action server answered within {:?} (is `foresight --ros --goal-source action` running, on this DDS domain and network?)",
-                opts.connect_timeout
-            )));
+            return Err(RosBridgeError::NoReachServer(opts.connect_timeout));
         }
         let (req_id, goal_id) = client.send_goal(goal).map_err(dds)?;
         let sent = Instant::now();

@@ -5,22 +5,21 @@
 //! cycle compute histograms (µs), missed deadlines, allocations counted on the cycle thread,
 //! swaps, lookahead times. A watchdog aborts with exit code 3 when the cycle stops beating.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use anyhow::Context;
 use clap::Args;
 use policy::{MlpPolicy, PolicyExpectation, PolicyLoader};
-use rt_core::config::RuntimeConfig;
 use rt_core::cycle::brake::Brake;
 use rt_core::cycle::link::InProcessArm;
 use rt_core::cycle::shield::{Shield, ShieldLimits};
 use rt_core::cycle::thread::spawn_cycle_thread;
 use rt_core::cycle::twin_model::TwinModel;
 use rt_core::cycle::{self, Cycle, CycleConfig, LoopShared};
+use rt_core::launch::load_assets;
 use rt_core::rt::clock::{Clock, MonotonicClock};
 use rt_core::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
 use rt_core::twin_thread::{TwinEvent, TwinWorker};
@@ -46,26 +45,6 @@ pub struct BenchLoopArgs {
     /// Folder with runtime.toml, xarm5.urdf and task.toml.
     #[arg(long, default_value = "assets")]
     assets: PathBuf,
-}
-
-/// Loads the runtime config (with `rate_hz` overridden), the robot model and the task.
-pub(crate) fn load_assets(
-    assets: &Path,
-    rate_hz: Option<f64>,
-    config: Option<&Path>,
-) -> anyhow::Result<(RuntimeConfig, RobotModel, TaskConfig)> {
-    let cfg_path = config.map_or_else(|| assets.join("runtime.toml"), Path::to_path_buf);
-    let mut cfg = RuntimeConfig::load(&cfg_path)
-        .with_context(|| format!("loading {}", cfg_path.display()))?;
-    if let Some(r) = rate_hz {
-        cfg.rate_hz = r;
-        cfg.validate().context("--rate")?;
-    }
-    let model = RobotModel::load(&assets.join("xarm5.urdf")).context("loading xarm5.urdf")?;
-    cfg.check_against_model(&model)
-        .with_context(|| format!("{} against xarm5.urdf", cfg_path.display()))?;
-    let task = TaskConfig::load(&assets.join("task.toml")).context("loading task.toml")?;
-    Ok((cfg, model, task))
 }
 
 /// The bench's synthetic scene: a goal in reach and one small box off the path.

@@ -7,6 +7,7 @@
 
 use std::process::ExitCode;
 
+use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand};
 use rt_core::rt::rt_setup::RtRequest;
 use shm_schemas::cli_bounds::int_within;
@@ -77,4 +78,29 @@ impl RtArgs {
             lock_memory: !self.no_mlock,
         }
     }
+}
+
+/// A flag's value parser: one of `names`, taken as the value at the same place in `values`.
+fn one_of<T: Copy + Send + Sync + 'static, const N: usize>(
+    names: [&'static str; N],
+    values: [T; N],
+) -> impl TypedValueParser<Value = T> {
+    PossibleValuesParser::new(names)
+        .map(move |s| values[names.iter().position(|n| *n == s).unwrap_or_default()])
+}
+
+/// Logs to stderr (`RUST_LOG`, default `info`), in colour on a terminal.
+fn init_tracing() {
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        // A log line that cannot be written (stderr on a full disk, a closed pipe) is lost,
+        // never reported with `eprintln!`, which panics there — and in the deploy build a
+        // panic of the log thread aborted rt-core without braking (issue 30 item 4).
+        .log_internal_errors(false)
+        .try_init();
 }

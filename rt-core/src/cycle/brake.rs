@@ -17,28 +17,9 @@
 use twin::{DOF, Joints};
 
 use crate::config::MotionLimits;
+// The state a brake works on lives beside `Plan` (whose samples are states).
+use crate::cycle::plan::MotionState;
 use crate::cycle::plan::Plan;
-
-/// Position, velocity and acceleration of the arm.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct MotionState {
-    /// Positions, rad.
-    pub q_rad: Joints,
-    /// Velocities, rad/s.
-    pub dq_rad_s: Joints,
-    /// Accelerations, rad/s².
-    pub ddq_rad_s2: Joints,
-}
-
-impl MotionState {
-    /// At rest at `q_rad`.
-    pub fn at_rest(q_rad: Joints) -> Self {
-        Self {
-            q_rad,
-            ..Self::default()
-        }
-    }
-}
 
 /// An allocation-free jerk-limited brake to zero velocity (see the module docs).
 #[derive(Debug, Clone, Copy)]

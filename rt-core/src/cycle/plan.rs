@@ -4,7 +4,26 @@
 
 use twin::Joints;
 
-use crate::cycle::brake::MotionState;
+/// Position, velocity and acceleration of the arm.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct MotionState {
+    /// Positions, rad.
+    pub q_rad: Joints,
+    /// Velocities, rad/s.
+    pub dq_rad_s: Joints,
+    /// Accelerations, rad/s².
+    pub ddq_rad_s2: Joints,
+}
+
+impl MotionState {
+    /// At rest at `q_rad`.
+    pub fn at_rest(q_rad: Joints) -> Self {
+        Self {
+            q_rad,
+            ..Self::default()
+        }
+    }
+}
 
 /// Where a replacement plan joins the running one: its first sample equals sample
 /// `index` of plan `plan_id`.

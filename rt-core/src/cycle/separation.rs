@@ -37,7 +37,7 @@
 use twin::{DOF, Joints};
 
 use crate::config::RuntimeConfig;
-use crate::cycle::brake::MotionState;
+use crate::cycle::plan::MotionState;
 use crate::cycle::plan::Plan;
 
 /// Share of the acceleration limit the scale's fall may add (as the path stop's share).

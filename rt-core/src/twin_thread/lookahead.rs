@@ -368,7 +368,7 @@ mod tests {
         use rand::SeedableRng;
 
         use crate::config::RuntimeConfig;
-        use crate::cycle::brake::MotionState;
+        use crate::cycle::plan::MotionState;
         use crate::cycle::plan::Plan;
         use crate::twin_thread::path_planner::TwinPathPlanner;
         use crate::twin_thread::serve::plan_shield;

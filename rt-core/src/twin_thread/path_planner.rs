@@ -202,7 +202,7 @@ mod tests {
     fn planner_fallback_latency() {
         use rand::SeedableRng;
 
-        use crate::cycle::brake::MotionState;
+        use crate::cycle::plan::MotionState;
         use crate::cycle::plan::Plan;
         use crate::twin_thread::serve::plan_shield;
         use crate::twin_thread::smoother::PlanSmoother;

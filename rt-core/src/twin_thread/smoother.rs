@@ -25,7 +25,7 @@
 use ruckig::{InputParameter, OutputParameter, Result as RuckigResult, Ruckig};
 
 use crate::config::MotionLimits;
-use crate::cycle::brake::MotionState;
+use crate::cycle::plan::MotionState;
 use crate::cycle::plan::Plan;
 use crate::cycle::shield::ShieldModel;
 use twin::{DOF, Joints};

@@ -18,8 +18,9 @@ use shm_schemas::{
 use twin::{DOF, Joints, ObstacleClass, RobotModel, Scene, TaskConfig, TwinEnv};
 
 use rt_core::config::RuntimeConfig;
-use rt_core::cycle::brake::{Brake, MotionState, PathStop};
+use rt_core::cycle::brake::{Brake, PathStop};
 use rt_core::cycle::link::{InProcessArm, LinkError, LinkState, RobotLink};
+use rt_core::cycle::plan::MotionState;
 use rt_core::cycle::twin_model::TwinModel;
 use rt_core::cycle::{self, Cycle, CycleConfig, CycleEvent, Mode, StopReason};
 use rt_core::rt::clock::{Clock, ManualClock};

@@ -11,7 +11,7 @@
 
 use rt_core::config::RuntimeConfig;
 use rt_core::cycle::Mode;
-use rt_core::cycle::brake::MotionState;
+use rt_core::cycle::plan::MotionState;
 use rt_core::cycle::plan::Plan;
 use rt_core::cycle::shield::{Shield, ShieldLimits};
 use rt_core::rt::clock::{Clock, ManualClock};

@@ -156,9 +156,6 @@ pub enum SimError {
     /// The world (model or scene) was rejected.
     #[error(transparent)]
     World(#[from] WorldError),
-    /// A scene file could not be read.
-    #[error("{0}")]
-    SceneFile(String),
     /// A thread could not be spawned.
     #[error("cannot spawn thread: {0}")]
     Spawn(std::io::Error),

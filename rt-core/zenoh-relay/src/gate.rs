@@ -164,10 +164,10 @@ pub enum HandshakeError {
     Closed,
     /// The socket failed otherwise.
     #[error("socket: {0}")]
-    Io(String),
+    Io(std::io::ErrorKind),
     /// The OS random source failed.
     #[error("random source: {0}")]
-    Random(String),
+    Random(#[source] getrandom::Error),
 }
 
 fn io_error(e: &std::io::Error) -> HandshakeError {
@@ -177,7 +177,7 @@ fn io_error(e: &std::io::Error) -> HandshakeError {
         | std::io::ErrorKind::ConnectionReset
         | std::io::ErrorKind::ConnectionAborted
         | std::io::ErrorKind::BrokenPipe => HandshakeError::Closed,
-        _ => HandshakeError::Io(e.to_string()),
+        kind => HandshakeError::Io(kind),
     }
 }
 
@@ -212,7 +212,7 @@ fn write_by(s: &mut TcpStream, bytes: &[u8], deadline: Instant) -> Result<(), Ha
 
 fn nonce() -> Result<[u8; NONCE_LEN], HandshakeError> {
     let mut n = [0u8; NONCE_LEN];
-    getrandom::fill(&mut n).map_err(|e| HandshakeError::Random(e.to_string()))?;
+    getrandom::fill(&mut n).map_err(HandshakeError::Random)?;
     Ok(n)
 }
 

@@ -114,7 +114,7 @@ pub enum KeyError {
     Exists(PathBuf),
     /// The operating system's random source failed.
     #[error("random source: {0}")]
-    Random(String),
+    Random(#[source] getrandom::Error),
     /// Reading or writing a file.
     #[error("{path}: {error}")]
     Io {
@@ -134,7 +134,7 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> KeyError + '_ {
 
 fn random_32() -> Result<[u8; 32], KeyError> {
     let mut b = [0u8; 32];
-    getrandom::fill(&mut b).map_err(|e| KeyError::Random(e.to_string()))?;
+    getrandom::fill(&mut b).map_err(KeyError::Random)?;
     Ok(b)
 }
 

@@ -76,7 +76,8 @@ pub enum LinkError {
         "--link-name {0:?}: use 1–64 characters of letters, digits, `-` and `_` (it becomes part of the Zenoh keys)"
     )]
     LinkName(String),
-    /// The keys are missing or unusable (the message names the file).
+    /// The keys are missing or unusable (the message names the file). (Text: this enum is
+    /// `Clone + Eq`, and [`KeyError`] holds an `io::Error`.)
     #[error("{0}")]
     Keys(String),
     /// A `--listen` address cannot be listened on (taken, not this host's, unresolvable).
@@ -87,7 +88,8 @@ pub enum LinkError {
         /// The system's words.
         error: String,
     },
-    /// Zenoh refused the configuration or could not open.
+    /// Zenoh refused the configuration or could not open. (Text: what was being set, with
+    /// Zenoh's boxed error.)
     #[error("zenoh: {0}")]
     Zenoh(String),
 }

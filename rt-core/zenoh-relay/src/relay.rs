@@ -43,10 +43,12 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::ipc;
 use shm_schemas::services::{self, loan_zeroed};
-use shm_schemas::{PolicyBlob, RetrainPhase, RetrainProgress, RetrainRequest, ShmMessage};
+use shm_schemas::{
+    PolicyBlob, RetrainPhase, RetrainProgress, RetrainRequest, ShmMessage, ShmOpenError,
+};
 use zenoh::Wait;
 
-use crate::keys::{LinkState, fingerprint};
+use crate::keys::{KeyError, LinkState, fingerprint};
 use crate::link::{LinkArgs, LinkError};
 use crate::reliable::{
     PolicyInbox, PolicyOutbox, ProgressAction, RequestAction, RequestInbox, RequestOutbox,
@@ -111,16 +113,15 @@ pub enum RelayError {
     /// The Zenoh side.
     #[error(transparent)]
     Link(#[from] LinkError),
-    /// The iceoryx2 side.
+    /// The iceoryx2 node could not be created.
     #[error("iceoryx2: {0}")]
-    Shm(String),
+    ShmNode(#[source] services::NodeCreateError),
+    /// An iceoryx2 port could not be opened.
+    #[error("iceoryx2: {0}")]
+    Shm(#[from] ShmOpenError),
     /// The replay state file cannot be read or written (the message names it).
     #[error("replay state: {0}")]
-    State(String),
-}
-
-fn shm(e: impl std::fmt::Display) -> RelayError {
-    RelayError::Shm(e.to_string())
+    State(#[source] KeyError),
 }
 
 /// The local services of one side.
@@ -318,28 +319,26 @@ pub fn run(cfg: RelayConfig, stop: &AtomicBool) -> Result<RelayStatus, RelayErro
     let keys = cfg.link.load_keys(cfg.side)?;
     let peer_fp = fingerprint(&keys.peer);
     let state_path = keys.state_path();
-    let state =
-        LinkState::load(&state_path, &peer_fp).map_err(|e| RelayError::State(e.to_string()))?;
+    let state = LinkState::load(&state_path, &peer_fp).map_err(RelayError::State)?;
     // Written at once: a relay that could not remember what it accepted does not start.
-    state
-        .write(&state_path)
-        .map_err(|e| RelayError::State(e.to_string()))?;
+    state.write(&state_path).map_err(RelayError::State)?;
     let node_name = match cfg.side {
         Side::Controller => "zenoh-relay-controller",
         Side::Learner => "zenoh-relay-learner",
     };
-    let (node, _) = services::create_node::<ipc::Service>(node_name).map_err(shm)?;
+    let (node, _) =
+        services::create_node::<ipc::Service>(node_name).map_err(RelayError::ShmNode)?;
     let p = cfg.prefix.as_str();
     let ports = match cfg.side {
         Side::Controller => Ports::Controller {
-            requests: services::open_subscriber(&node, p).map_err(shm)?,
-            progress: services::open_publisher(&node, p).map_err(shm)?,
-            policies: services::open_publisher(&node, p).map_err(shm)?,
+            requests: services::open_subscriber(&node, p).map_err(RelayError::Shm)?,
+            progress: services::open_publisher(&node, p).map_err(RelayError::Shm)?,
+            policies: services::open_publisher(&node, p).map_err(RelayError::Shm)?,
         },
         Side::Learner => Ports::Learner {
-            requests: services::open_publisher(&node, p).map_err(shm)?,
-            progress: services::open_subscriber(&node, p).map_err(shm)?,
-            policies: services::open_subscriber(&node, p).map_err(shm)?,
+            requests: services::open_publisher(&node, p).map_err(RelayError::Shm)?,
+            progress: services::open_subscriber(&node, p).map_err(RelayError::Shm)?,
+            policies: services::open_subscriber(&node, p).map_err(RelayError::Shm)?,
         },
     };
     let gate_refusals = Arc::new(Mutex::new(CallbackRefusals::default()));

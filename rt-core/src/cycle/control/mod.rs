@@ -67,8 +67,9 @@ pub use run_loop::{LoopShared, LoopStats, LoopSummary, run_loop};
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
-use crate::cycle::brake::{Brake, MotionState, PathStop};
+use crate::cycle::brake::{Brake, PathStop};
 use crate::cycle::link::{LinkError, RobotLink};
+use crate::cycle::plan::MotionState;
 use crate::cycle::plan::Plan;
 use crate::cycle::separation::SeparationMonitor;
 use crate::cycle::shield::{Shield, ShieldModel, ShieldViolation};

@@ -2,7 +2,7 @@
 //! latest-value hand-over) and to telemetry.
 
 use super::{Mode, StopReason};
-use crate::cycle::brake::MotionState;
+use crate::cycle::plan::MotionState;
 use twin::Joints;
 
 /// What the cycle reports after each call (to the twin and telemetry).

@@ -8,7 +8,7 @@
 use twin::Joints;
 
 use crate::config::RuntimeConfig;
-use crate::cycle::brake::MotionState;
+use crate::cycle::plan::MotionState;
 use crate::cycle::plan::{JoinPoint, Plan};
 use crate::cycle::shield::{Shield, ShieldModel, ShieldViolation};
 use crate::twin_thread::smoother::{PlanSmoother, SmoothError};

@@ -49,7 +49,7 @@ use std::sync::Arc;
 use shm_schemas::{Executor, PhaseCode};
 
 use crate::config::RuntimeConfig;
-use crate::cycle::brake::MotionState;
+use crate::cycle::plan::MotionState;
 use crate::cycle::plan::{JoinPoint, Plan};
 use crate::cycle::shield::{Shield, ShieldModel};
 use crate::cycle::{CycleControl, CycleReport, Intruders, Mode, TwinIo};

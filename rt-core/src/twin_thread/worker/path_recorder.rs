@@ -4,7 +4,7 @@
 
 use twin::{Joints, max_joint_gap_rad};
 
-use crate::cycle::brake::MotionState;
+use crate::cycle::plan::MotionState;
 use crate::cycle::plan::{JoinPoint, Plan};
 
 /// A rest pose this close (every joint) to a sample of the recorded path lies on it, rad.
