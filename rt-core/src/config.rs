@@ -279,6 +279,11 @@ pub struct RuntimeConfig {
     /// ([`crate::twin_thread::plan_guard`]); off: stop at once.
     #[serde(default = "default_join_before_stopping")]
     pub join_before_stopping: bool,
+    /// After a pause (a stop for an obstacle), plan the episode on from where the arm
+    /// stopped, by the policies or the planner fallback, before going home along the
+    /// executed path; off: always home first, then the episode again from its start.
+    #[serde(default = "default_continue_after_pause")]
+    pub continue_after_pause: bool,
     /// After an episode reaches its goal, the arm rests `dwell_at_goal_s` and then returns
     /// to where the episode began along its own executed path, re-checked by the shield in
     /// the scene then in force. Every episode thus starts from the task's start posture,
@@ -565,6 +570,9 @@ fn default_join_ahead_s() -> f64 {
     0.1
 }
 fn default_join_before_stopping() -> bool {
+    true
+}
+fn default_continue_after_pause() -> bool {
     true
 }
 

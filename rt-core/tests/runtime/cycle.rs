@@ -241,9 +241,65 @@ fn stale_detections_stop_the_arm_and_it_resumes_only_with_a_fresh_plan() {
     assert!(Rig::near(&rig.arm_q(), &TARGET_A, 0.03));
 }
 
+/// Issue 33 item 5, continuation: after a pause the arm goes on to its goal from where it
+/// stopped, by a plan checked from there (before: always home along its path first, then the
+/// episode again from the start), and home after the goal as ever.
+#[test]
+fn after_a_pause_the_arm_goes_on_to_its_goal_from_where_it_stopped() {
+    let mut rig = Rig::with_config(rt_core::config::RuntimeConfig::xarm5_default());
+    rig.policy(1, TARGET_A);
+    rig.run(100);
+    assert_eq!(rig.mode(), Mode::Following);
+    rig.detections_on = false;
+    rig.run(200);
+    assert_eq!(rig.mode(), Mode::Stopped);
+    let events_at_stop = rig.events.len();
+    let reports_at_stop = rig.reports.len();
+    rig.detections_on = true;
+    rig.run(4000);
+    let after_stop: Vec<_> = rig.events[events_at_stop..]
+        .iter()
+        .filter(|e| {
+            matches!(
+                e,
+                TwinEvent::ReturningHome { .. } | TwinEvent::PlanApproved { .. }
+            )
+        })
+        .collect();
+    assert!(
+        matches!(
+            after_stop.first(),
+            Some(TwinEvent::PlanApproved { joins: false, .. })
+        ),
+        "{after_stop:?}"
+    );
+    let path: Vec<_> = rig.reports[reports_at_stop..]
+        .iter()
+        .map(|r| r.measured_q_rad)
+        .collect();
+    let at_goal = path
+        .iter()
+        .position(|q| Rig::near(q, &TARGET_A, 0.03))
+        .expect("the arm reached its goal");
+    assert!(
+        !path[..at_goal].iter().any(|q| Rig::near(q, &START, 1e-3)),
+        "the arm went home before the goal"
+    );
+    // Then home after the goal, as ever.
+    assert!(
+        after_stop
+            .iter()
+            .any(|e| matches!(e, TwinEvent::ReturningHome { .. })),
+        "{after_stop:?}"
+    );
+}
+
+/// With `continue_after_pause = false`: home along the path first, as before.
 #[test]
 fn after_a_stop_on_the_way_the_arm_still_finds_its_way_home() {
-    let mut rig = Rig::with_config(rt_core::config::RuntimeConfig::xarm5_default());
+    let mut cfg = rt_core::config::RuntimeConfig::xarm5_default();
+    cfg.continue_after_pause = false;
+    let mut rig = Rig::with_config(cfg);
     rig.policy(1, TARGET_A);
     rig.run(100);
     assert_eq!(rig.mode(), Mode::Following);

@@ -137,6 +137,9 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     /// This planning joins a plan with a stop scheduled on a scene still changing: a
     /// failure asks for no retraining (the scene is a moment of a moving world).
     no_retrain_this_planning: bool,
+    /// After a pause, plan from where the arm stopped before going home
+    /// (`continue_after_pause`).
+    continue_after_pause: bool,
 }
 
 impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
@@ -188,6 +191,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             newest_sent_id: 0,
             next_request_id: 1,
             no_retrain_this_planning: false,
+            continue_after_pause: cfg.continue_after_pause,
         }
     }
 
@@ -561,6 +565,11 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             if self.planning.backing_off(r.t_ns) {
                 return true;
             }
+            // Continue from where the arm stopped when a plan from there passes; only
+            // otherwise back along the executed path.
+            if self.continue_from_rest(r, events) {
+                return true;
+            }
             // Cut the path where the brake left the arm; off the path, plan as usual.
             if !self.path.cut_at(&r.cmd.q_rad) || self.path.len() < 2 {
                 return false;
@@ -607,6 +616,34 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             events.push(TwinEvent::ReturningHome { plan_id, samples });
         }
         true
+    }
+
+    /// After a pause (issue 33 item 5, continuation): an episode plan from where the arm
+    /// stopped — the library's candidates as ever (a policy's lookahead prepends the
+    /// approach to the task's start posture), then the planner fallback straight to the
+    /// goal — checked like any plan, on a settled scene with a goal. True when one was sent;
+    /// false leaves the way home along the executed path to the caller. Asks for no
+    /// retraining: the policy is judged from the start posture, where the way home leads.
+    fn continue_from_rest(
+        &mut self,
+        r: CycleReport,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) -> bool {
+        if !self.continue_after_pause || !self.gate {
+            return false;
+        }
+        let Ok(scene) = self.scene.ready() else {
+            return false;
+        };
+        let sent_before = self.newest_sent_id;
+        self.no_retrain_this_planning = true;
+        self.plan_from(MotionState::at_rest(r.cmd.q_rad), None, scene, events);
+        self.no_retrain_this_planning = false;
+        if self.newest_sent_id > sent_before {
+            self.planning.taken();
+            return true;
+        }
+        false
     }
 
     /// Hands a checked plan to the cycle, registered with the plan guard first (so a frame
