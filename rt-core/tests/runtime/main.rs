@@ -35,6 +35,7 @@ mod policy_library;
 mod safety;
 mod sampling;
 mod settled_scene;
+mod stale_state;
 mod shield_twin;
 mod starved_controller;
 mod twin_cli;

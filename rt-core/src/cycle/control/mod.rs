@@ -535,15 +535,19 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                     inputs_ok = false;
                     self.on_model_mismatch(now_ns, gap_m);
                 }
+                // A reading older than the state-age limit shows the joints from before the
+                // commands sent since: it stops the arm as stale (below, a pause), and is
+                // never taken for an arm that stopped following them (a latched fault).
+                let stale = now_ns.saturating_sub(st.stamp_ns) > self.cfg.max_robot_state_age_ns;
                 if st.error_code == 0 && self.started && self.link.commands_reach_arm() {
                     if !self.watch_controller_state(now_ns, st.state, st.q_rad) {
                         inputs_ok = false;
                     }
-                    if !self.watch_tracking(now_ns, &st.q_rad) {
+                    if !stale && !self.watch_tracking(now_ns, &st.q_rad) {
                         inputs_ok = false;
                     }
                 }
-                if now_ns.saturating_sub(st.stamp_ns) > self.cfg.max_robot_state_age_ns {
+                if stale {
                     inputs_ok = false;
                     self.begin_stop(now_ns, StopReason::StaleRobotState, StopMotion::AlongPlan);
                 }
