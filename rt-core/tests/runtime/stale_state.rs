@@ -98,7 +98,6 @@ fn late_readings_pause_the_arm_as_stale_and_never_latch_a_tracking_fault() {
     // Fresh readings again: no operator needed, the arm goes on to its goal.
     cycle.link_mut().stalled = false;
     step(&mut cycle, &mut twin, 2500);
-    drop(step);
     assert!(
         !cycle_events
             .iter()
