@@ -241,64 +241,20 @@ fn stale_detections_stop_the_arm_and_it_resumes_only_with_a_fresh_plan() {
     assert!(Rig::near(&rig.arm_q(), &TARGET_A, 0.03));
 }
 
-/// Issue 33 item 5, continuation: after a pause the arm goes on to its goal from where it
-/// stopped, by a plan checked from there (before: always home along its path first, then the
-/// episode again from the start), and home after the goal as ever.
-#[test]
-fn after_a_pause_the_arm_goes_on_to_its_goal_from_where_it_stopped() {
-    let mut rig = Rig::with_config(rt_core::config::RuntimeConfig::xarm5_default());
-    rig.policy(1, TARGET_A);
-    rig.run(100);
-    assert_eq!(rig.mode(), Mode::Following);
-    rig.detections_on = false;
-    rig.run(200);
-    assert_eq!(rig.mode(), Mode::Stopped);
-    let events_at_stop = rig.events.len();
-    let reports_at_stop = rig.reports.len();
-    rig.detections_on = true;
-    rig.run(4000);
-    let after_stop: Vec<_> = rig.events[events_at_stop..]
-        .iter()
-        .filter(|e| {
-            matches!(
-                e,
-                TwinEvent::ReturningHome { .. } | TwinEvent::PlanApproved { .. }
-            )
-        })
-        .collect();
-    assert!(
-        matches!(
-            after_stop.first(),
-            Some(TwinEvent::PlanApproved { joins: false, .. })
-        ),
-        "{after_stop:?}"
-    );
-    let path: Vec<_> = rig.reports[reports_at_stop..]
-        .iter()
-        .map(|r| r.measured_q_rad)
-        .collect();
-    let at_goal = path
-        .iter()
-        .position(|q| Rig::near(q, &TARGET_A, 0.03))
-        .expect("the arm reached its goal");
-    assert!(
-        !path[..at_goal].iter().any(|q| Rig::near(q, &START, 1e-3)),
-        "the arm went home before the goal"
-    );
-    // Then home after the goal, as ever.
-    assert!(
-        after_stop
-            .iter()
-            .any(|e| matches!(e, TwinEvent::ReturningHome { .. })),
-        "{after_stop:?}"
-    );
+/// What followed a pause on the way to TARGET_A (policy 1; stale detections stop the arm,
+/// then 4 000 cycles with fresh ones): the rig, where the brake left the arm, the plans
+/// approved and ways home after the stop (in order, as `(is a way home, joins)`), and the
+/// measured path after it.
+struct AfterPause {
+    rig: Rig,
+    stopped_at: twin::Joints,
+    plans: Vec<(bool, bool)>,
+    path: Vec<twin::Joints>,
 }
 
-/// With `continue_after_pause = false`: home along the path first, as before.
-#[test]
-fn after_a_stop_on_the_way_the_arm_still_finds_its_way_home() {
+fn after_a_pause(continue_after_pause: bool) -> AfterPause {
     let mut cfg = rt_core::config::RuntimeConfig::xarm5_default();
-    cfg.continue_after_pause = false;
+    cfg.continue_after_pause = continue_after_pause;
     let mut rig = Rig::with_config(cfg);
     rig.policy(1, TARGET_A);
     rig.run(100);
@@ -310,39 +266,72 @@ fn after_a_stop_on_the_way_the_arm_still_finds_its_way_home() {
     let (events_at_stop, reports_at_stop) = (rig.events.len(), rig.reports.len());
     rig.detections_on = true;
     rig.run(4000);
-    assert!(rig.approvals().len() >= 2, "{:?}", rig.approvals());
-    // First back along the path from where the brake left the arm (no new episode plan
-    // from the stop pose), then the episode again from home, then home after the goal.
-    let after_stop: Vec<_> = rig.events[events_at_stop..]
+    let plans = rig.events[events_at_stop..]
         .iter()
-        .filter(|e| {
-            matches!(
-                e,
-                TwinEvent::ReturningHome { .. } | TwinEvent::PlanApproved { .. }
-            )
+        .filter_map(|e| match e {
+            TwinEvent::ReturningHome { .. } => Some((true, false)),
+            TwinEvent::PlanApproved { joins, .. } => Some((false, *joins)),
+            _ => None,
         })
         .collect();
-    assert!(
-        matches!(after_stop.first(), Some(TwinEvent::ReturningHome { .. })),
-        "{after_stop:?}"
-    );
-    let path: Vec<_> = rig.reports[reports_at_stop..]
+    let path = rig.reports[reports_at_stop..]
         .iter()
         .map(|r| r.measured_q_rad)
         .collect();
-    let home_again = path
+    AfterPause {
+        rig,
+        stopped_at,
+        plans,
+        path,
+    }
+}
+
+/// Issue 33 item 5, continuation: after a pause the arm goes on to its goal from where it
+/// stopped, by a plan checked from there (before: always home along its path first, then the
+/// episode again from the start), and home after the goal as ever.
+#[test]
+fn after_a_pause_the_arm_goes_on_to_its_goal_from_where_it_stopped() {
+    let a = after_a_pause(true);
+    assert_eq!(a.plans.first(), Some(&(false, false)), "{:?}", a.plans);
+    let at_goal = a
+        .path
+        .iter()
+        .position(|q| Rig::near(q, &TARGET_A, 0.03))
+        .expect("the arm reached its goal");
+    assert!(
+        !a.path[..at_goal].iter().any(|q| Rig::near(q, &START, 1e-3)),
+        "the arm went home before the goal"
+    );
+    // Then home after the goal, as ever.
+    assert!(a.plans.contains(&(true, false)), "{:?}", a.plans);
+}
+
+/// With `continue_after_pause = false`: home along the path first, as before.
+#[test]
+fn after_a_stop_on_the_way_the_arm_still_finds_its_way_home() {
+    let a = after_a_pause(false);
+    assert!(a.rig.approvals().len() >= 2, "{:?}", a.rig.approvals());
+    // First back along the path from where the brake left the arm (no new episode plan
+    // from the stop pose), then the episode again from home, then home after the goal.
+    assert_eq!(a.plans.first(), Some(&(true, false)), "{:?}", a.plans);
+    let home_again = a
+        .path
         .iter()
         .position(|q| Rig::near(q, &START, 1e-3))
         .expect("the arm went home first");
     assert!(
-        path[home_again..]
+        a.path[home_again..]
             .iter()
             .any(|q| Rig::near(q, &TARGET_A, 0.03)),
         "then it reached the goal from home"
     );
     // Home is where the excursion began, not where the brake left the arm.
-    assert!(!Rig::near(&stopped_at, &START, 0.01));
-    assert!(Rig::near(&rig.arm_q(), &START, 1e-6), "{:?}", rig.arm_q());
+    assert!(!Rig::near(&a.stopped_at, &START, 0.01));
+    assert!(
+        Rig::near(&a.rig.arm_q(), &START, 1e-6),
+        "{:?}",
+        a.rig.arm_q()
+    );
 }
 
 /// A rig whose link was cut 150 cycles into plan 1 (while following) and then run 300 more

@@ -28,6 +28,18 @@ fn rig(join_before_stopping: bool) -> Rig {
     Rig::with_config(cfg)
 }
 
+/// The arm on its way to TARGET_A (policy 1, 20 cycles in), and the box that lands late on
+/// its path: the rig and the scene with the box (not yet seen by the twin).
+fn on_the_way_with_a_box_ahead(join_before_stopping: bool) -> (Rig, ToyScene) {
+    let mut rig = rig(join_before_stopping);
+    rig.policy(1, TARGET_A);
+    rig.run(20);
+    assert_eq!(rig.mode(), Mode::Following);
+    let blocked = with_box_on_the_path(rig.scene, 0.85);
+    rig.scene = blocked;
+    (rig, blocked)
+}
+
 /// (plan, first unsafe sample, sample the stop is due from) of each stop scheduled.
 fn scheduled(events: &[TwinEvent<ToyScene>]) -> Vec<(u64, usize, usize)> {
     events
@@ -55,12 +67,7 @@ fn revoked(events: &[TwinEvent<ToyScene>]) -> usize {
 /// not (the world still changing: no plan but a joining one is made on them). Returns the
 /// rig after the run.
 fn box_late_on_the_path_and_a_way_around(join_before_stopping: bool, settled: bool) -> Rig {
-    let mut rig = rig(join_before_stopping);
-    rig.policy(1, TARGET_A);
-    rig.run(20);
-    assert_eq!(rig.mode(), Mode::Following);
-    let blocked = with_box_on_the_path(rig.scene, 0.85);
-    rig.scene = blocked;
+    let (mut rig, blocked) = on_the_way_with_a_box_ahead(join_before_stopping);
     rig.settled = settled;
     let now = rig.clock.now_ns();
     rig.twin
@@ -109,12 +116,7 @@ fn joined_without_stopping(settled: bool) {
 
 #[test]
 fn without_a_joining_plan_in_time_the_arm_stops_where_scheduled_short_of_the_danger() {
-    let mut rig = rig(true);
-    rig.policy(1, TARGET_A);
-    rig.run(20);
-    assert_eq!(rig.mode(), Mode::Following);
-    let blocked = with_box_on_the_path(rig.scene, 0.85);
-    rig.scene = blocked;
+    let (mut rig, blocked) = on_the_way_with_a_box_ahead(true);
     let now = rig.clock.now_ns();
     rig.twin
         .on_detection(blocked, now, true, true, &mut rig.events);
@@ -174,12 +176,7 @@ fn without_a_joining_plan_in_time_the_arm_stops_where_scheduled_short_of_the_dan
 /// plan is revoked at once and the arm pauses.
 #[test]
 fn a_moving_box_far_ahead_stops_the_arm_at_once() {
-    let mut rig = rig(true);
-    rig.policy(1, TARGET_A);
-    rig.run(20);
-    assert_eq!(rig.mode(), Mode::Following);
-    let blocked = with_box_on_the_path(rig.scene, 0.85);
-    rig.scene = blocked;
+    let (mut rig, blocked) = on_the_way_with_a_box_ahead(true);
     let now = rig.clock.now_ns();
     rig.twin.on_moving_detection(
         blocked,
