@@ -50,3 +50,15 @@ pub mod retrain;
 pub mod run;
 pub mod service;
 pub mod twin_env;
+
+/// Logs of the learner's binaries (`learner`, `unseen-worlds`) to standard error, at the level
+/// `RUST_LOG` names (`info` without it).
+pub fn init_tracing() {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+}

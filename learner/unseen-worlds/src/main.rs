@@ -300,13 +300,7 @@ struct Bench<'a> {
 }
 
 fn main() -> Result<()> {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        .init();
+    learner::init_tracing();
     run(WorldsArgs::parse(), tch::Device::cuda_if_available())
 }
 
