@@ -215,6 +215,8 @@ fn table() -> Vec<Cmd> {
                 ("--bc-lr", F),
                 ("--noise-std", F),
                 ("--margin-m", F),
+                ("--hinge-margin-m", F),
+                ("--hinge-weight", F),
                 ("--eval-episodes", I),
                 ("--seed", I),
                 ("--threads", I),

@@ -49,6 +49,14 @@ pub struct DistilArgs {
     /// Margin the teachers keep from every box (m): they plan with the boxes grown by it.
     #[arg(long, default_value_t = 0.02, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 0.1), allow_negative_numbers = true)]
     margin_m: f64,
+    /// Margin of the cloning's collision hinge (m): the clearance predicted after the
+    /// policy's mean action (nearest box or table, from the observation) is kept above it.
+    #[arg(long, default_value_t = learner::distil::DEFAULT_HINGE_MARGIN_M, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 0.2), allow_negative_numbers = true)]
+    hinge_margin_m: f64,
+    /// Weight of the cloning's collision hinge (the shortfall below the margin in steps,
+    /// squared, beside the imitation loss); 0: off.
+    #[arg(long, default_value_t = learner::distil::DEFAULT_HINGE_WEIGHT, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 100.0), allow_negative_numbers = true)]
+    hinge_weight: f64,
     /// Evaluation scenes of the pre-training distribution (fixed set).
     #[arg(long, default_value_t = 200, value_parser = shm_schemas::cli_bounds::int_within(1usize, 1_000_000), allow_negative_numbers = true)]
     eval_episodes: usize,
@@ -82,6 +90,8 @@ pub fn run(args: DistilArgs, device: tch::Device) -> Result<()> {
                 lr: args.bc_lr,
                 ..DistilConfig::default().bc
             },
+            hinge_weight: args.hinge_weight,
+            hinge_margin_m: args.hinge_margin_m,
             ..DistilConfig::default()
         },
         margin_m: args.margin_m,

@@ -15,7 +15,10 @@
 //! episodes), with Gaussian action noise, and labels **every visited state** with the
 //! teacher's action there; the pairs are added to the data set and the actor is cloned on
 //! all of it ([`crate::ppo::bc::behaviour_clone`]). The policy thus learns the corrections
-//! from the states its own mistakes lead to, not only the teacher's states.
+//! from the states its own mistakes lead to, not only the teacher's states. With a positive
+//! [`DistilConfig::hinge_weight`] the cloning also penalises mean actions whose predicted
+//! clearance to the nearest box (or the table) after the step falls below
+//! [`DistilConfig::hinge_margin_m`] ([`ClearanceHinge`], issue 31).
 //!
 //! Measured on generators that share no code with this one (the benchmark's, under
 //! `tests/`: `unseen-worlds --generator all`); figures in the README ("Independent world
@@ -43,7 +46,7 @@ use crate::demonstrations::{PathExpert, demonstrate};
 use crate::env::SceneSampler;
 use crate::net::ActorCritic;
 use crate::normalize::ObsNormalizer;
-use crate::ppo::bc::{BcConfig, BcReport, BcSet, behaviour_clone};
+use crate::ppo::bc::{BcConfig, BcReport, BcSet, ClearanceHinge, behaviour_clone};
 use crate::random::randn;
 use crate::twin_env::{CurriculumSampler, TwinTask};
 
@@ -387,6 +390,11 @@ pub struct DistilConfig {
     pub noise_std: f32,
     /// The cloning after each iteration (on all pairs so far).
     pub bc: BcConfig,
+    /// Weight of the cloning's collision hinge ([`ClearanceHinge`]: the clearance predicted
+    /// after the actor's mean action kept above [`Self::hinge_margin_m`]; 0: off).
+    pub hinge_weight: f64,
+    /// Margin of the collision hinge (m).
+    pub hinge_margin_m: f64,
 }
 
 impl Default for DistilConfig {
@@ -402,7 +410,39 @@ impl Default for DistilConfig {
                 lr: 1e-3,
                 demo_share: 1.0,
                 max_grad_norm: 1.0,
+                hinge: None,
             },
+            hinge_weight: DEFAULT_HINGE_WEIGHT,
+            hinge_margin_m: DEFAULT_HINGE_MARGIN_M,
+        }
+    }
+}
+
+/// Default weight of the cloning's collision hinge ([`DistilConfig::hinge_weight`]).
+pub const DEFAULT_HINGE_WEIGHT: f64 = 0.0;
+
+/// Default margin of the cloning's collision hinge ([`DistilConfig::hinge_margin_m`]).
+pub const DEFAULT_HINGE_MARGIN_M: f64 = 0.03;
+
+/// Index of the closest robot point in the twin's observation (see the `twin` crate docs).
+const OBS_ROBOT_POINT: usize = 11;
+
+/// Index of the closest point of the nearest box (or the table) in the twin's observation.
+const OBS_OBSTACLE_POINT: usize = 14;
+
+impl DistilConfig {
+    /// The cloning settings with the collision hinge for `env` (its action scale), when the
+    /// hinge weight is positive.
+    pub fn bc_for(&self, env: &TwinEnv) -> BcConfig {
+        BcConfig {
+            hinge: (self.hinge_weight > 0.0).then(|| ClearanceHinge {
+                weight: self.hinge_weight,
+                margin_m: self.hinge_margin_m,
+                action_scale_m: env.config().action.scale_m,
+                robot_point_at: OBS_ROBOT_POINT,
+                obstacle_point_at: OBS_OBSTACLE_POINT,
+            }),
+            ..self.bc
         }
     }
 }
@@ -539,12 +579,13 @@ pub fn distil(
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut data = BcSet::default();
     let mut iters = Vec::with_capacity(cfg.iterations);
+    let bc_cfg = cfg.bc_for(env);
     for it in 0..cfg.iterations {
         let beta = cfg.beta_at(it);
         let (pairs, episodes) =
             dagger_pairs(net, norm, env, lessons, beta, cfg.noise_std, &mut rng);
         data.extend(&pairs.obs, &pairs.actions);
-        let bc = behaviour_clone(net, norm, &data, &BcSet::default(), &cfg.bc, &mut rng);
+        let bc = behaviour_clone(net, norm, &data, &BcSet::default(), &bc_cfg, &mut rng);
         let rec = DistilIter {
             iteration: it,
             beta,
@@ -559,6 +600,7 @@ pub fn distil(
             contact = episodes.contact,
             pairs = rec.total_pairs,
             loss = bc.demo_loss_after,
+            hinge = bc.hinge_loss_after,
             "distillation iteration"
         );
         iters.push(rec);
