@@ -13,7 +13,7 @@
 //!   is answered with the final progress when there is one (so a lost answer is recovered)
 //!   and otherwise dropped; an older request of the same controller is dropped.
 //! - [`PolicyOutbox`] (learner side): the latest policy is re-sent until the controller
-//!   acknowledges it (a newer policy replaces it).
+//!   acknowledges it (a newer policy replaces it), after 1, 2, 4, then every 8 s of silence.
 //! - [`PolicyInbox`] (controller side): a policy is handed to rt-core once; a repeat is only
 //!   acknowledged again (one that could not be published is not acknowledged, so it comes again).
 //! - [`SequenceGuard`] (both sides): a message is accepted only with a sequence above the
@@ -29,6 +29,13 @@ use crate::wire::{Channel, RequestRef};
 
 /// Silence after which an unanswered message is sent again.
 pub const RESEND_INTERVAL: Duration = Duration::from_secs(1);
+
+/// The longest silence between two re-sends of a policy: its interval doubles from
+/// [`RESEND_INTERVAL`] up to this. A policy is large (≈ 330 kB) and a cut link delivers what
+/// was sent into it in a burst when it returns: at one copy a second, a 5 s cut overflowed
+/// the controller side's policy queue (`relay::queue_len`, 4) and the surplus copy was
+/// counted as a flood.
+pub const MAX_POLICY_RESEND_INTERVAL: Duration = Duration::from_secs(8);
 
 /// Whether a progress message is a final answer to its request.
 pub fn is_final(p: &RetrainProgress) -> bool {
@@ -216,7 +223,8 @@ impl RequestInbox {
 /// The learner side's policy awaiting acknowledgement, by id and checksum.
 #[derive(Debug, Clone, Default)]
 pub struct PolicyOutbox {
-    pending: Option<(u64, u64, Instant)>,
+    /// Policy id, checksum, last sent, silence before the next re-send.
+    pending: Option<(u64, u64, Instant, Duration)>,
     /// Policies re-sent.
     pub resends: u64,
 }
@@ -224,14 +232,14 @@ pub struct PolicyOutbox {
 impl PolicyOutbox {
     /// A new local policy (sent now); replaces any unacknowledged one.
     pub fn submit(&mut self, policy_id: u64, checksum: u64, now: Instant) {
-        self.pending = Some((policy_id, checksum, now));
+        self.pending = Some((policy_id, checksum, now, RESEND_INTERVAL));
     }
 
     /// An acknowledgement from the controller; true when it was for the pending policy.
     pub fn on_ack(&mut self, policy_id: u64, checksum: u64) -> bool {
         if self
             .pending
-            .is_some_and(|(id, sum, _)| id == policy_id && sum == checksum)
+            .is_some_and(|(id, sum, _, _)| id == policy_id && sum == checksum)
         {
             self.pending = None;
             true
@@ -240,11 +248,13 @@ impl PolicyOutbox {
         }
     }
 
-    /// Whether the pending policy is due for a re-send (and marks it sent).
+    /// Whether the pending policy is due for a re-send (and marks it sent; the next one
+    /// waits twice as long, up to [`MAX_POLICY_RESEND_INTERVAL`]).
     pub fn due(&mut self, now: Instant) -> bool {
         match self.pending.as_mut() {
-            Some((_, _, sent)) if now.duration_since(*sent) >= RESEND_INTERVAL => {
+            Some((_, _, sent, interval)) if now.duration_since(*sent) >= *interval => {
                 *sent = now;
+                *interval = (*interval * 2).min(MAX_POLICY_RESEND_INTERVAL);
                 self.resends += 1;
                 true
             }
@@ -490,6 +500,19 @@ mod tests {
         out.submit(10, 0xaa, t0);
         assert!(!out.due(t0 + Duration::from_millis(999)));
         assert!(out.due(t0 + RESEND_INTERVAL));
+        // Then after 2, 4 and every 8 s of silence: a 5 s cut gathers the first copy and
+        // two re-sends, within the controller side's queue of 4 (before: one a second).
+        assert!(!out.due(t0 + Duration::from_millis(2999)));
+        assert!(out.due(t0 + Duration::from_secs(3)));
+        assert!(!out.due(t0 + Duration::from_millis(6999)));
+        assert!(out.due(t0 + Duration::from_secs(7)));
+        assert!(!out.due(t0 + Duration::from_millis(14_999)));
+        assert!(out.due(t0 + Duration::from_secs(15)));
+        assert!(out.due(t0 + Duration::from_secs(23)), "at most 8 s apart");
+        assert_eq!(out.resends, 5);
+        // A new policy starts again at 1 s.
+        out.submit(10, 0xaa, t0 + Duration::from_secs(30));
+        assert!(out.due(t0 + Duration::from_secs(31)));
         assert!(
             !out.on_ack(10, 0xbb),
             "an ack of another blob with the same id"
