@@ -87,6 +87,16 @@ enum Tried {
     },
 }
 
+/// Whether a planning that finds no passing policy asks for retraining: not for a joining
+/// plan made on a scene still changing (a moment of a moving world), nor for the
+/// continuation from where a pause left the arm (the policy is judged from the start
+/// posture, where the way home leads).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum RetrainOnFailure {
+    Yes,
+    No,
+}
+
 /// The settings of the way home.
 #[derive(Debug, Clone, Copy)]
 struct HomeSettings {
@@ -134,9 +144,6 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     /// The newest plan id handed to the cycle.
     newest_sent_id: u64,
     next_request_id: u64,
-    /// This planning joins a plan with a stop scheduled on a scene still changing: a
-    /// failure asks for no retraining (the scene is a moment of a moving world).
-    no_retrain_this_planning: bool,
     /// After a pause, plan from where the arm stopped before going home
     /// (`continue_after_pause`).
     continue_after_pause: bool,
@@ -190,7 +197,6 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             live: Vec::new(),
             newest_sent_id: 0,
             next_request_id: 1,
-            no_retrain_this_planning: false,
             continue_after_pause: cfg.continue_after_pause,
         }
     }
@@ -488,12 +494,12 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         // still changing (its moving boxes are their predicted occupancy), without asking
         // for retraining on it; every later frame re-verifies it like any plan.
         let stop_due = self.stop_due_on_running();
-        let ready = match self.scene.ready() {
-            Err(Hold::Unsettled) if stop_due => {
-                self.no_retrain_this_planning = true;
-                self.scene.scene().ok_or(Hold::NoScene)
-            }
-            other => other,
+        let (ready, retrain) = match self.scene.ready() {
+            Err(Hold::Unsettled) if stop_due => (
+                self.scene.scene().ok_or(Hold::NoScene),
+                RetrainOnFailure::No,
+            ),
+            other => (other, RetrainOnFailure::Yes),
         };
         let scene = match ready {
             Ok(scene) => scene,
@@ -524,8 +530,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             },
         };
         self.planning.taken();
-        self.plan_from(start, join, scene, events);
-        self.no_retrain_this_planning = false;
+        self.plan_from(start, join, scene, retrain, events);
     }
 
     /// Whether the way home is in hand this iteration (planned now, or waiting out the
@@ -636,9 +641,13 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             return false;
         };
         let sent_before = self.newest_sent_id;
-        self.no_retrain_this_planning = true;
-        self.plan_from(MotionState::at_rest(r.cmd.q_rad), None, scene, events);
-        self.no_retrain_this_planning = false;
+        self.plan_from(
+            MotionState::at_rest(r.cmd.q_rad),
+            None,
+            scene,
+            RetrainOnFailure::No,
+            events,
+        );
         if self.newest_sent_id > sent_before {
             self.planning.taken();
             return true;
@@ -677,6 +686,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         start: MotionState,
         join: Option<JoinPoint>,
         scene: L::Scene,
+        retrain: RetrainOnFailure,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) {
         let mut first_failure: Option<(Verdict, bool)> = None;
@@ -712,7 +722,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         if self.gate && self.library.planner_mut().is_some() {
             // No policy passes: retraining is asked for as always, and the planner's path,
             // when it passes the same checks, moves the arm meanwhile.
-            self.ask_retrain(verdict, scene, events);
+            if retrain == RetrainOnFailure::Yes {
+                self.ask_retrain(verdict, scene, events);
+            }
             if self.try_planner(&start, join, scene, events) {
                 return;
             }
@@ -725,7 +737,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         {
             self.revoke_under_way(events);
         }
-        if self.gate {
+        if self.gate && retrain == RetrainOnFailure::Yes {
             self.ask_retrain(verdict, scene, events);
         }
     }
@@ -737,9 +749,6 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         scene: L::Scene,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) {
-        if self.no_retrain_this_planning {
-            return;
-        }
         if self.library.should_ask_retrain(verdict.policy_id, scene) {
             events.push(TwinEvent::Retrain {
                 request_id: self.next_request_id,
