@@ -14,6 +14,8 @@
 //! bit-reproducible for a given number of threads (the row split and the summation order
 //! are fixed).
 
+use std::sync::{Arc, mpsc};
+
 use crate::net::{ActorCritic, HALF_LOG_2PI, LayerSlot, Layout, NetSpec};
 
 /// `C[m,n] = A[m,k] · B[k,n] + beta · C` on strided slices; the strides address elements
@@ -116,9 +118,21 @@ fn tanh_avx2(x: &mut [f32]) {
     tanh_body(x);
 }
 
-/// `tanh` in place over a slice, with the AVX2 build where the CPU has it (no FMA is used, so
-/// both builds give identical bits).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn tanh_avx512(x: &mut [f32]) {
+    tanh_body(x);
+}
+
+/// `tanh` in place over a slice, with the AVX-512 (16 lanes) or AVX2 (8 lanes) build where
+/// the CPU has it (no FMA contraction is used, so every build gives identical bits).
 fn tanh_slice(x: &mut [f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx512f") {
+        // SAFETY: the CPU supports AVX-512F (checked just above).
+        unsafe { tanh_avx512(x) };
+        return;
+    }
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2 (checked just above).
@@ -446,16 +460,103 @@ pub(crate) const MAX_ACT_DIM: usize = 16;
 
 /// The PPO update on the host: parameters and Adam moments as `f32` vectors (copied from and
 /// back to the tch tensors once per update), one [`Shard`] per thread.
-#[derive(Debug)]
 pub(crate) struct HostUpdate {
     spec: NetSpec,
     layout: Layout,
-    pub(crate) theta: Vec<f32>,
+    /// Shared with the gradient workers during [`Self::gradient`] only (each drops its
+    /// handle before it answers), so [`Self::apply`] updates it in place.
+    theta: Arc<Vec<f32>>,
     pub(crate) m: Vec<f32>,
     pub(crate) v: Vec<f32>,
     pub(crate) t: i64,
     grad: Vec<f32>,
     pub(crate) shards: Vec<Shard>,
+    /// One thread per shard after the first, started at the first [`Self::gradient`] and
+    /// kept until the update is dropped: a minibatch step costs two channel messages per
+    /// worker instead of a thread start (which took ~30 % of the step on this VM).
+    workers: Vec<GradWorker>,
+}
+
+/// One minibatch shard handed to a [`GradWorker`]: the shard moves to the worker and back
+/// (its buffers are reused, nothing is copied).
+struct GradJob {
+    shard: Shard,
+    theta: Arc<Vec<f32>>,
+    total: usize,
+    cfg: LossCfg,
+}
+
+/// A thread that computes [`Shard::loss_grad`] for the jobs it receives, in order.
+struct GradWorker {
+    jobs: Option<mpsc::Sender<GradJob>>,
+    done: mpsc::Receiver<(Shard, LossSums)>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl GradWorker {
+    fn start(layout: Layout, spec: NetSpec) -> std::io::Result<Self> {
+        let (jobs, job_rx) = mpsc::channel::<GradJob>();
+        let (done_tx, done) = mpsc::channel();
+        let thread = std::thread::Builder::new()
+            .name("ppo-grad".into())
+            .spawn(move || {
+                for job in job_rx {
+                    let GradJob {
+                        mut shard,
+                        theta,
+                        total,
+                        cfg,
+                    } = job;
+                    let view = HostView {
+                        theta: &theta,
+                        layout: &layout,
+                        spec: &spec,
+                    };
+                    let sums = shard.loss_grad(&view, total, cfg);
+                    // The parameters' handle goes before the answer, so the owner's
+                    // `Arc::get_mut` in `apply` finds it unshared.
+                    drop(theta);
+                    if done_tx.send((shard, sums)).is_err() {
+                        return;
+                    }
+                }
+            })?;
+        Ok(Self {
+            jobs: Some(jobs),
+            done,
+            thread: Some(thread),
+        })
+    }
+}
+
+impl GradWorker {
+    /// The payload of the panic that ended the worker's thread (joins it).
+    fn panic(&mut self) -> Box<dyn std::any::Any + Send> {
+        match self.thread.take().map(std::thread::JoinHandle::join) {
+            Some(Err(payload)) => payload,
+            _ => Box::new("a PPO gradient worker thread ended without an answer"),
+        }
+    }
+}
+
+impl Drop for GradWorker {
+    fn drop(&mut self) {
+        self.jobs = None; // closes the channel: the thread's loop ends
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl std::fmt::Debug for HostUpdate {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("HostUpdate")
+            .field("spec", &self.spec)
+            .field("t", &self.t)
+            .field("shards", &self.shards.len())
+            .field("workers", &self.workers.len())
+            .finish_non_exhaustive()
+    }
 }
 
 /// Adam settings of one step.
@@ -497,11 +598,12 @@ impl HostUpdate {
             grad: vec![0.0; layout.len],
             spec,
             layout,
-            theta,
+            theta: Arc::new(theta),
             m,
             v,
             t,
             shards: vec![Shard::default(); threads.max(1)],
+            workers: Vec::new(),
         })
     }
 
@@ -548,33 +650,53 @@ impl HostUpdate {
         }
     }
 
-    /// The gradient of the loss over the loaded minibatch (shards on scoped threads when
-    /// there are several), into `self.grad`; returns the loss pieces.
+    /// The gradient of the loss over the loaded minibatch (shards 1.. on the worker threads
+    /// when there are several), into `self.grad`; returns the loss pieces.
     pub(crate) fn gradient(&mut self, cfg: LossCfg) -> StepReport {
         let total: usize = self.shards.iter().map(|s| s.rows.n).sum();
+        let mut sums = LossSums::default();
+        if self.shards.len() > 1 && self.workers.is_empty() {
+            self.workers = (1..self.shards.len())
+                .map_while(|_| GradWorker::start(self.layout.clone(), self.spec.clone()).ok())
+                .collect();
+        }
+        // Shards 1.. go to the workers (those that could not be started, if any, are done
+        // here after shard 0); the answers are taken back in shard order.
+        let mut sent = Vec::with_capacity(self.workers.len());
+        for (k, w) in self.workers.iter().enumerate() {
+            let Some(tx) = w.jobs.as_ref() else {
+                continue; // closed only in `drop`: the shard stays here
+            };
+            let job = GradJob {
+                shard: std::mem::take(&mut self.shards[k + 1]),
+                theta: Arc::clone(&self.theta),
+                total,
+                cfg,
+            };
+            match tx.send(job) {
+                Ok(()) => sent.push(k),
+                Err(mpsc::SendError(job)) => self.shards[k + 1] = job.shard,
+            }
+        }
         let view = HostView {
             theta: &self.theta,
             layout: &self.layout,
             spec: &self.spec,
         };
-        let mut sums = LossSums::default();
-        if self.shards.len() == 1 {
-            sums = self.shards[0].loss_grad(&view, total, cfg);
-        } else {
-            let parts: Vec<LossSums> = std::thread::scope(|s| {
-                let view = &view;
-                let (first, rest) = self.shards.split_at_mut(1);
-                let hs: Vec<_> = rest
-                    .iter_mut()
-                    .map(|sh| s.spawn(move || sh.loss_grad(view, total, cfg)))
-                    .collect();
-                let mut parts = vec![first[0].loss_grad(view, total, cfg)];
-                parts.extend(hs.into_iter().map(|h| h.join().unwrap_or_default()));
-                parts
-            });
-            for p in parts {
-                sums += p;
+        for (k, shard) in self.shards.iter_mut().enumerate() {
+            if k == 0 || !sent.contains(&(k - 1)) {
+                sums += shard.loss_grad(&view, total, cfg);
             }
+        }
+        for k in sent {
+            let (shard, part) = match self.workers[k].done.recv() {
+                Ok(answer) => answer,
+                // The worker stopped without answering: it panicked (a bug, as it would be
+                // here); its shard went with it, so the panic goes on in this thread.
+                Err(mpsc::RecvError) => std::panic::resume_unwind(self.workers[k].panic()),
+            };
+            self.shards[k + 1] = shard;
+            sums += part;
         }
         // Sum of the shards' gradients in shard order (fixed, so reproducible).
         self.grad.copy_from_slice(&self.shards[0].grad);
@@ -601,6 +723,11 @@ impl HostUpdate {
             approx_kl: sums.approx_kl / nb,
             clip_fraction: sums.clipped / nb,
         }
+    }
+
+    /// The current parameters.
+    pub(crate) fn theta(&self) -> &[f32] {
+        &self.theta
     }
 
     /// The current gradient (after [`Self::gradient`]).
@@ -630,8 +757,7 @@ impl HostUpdate {
         let inv_bc2 = (1.0 / bc2) as f32;
         let step = (c.lr / bc1) as f32;
         let eps = c.eps as f32;
-        for (((th, m), v), g) in self
-            .theta
+        for (((th, m), v), g) in Arc::make_mut(&mut self.theta)
             .iter_mut()
             .zip(&mut self.m)
             .zip(&mut self.v)
@@ -694,11 +820,25 @@ mod tests {
     }
 
     #[test]
-    fn fast_tanh_is_within_4_ulp_in_both_builds() {
+    fn fast_tanh_is_within_4_ulp_in_every_build() {
         let mut xs: Vec<f32> = (0..64_000).map(|i| -12.0 + i as f32 * 0.000_375).collect();
         let exact: Vec<f32> = xs.iter().map(|x| f64::from(*x).tanh() as f32).collect();
         let mut portable = xs.clone();
         tanh_body(&mut portable);
+        #[cfg(target_arch = "x86_64")]
+        for (feature, build) in [
+            ("avx2", tanh_avx2 as unsafe fn(&mut [f32])),
+            ("avx512f", tanh_avx512),
+        ] {
+            if std::arch::is_x86_feature_detected!("avx2")
+                && (feature == "avx2" || std::arch::is_x86_feature_detected!("avx512f"))
+            {
+                let mut v = xs.clone();
+                // SAFETY: the CPU has the build's feature (checked just above).
+                unsafe { build(&mut v) };
+                assert_eq!(v, portable, "the {feature} build differs");
+            }
+        }
         tanh_slice(&mut xs);
         assert_eq!(xs, portable, "builds differ");
         for (g, e) in xs.iter().zip(&exact) {
@@ -851,7 +991,7 @@ mod tests {
             h.gradient(cfg);
             h.apply(adam_cfg);
         }
-        let err = max_abs_diff(&h.theta, &net.flat());
+        let err = max_abs_diff(h.theta(), &net.flat());
         assert!(err < 1e-6, "parameters differ by {err}");
         let m: Vec<f32> = Vec::try_from(adam.m.shallow_clone()).unwrap();
         assert!(max_abs_diff(&h.m, &m) < 1e-7);

@@ -354,7 +354,7 @@ impl<E: Env + Clone> Trainer<E> {
             }
         }
         tch::no_grad(|| {
-            self.net.theta.copy_(&Tensor::from_slice(&h.theta));
+            self.net.theta.copy_(&Tensor::from_slice(h.theta()));
             self.adam.m.copy_(&Tensor::from_slice(&h.m));
             self.adam.v.copy_(&Tensor::from_slice(&h.v));
         });
