@@ -231,6 +231,73 @@ pub fn retrack_noisy(
     demo
 }
 
+/// Via points of [`via_point_route`]: centres x, y and heights above the table (m).
+const VIA_X_M: [f64; 5] = [0.15, 0.25, 0.35, 0.45, 0.55];
+const VIA_Y_M: [f64; 7] = [-0.45, -0.30, -0.15, 0.0, 0.15, 0.30, 0.45];
+const VIA_Z_M: [f64; 4] = [0.10, 0.25, 0.40, 0.50];
+
+/// A clean route through one via point ([`via_point_route`]).
+#[derive(Debug, Clone)]
+pub struct ViaRoute {
+    /// The pure-pursuit expert along start → via point → goal, at its start.
+    pub expert: PathExpert,
+    /// The joints the twin passed through following it, start to goal (a joint path whose
+    /// TCP points are the route as driven, for [`retrack`] and [`retrack_noisy`]).
+    pub joints: Vec<Joints>,
+}
+
+/// A TCP route start → via point → goal that the task's own steps (pure pursuit, the twin's
+/// IK choosing the posture) follow to the goal with no contact, via points of a fixed grid
+/// (140) tried shortest route first. It also serves worlds whose planner paths the TCP
+/// cannot re-track (the planner chose an elbow posture the per-step IK does not): in
+/// distillation 2 of 40 instead of 4–6 of 40 cluttered and adversarial benchmark worlds go
+/// untaught.
+pub fn via_point_route(env: &TwinEnv, scene: &Scene, goal_m: [f64; 3]) -> Option<ViaRoute> {
+    let s = env.start_tcp_m();
+    let start_m = [s.x, s.y, s.z];
+    let table = scene.table_height_m;
+    let mut vias: Vec<([f64; 3], f64)> = VIA_X_M
+        .iter()
+        .flat_map(|&x| {
+            VIA_Y_M
+                .iter()
+                .flat_map(move |&y| VIA_Z_M.iter().map(move |&z| [x, y, table + z]))
+        })
+        .map(|v| (v, dist_m(&start_m, &v) + dist_m(&v, &goal_m)))
+        .collect();
+    vias.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let scale_m = env.config().action.scale_m;
+    let max_steps = env.config().episode.max_steps;
+    let mut tw = env.clone();
+    let mut joints = Vec::with_capacity(max_steps as usize + 1);
+    for (via, _) in vias {
+        let mut expert =
+            PathExpert::through_points(&[start_m, via, goal_m], goal_m, scale_m, 0.005);
+        let proto = expert.clone();
+        tw.reset(scene);
+        joints.clear();
+        let mut clean = false;
+        for _ in 0..max_steps {
+            joints.push(tw.joints());
+            let t = tw.tcp_m();
+            let a = expert.action(&[t.x, t.y, t.z]);
+            let out = tw.step(&a);
+            if out.terminated || out.truncated {
+                clean = out.task_done && out.safe;
+                break;
+            }
+        }
+        if clean {
+            joints.push(tw.joints());
+            return Some(ViaRoute {
+                expert: proto,
+                joints,
+            });
+        }
+    }
+    None
+}
+
 /// What [`demonstrate`] found.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DemoOutcome {
@@ -241,13 +308,17 @@ pub struct DemoOutcome {
     /// Of those, how many reached the goal without contact when re-tracked (the search
     /// stops at the first, so 0 or 1).
     pub paths_succeeded: usize,
+    /// The demonstration follows a via-point route ([`via_point_route`]): no planner path
+    /// re-tracked cleanly.
+    pub via_point: bool,
 }
 
 /// A successful demonstration for `scene`: re-tracks `first_path` (the feasibility check's,
 /// when given), then plans again to one safe goal posture at a time (IK from many seeds,
 /// `cfg.goal_seeds`; postures nearest the start posture first, since the task's IK keeps
 /// the arm near it; `plan_path` with `cfg.planner`) until one path re-tracks to the goal
-/// without contact or `tries` paths in all have been tried.
+/// without contact or `tries` paths in all have been tried; then, when none did, the
+/// joints of a clean via-point route ([`via_point_route`]) re-tracked the same way.
 pub fn demonstrate(
     env: &TwinEnv,
     scene: &Scene,
@@ -262,6 +333,7 @@ pub fn demonstrate(
         demonstration: None,
         paths_tried: 0,
         paths_succeeded: 0,
+        via_point: false,
     };
     let mut goals: Option<Vec<Joints>> = None;
     let mut next_goal = 0usize;
@@ -304,6 +376,22 @@ pub fn demonstrate(
             steps = demo.steps(),
             "path did not re-track cleanly"
         );
+    }
+    if out.demonstration.is_none() {
+        // No planner path re-tracked: drive a via-point route instead (the cluttered world 6
+        // of the adaptation benchmark's seed 1: 16 planner paths over its 5 demonstration
+        // scenes, none re-tracked, and PPO alone did not learn it in 30 s).
+        tw.reset(scene);
+        let t = tw.target_m();
+        if let Some(route) = via_point_route(env, scene, [t.x, t.y, t.z]) {
+            out.paths_tried += 1;
+            let demo = retrack(&mut tw, scene, &route.joints, obs_dim);
+            if demo.success() {
+                out.paths_succeeded += 1;
+                out.via_point = true;
+                out.demonstration = Some(demo);
+            }
+        }
     }
     out
 }
@@ -370,6 +458,40 @@ mod tests {
             None,
         );
         assert!(replay.success && replay.safe, "{replay:?}");
+        assert!(!out.via_point, "the planner's path re-tracks here");
+    }
+
+    #[test]
+    fn without_a_planner_path_that_re_tracks_a_via_point_route_is_demonstrated() {
+        let task = TwinTask::load(&assets().join("task.toml"), None).expect("task");
+        let file = shm_schemas::scene_file::SceneFile::load(&assets().join("scenes/tall_box.toml"))
+            .expect("scene file");
+        let scene = Scene::from_file(&file).expect("scene");
+        let obs_dim = task.env.config().obs_dim();
+        // No planner path tried (0 tries): only the via-point route can demonstrate it.
+        let out = demonstrate(
+            &task.env,
+            &scene,
+            None,
+            FeasibilityConfig::default(),
+            0,
+            obs_dim,
+        );
+        assert!(out.via_point, "{:?}", out.paths_tried);
+        assert_eq!((out.paths_tried, out.paths_succeeded), (1, 1));
+        let demo = out.demonstration.expect("a demonstration");
+        assert!(demo.success());
+        // The route's joints start at the start posture and end where the goal was reached.
+        let mut tw = task.env.clone();
+        tw.reset(&scene);
+        let t = tw.target_m();
+        let route = via_point_route(&task.env, &scene, [t.x, t.y, t.z]).expect("a route");
+        assert_eq!(route.joints[0], task.env.config().start.joints_rad);
+        let end = task.env.model().tcp_m(route.joints.last().expect("joints"));
+        assert!(
+            (end - t).norm() <= task.env.config().success.tolerance_m,
+            "{end:?} vs {t:?}"
+        );
     }
 
     /// The figure of the README: of the feasible worlds of the benchmark's generator (`learner

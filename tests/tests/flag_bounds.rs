@@ -76,7 +76,7 @@ const PPO: [(&str, Kind); 9] = [
 
 /// The flags of one retraining (`learner::retrain::RetrainFlags`: `learner serve`,
 /// `learner retrain`, `unseen-worlds`).
-const RETRAIN: [(&str, Kind); 16] = [
+const RETRAIN: [(&str, Kind); 17] = [
     ("--max-steps", I),
     ("--time-budget-s", F),
     ("--eval-every", I),
@@ -85,6 +85,7 @@ const RETRAIN: [(&str, Kind); 16] = [
     ("--old-share", F),
     ("--explore-std", F),
     ("--batch", I),
+    ("--epochs", I),
     ("--lr", F),
     ("--ent-coef", F),
     ("--height-start", F),

@@ -42,7 +42,7 @@ use twin::{
     rollout,
 };
 
-use crate::demonstrations::{PathExpert, demonstrate};
+use crate::demonstrations::{PathExpert, demonstrate, via_point_route};
 use crate::env::SceneSampler;
 use crate::net::ActorCritic;
 use crate::normalize::ObsNormalizer;
@@ -260,8 +260,8 @@ fn teacher(
     tw.reset(scene);
     let t = tw.target_m();
     let goal_m = [t.x, t.y, t.z];
-    if let Some(via) = via_point_teacher(env, scene, goal_m) {
-        return Ok(Teacher::Via(via));
+    if let Some(via) = via_point_route(env, scene, goal_m) {
+        return Ok(Teacher::Via(via.expert));
     }
     let start = env.config().start.joints_rad;
     let verdict = check_feasibility(env, scene, &start, cfg);
@@ -271,59 +271,6 @@ fn teacher(
     let out = demonstrate(env, scene, verdict.path(), cfg, PATH_TRIES, obs_dim);
     let demo = out.demonstration.ok_or(Untaught::NoCleanPath)?;
     Ok(Teacher::Path(PathExpert::new(env, &demo.path, goal_m)))
-}
-
-/// Via points of [`via_point_teacher`]: centres x, y and heights above the table (m).
-const VIA_X_M: [f64; 5] = [0.15, 0.25, 0.35, 0.45, 0.55];
-const VIA_Y_M: [f64; 7] = [-0.45, -0.30, -0.15, 0.0, 0.15, 0.30, 0.45];
-const VIA_Z_M: [f64; 4] = [0.10, 0.25, 0.40, 0.50];
-
-/// A TCP route start → via point → goal that the task's own steps (pure pursuit, the twin's
-/// IK choosing the posture) follow to the goal with no contact, via points of a fixed grid
-/// tried shortest route first. It also teaches worlds whose planner paths the TCP cannot
-/// re-track (the planner chose an elbow posture the per-step IK does not): 2 of 40 instead
-/// of 4–6 of 40 cluttered and adversarial benchmark worlds go untaught.
-fn via_point_teacher(env: &TwinEnv, scene: &Scene, goal_m: [f64; 3]) -> Option<PathExpert> {
-    let s = env.start_tcp_m();
-    let start_m = [s.x, s.y, s.z];
-    let table = scene.table_height_m;
-    let mut vias: Vec<([f64; 3], f64)> = VIA_X_M
-        .iter()
-        .flat_map(|&x| {
-            VIA_Y_M
-                .iter()
-                .flat_map(move |&y| VIA_Z_M.iter().map(move |&z| [x, y, table + z]))
-        })
-        .map(|v| (v, dist3(&start_m, &v) + dist3(&v, &goal_m)))
-        .collect();
-    vias.sort_by(|a, b| a.1.total_cmp(&b.1));
-    let scale_m = env.config().action.scale_m;
-    let mut tw = env.clone();
-    for (via, _) in vias {
-        let mut expert =
-            PathExpert::through_points(&[start_m, via, goal_m], goal_m, scale_m, 0.005);
-        let proto = expert.clone();
-        tw.reset(scene);
-        let max_steps = env.config().episode.max_steps;
-        let mut clean = false;
-        for _ in 0..max_steps {
-            let t = tw.tcp_m();
-            let a = expert.action(&[t.x, t.y, t.z]);
-            let out = tw.step(&a);
-            if out.terminated || out.truncated {
-                clean = out.task_done && out.safe;
-                break;
-            }
-        }
-        if clean {
-            return Some(proto);
-        }
-    }
-    None
-}
-
-fn dist3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
 /// A teacher for each of `scenes` that has one (see the module docs; planned with the boxes

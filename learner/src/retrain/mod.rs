@@ -213,6 +213,9 @@ fn retrain_trainer(
     if s.batch > 0 {
         trainer.cfg.batch_size = s.batch;
     }
+    if s.epochs > 0 {
+        trainer.cfg.n_epochs = s.epochs;
+    }
     if s.lr > 0.0 {
         trainer.cfg.learning_rate = s.lr;
         trainer.adam.lr = s.lr;
@@ -288,6 +291,7 @@ mod tests {
             explore_std: 0.5,
             freeze_stats: false,
             batch: 0,
+            epochs: 0,
             lr: 0.0,
             ent_coef: 0.01,
             height_start: 0.3,

@@ -29,6 +29,8 @@ pub struct RetrainSettings {
     pub freeze_stats: bool,
     /// Minibatch size (0: the checkpoint's).
     pub batch: usize,
+    /// Epochs per rollout (0: the checkpoint's).
+    pub epochs: usize,
     /// Learning rate (0: the checkpoint's).
     pub lr: f64,
     /// Entropy bonus coefficient.
@@ -106,6 +108,9 @@ pub struct RetrainFlags {
     /// Minibatch size during retraining (0: the checkpoint's).
     #[arg(long, default_value_t = 0, value_parser = shm_schemas::cli_bounds::int_within(0usize, 1_000_000), allow_negative_numbers = true)]
     pub batch: usize,
+    /// Epochs per rollout during retraining (0: the checkpoint's).
+    #[arg(long, default_value_t = 0, value_parser = shm_schemas::cli_bounds::int_within(0usize, 100), allow_negative_numbers = true)]
+    pub epochs: usize,
     /// Learning rate during retraining (0: the checkpoint's).
     #[arg(long, default_value_t = 0.0, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 1.0), allow_negative_numbers = true)]
     pub lr: f64,
@@ -170,6 +175,7 @@ impl RetrainFlags {
             explore_std: self.explore_std,
             freeze_stats: self.freeze_stats,
             batch: self.batch,
+            epochs: self.epochs,
             lr: self.lr,
             ent_coef: self.ent_coef,
             height_start: self.height_start,

@@ -40,6 +40,8 @@ pub struct WarmStart {
     pub reported_scene: bool,
     /// Planner paths re-tracked in all (the first clean one per scene ends the search).
     pub paths_tried: usize,
+    /// Scenes whose demonstration follows a via-point route (no planner path re-tracked).
+    pub via_routes: usize,
     /// Steps of the reported scene's demonstration (0 without one).
     pub reported_steps: usize,
     /// The cloning (absent when nothing was demonstrated).
@@ -93,6 +95,7 @@ pub(super) fn warm_start(
         }
         let d = demonstrate(&env.env, sc, first, s.feasibility, DEMO_TRIES, obs_dim);
         out.paths_tried += d.paths_tried;
+        out.via_routes += usize::from(d.via_point);
         if let Some(demo) = d.demonstration {
             out.demonstrated += 1;
             if k == 0 {
