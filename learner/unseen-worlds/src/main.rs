@@ -212,6 +212,12 @@ struct PassAt {
 #[derive(Debug, Clone, Serialize)]
 struct RetrainRow {
     success: bool,
+    /// The warm start found a demonstration of the reported world in the task's own action
+    /// space (a planner path or a via-point route that Cartesian steps follow to the goal
+    /// with no contact). Without one, the world may have no solution a policy can express:
+    /// its safe goal postures exist (the feasibility proof) but the per-step IK does not
+    /// lead there.
+    demonstrated: bool,
     wall_s: f64,
     steps: u64,
     stop: StopReason,
@@ -241,6 +247,9 @@ struct Aggregate {
     line_not_policy: usize,
     retrained: usize,
     retrain_success: usize,
+    /// Retrained worlds not learned that had no demonstration in the action space
+    /// ([`RetrainRow::demonstrated`]).
+    retrain_failed_undemonstrated: usize,
     retrain_median_s: Option<f64>,
     retrain_max_s: Option<f64>,
     retrain_median_steps: Option<f64>,
@@ -605,7 +614,7 @@ impl Bench<'_> {
         let serve = &self.args.args;
         let dir = self.out.join(format!("retrain-{}-{index}", source.name()));
         // No path handed over: the feasibility check runs again inside, as the service's would.
-        let sum = RetrainJob {
+        let outcome = RetrainJob {
             base: self.base,
             env: self.env,
             scene,
@@ -615,8 +624,9 @@ impl Bench<'_> {
             eval_seed: 1,
             device: self.device,
         }
-        .run(|_, _| true)?
-        .summary;
+        .run(|_, _| true)?;
+        let sum = outcome.summary;
+        let demonstrated = outcome.warm_start.is_some_and(|w| w.reported_scene);
         let best = Checkpoint::load(&dir.join(checkpoint::BEST))?;
         let bnet = best.network(self.device)?;
         let bnorm = ObsNormalizer::from_stats(&best.meta.obs_rms.to_rms(), best.meta.ppo.clip_obs);
@@ -637,6 +647,7 @@ impl Bench<'_> {
             .count();
         Ok(RetrainRow {
             success: exact.success_rate > 0.5,
+            demonstrated,
             wall_s: sum.wall_s,
             steps: best.meta.steps.saturating_sub(self.base.meta.steps),
             stop: sum.stop,

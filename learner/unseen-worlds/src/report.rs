@@ -105,6 +105,10 @@ pub(crate) fn aggregate(rows: &[WorldRow]) -> Aggregate {
         line_not_policy: count(&|r| r.straight_line && !r.zero_shot),
         retrained: re.len(),
         retrain_success: re.iter().filter(|r| r.success).count(),
+        retrain_failed_undemonstrated: re
+            .iter()
+            .filter(|r| !r.success && !r.demonstrated)
+            .count(),
         retrain_max_s: times.iter().copied().reduce(f64::max),
         retrain_median_s: median(&mut times),
         retrain_median_steps: median(&mut steps),
@@ -157,7 +161,12 @@ pub(crate) fn summary_table(tables: &[GeneratorTable]) -> String {
             of(a.straight_line, a.feasible),
             a.line_not_policy,
             of(a.planner, a.feasible),
-            if a.retrained > 0 {
+            if a.retrain_failed_undemonstrated > 0 {
+                format!(
+                    "{}/{} ({} not: no demonstration in the action space)",
+                    a.retrain_success, a.retrained, a.retrain_failed_undemonstrated
+                )
+            } else if a.retrained > 0 {
                 format!("{}/{}", a.retrain_success, a.retrained)
             } else {
                 "–".into()
@@ -212,15 +221,15 @@ pub(crate) fn sampling_table(tables: &[GeneratorTable], threads: usize) -> Strin
 /// The adaptation table: every retrained world.
 fn adaptation_table(tables: &[GeneratorTable]) -> String {
     let mut s = String::from(
-        "| generator | world | kind | boxes | tallest (m) | zero-shot | world change → learned policy (s) | steps | learned | stop | kept alone | kept in library |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| generator | world | kind | boxes | tallest (m) | zero-shot | world change → learned policy (s) | steps | learned | stop | demonstrated in the action space | kept alone | kept in library |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for t in tables {
         for r in &t.worlds {
             if let Some(re) = &r.retrained {
                 let _ = writeln!(
                     s,
-                    "| {} | {} | {} | {} | {:.2} | {} | {:.1} | {} | {} | {:?} | {} | {} |",
+                    "| {} | {} | {} | {} | {:.2} | {} | {:.1} | {} | {} | {:?} | {} | {} | {} |",
                     t.generator,
                     r.index,
                     r.kind,
@@ -231,6 +240,7 @@ fn adaptation_table(tables: &[GeneratorTable]) -> String {
                     re.steps,
                     yes(re.success),
                     re.stop,
+                    yes(re.demonstrated),
                     pct(re.kept.success_rate),
                     pct(re.library_kept),
                 );

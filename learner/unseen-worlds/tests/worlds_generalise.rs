@@ -1,9 +1,10 @@
-//! The short version of the README's per-generator unseen-worlds benchmark (`unseen-worlds
-//! --generator all`): 3 worlds per generator, seed 1, the bundled policy, no
-//! retraining. Asserts outcomes, not times: every independent world proven feasible and
-//! reached by the planner's path, the same worlds as `worldgen` generates for the seed
-//! (deterministic), and a table listing each generator with the policy and straight-line
-//! columns.
+//! Short versions of the README's per-generator unseen-worlds benchmark (`unseen-worlds
+//! --generator all`), each asserting outcomes, not times: every independent world proven
+//! feasible and reached by the planner's path, the same worlds as `worldgen` generates for
+//! the seed (deterministic), and a table listing each generator with the policy and
+//! straight-line columns (3 worlds per generator, seed 1, the PPO generalist); the default
+//! policy against the line and the PPO generalist; verified sampling's pass@K; and the
+//! retraining column.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -231,5 +232,56 @@ fn verified_sampling_rescues_worlds_the_deterministic_rollout_fails() {
         md.contains("pass@32") && md.contains("| adversarial | 20 |"),
         "{md}"
     );
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// The short version of the adaptation column (`unseen-worlds --retrain`): on the first 16
+/// uniform worlds of seed 2 the distilled generalist fails one (world 15) zero-shot; the
+/// retraining as `learner serve` runs it learns it, and what rt-core then runs (the
+/// retrained policy with the base in the library) still solves the pre-training scenes.
+/// Outcomes, not times: the budget is in steps (1e5; it converges at the first evaluation
+/// after cloning the planner's demonstrations), the wall-time budget is left wide, and the
+/// worker count is fixed so that the run is the same on any machine.
+#[test]
+fn retraining_learns_the_world_the_default_policy_fails() {
+    let out = std::env::temp_dir().join(format!("foresight-worlds-retrain-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let status = Command::new(env!("CARGO_BIN_EXE_unseen-worlds"))
+        .current_dir(root())
+        .args(["--checkpoint", "assets/policy-distilled"])
+        .args(["--generator", "uniform", "--worlds", "16", "--seed", "2"])
+        .args([
+            "--retrain",
+            "--max-steps",
+            "100000",
+            "--time-budget-s",
+            "600",
+        ])
+        .args(["--workers", "2", "--kept-eval-episodes", "20", "--out"])
+        .arg(&out)
+        .status()
+        .expect("unseen-worlds runs");
+    assert!(status.success(), "unseen-worlds --retrain failed: {status}");
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("worlds.json")).expect("worlds.json"))
+            .expect("JSON");
+    let t = &json["generators"][0];
+    let a = &t["aggregate"];
+    let failed = a["feasible"].as_u64().expect("feasible") - a["zero_shot"].as_u64().expect("zs");
+    assert!(failed >= 1, "a world to retrain on: {a}");
+    assert_eq!(a["retrained"].as_u64(), Some(failed), "{a}");
+    assert_eq!(a["retrain_success"].as_u64(), Some(failed), "{a}");
+    for w in t["worlds"].as_array().expect("worlds") {
+        let re = &w["retrained"];
+        assert_eq!(re.is_object(), w["zero_shot"] == false, "{w}");
+        if re.is_object() {
+            assert_eq!(re["stop"], "Converged", "{w}");
+            // Its warm start demonstrated the world in the task's own action space.
+            assert_eq!(re["demonstrated"], true, "{w}");
+            assert!(re["library_kept"].as_f64() >= Some(0.9), "{w}");
+        }
+    }
+    let md = std::fs::read_to_string(out.join("worlds.md")).expect("worlds.md");
+    assert!(md.contains(&format!("| {failed}/{failed} |")), "{md}");
     let _ = std::fs::remove_dir_all(&out);
 }
