@@ -105,10 +105,7 @@ pub(crate) fn aggregate(rows: &[WorldRow]) -> Aggregate {
         line_not_policy: count(&|r| r.straight_line && !r.zero_shot),
         retrained: re.len(),
         retrain_success: re.iter().filter(|r| r.success).count(),
-        retrain_failed_undemonstrated: re
-            .iter()
-            .filter(|r| !r.success && !r.demonstrated)
-            .count(),
+        retrain_failed_undemonstrated: re.iter().filter(|r| !r.success && !r.demonstrated).count(),
         retrain_max_s: times.iter().copied().reduce(f64::max),
         retrain_median_s: median(&mut times),
         retrain_median_steps: median(&mut steps),
