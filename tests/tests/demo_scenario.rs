@@ -161,6 +161,7 @@ fn run_the_loop(out: &Path, extra: &[&str]) -> (serde_json::Value, Vec<String>) 
     assert!(s["policy_swaps"].as_u64().unwrap_or(0) >= 1, "{s}");
     for key in [
         "world_change_to_detection_s",
+        "world_change_to_settled_s",
         "world_change_to_verdict_s",
         "retrain_s",
         "world_change_to_motion_s",
@@ -176,6 +177,9 @@ fn run_the_loop(out: &Path, extra: &[&str]) -> (serde_json::Value, Vec<String>) 
     ]
     .map(|k| s[k].as_f64().unwrap_or(f64::NAN));
     assert!(order[0] <= order[1] && order[1] <= order[2], "{s}");
+    // A plan for the new scene is approved only on a settled frame of it.
+    let settled = s["world_change_to_settled_s"].as_f64().unwrap_or(f64::NAN);
+    assert!(order[0] <= settled && settled <= order[2], "{s}");
     for file in [
         "report.md",
         "timeline.jsonl",

@@ -30,12 +30,15 @@ pub struct SeenScene {
     pub obstacles: usize,
     /// Frame sequence.
     pub sequence: u64,
+    /// Perception marked the frame settled (the twin approves new plans only on such).
+    pub settled: bool,
 }
 
 impl SeenScene {
     fn from_frame(frame: &DetectionFrame) -> Self {
         let mut s = Self {
             sequence: frame.sequence,
+            settled: frame.settled(),
             ..Self::default()
         };
         for o in frame.objects() {

@@ -51,6 +51,13 @@ pub struct Summary {
     pub min_separation_at_rest_m: Option<f64>,
     /// World change → first detection of the new scene (s).
     pub world_change_to_detection_s: Option<f64>,
+    /// World change → the first settled frame showing the new scene (s): from then on the
+    /// twin may approve a plan for it.
+    #[serde(default)]
+    pub world_change_to_settled_s: Option<f64>,
+    /// World change → the first plan the twin approved on the settled new scene (s).
+    #[serde(default)]
+    pub world_change_to_approval_s: Option<f64>,
     /// World change → first verdict on the new scene (s).
     pub world_change_to_verdict_s: Option<f64>,
     /// Retraining wall time: retrain request → new policy published (s).
@@ -657,6 +664,14 @@ pub fn write_markdown(
         (
             "world change → detection",
             fmt_opt(summary.world_change_to_detection_s, "s"),
+        ),
+        (
+            "world change → settled scene",
+            fmt_opt(summary.world_change_to_settled_s, "s"),
+        ),
+        (
+            "world change → plan approved on it",
+            fmt_opt(summary.world_change_to_approval_s, "s"),
         ),
         (
             "world change → verdict",

@@ -100,6 +100,10 @@ pub struct Director {
     change_s: Option<f64>,
     joints_at_change: Option<[f64; 5]>,
     detect_s: Option<f64>,
+    /// The first settled frame showing the new scene (the twin approves plans only on one).
+    settled_s: Option<f64>,
+    /// The first plan approved on the new scene once it was settled.
+    approved_s: Option<f64>,
     verdict_s: Option<f64>,
     request_s: Option<f64>,
     published_s: Option<f64>,
@@ -181,6 +185,8 @@ impl Director {
             change_s: None,
             joints_at_change: None,
             detect_s: None,
+            settled_s: None,
+            approved_s: None,
             verdict_s: None,
             request_s: None,
             published_s: None,
@@ -301,7 +307,7 @@ impl Director {
 
     /// The camera's view of the scene after a world change: detection time.
     fn on_scene_seen(&mut self, t_s: f64, seen: &SeenScene, scene_idx: usize) {
-        if self.change_s.is_none() || self.detect_s.is_some() {
+        if self.change_s.is_none() || self.settled_s.is_some() {
             return;
         }
         let want = &self.cfg.world[scene_idx].1;
@@ -310,9 +316,12 @@ impl Director {
             (f64::from(g[0]) - want.goal.center_m[0]).abs() < 0.03
                 && (f64::from(g[1]) - want.goal.center_m[1]).abs() < 0.03
         });
-        if height_ok && goal_ok {
+        if !(height_ok && goal_ok) {
+            return;
+        }
+        let dt = t_s - self.change_s.unwrap_or(t_s);
+        if self.detect_s.is_none() {
             self.detect_s = Some(t_s);
-            let dt = t_s - self.change_s.unwrap_or(t_s);
             self.log(
                 t_s,
                 "detection",
@@ -320,6 +329,14 @@ impl Director {
                     "camera sees the new scene (+{dt:.3} s): tallest obstacle {:.3} m, {} obstacle(s)",
                     seen.tallest_obstacle_m, seen.obstacles
                 ),
+            );
+        }
+        if seen.settled {
+            self.settled_s = Some(t_s);
+            self.log(
+                t_s,
+                "settled",
+                format!("perception marks the new scene settled (+{dt:.3} s)"),
             );
         }
     }
@@ -343,6 +360,9 @@ impl Director {
         self.log(t_s, "verdict", text);
         if self.change_s.is_some() && v.is_plan_approved() {
             self.approved_after_change = true;
+            if self.settled_s.is_some() && self.approved_s.is_none() {
+                self.approved_s = Some(t_s);
+            }
         }
         if !v.is_plan_approved() {
             self.refused_verdicts[scene] += 1;
@@ -827,6 +847,8 @@ impl Director {
             min_separation_moving_m: self.separation.min_moving_m(),
             min_separation_at_rest_m: self.separation.min_at_rest_m(),
             world_change_to_detection_s: since(self.detect_s),
+            world_change_to_settled_s: since(self.settled_s),
+            world_change_to_approval_s: since(self.approved_s),
             world_change_to_verdict_s: since(self.verdict_s),
             retrain_s: self.request_s.zip(self.published_s).map(|(a, b)| b - a),
             world_change_to_motion_s: since(self.motion_s),
@@ -954,10 +976,21 @@ mod tests {
                 tallest_obstacle_m: 0.35,
                 obstacles: 1,
                 sequence: 9,
+                settled: false,
             }),
             ..Observations::default()
         };
         d.step(5.2, &seen);
+        let mut settled = seen.scene.expect("seen");
+        settled.settled = true;
+        settled.sequence = 15;
+        d.step(
+            5.205,
+            &Observations {
+                scene: Some(settled),
+                ..Observations::default()
+            },
+        );
         let mut v = TwinVerdict {
             policy_id: 1,
             episode_end: EpisodeEnd::Collision as u8,
@@ -991,6 +1024,13 @@ mod tests {
         assert!(s.collision_predicted_before_motion);
         assert_eq!(s.policy_swaps, 1);
         assert!((s.world_change_to_detection_s.unwrap() - 0.1).abs() < 1e-9);
+        assert!((s.world_change_to_settled_s.unwrap() - 0.105).abs() < 1e-9);
+        // The verdict at 5.21 s refused the plan (a collision predicted): no approval yet
+        // when the retrained policy is published.
+        assert!(
+            s.world_change_to_approval_s.is_none_or(|a| a > 0.11),
+            "{s:?}"
+        );
         assert!((s.world_change_to_verdict_s.unwrap() - 0.11).abs() < 1e-9);
         assert!((s.retrain_s.unwrap() - (7.0 - 5.21)).abs() < 1e-9);
         assert!((s.world_change_to_motion_s.unwrap() - 2.4).abs() < 1e-9);
@@ -1234,6 +1274,7 @@ mod tests {
                 tallest_obstacle_m: 0.35,
                 obstacles: 1,
                 sequence: 3,
+                settled: true,
             }),
             ..Observations::default()
         };

@@ -31,6 +31,11 @@ pub struct WorldRun {
     pub zero_shot: Option<bool>,
     /// World change → the arm moving toward the new goal (s).
     pub change_to_motion_s: Option<f64>,
+    /// The first settled frame of the new scene → the arm moving (s): the twin's part of
+    /// the reaction (perception's quiet time before it excluded).
+    pub settled_to_motion_s: Option<f64>,
+    /// The first settled frame of the new scene → the twin's first approved plan on it (s).
+    pub settled_to_approval_s: Option<f64>,
     /// Retrain request → new policy (s).
     pub retrain_s: Option<f64>,
     /// Collisions the arm reported.
@@ -58,6 +63,14 @@ impl WorldRun {
             reason: s.outcome_reason.clone(),
             zero_shot: s.zero_shot,
             change_to_motion_s: s.world_change_to_motion_s,
+            settled_to_motion_s: s
+                .world_change_to_motion_s
+                .zip(s.world_change_to_settled_s)
+                .map(|(m, st)| m - st),
+            settled_to_approval_s: s
+                .world_change_to_approval_s
+                .zip(s.world_change_to_settled_s)
+                .map(|(a, st)| a - st),
             retrain_s: s.retrain_s,
             collisions: s.collisions,
             executor: s.executor.clone(),
@@ -86,6 +99,11 @@ pub struct WorldsAggregate {
     pub change_to_motion_median_s: Option<f64>,
     /// 95th percentile of the same (s; nearest rank).
     pub change_to_motion_p95_s: Option<f64>,
+    /// Median settled scene → motion over the worlds reached zero-shot or by the planner
+    /// fallback, without a retraining in between (s).
+    pub settled_to_motion_median_s: Option<f64>,
+    /// Median settled scene → approved plan over the same worlds (s).
+    pub settled_to_approval_median_s: Option<f64>,
     /// Median retraining time over the retrained worlds (s).
     pub retrain_median_s: Option<f64>,
 }
@@ -108,6 +126,16 @@ pub fn aggregate(rows: &[WorldRun]) -> WorldsAggregate {
         .filter(|r| r.outcome == Outcome::Reached)
         .filter_map(|r| r.change_to_motion_s)
         .collect();
+    let settled_motion: Vec<f64> = rows
+        .iter()
+        .filter(|r| r.outcome == Outcome::Reached && r.retrain_s.is_none())
+        .filter_map(|r| r.settled_to_motion_s)
+        .collect();
+    let settled_approval: Vec<f64> = rows
+        .iter()
+        .filter(|r| r.outcome == Outcome::Reached && r.retrain_s.is_none())
+        .filter_map(|r| r.settled_to_approval_s)
+        .collect();
     let retrain: Vec<f64> = rows.iter().filter_map(|r| r.retrain_s).collect();
     WorldsAggregate {
         worlds: rows.len(),
@@ -121,6 +149,8 @@ pub fn aggregate(rows: &[WorldRun]) -> WorldsAggregate {
         collisions: rows.iter().map(|r| r.collisions).sum(),
         change_to_motion_median_s: percentile(&motion, 0.5),
         change_to_motion_p95_s: percentile(&motion, 0.95),
+        settled_to_motion_median_s: percentile(&settled_motion, 0.5),
+        settled_to_approval_median_s: percentile(&settled_approval, 0.5),
         retrain_median_s: percentile(&retrain, 0.5),
     }
 }
@@ -135,7 +165,8 @@ pub fn table(seed: u64, rows: &[WorldRun]) -> String {
     let mut md = format!(
         "# Unseen worlds, end to end (seed {seed})\n\n{} worlds: {} reached ({} zero-shot), {} \
          refused as infeasible, {} not learned; {} collision(s). World change → motion over \
-         the reached worlds: median {} s, p95 {} s. Retraining: median {} s.\n\n",
+         the reached worlds: median {} s, p95 {} s; settled scene → approved plan without retraining: \
+         median {} ms, → the arm moved 2 mrad: median {} ms. Retraining: median {} s.\n\n",
         a.worlds,
         a.reached,
         a.zero_shot,
@@ -144,14 +175,18 @@ pub fn table(seed: u64, rows: &[WorldRun]) -> String {
         a.collisions,
         secs(a.change_to_motion_median_s),
         secs(a.change_to_motion_p95_s),
+        a.settled_to_approval_median_s
+            .map_or("–".to_owned(), |v| format!("{:.0}", 1e3 * v)),
+        a.settled_to_motion_median_s
+            .map_or("–".to_owned(), |v| format!("{:.0}", 1e3 * v)),
         secs(a.retrain_median_s),
     );
-    md += "| # | boxes | tallest (m) | outcome | zero-shot | moved by | change → motion (s) | retraining (s) | collisions | reason |\n";
-    md += "|---|---|---|---|---|---|---|---|---|---|\n";
+    md += "| # | boxes | tallest (m) | outcome | zero-shot | moved by | change → motion (s) | settled → motion (ms) | retraining (s) | collisions | reason |\n";
+    md += "|---|---|---|---|---|---|---|---|---|---|---|\n";
     for r in rows {
         let _ = writeln!(
             md,
-            "| {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {} | {} |",
             r.index,
             r.boxes,
             r.tallest_box_m,
@@ -163,6 +198,8 @@ pub fn table(seed: u64, rows: &[WorldRun]) -> String {
                 &r.executor
             },
             secs(r.change_to_motion_s),
+            r.settled_to_motion_s
+                .map_or("–".to_owned(), |v| format!("{:.0}", 1e3 * v)),
             secs(r.retrain_s),
             r.collisions,
             r.reason.replace('|', "/"),
@@ -265,6 +302,8 @@ mod tests {
             reason: String::new(),
             zero_shot: Some(zero),
             change_to_motion_s: motion,
+            settled_to_motion_s: motion.map(|m| m - 0.1),
+            settled_to_approval_s: motion.map(|_| 0.01),
             retrain_s: (!zero).then_some(3.0),
             collisions: 0,
             executor: "policy".into(),
@@ -298,6 +337,11 @@ mod tests {
         assert_eq!(a.change_to_motion_median_s, Some(0.5));
         assert_eq!(a.change_to_motion_p95_s, Some(6.0));
         assert_eq!(a.retrain_median_s, Some(3.0));
+        // Settled → motion over the worlds reached without retraining (0.3 and 0.4 s): the
+        // lower of the two by nearest rank.
+        let settled = a.settled_to_motion_median_s.unwrap();
+        assert!((settled - 0.3).abs() < 1e-9, "{settled}");
+        assert_eq!(a.settled_to_approval_median_s, Some(0.01));
         let dir = std::env::temp_dir().join(format!("foresight-worlds-{}", std::process::id()));
         let md = write_benchmark(&dir, 7, &rows).unwrap();
         assert!(md.contains("| 2 | 1 | 0.20 | infeasible |"), "{md}");
