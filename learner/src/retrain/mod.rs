@@ -242,12 +242,20 @@ fn kept_scenes(trainer: &Trainer<TwinTask>, env: &TwinTask, n: usize) -> Vec<Sce
         return Vec::new();
     }
     let candidates = fixed_scenes(&CurriculumSampler::pretraining(env), 2 * n, KEPT_SEED);
+    // One batched evaluation of all candidates (each scene's episode is its own, so the
+    // choice is the same as evaluating them one at a time — which took 0.6 s of the 2.1 s
+    // tall-box retraining).
+    let solved = crate::ppo::successes(
+        &trainer.net,
+        &trainer.obs_normalizer(),
+        env,
+        &candidates,
+        trainer.cfg.effective_workers(),
+    );
     candidates
         .into_iter()
-        .filter(|s| {
-            let e = trainer.evaluate(std::slice::from_ref(s));
-            e.success_rate > 0.5 && e.collision_rate == 0.0
-        })
+        .zip(solved)
+        .filter_map(|(s, ok)| ok.then_some(s))
         .take(n)
         .collect()
 }
