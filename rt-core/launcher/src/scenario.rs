@@ -568,11 +568,13 @@ impl Director {
                         self.moved_since_change = false;
                         (
                             self.detect_s,
+                            self.settled_s,
+                            self.approved_s,
                             self.verdict_s,
                             self.request_s,
                             self.published_s,
                             self.motion_s,
-                        ) = (None, None, None, None, None);
+                        ) = (None, None, None, None, None, None, None);
                         let name = self.cfg.world[next].1.name.clone();
                         self.log(
                             t_s,
@@ -1243,6 +1245,55 @@ mod tests {
         let kinds: Vec<&str> = d.events().iter().map(|e| e.kind).collect();
         assert!(kinds.contains(&"infeasible"), "{kinds:?}");
         assert_eq!(d.summary(0, None, 0, 0).outcome, Outcome::Infeasible);
+    }
+
+    /// Each world change times its own settled scene: the demo's third act once reported
+    /// `world_change_to_settled_s` = −18 s, the second act's settled frame measured from the
+    /// third act's change.
+    #[test]
+    fn the_settled_scene_is_timed_per_world_change() {
+        let cfg = ScenarioConfig {
+            world: vec![
+                (0.0, scene([0.4, 0.2, 0.025], 0.06)),
+                (0.0, scene([0.4, -0.2, 0.025], 0.35)),
+                (0.0, scene([0.3, 0.2, 0.025], 0.2)),
+            ],
+            goal_tolerance_m: 0.02,
+            goal_hover_m: 0.05,
+            phase_timeout_s: 30.0,
+            settle_s: 0.0,
+            lookahead: false,
+            home_q_rad: None,
+            goals_from_action: false,
+        };
+        let seen = |goal: [f32; 3], tallest: f32| Observations {
+            scene: Some(SeenScene {
+                goal_m: Some(goal),
+                tallest_obstacle_m: tallest,
+                obstacles: 1,
+                sequence: 3,
+                settled: true,
+            }),
+            ..Observations::default()
+        };
+        let mut d = Director::new(cfg);
+        d.step(0.0, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1)));
+        assert_eq!(
+            d.step(0.1, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1))),
+            vec![Action::SwitchScene(1)]
+        );
+        d.step(0.2, &seen([0.4, -0.2, 0.025], 0.35));
+        let first = d.summary(0, None, 0, 0).world_change_to_settled_s.unwrap();
+        assert!((first - 0.1).abs() < 1e-9, "{first}");
+        // Goal 1 reached and still: the third world comes; nothing of it is settled yet.
+        assert_eq!(
+            d.step(1.0, &obs_state(state([0.4, -0.2, 0.1], 0.0, 2))),
+            vec![Action::SwitchScene(2)]
+        );
+        assert_eq!(d.summary(0, None, 0, 0).world_change_to_settled_s, None);
+        d.step(1.35, &seen([0.3, 0.2, 0.025], 0.2));
+        let settled = d.summary(0, None, 0, 0).world_change_to_settled_s.unwrap();
+        assert!((settled - 0.35).abs() < 1e-9, "{settled}");
     }
 
     #[test]
