@@ -21,23 +21,43 @@ fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
-#[test]
-fn every_generator_is_reported_with_policy_line_and_planner_columns() {
-    let out = std::env::temp_dir().join(format!("foresight-worlds-gen-{}", std::process::id()));
+/// Runs `unseen-worlds ARGS --out <temp>/foresight-worlds-<tag>-<pid>` from the repository
+/// root into a fresh folder; returns the folder and its `worlds.json`.
+fn unseen_worlds(tag: &str, args: &[&str]) -> (PathBuf, serde_json::Value) {
+    let out = std::env::temp_dir().join(format!("foresight-worlds-{tag}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
     let status = Command::new(env!("CARGO_BIN_EXE_unseen-worlds"))
         .current_dir(root())
-        .args(["--checkpoint", "assets/policy", "--generator", "all"])
-        .args(["--worlds", &WORLDS.to_string(), "--seed", &SEED.to_string()])
-        .args(["--kept-eval-episodes", "20", "--out"])
+        .args(args)
+        .arg("--out")
         .arg(&out)
         .status()
         .expect("unseen-worlds runs");
-    assert!(status.success(), "unseen-worlds failed: {status}");
-
-    let json: serde_json::Value =
+    assert!(status.success(), "unseen-worlds {args:?} failed: {status}");
+    let json =
         serde_json::from_slice(&std::fs::read(out.join("worlds.json")).expect("worlds.json"))
             .expect("JSON");
+    (out, json)
+}
+
+#[test]
+fn every_generator_is_reported_with_policy_line_and_planner_columns() {
+    let (worlds, seed) = (WORLDS.to_string(), SEED.to_string());
+    let (out, json) = unseen_worlds(
+        "gen",
+        &[
+            "--checkpoint",
+            "assets/policy",
+            "--generator",
+            "all",
+            "--worlds",
+            &worlds,
+            "--seed",
+            &seed,
+            "--kept-eval-episodes",
+            "20",
+        ],
+    );
     let tables = json["generators"].as_array().expect("generators");
     let names: Vec<&str> = tables
         .iter()
@@ -107,27 +127,22 @@ fn every_generator_is_reported_with_policy_line_and_planner_columns() {
 /// Zero-shot successes per independent generator (uniform, cluttered, adversarial) and the
 /// straight line's, from `unseen-worlds --checkpoint <checkpoint> --generator all`.
 fn zero_shot_by_generator(checkpoint: &str, worlds: usize, seed: u64) -> Vec<(String, u64, u64)> {
-    let out = std::env::temp_dir().join(format!(
-        "foresight-worlds-{}-{}",
-        checkpoint.replace('/', "-"),
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&out);
-    let status = Command::new(env!("CARGO_BIN_EXE_unseen-worlds"))
-        .current_dir(root())
-        .args(["--checkpoint", checkpoint, "--generator", "all"])
-        .args(["--worlds", &worlds.to_string(), "--seed", &seed.to_string()])
-        .args(["--kept-eval-episodes", "20", "--out"])
-        .arg(&out)
-        .status()
-        .expect("unseen-worlds runs");
-    assert!(
-        status.success(),
-        "unseen-worlds --checkpoint {checkpoint} failed: {status}"
+    let (worlds, seed) = (worlds.to_string(), seed.to_string());
+    let (out, json) = unseen_worlds(
+        &checkpoint.replace('/', "-"),
+        &[
+            "--checkpoint",
+            checkpoint,
+            "--generator",
+            "all",
+            "--worlds",
+            &worlds,
+            "--seed",
+            &seed,
+            "--kept-eval-episodes",
+            "20",
+        ],
     );
-    let json: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("worlds.json")).expect("worlds.json"))
-            .expect("JSON");
     let _ = std::fs::remove_dir_all(&out);
     json["generators"]
         .as_array()
@@ -178,28 +193,23 @@ fn the_distilled_generalist_beats_the_line_and_the_ppo_generalist_on_unseen_worl
 /// Outcomes, not times.
 #[test]
 fn verified_sampling_rescues_worlds_the_deterministic_rollout_fails() {
-    let out =
-        std::env::temp_dir().join(format!("foresight-worlds-sampling-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&out);
-    let status = Command::new(env!("CARGO_BIN_EXE_unseen-worlds"))
-        .current_dir(root())
-        .args(["--checkpoint", "assets/policy-distilled"])
-        .args([
+    let (out, json) = unseen_worlds(
+        "sampling",
+        &[
+            "--checkpoint",
+            "assets/policy-distilled",
             "--generator",
             "adversarial",
             "--worlds",
             "20",
             "--seed",
             "1",
-        ])
-        .args(["--samples", "1,8,32", "--kept-eval-episodes", "0", "--out"])
-        .arg(&out)
-        .status()
-        .expect("unseen-worlds runs");
-    assert!(status.success(), "unseen-worlds --samples failed: {status}");
-    let json: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("worlds.json")).expect("worlds.json"))
-            .expect("JSON");
+            "--samples",
+            "1,8,32",
+            "--kept-eval-episodes",
+            "0",
+        ],
+    );
     let t = &json["generators"][0];
     let a = &t["aggregate"];
     let pass: Vec<u64> = a["pass_at"]
@@ -244,27 +254,28 @@ fn verified_sampling_rescues_worlds_the_deterministic_rollout_fails() {
 /// worker count is fixed so that the run is the same on any machine.
 #[test]
 fn retraining_learns_the_world_the_default_policy_fails() {
-    let out = std::env::temp_dir().join(format!("foresight-worlds-retrain-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&out);
-    let status = Command::new(env!("CARGO_BIN_EXE_unseen-worlds"))
-        .current_dir(root())
-        .args(["--checkpoint", "assets/policy-distilled"])
-        .args(["--generator", "uniform", "--worlds", "16", "--seed", "2"])
-        .args([
+    let (out, json) = unseen_worlds(
+        "retrain",
+        &[
+            "--checkpoint",
+            "assets/policy-distilled",
+            "--generator",
+            "uniform",
+            "--worlds",
+            "16",
+            "--seed",
+            "2",
             "--retrain",
             "--max-steps",
             "100000",
             "--time-budget-s",
             "600",
-        ])
-        .args(["--workers", "2", "--kept-eval-episodes", "20", "--out"])
-        .arg(&out)
-        .status()
-        .expect("unseen-worlds runs");
-    assert!(status.success(), "unseen-worlds --retrain failed: {status}");
-    let json: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("worlds.json")).expect("worlds.json"))
-            .expect("JSON");
+            "--workers",
+            "2",
+            "--kept-eval-episodes",
+            "20",
+        ],
+    );
     let t = &json["generators"][0];
     let a = &t["aggregate"];
     let failed = a["feasible"].as_u64().expect("feasible") - a["zero_shot"].as_u64().expect("zs");
