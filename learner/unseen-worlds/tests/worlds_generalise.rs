@@ -40,14 +40,19 @@ fn unseen_worlds(tag: &str, args: &[&str]) -> (PathBuf, serde_json::Value) {
     (out, json)
 }
 
-#[test]
-fn every_generator_is_reported_with_policy_line_and_planner_columns() {
-    let (worlds, seed) = (WORLDS.to_string(), SEED.to_string());
-    let (out, json) = unseen_worlds(
-        "gen",
+/// [`unseen_worlds`] with `--generator all` for `checkpoint`, `worlds` per generator, `seed`.
+fn all_generators(
+    tag: &str,
+    checkpoint: &str,
+    worlds: usize,
+    seed: u64,
+) -> (PathBuf, serde_json::Value) {
+    let (worlds, seed) = (worlds.to_string(), seed.to_string());
+    unseen_worlds(
+        tag,
         &[
             "--checkpoint",
-            "assets/policy",
+            checkpoint,
             "--generator",
             "all",
             "--worlds",
@@ -57,7 +62,12 @@ fn every_generator_is_reported_with_policy_line_and_planner_columns() {
             "--kept-eval-episodes",
             "20",
         ],
-    );
+    )
+}
+
+#[test]
+fn every_generator_is_reported_with_policy_line_and_planner_columns() {
+    let (out, json) = all_generators("gen", "assets/policy", WORLDS, SEED);
     let tables = json["generators"].as_array().expect("generators");
     let names: Vec<&str> = tables
         .iter()
@@ -127,22 +137,7 @@ fn every_generator_is_reported_with_policy_line_and_planner_columns() {
 /// Zero-shot successes per independent generator (uniform, cluttered, adversarial) and the
 /// straight line's, from `unseen-worlds --checkpoint <checkpoint> --generator all`.
 fn zero_shot_by_generator(checkpoint: &str, worlds: usize, seed: u64) -> Vec<(String, u64, u64)> {
-    let (worlds, seed) = (worlds.to_string(), seed.to_string());
-    let (out, json) = unseen_worlds(
-        &checkpoint.replace('/', "-"),
-        &[
-            "--checkpoint",
-            checkpoint,
-            "--generator",
-            "all",
-            "--worlds",
-            &worlds,
-            "--seed",
-            &seed,
-            "--kept-eval-episodes",
-            "20",
-        ],
-    );
+    let (out, json) = all_generators(&checkpoint.replace('/', "-"), checkpoint, worlds, seed);
     let _ = std::fs::remove_dir_all(&out);
     json["generators"]
         .as_array()
