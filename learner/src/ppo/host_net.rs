@@ -527,9 +527,7 @@ impl GradWorker {
             thread: Some(thread),
         })
     }
-}
 
-impl GradWorker {
     /// The payload of the panic that ended the worker's thread (joins it).
     fn panic(&mut self) -> Box<dyn std::any::Any + Send> {
         match self.thread.take().map(std::thread::JoinHandle::join) {
