@@ -56,7 +56,8 @@ if [ ! -x "$venv/bin/python" ]; then
   say "creating virtual environment $venv"
   mkdir -p "$cache"
   "$py" -m venv "$venv"
-  "$venv/bin/python" -m pip install -q --upgrade pip
+  # pip pinned like every other package (issue 41 item 6): the same resolver on every machine.
+  "$venv/bin/python" -m pip install -q "pip==26.3"
 fi
 have=$("$venv/bin/python" - <<'PY' 2>/dev/null || true
 import importlib.metadata as m
@@ -124,11 +125,18 @@ PY
 )
 if [ -n "$missing_py" ]; then
   say "installing $(echo $missing_py) (run-recording readers) into the venv"
+  # --no-warn-conflicts: pip's own after-install report would list torch's requirements, which
+  # step 2 leaves out on purpose (libtorch only, --no-deps) and which would read as an ERROR on
+  # every fresh machine (issue 41 item 6). The check below is that report with exactly this one
+  # exception: any other broken requirement still stops the set-up.
   # shellcheck disable=SC2086
-  "$venv/bin/python" -m pip install -q -c "$here/scripts/python-constraints.txt" $missing_py
+  "$venv/bin/python" -m pip install -q --no-warn-conflicts \
+    -c "$here/scripts/python-constraints.txt" $missing_py
 else
   say "mcap readers present"
 fi
+"$venv/bin/python" "$here/scripts/check_venv.py" \
+  || { echo "setup: the venv $venv has broken requirements (above)" >&2; exit 1; }
 
 # ---- 5. build/env.mk ---------------------------------------------------------------------------
 mkdir -p "$here/build"
