@@ -170,6 +170,89 @@ fn the_reach_action_reaches_refuses_reports_infeasible_and_cancels() {
     );
 }
 
+/// Issue 41 item 1, through the real processes: a goal behind the demo's wide tall box (the
+/// planner must search), cancelled 20 ms after its acceptance, while the twin thread is
+/// still making the plan. Before, the cancel reached the twin thread after its planning and
+/// revoked only a plan the cycle followed: the planner's plan was adopted after the cancel,
+/// the arm drove to the cancelled target and the client was told "cancelled". Now the TCP
+/// never comes within 5 cm of the cancelled target.
+#[test]
+fn a_cancel_while_the_plan_is_made_never_drives_toward_the_cancelled_target() {
+    if run_in_private_netns(
+        "a_cancel_while_the_plan_is_made_never_drives_toward_the_cancelled_target",
+    ) == NetnsOutcome::RanInChild
+    {
+        return;
+    }
+    let out = scratch_dir("runs", "reach_cancel");
+    let mut foresight = ChildGuard::spawn(
+        "foresight",
+        Command::new(bin_path("foresight"))
+            .current_dir(repo_root())
+            .args(["--world", "assets/scenes/reach_cancel_world.toml"])
+            .args(["--ros", "--goal-source", "action", "--no-record"])
+            .args(["--phase-timeout-s", "3000"])
+            .arg("--out")
+            .arg(&out)
+            .stdout(Stdio::piped()),
+    );
+    let stdout = foresight.child.stdout.take().unwrap();
+    let (prefix_tx, prefix_rx) = mpsc::channel::<String>();
+    std::thread::spawn(move || {
+        for l in BufReader::new(stdout).lines().map_while(Result::ok) {
+            println!("[foresight] {l}");
+            if let Some(p) = l.split("service prefix ").nth(1) {
+                let _ = prefix_tx.send(p.trim().to_owned());
+            }
+        }
+    });
+    let prefix = prefix_rx
+        .recv_timeout(Duration::from_secs(240))
+        .expect("foresight prints its service prefix");
+    // The TCP's closest approach to the target (0.05 m cube on the table, 0.05 m hover).
+    let target_m = [0.28, -0.28, 0.10];
+    let closest_m = Arc::new(Mutex::new(f64::INFINITY));
+    let watching = Arc::new(AtomicBool::new(true));
+    let watcher = {
+        let (closest_m, watching, prefix) = (closest_m.clone(), watching.clone(), prefix.clone());
+        std::thread::spawn(move || {
+            let (node, _cleanup) =
+                services::create_node::<ipc::Service>("reach-cancel-test").unwrap();
+            let sub = services::open_subscriber::<RobotState, _>(&node, &prefix).unwrap();
+            while watching.load(Ordering::Relaxed) {
+                while let Ok(Some(s)) = sub.receive() {
+                    let d = (0..3)
+                        .map(|k| (s.tcp_m[k] - target_m[k]).powi(2))
+                        .sum::<f64>()
+                        .sqrt();
+                    let mut c = closest_m.lock().unwrap();
+                    *c = c.min(d);
+                }
+                std::thread::sleep(Duration::from_millis(2));
+            }
+        })
+    };
+    let (code, text) = reach(&["--goal", "0.28,-0.28", "--cancel-after-s", "0.02"]);
+    assert_eq!(code, 5, "cancelled: {text}");
+    assert!(text.contains("result: cancelled"), "{text}");
+    // Long enough for a plan adopted after the cancel to have reached the target (3.6 s in
+    // the reproduction).
+    std::thread::sleep(Duration::from_secs(6));
+    watching.store(false, Ordering::Relaxed);
+    watcher.join().unwrap();
+    let closest_m = *closest_m.lock().unwrap();
+    assert!(
+        closest_m >= 0.05,
+        "the TCP came {closest_m:.3} m from the cancelled target"
+    );
+    assert!(
+        foresight
+            .interrupt_and_wait(Duration::from_secs(120))
+            .is_some(),
+        "foresight stops on SIGINT"
+    );
+}
+
 /// What the stand-in for rt-core publishes: the TCP and whether the arm moves.
 struct FakeArm {
     tcp_m: Mutex<[f64; 3]>,

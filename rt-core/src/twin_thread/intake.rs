@@ -22,8 +22,10 @@
 //! With the goal source `action` ([`SceneIntake::with_requested_goals`]), the goal is the one
 //! the ROS 2 `Reach` action asks for ([`GoalRequest`]s from `ros-bridge`, checked here again
 //! against the same bounds the bridge checked, [`SceneIntake::request`]): the camera's goal
-//! cube is ignored, its obstacles count as always, and a frame has a goal only while an
-//! action goal is active.
+//! cube is not the goal but an obstacle like any other, and a frame has a goal only while an
+//! action goal is active. With the goal source `camera` a goal-class detection below the
+//! confidence floor is an obstacle too (issue 41 item 2: a cube in view that is not the goal
+//! is a physical object the arm must not hit).
 
 use shm_schemas::goal_request::{REQUESTED_GOAL_SIZE_M, requested_goal_center_m};
 use shm_schemas::{
@@ -213,6 +215,10 @@ pub struct AcceptedFrame {
     /// An action goal was cancelled since the last accepted frame: the plan under way is to
     /// be revoked (the arm stops along its checked path).
     pub stop_requested: bool,
+    /// How many action goals had been withdrawn (cancelled or pre-empted) when this frame
+    /// was accepted ([`SceneIntake::goal_epoch`]): a plan approved on this frame's scene is
+    /// refused by the plan guard once a later withdrawal is known to it (issue 41 item 1).
+    pub goal_epoch: u64,
 }
 
 /// Why a [`GoalRequest`] was refused.
@@ -247,6 +253,8 @@ struct RequestedGoals {
     last_id: u64,
     /// A cancel arrived since the last accepted frame.
     stop_pending: bool,
+    /// Active goals withdrawn so far: cancelled, or pre-empted by a newer goal.
+    withdrawals: u64,
 }
 
 /// Turns detection frames into scenes, refusing what cannot be trusted.
@@ -292,7 +300,7 @@ impl SceneIntake {
 
     /// The goal source `action`: goals come from [`SceneIntake::request`] within `bounds`
     /// (the TCP target is `goal_hover_m` above the requested goal cube's top, as for a seen
-    /// one); the camera's goal cube is ignored.
+    /// one); the camera's goal cube is an obstacle like any other detected object.
     pub fn with_requested_goals(mut self, bounds: GoalBounds, goal_hover_m: f64) -> Self {
         self.requested = Some(RequestedGoals {
             bounds,
@@ -300,6 +308,7 @@ impl SceneIntake {
             active: None,
             last_id: 0,
             stop_pending: false,
+            withdrawals: 0,
         });
         self
     }
@@ -335,6 +344,14 @@ impl SceneIntake {
             Err(_) => self.counters.goal_requests_refused += 1,
         }
         outcome
+    }
+
+    /// How many active goals were withdrawn so far: cancelled, or pre-empted by a newer
+    /// goal (0 with the goal source `camera`). Each withdrawal is for the plan guard to
+    /// revoke every plan toward the withdrawn goal (`ScenePath::goal_withdrawn`), and every
+    /// frame carries the count it was accepted under ([`AcceptedFrame::goal_epoch`]).
+    pub fn goal_epoch(&self) -> u64 {
+        self.requested.map_or(0, |r| r.withdrawals)
     }
 
     /// What was counted so far.
@@ -431,6 +448,7 @@ impl SceneIntake {
             stamp_ns,
             intruders,
             stop_requested,
+            goal_epoch: self.goal_epoch(),
         })
     }
 
@@ -488,98 +506,81 @@ impl SceneIntake {
                     center_m: o.center_m,
                 });
             }
-            // With requested goals the camera's goal cube is not the goal: its reach is not
-            // checked (the request's was).
-            if class == ObjectClass::Goal
-                && self.requested.is_none()
-                && o.confidence >= self.cfg.min_goal_confidence
-            {
-                let radius_m = f64::from(o.center_m[0]).hypot(f64::from(o.center_m[1]));
-                let (min_m, max_m) = (self.cfg.goal_min_radius_m, self.cfg.goal_max_radius_m);
-                if !(min_m..=max_m).contains(&radius_m) {
-                    return Err(FrameRefusal::GoalOutOfReach {
-                        radius_m,
-                        min_m,
-                        max_m,
-                    });
-                }
+        }
+        // Only the goal's reach is checked: every other goal-class object is an obstacle
+        // (and with requested goals the request's reach was checked).
+        if let Some(o) = self.goal_index(frame).map(|i| frame.objects()[i]) {
+            let radius_m = f64::from(o.center_m[0]).hypot(f64::from(o.center_m[1]));
+            let (min_m, max_m) = (self.cfg.goal_min_radius_m, self.cfg.goal_max_radius_m);
+            if !(min_m..=max_m).contains(&radius_m) {
+                return Err(FrameRefusal::GoalOutOfReach {
+                    radius_m,
+                    min_m,
+                    max_m,
+                });
             }
         }
         Ok(())
     }
 
+    /// Which object of a frame is the goal (issue 41 item 2). With the goal source `camera`:
+    /// the goal-class detection at or above the confidence floor (a valid frame carries at
+    /// most one; the highest confidence would win). With requested goals: none, the action
+    /// gives the goal. Every other object,
+    /// goal-class ones included, is an obstacle: a cube in view that is not the goal is a
+    /// physical object the arm must not hit.
+    fn goal_index(&self, frame: &DetectionFrame) -> Option<usize> {
+        if self.requested.is_some() {
+            return None;
+        }
+        let mut best: Option<(usize, f32)> = None;
+        for (index, o) in frame.objects().iter().enumerate() {
+            let is_goal = matches!(o.class(), Ok(ObjectClass::Goal));
+            if is_goal
+                && o.confidence >= self.cfg.min_goal_confidence
+                && best.is_none_or(|(_, c)| o.confidence > c)
+            {
+                best = Some((index, o.confidence));
+            }
+        }
+        best.map(|(index, _)| index)
+    }
+
     /// The scene of a checked frame; whether it has a goal; its obstacles seen moving.
     fn scene_of(&mut self, frame: &DetectionFrame) -> (Scene, bool, Intruders) {
         let mut intruders = Intruders::NONE;
-        let snap = |v: f32| (f64::from(v) / SNAP_GRID_M).round() * SNAP_GRID_M;
         let table_height_m = self.table_height_m;
         let mut scene = Scene::empty(table_height_m, self.last_goal);
         let mut goal_seen = false;
         let requested = self.requested.map(|r| r.active);
         let settled = frame.settled();
-        for o in frame.objects() {
+        let goal_index = self.goal_index(frame);
+        for (index, o) in frame.objects().iter().enumerate() {
             let (o_center_m, o_size_m) = if settled {
                 (o.center_m, o.size_m)
             } else {
                 predicted_occupancy(o, &self.cfg)
             };
-            let center_m = [
-                snap(o_center_m[0]),
-                snap(o_center_m[1]),
-                snap(o_center_m[2]),
-            ];
-            let size_m = [snap(o_size_m[0]), snap(o_size_m[1]), snap(o_size_m[2])];
-            match o.class() {
-                // The action gives the goal: the camera's goal cube is ignored.
-                Ok(ObjectClass::Goal) if requested.is_some() => {}
-                Ok(ObjectClass::Goal) if o.confidence >= self.cfg.min_goal_confidence => {
-                    self.last_goal = Goal {
-                        center_m,
-                        size_m: size_m[0].max(SNAP_GRID_M),
-                    };
-                    scene.goal = self.last_goal;
-                    goal_seen = true;
+            if goal_index == Some(index) {
+                let size_m = snap(o_size_m[0]);
+                self.last_goal = Goal {
+                    center_m: o_center_m.map(snap),
+                    size_m: size_m.max(SNAP_GRID_M),
+                };
+                scene.goal = self.last_goal;
+                goal_seen = true;
+            } else if o.class().is_ok() {
+                let moving = !settled && moving_speed_m_s(o, &self.cfg) >= MOVING_SPEED_M_S;
+                let obstacle = snapped_obstacle(o_center_m, o_size_m, table_height_m);
+                // Cannot fail: a valid frame carries at most MAX_DETECTIONS objects and the
+                // scene holds as many obstacles (one capacity, asserted in shm-schemas).
+                let slot = scene.obstacles.len();
+                let pushed = scene.obstacles.push(obstacle);
+                debug_assert!(pushed.is_ok(), "scene capacity below frame capacity");
+                if moving && pushed.is_ok() && slot < 32 {
+                    intruders.mask |= 1 << slot;
+                    intruders.speed_m_s = intruders.speed_m_s.max(speed_m_s(o));
                 }
-                // Below the floor: as if not seen (no plan toward a doubtful goal).
-                Ok(ObjectClass::Goal) => {}
-                Ok(ObjectClass::Obstacle) => {
-                    // Snap the top and the bottom (not the centre and the height): a box
-                    // standing on the table must not reach below it after rounding, or the
-                    // learner would refuse the scene of a retrain request.
-                    let top = snap(o_center_m[2] + o_size_m[2] / 2.0);
-                    let bottom = snap(o_center_m[2] - o_size_m[2] / 2.0).max(table_height_m);
-                    let height = (top - bottom).max(SNAP_GRID_M);
-                    // Cannot fail: a valid frame carries at most MAX_DETECTIONS objects and
-                    // the scene holds as many obstacles (one capacity, asserted in
-                    // shm-schemas).
-                    let index = scene.obstacles.len();
-                    let pushed = scene.obstacles.push(BoxObstacle {
-                        center_m: [center_m[0], center_m[1], bottom + height / 2.0],
-                        size_m: [
-                            size_m[0].max(SNAP_GRID_M),
-                            size_m[1].max(SNAP_GRID_M),
-                            height,
-                        ],
-                    });
-                    debug_assert!(pushed.is_ok(), "scene capacity below frame capacity");
-                    let speed_m_s = f64::from(
-                        (o.velocity_m_s[0].powi(2)
-                            + o.velocity_m_s[1].powi(2)
-                            + o.velocity_m_s[2].powi(2))
-                        .sqrt(),
-                    );
-                    let sigma_m_s =
-                        f64::from(o.velocity_sigma_m_s.max(0.0)).min(self.cfg.intruder_speed_m_s);
-                    if !settled
-                        && pushed.is_ok()
-                        && index < 32
-                        && speed_m_s + sigma_m_s >= MOVING_SPEED_M_S
-                    {
-                        intruders.mask |= 1 << index;
-                        intruders.speed_m_s = intruders.speed_m_s.max(speed_m_s);
-                    }
-                }
-                Err(_) => {}
             }
         }
         if let Some(Some((_, goal))) = requested {
@@ -589,6 +590,41 @@ impl SceneIntake {
         }
         (scene, goal_seen, intruders)
     }
+}
+
+/// A position or size on the snapping grid.
+fn snap(v: f32) -> f64 {
+    (f64::from(v) / SNAP_GRID_M).round() * SNAP_GRID_M
+}
+
+/// An obstacle box from a detection's (possibly predicted) centre and size. The top and the
+/// bottom are snapped (not the centre and the height): a box standing on the table must not
+/// reach below it after rounding, or the learner would refuse the scene of a retrain request.
+fn snapped_obstacle(center_m: [f32; 3], size_m: [f32; 3], table_height_m: f64) -> BoxObstacle {
+    let top = snap(center_m[2] + size_m[2] / 2.0);
+    let bottom = snap(center_m[2] - size_m[2] / 2.0).max(table_height_m);
+    let height = (top - bottom).max(SNAP_GRID_M);
+    BoxObstacle {
+        center_m: [snap(center_m[0]), snap(center_m[1]), bottom + height / 2.0],
+        size_m: [
+            snap(size_m[0]).max(SNAP_GRID_M),
+            snap(size_m[1]).max(SNAP_GRID_M),
+            height,
+        ],
+    }
+}
+
+/// A detection's measured speed, m/s.
+fn speed_m_s(o: &DetectedObject) -> f64 {
+    let v = o.velocity_m_s;
+    f64::from((v[0].powi(2) + v[1].powi(2) + v[2].powi(2)).sqrt())
+}
+
+/// A detection's speed plus its velocity's uncertainty (capped at the configured intruder
+/// speed), m/s: what decides whether it is seen moving.
+fn moving_speed_m_s(o: &DetectedObject, cfg: &IntakeConfig) -> f64 {
+    let sigma_m_s = f64::from(o.velocity_sigma_m_s.max(0.0)).min(cfg.intruder_speed_m_s);
+    speed_m_s(o) + sigma_m_s
 }
 
 impl RequestedGoals {
@@ -620,6 +656,10 @@ impl RequestedGoals {
                 );
                 // (On the intake's grid already, as a seen goal.)
                 self.last_id = req.goal_id;
+                // A newer goal pre-empts the active one: plans toward it are withdrawn.
+                if self.active.is_some() {
+                    self.withdrawals += 1;
+                }
                 self.active = Some((
                     req.goal_id,
                     Goal {
@@ -631,7 +671,10 @@ impl RequestedGoals {
             GoalCommand::Cancel | GoalCommand::Release => {
                 if self.active.is_some_and(|(id, _)| id == req.goal_id) {
                     self.active = None;
-                    self.stop_pending |= command == GoalCommand::Cancel;
+                    if command == GoalCommand::Cancel {
+                        self.stop_pending = true;
+                        self.withdrawals += 1;
+                    }
                 }
             }
         }
@@ -1003,14 +1046,16 @@ mod tests {
             !a.goal_seen,
             "no action goal yet: the camera's cube is not the goal"
         );
-        assert_eq!(a.scene.obstacles.len(), 1, "the camera's obstacles count");
+        // Issue 41 item 2: the camera's cube is an obstacle, beside the camera's box (this
+        // asserted 1 before: the cube vanished from the scene).
+        assert_eq!(a.scene.obstacles.len(), 2, "the camera's objects count");
 
         k.request(&GoalRequest::reach(1, [0.45, -0.1], 0.0))
             .unwrap();
         let a = k.accept(&frame(2, now, &seen), now, 1).unwrap();
         assert!(a.goal_seen && !a.stop_requested);
         assert_eq!(a.scene.goal.center_m, [0.45, -0.1, 0.025]);
-        assert_eq!(a.scene.obstacles.len(), 1);
+        assert_eq!(a.scene.obstacles.len(), 2);
         assert_eq!(k.requested_goal_id(), 1);
 
         // A second goal pre-empts the first; an approach height raises the TCP target.
@@ -1097,5 +1142,72 @@ mod tests {
         );
         // A restarted perception (sequence from 3 on) resumes after that one refusal.
         k.accept(&frame(4, now, &objects), now, 1).unwrap();
+    }
+
+    /// Issue 41 item 2: with goals from the action, the goal cube the camera sees is an
+    /// obstacle, snapped like the others: a requested target behind it gives no path through
+    /// it. Before, the cube was dropped from the scene and a posture with the TCP inside it
+    /// passed every check.
+    #[test]
+    fn with_requested_goals_the_seen_goal_cube_is_an_obstacle_a_path_through_it_is_refused() {
+        use std::path::PathBuf;
+        use twin::{IkSolver, RobotModel, TaskConfig, TwinEnv, is_safe_posture};
+
+        let assets = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets");
+        let model = RobotModel::load(&assets.join("xarm5.urdf")).unwrap();
+        let task = TaskConfig::load(&assets.join("task.toml")).unwrap();
+        let env = TwinEnv::new(model.clone(), task);
+        let now = ORIGIN_NS + 1_000_000_000;
+        // A goal cube standing on a shelf, 0.25 m above the table, in front of the target.
+        let cube = DetectedObject::new(1, ObjectClass::Goal, 0.9, [0.35, 0.0, 0.25], [0.05; 3]);
+        let mut k = intake().with_requested_goals(bounds(), 0.05);
+        k.request(&GoalRequest::reach(1, [0.5, 0.0], 0.0)).unwrap();
+        let a = k.accept(&frame(1, now, &[cube]), now, 1).unwrap();
+        assert!(a.goal_seen);
+        assert_eq!(a.scene.goal.center_m[..2], [0.5, 0.0]);
+        assert_eq!(a.scene.obstacles.len(), 1, "the cube is in the scene");
+        let b = a.scene.obstacles[0];
+        assert!((b.center_m[0] - 0.35).abs() < 1e-9 && (b.center_m[2] - 0.25).abs() < 1e-9);
+        assert!((b.size_m[0] - 0.05).abs() < 1e-9);
+
+        // A path toward the target through the cube: its posture with the TCP in the cube
+        // is refused; the same posture with no cube in view is safe (well above the table).
+        let ik = IkSolver::new(&model, task.ik);
+        let through = nalgebra::Vector3::new(0.35, 0.0, 0.25);
+        let q = ik.solve(&model, &through, &task.start.joints_rad).joints;
+        assert!(
+            (model.tcp_m(&q) - through).norm() < 0.005,
+            "IK reached the cube"
+        );
+        assert!(
+            !is_safe_posture(&env, &a.scene, &q),
+            "a path through the cube"
+        );
+        let empty = k.accept(&frame(2, now, &[]), now, 1).unwrap();
+        assert!(
+            is_safe_posture(&env, &empty.scene, &q),
+            "clear without the cube"
+        );
+    }
+
+    /// Issue 41 item 2, camera goals: a valid frame carries at most one goal-class object
+    /// (perception publishes every cube it did not choose as an obstacle); one below the
+    /// confidence floor is not the goal, and is an obstacle (before: it vanished).
+    #[test]
+    fn with_camera_goals_a_doubtful_goal_class_object_is_an_obstacle() {
+        let now = ORIGIN_NS + 1_000_000_000;
+        let mut doubtful = goal([0.4, 0.1, 0.025]);
+        doubtful.confidence = 0.2;
+        let box_ = obstacle(2, [0.3, -0.2, 0.1], [0.05, 0.05, 0.2]);
+        let mut k = intake();
+        let a = k.accept(&frame(1, now, &[doubtful, box_]), now, 1).unwrap();
+        assert!(!a.goal_seen);
+        assert_eq!(a.scene.obstacles.len(), 2, "{:?}", a.scene.obstacles);
+        assert!((a.scene.obstacles[0].center_m[0] - 0.4).abs() < 1e-9);
+        let a = k
+            .accept(&frame(2, now, &[goal([0.3, 0.2, 0.025]), box_]), now, 1)
+            .unwrap();
+        assert!(a.goal_seen);
+        assert_eq!(a.scene.obstacles.len(), 1, "the goal is not an obstacle");
     }
 }

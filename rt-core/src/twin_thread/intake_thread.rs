@@ -10,7 +10,8 @@
 //!
 //! With the goal source `action` it also takes the bridge's [`GoalRequest`]s (the ROS 2
 //! `Reach` action) into the intake before each poll's frames, so the next accepted frame
-//! carries the requested goal.
+//! carries the requested goal; a cancel or a pre-emption is handed to the plan guard here at
+//! once ([`ScenePath::goal_withdrawn`]), not through the twin thread.
 
 // A non-real-time thread: it polls its subscriber with a relative sleep and reads wall time
 // for the logs' throttling only.
@@ -166,6 +167,7 @@ fn run(
     };
     let mut age = Histogram::new();
     let mut refusals_in_a_row = 0u64;
+    let mut goal_epoch = intake.goal_epoch();
     while !stop.load(Ordering::Acquire) {
         while let Some(sample) = goals
             .as_ref()
@@ -194,6 +196,13 @@ fn run(
                     "goal request refused: {refusal}"
                 ),
             }
+        }
+        // A cancel or a pre-emption revokes every plan toward the withdrawn goal here, on
+        // this thread, before the next frame and whatever the twin thread is doing (a
+        // planner search may be about to hand over a plan toward it: the guard refuses it).
+        if intake.goal_epoch() != goal_epoch {
+            goal_epoch = intake.goal_epoch();
+            path.goal_withdrawn(goal_epoch);
         }
         while let Some(sample) = sub.receive().map_err(|cause| TwinNodeError::Receive {
             service: "detections",

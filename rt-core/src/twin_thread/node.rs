@@ -227,6 +227,7 @@ impl TwinNode {
             match note {
                 FrameNote::Accepted { frame, sequence } => {
                     self.scene_seq = sequence;
+                    twin.note_goal_epoch(frame.goal_epoch);
                     if frame.stop_requested {
                         twin.note_goal_cancelled(events);
                     }

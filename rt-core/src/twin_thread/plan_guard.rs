@@ -121,6 +121,8 @@ pub struct PlanGuard<M: ShieldModel> {
     join_window: Option<JoinWindow>,
     /// Obstacles of the current scene are seen moving: no stop waits.
     scene_moving: bool,
+    /// Action goals withdrawn so far, as the intake counts them ([`PlanGuard::withdraw_goal`]).
+    goal_epoch: u64,
 }
 
 impl<M: ShieldModel> PlanGuard<M> {
@@ -139,6 +141,7 @@ impl<M: ShieldModel> PlanGuard<M> {
             verifications: 0,
             join_window: None,
             scene_moving: false,
+            goal_epoch: 0,
         }
     }
 
@@ -178,9 +181,17 @@ impl<M: ShieldModel> PlanGuard<M> {
     }
 
     /// Registers a plan about to be handed to the cycle (call it *before* the hand-over, so
-    /// no frame can fall between the two), approved in `approved_in`. When the guard has seen
-    /// a newer scene meanwhile, the live plans are verified against it at once.
-    pub fn sent(&mut self, plan: Arc<Plan>, approved_in: M::Scene) {
+    /// no frame can fall between the two), approved in `approved_in`, a scene accepted under
+    /// `goal_epoch` ([`crate::twin_thread::intake::AcceptedFrame::goal_epoch`]). When the
+    /// guard has seen a newer scene meanwhile, the live plans are verified against it at once.
+    ///
+    /// Returns false, registering nothing, when a goal was withdrawn after that scene was
+    /// accepted: the plan may head for the withdrawn goal and must not be handed over.
+    #[must_use]
+    pub fn sent(&mut self, plan: Arc<Plan>, approved_in: M::Scene, goal_epoch: u64) -> bool {
+        if goal_epoch < self.goal_epoch {
+            return false;
+        }
         if self.live.len() == MAX_LIVE_PLANS {
             self.live.remove(0);
         }
@@ -190,6 +201,40 @@ impl<M: ShieldModel> PlanGuard<M> {
         {
             self.verify(scene);
         }
+        true
+    }
+
+    /// The action goal was withdrawn — cancelled, or pre-empted by a newer one — and
+    /// `goal_epoch` goals have been withdrawn in all (issue 41 item 1). Every live plan is
+    /// revoked at once, whatever the twin thread is doing: the running one stops along its
+    /// checked path, a joining one or one sent from rest and not adopted yet is refused by
+    /// the cycle. A plan approved on a scene from before the withdrawal, still on its way
+    /// (a planner search or a lookahead under way), is refused at registration
+    /// ([`PlanGuard::sent`]). Called by the scene path on the intake thread, within one poll
+    /// of the request's arrival.
+    pub fn withdraw_goal(&mut self, goal_epoch: u64) {
+        if goal_epoch <= self.goal_epoch {
+            return;
+        }
+        self.goal_epoch = goal_epoch;
+        let Some(newest) = self.live.iter().map(|p| p.id).max() else {
+            return;
+        };
+        if newest <= self.control.revoked_up_to() {
+            return;
+        }
+        let (plan_id, at_index) = self.control.progress().unwrap_or((newest, 0));
+        self.control.revoke_up_to_because(newest, 0, 0);
+        self.revocations.push(Revocation {
+            plan_id,
+            at_index,
+            stop_due_index: None,
+        });
+    }
+
+    /// Action goals withdrawn so far, as last told ([`PlanGuard::withdraw_goal`]).
+    pub fn goal_epoch(&self) -> u64 {
+        self.goal_epoch
     }
 
     /// The cycle handed plan `plan_id` back (refused, replaced, revoked, or at the end).

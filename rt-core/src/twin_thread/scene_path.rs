@@ -71,6 +71,13 @@ impl<M: ShieldModel> ScenePath<M> {
         lock_guard(&self.guard).set_clock_origin(origin_ns);
     }
 
+    /// The action goal was withdrawn (cancelled or pre-empted; `goal_epoch` withdrawals in
+    /// all, [`crate::twin_thread::intake::SceneIntake::goal_epoch`]): the plan guard revokes
+    /// every plan toward it, held by the cycle or on its way ([`PlanGuard::withdraw_goal`]).
+    pub fn goal_withdrawn(&mut self, goal_epoch: u64) {
+        lock_guard(&self.guard).withdraw_goal(goal_epoch);
+    }
+
     /// A refused frame: the cycle is told at once (it stops the arm, keeping the last
     /// trusted scene for the shield's clearance while stopping).
     pub fn refused(&mut self) {

@@ -24,6 +24,7 @@ mod xarm_rig;
 
 mod arm_owner;
 mod cycle;
+mod goal_cancel;
 mod goal_reach;
 mod join_before_stop;
 mod limits;

@@ -291,6 +291,14 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         self.planning.request();
     }
 
+    /// The frame about to be noted was accepted under `goal_epoch` withdrawn action goals
+    /// ([`crate::twin_thread::intake::AcceptedFrame::goal_epoch`]): the plans made on its
+    /// scene are registered with the plan guard under it, and refused there once a later
+    /// withdrawal is known (issue 41 item 1).
+    pub fn note_goal_epoch(&mut self, goal_epoch: u64) {
+        self.scene.set_goal_epoch(goal_epoch);
+    }
+
     /// The goal the arm was moving toward was cancelled (the `Reach` action, goal source
     /// `action`): the running and any pending plan are revoked — the cycle stops along the
     /// checked path — and nothing new is planned until a goal is given again.
@@ -657,12 +665,17 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
 
     /// Hands a checked plan to the cycle, registered with the plan guard first (so a frame
     /// that arrived since its approval is checked against it, and none can fall between),
-    /// and keeps a copy among the live plans; false when the hand-over slot is full.
+    /// and keeps a copy among the live plans; false when the hand-over slot is full or the
+    /// guard refused it (its goal was withdrawn since its scene was accepted: nothing is
+    /// planned again until a frame from after the withdrawal is noted, which asks for it).
     fn send_plan(&mut self, plan: Plan, scene: L::Scene) -> bool {
         let copy = Arc::new(plan.clone());
-        lock_guard(&self.guard).sent(copy.clone(), scene);
+        if !lock_guard(&self.guard).sent(copy.clone(), scene, self.scene.goal_epoch()) {
+            return false;
+        }
         if self.io.plans.send(Box::new(plan)).is_err() {
             lock_guard(&self.guard).returned(copy.id);
+            self.planning.request();
             return false;
         }
         self.newest_sent_id = copy.id;
@@ -996,7 +1009,6 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     ) {
         let (plan_id, policy_id) = (plan.id, plan.policy_id);
         if !self.send_plan(plan, scene) {
-            self.planning.request();
             return;
         }
         if let Some((sent, _)) = self.live.last() {

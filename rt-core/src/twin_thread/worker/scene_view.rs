@@ -44,6 +44,10 @@ pub struct SceneView<S> {
     no_goal_reported: bool,
     /// [`Hold::Unsettled`] was reported for the current unsettled stretch.
     unsettled_reported: bool,
+    /// Action goals withdrawn when the latest frame was accepted (see
+    /// [`crate::twin_thread::intake::AcceptedFrame::goal_epoch`]): plans made on this scene
+    /// are registered with it.
+    goal_epoch: u64,
 }
 
 impl<S: Copy + PartialEq> Default for SceneView<S> {
@@ -56,6 +60,7 @@ impl<S: Copy + PartialEq> Default for SceneView<S> {
             settled: false,
             no_goal_reported: false,
             unsettled_reported: false,
+            goal_epoch: 0,
         }
     }
 }
@@ -123,6 +128,16 @@ impl<S: Copy + PartialEq> SceneView<S> {
             change.scene_changed = true;
         }
         change
+    }
+
+    /// The withdrawn-goal count the latest frame was accepted under.
+    pub fn goal_epoch(&self) -> u64 {
+        self.goal_epoch
+    }
+
+    /// The latest frame was accepted under `goal_epoch` withdrawn goals.
+    pub fn set_goal_epoch(&mut self, goal_epoch: u64) {
+        self.goal_epoch = goal_epoch;
     }
 
     /// A frame was refused.
