@@ -171,11 +171,12 @@ fn the_reach_action_reaches_refuses_reports_infeasible_and_cancels() {
 }
 
 /// Issue 41 item 1, through the real processes: a goal behind the demo's wide tall box (the
-/// planner must search), cancelled 20 ms after its acceptance, while the twin thread is
-/// still making the plan. Before, the cancel reached the twin thread after its planning and
-/// revoked only a plan the cycle followed: the planner's plan was adopted after the cancel,
-/// the arm drove to the cancelled target and the client was told "cancelled". Now the TCP
-/// never comes within 5 cm of the cancelled target.
+/// planner must search), cancelled 0.1 s after its acceptance. Before, the cancel reached the
+/// twin thread after its planning and revoked only a plan the cycle followed: a plan made
+/// while the cancel came was adopted after it, the arm drove to the cancelled target and the
+/// client was told "cancelled". Now the TCP never comes within 5 cm of the cancelled target.
+/// The race itself (a cancel landing inside a planning of a few ms) is not hit on every run
+/// here; `rt-core/tests/runtime/goal_cancel.rs` places it deterministically.
 #[test]
 fn a_cancel_while_the_plan_is_made_never_drives_toward_the_cancelled_target() {
     if run_in_private_netns(
@@ -232,7 +233,7 @@ fn a_cancel_while_the_plan_is_made_never_drives_toward_the_cancelled_target() {
             }
         })
     };
-    let (code, text) = reach(&["--goal", "0.28,-0.28", "--cancel-after-s", "0.02"]);
+    let (code, text) = reach(&["--goal", "0.28,-0.28", "--cancel-after-s", "0.1"]);
     assert_eq!(code, 5, "cancelled: {text}");
     assert!(text.contains("result: cancelled"), "{text}");
     // Long enough for a plan adopted after the cancel to have reached the target (3.6 s in
