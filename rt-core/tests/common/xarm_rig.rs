@@ -244,6 +244,10 @@ pub fn urdf() -> std::path::PathBuf {
         .expect("assets/xarm5.urdf above the crate")
 }
 
+/// The rig's cycle thread's `SCHED_FIFO` priority (rt-core's default cycle priority is
+/// higher; any real-time priority outranks the machine's ordinary load).
+const RIG_FIFO_PRIORITY: i32 = 10;
+
 impl XRig {
     /// A cycle in servo mode on a fresh `xarm-sim` at the arm's home pose. `auto_resume`:
     /// the link's return needs no acknowledgement (and the driver re-enters servo mode).
@@ -252,7 +256,15 @@ impl XRig {
     }
 
     /// [`XRig::start`] with the reports rewritten by `report_rule`.
+    ///
+    /// The calling thread, which runs the cycle, asks for `SCHED_FIFO` as rt-core's cycle
+    /// thread does in production (`cycle::thread`): without it, on a loaded 2-core machine
+    /// (the suite's other tests, or `../shared/tools/under-load`), the test thread was
+    /// descheduled for more than the freeze bound and the cycle latched `Frozen` — a stop
+    /// that is right for a real process and not what these tests are about. Where the
+    /// priority is refused (no CAP_SYS_NICE), the rig runs at normal priority.
     pub fn start_rewriting(auto_resume: bool, report_rule: Rewrite) -> Self {
+        let _ = rt_core::rt::rt_setup::set_fifo(RIG_FIFO_PRIORITY);
         let cfg = RuntimeConfig::xarm5_default();
         let model = RobotModel::load(&urdf()).expect("urdf");
         let (sim, command_proxy, report_proxy) = sim_behind_proxies(Rewrite::None, report_rule);
