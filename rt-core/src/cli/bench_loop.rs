@@ -21,7 +21,9 @@ use rt_core::cycle::twin_model::TwinModel;
 use rt_core::cycle::{self, Cycle, CycleConfig, LoopShared};
 use rt_core::launch::load_assets;
 use rt_core::rt::clock::{Clock, MonotonicClock};
+use rt_core::twin_thread::intake::AcceptedFrame;
 use rt_core::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
+use rt_core::twin_thread::scene_path::ScenePath;
 use rt_core::twin_thread::{TwinEvent, TwinWorker};
 use shm_schemas::PolicyBlobBuilder;
 use shm_schemas::cli_bounds::{f64_within, int_within};
@@ -157,7 +159,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     );
     cyc.start(clock.now_ns())
         .map_err(|e| anyhow::anyhow!("starting the cycle: {e}"))?;
-    let twin = TwinWorker::new(
+    let (twin, path) = TwinWorker::new(
         &cfg,
         lookahead,
         Shield::new(TwinModel::new(model), limits),
@@ -174,7 +176,11 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     let twin_stop = stop.clone();
     let twin_thread = std::thread::Builder::new()
         .name("twin".into())
-        .spawn(move || drive_twin(twin, &loader, task_hash, clock, swap_every, &twin_stop))?;
+        .spawn(move || {
+            drive_twin(
+                twin, path, &loader, task_hash, clock, swap_every, &twin_stop,
+            )
+        })?;
 
     // Cycle thread.
     let req = args.rt.request();
@@ -247,6 +253,7 @@ struct TwinCounts {
 /// (once only when zero), the worker stepped every millisecond.
 fn drive_twin(
     mut twin: TwinWorker<TwinLookahead, TwinModel>,
+    mut path: ScenePath<TwinModel>,
     loader: &PolicyLoader,
     task_hash: u64,
     clock: MonotonicClock,
@@ -268,7 +275,10 @@ fn drive_twin(
     while !stop.load(Ordering::Acquire) {
         if last_det.elapsed() >= Duration::from_millis(33) {
             // A fixed synthetic scene, not a camera's view: with a goal and settled.
-            twin.on_detection(scene, clock.now_ns(), true, true, &mut events);
+            // Through the scene path first, then noted by the worker (as in `rt-core run`).
+            let frame = AcceptedFrame::settled(scene, clock.now_ns());
+            path.accepted(frame.scene, frame.stamp_ns, frame.intruders);
+            twin.note_frame(&frame, &mut events);
             last_det = Instant::now();
         }
         let due = match last_swap {

@@ -28,28 +28,12 @@ use shm_schemas::{DetectionFrame, GoalRequest};
 
 use crate::cycle::twin_model::TwinModel;
 use crate::rt::histogram::{Histogram, Summary};
-use crate::twin_thread::intake::{AcceptedFrame, IntakeCounters, SceneIntake};
+use crate::twin_thread::intake::{FrameNote, IntakeCounters, SceneIntake};
 use crate::twin_thread::node::TwinNodeError;
 use crate::twin_thread::scene_path::ScenePath;
 
 /// How often the thread looks for new frames.
 pub const POLL_PERIOD: Duration = Duration::from_micros(100);
-
-/// What the twin thread is told of each frame, after the scene path has handled it.
-// Sent by value (a scene is a few hundred bytes): boxing would allocate once per frame.
-#[allow(clippy::large_enum_variant)]
-#[derive(Debug, Clone, Copy)]
-pub enum FrameNote {
-    /// Accepted: its scene is with the cycle and the plan guard already.
-    Accepted {
-        /// The checked frame.
-        frame: AcceptedFrame,
-        /// Its sequence number (verdicts name the scene they were computed on).
-        sequence: u64,
-    },
-    /// Refused: the cycle has been told (it stops the arm).
-    Refused,
-}
 
 /// What the intake thread counted.
 #[derive(Debug, Clone, Copy)]

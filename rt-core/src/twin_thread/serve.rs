@@ -348,7 +348,7 @@ pub fn serve<L: RobotLink + 'static>(
         cycle_io,
         &clock,
     )?;
-    let mut twin = TwinWorker::new(
+    let (mut twin, scene_path) = TwinWorker::new(
         cfg,
         lookahead,
         plan_shield(cfg, &model, opts.no_lookahead),
@@ -411,11 +411,6 @@ pub fn serve<L: RobotLink + 'static>(
     // Detections go their own way: the intake thread hands each accepted scene to the
     // cycle and the plan guard, then notes it to the twin thread for planning.
     let (frame_notes, frames) = std::sync::mpsc::channel();
-    let scene_path = twin.take_scene_path().ok_or_else(|| {
-        ServeError::Spawn(std::io::Error::other(
-            "the worker's scene path was taken before the intake thread started",
-        ))
-    })?;
     scene_path.set_clock_origin(clock.origin_ns());
     let intake_stop = Arc::new(AtomicBool::new(false));
     let intake_thread = spawn_intake_thread(

@@ -54,8 +54,9 @@ use shm_schemas::PhaseCode;
 use crate::config::RuntimeConfig;
 use crate::cycle::plan::{MotionState, Plan};
 use crate::cycle::shield::{Shield, ShieldModel};
-use crate::cycle::{CycleControl, CycleReport, Intruders, Mode, TwinIo};
+use crate::cycle::{CycleControl, CycleReport, Mode, TwinIo};
 use crate::rt::handoff::{BoxSender, LatestReceiver};
+use crate::twin_thread::intake::AcceptedFrame;
 use crate::twin_thread::plan_guard::{JoinWindow, PlanGuard};
 use crate::twin_thread::scene_path::{ScenePath, SharedGuard, lock_guard, share_guard};
 use approve::{Approver, GoalCheck};
@@ -88,9 +89,6 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     io: WorkerIo,
     /// The plan guard, shared with the scene path.
     guard: SharedGuard<M>,
-    /// The scene path, while it runs inline (it is taken for the intake thread in
-    /// `rt-core run`: [`TwinWorker::take_scene_path`]).
-    scene_path: Option<ScenePath<M>>,
     library: PolicyLibrary<L::Policy, L::Scene>,
     scene: SceneView<L::Scene>,
     path: PathRecorder,
@@ -118,9 +116,16 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
 }
 
 impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
-    /// A worker over a lookahead and a shield model, talking to a cycle through `io`. The
-    /// plan guard checks with a copy of `shield`.
-    pub fn new(cfg: &RuntimeConfig, la: L, shield: Shield<M>, io: TwinIo<L::Scene>) -> Self
+    /// A worker over a lookahead and a shield model, talking to a cycle through `io`, and
+    /// its scene path: the way of every accepted frame's scene to the cycle and the plan
+    /// guard (which checks with a copy of `shield`), to run wherever frames arrive — the
+    /// intake thread in `rt-core run` — before the worker is told ([`TwinWorker::note_frame`]).
+    pub fn new(
+        cfg: &RuntimeConfig,
+        la: L,
+        shield: Shield<M>,
+        io: TwinIo<L::Scene>,
+    ) -> (Self, ScenePath<M>)
     where
         M: Clone,
     {
@@ -138,14 +143,14 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             control,
             reports,
         } = io;
-        Self {
+        let path = ScenePath::new(scenes, guard.clone());
+        let worker = Self {
             approver: Approver::new(cfg, la, shield),
             io: WorkerIo {
                 plans,
                 control,
                 reports,
             },
-            scene_path: Some(ScenePath::new(scenes, guard.clone())),
             guard,
             library: PolicyLibrary::default(),
             scene: SceneView::default(),
@@ -166,7 +171,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             newest_sent_id: 0,
             next_request_id: 1,
             continue_after_pause: cfg.continue_after_pause,
-        }
+        };
+        (worker, path)
     }
 
     /// Installs the planner fallback (`planner_fallback`): when no policy passes, the
@@ -184,77 +190,33 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         self.gate = false;
     }
 
-    /// The scene path, for the intake thread (`rt-core run`): from then on the caller hands
-    /// each frame's scene to the cycle and the plan guard itself, and tells the worker with
-    /// [`TwinWorker::note_detection`] / [`TwinWorker::note_refused_detection`].
-    pub fn take_scene_path(&mut self) -> Option<ScenePath<M>> {
-        self.scene_path.take()
-    }
-
-    /// An accepted detection arrived (captured at `stamp_ns` on the cycle's clock; with a
-    /// goal or without one; `settled` or not): through the scene path (while inline) to the
-    /// cycle and the plan guard at once — every live plan is re-verified against it and
-    /// revoked when unsafe — then noted for planning ([`TwinWorker::note_detection`]).
-    pub fn on_detection(
+    /// An accepted frame that the scene path ([`ScenePath::accepted`]) has handed to the
+    /// cycle and the plan guard already — the one door of a frame into the worker, whoever
+    /// runs the path (the intake thread in `rt-core run`, the sweep and the tests inline): a
+    /// goal cancelled since the last frame revokes the plan under way; the scene change is
+    /// marked for planning (without a goal, or not settled, nothing new is planned: the guard
+    /// still re-verified the live plans against its obstacles); the guard's revocations are
+    /// taken as events.
+    pub fn note_frame(
         &mut self,
-        scene: L::Scene,
-        stamp_ns: u64,
-        goal_seen: bool,
-        settled: bool,
+        frame: &AcceptedFrame<L::Scene>,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) {
-        self.on_moving_detection(scene, stamp_ns, goal_seen, settled, Intruders::NONE, events);
-    }
-
-    /// [`TwinWorker::on_detection`] with the obstacles perception saw moving (the intake's
-    /// [`crate::twin_thread::intake::AcceptedFrame::intruders`]), for speed and separation
-    /// monitoring on the cycle.
-    pub fn on_moving_detection(
-        &mut self,
-        scene: L::Scene,
-        stamp_ns: u64,
-        goal_seen: bool,
-        settled: bool,
-        intruders: Intruders,
-        events: &mut Vec<TwinEvent<L::Scene>>,
-    ) {
-        if let Some(path) = self.scene_path.as_mut() {
-            path.accepted(scene, stamp_ns, intruders);
+        if frame.stop_requested {
+            self.note_goal_cancelled(events);
         }
-        self.note_detection(scene, stamp_ns, goal_seen, settled, events);
-    }
-
-    /// An accepted detection that the scene path has already handed to the cycle and the
-    /// plan guard: marks a scene change for planning. Without a goal, or not settled, nothing
-    /// new is planned (the guard still re-verified the live plans against its obstacles).
-    pub fn note_detection(
-        &mut self,
-        scene: L::Scene,
-        stamp_ns: u64,
-        goal_seen: bool,
-        settled: bool,
-        events: &mut Vec<TwinEvent<L::Scene>>,
-    ) {
-        let change = self.scene.accept(scene, stamp_ns, goal_seen, settled);
+        let change = self
+            .scene
+            .accept(frame.scene, frame.stamp_ns, frame.goal_seen, frame.settled);
         if change.plan_due {
             self.planning.request();
         }
         self.take_revocations(events);
     }
 
-    /// A detection frame was refused (see `twin_thread::intake`): through the scene path
-    /// (while inline) the cycle is told at once (it stops the arm, keeping the last trusted
-    /// scene for the shield), then noted ([`TwinWorker::note_refused_detection`]).
-    pub fn on_refused_detection(&mut self) {
-        if let Some(path) = self.scene_path.as_mut() {
-            path.refused();
-        }
-        self.note_refused_detection();
-    }
-
-    /// A refused frame the scene path has already told the cycle of: nothing is planned
-    /// until an accepted frame arrives.
-    pub fn note_refused_detection(&mut self) {
+    /// A refused frame ([`ScenePath::refused`] has told the cycle, which stops the arm):
+    /// nothing is planned until an accepted frame arrives.
+    pub fn note_refused(&mut self) {
         self.scene.refuse();
         self.planning.request();
     }
