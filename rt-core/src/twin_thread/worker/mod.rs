@@ -9,8 +9,10 @@
 //! one step; the cycle never sees a policy's plan before its lookahead has passed.
 //!
 //! Where things live:
-//! - [`phase`]: the worker's state — [`Phase`] (episode, dwell at goal, returning home,
-//!   holding after a refused return) and [`Planning`] (idle, due, back-off);
+//! - [`phase`]: the worker's state — [`Excursion`]: the [`Phase`] (episode, continuation,
+//!   dwell at goal, pause, returning home, holding after a refused return) and whether a stop
+//!   owes the episode again once home — and [`Planning`] (idle, due, back-off). "Why is the
+//!   arm holding?" is answered by these and the cycle's state (`docs/twin-worker.md`);
 //! - [`scene_view`]: the scene and its gates ([`SceneView::ready`] → [`Hold`]);
 //! - [`policy_library`]: the candidates tried in order (current policy, base policy, then —
 //!   with `[sampling]` — perturbed variants of each, verified alike ([`Lookahead::sample`]),
@@ -42,7 +44,7 @@ pub mod verdict;
 
 pub use approve::PlanRejection;
 pub use event::{TwinEvent, VerdictSource};
-pub use phase::{Phase, Planning, Transition};
+pub use phase::{Excursion, Leg, Phase, Planning, Transition};
 pub use policy_library::{FallbackPlanner, PLANNER_POLICY_ID};
 pub use scene_view::{Hold, SceneView};
 pub use verdict::{GoalApproach, Lookahead, SampleTag, Sampled, Verdict};
@@ -66,53 +68,74 @@ use policy_library::PolicyLibrary;
 /// Pause after the cycle refused a plan before planning again, ns.
 const REFUSAL_BACKOFF_NS: u64 = 500_000_000;
 
-/// The settings of the way home.
+/// The worker's settings, fixed at its start.
 #[derive(Debug, Clone, Copy)]
-struct HomeSettings {
+struct Settings {
     /// Return home after the dwell at the goal.
-    enabled: bool,
+    return_home: bool,
     /// The dwell at the goal, ns.
     dwell_ns: u64,
-}
-
-/// The worker's ends of the hand-overs with the cycle (the scene hand-over is the
-/// [`ScenePath`]'s).
-struct WorkerIo {
-    plans: BoxSender<Plan>,
-    control: Arc<CycleControl>,
-    reports: LatestReceiver<CycleReport>,
-}
-
-/// The twin thread's state.
-pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
-    approver: Approver<L, M>,
-    io: WorkerIo,
-    /// The plan guard, shared with the scene path.
-    guard: SharedGuard<M>,
-    library: PolicyLibrary<L::Policy, L::Scene>,
-    scene: SceneView<L::Scene>,
-    path: PathRecorder,
-    phase: Phase,
-    planning: Planning,
-    home: HomeSettings,
     /// Samples between the arm and where a replacement plan joins.
     join_ahead: usize,
     /// Motion waits for a passing lookahead (off only for `--no-lookahead`).
     gate: bool,
     /// Verified sampling's wall-time budget per planning, s (`None`: off).
     sampling_budget_s: Option<f64>,
-    report: Option<CycleReport>,
-    last_mode: Mode,
-    refused_seen: u64,
-    /// Plans handed to the cycle and not handed back yet, each with the scene it was
-    /// approved in (oldest first). Which one runs is read from the cycle's report.
-    live: Vec<(Arc<Plan>, L::Scene)>,
-    /// The newest plan id handed to the cycle.
-    newest_sent_id: u64,
-    next_request_id: u64,
     /// After a pause, plan from where the arm stopped before going home
     /// (`continue_after_pause`).
     continue_after_pause: bool,
+}
+
+/// The worker's ends of the hand-overs with the cycle and the plan guard (the scene
+/// hand-over is the [`ScenePath`]'s).
+struct WorkerIo<M: ShieldModel> {
+    plans: BoxSender<Plan>,
+    control: Arc<CycleControl>,
+    reports: LatestReceiver<CycleReport>,
+    /// The plan guard, shared with the scene path.
+    guard: SharedGuard<M>,
+}
+
+/// The cycle as its reports show it.
+struct CycleView {
+    /// The latest report.
+    report: Option<CycleReport>,
+    /// The mode of the report before it.
+    last_mode: Mode,
+    /// The last refused plan seen (a new one starts a back-off).
+    refused_seen: u64,
+}
+
+/// Plans handed to the cycle and not handed back yet, each with the scene it was approved
+/// in (oldest first). Which one runs is read from the cycle's report.
+struct SentPlans<S> {
+    live: Vec<(Arc<Plan>, S)>,
+    /// The newest plan id handed to the cycle.
+    newest_id: u64,
+}
+
+/// How the arm rests after the plan the cycle ran last.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Rest {
+    /// At the plan's end.
+    AtEnd,
+    /// Stopped partway by a controlled stop, with planning due.
+    Stopped,
+}
+
+/// The twin thread's state.
+pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
+    approver: Approver<L, M>,
+    io: WorkerIo<M>,
+    library: PolicyLibrary<L::Policy, L::Scene>,
+    scene: SceneView<L::Scene>,
+    path: PathRecorder,
+    excursion: Excursion,
+    planning: Planning,
+    settings: Settings,
+    cycle: CycleView,
+    sent: SentPlans<L::Scene>,
+    next_request_id: u64,
 }
 
 impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
@@ -150,27 +173,31 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 plans,
                 control,
                 reports,
+                guard,
             },
-            guard,
             library: PolicyLibrary::default(),
             scene: SceneView::default(),
             path: PathRecorder::default(),
-            phase: Phase::Episode,
+            excursion: Excursion::default(),
             planning: Planning::Due,
-            home: HomeSettings {
-                enabled: cfg.return_home,
+            settings: Settings {
+                return_home: cfg.return_home,
                 dwell_ns: (cfg.dwell_at_goal_s * 1e9) as u64,
+                join_ahead: (cfg.join_ahead_s / period_s).ceil() as usize,
+                gate: true,
+                sampling_budget_s: cfg.sampling.enabled.then_some(cfg.sampling.budget_s),
+                continue_after_pause: cfg.continue_after_pause,
             },
-            join_ahead: (cfg.join_ahead_s / period_s).ceil() as usize,
-            gate: true,
-            sampling_budget_s: cfg.sampling.enabled.then_some(cfg.sampling.budget_s),
-            report: None,
-            last_mode: Mode::Idle,
-            refused_seen: 0,
-            live: Vec::new(),
-            newest_sent_id: 0,
+            cycle: CycleView {
+                report: None,
+                last_mode: Mode::Idle,
+                refused_seen: 0,
+            },
+            sent: SentPlans {
+                live: Vec::new(),
+                newest_id: 0,
+            },
             next_request_id: 1,
-            continue_after_pause: cfg.continue_after_pause,
         };
         (worker, path)
     }
@@ -187,7 +214,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// what Foresight prevents): every lookahead's plan is executed whatever its verdict,
     /// and no retraining is requested. Verdicts are still computed and reported.
     pub fn disable_lookahead_gate(&mut self) {
-        self.gate = false;
+        self.settings.gate = false;
     }
 
     /// An accepted frame that the scene path ([`ScenePath::accepted`]) has handed to the
@@ -231,7 +258,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
 
     /// The plan guard's revocations since the last look, as events; planning is due again.
     fn take_revocations(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
-        let revocations = lock_guard(&self.guard).take_revocations();
+        let revocations = lock_guard(&self.io.guard).take_revocations();
         for r in revocations {
             self.planning.request();
             events.push(match r.stop_due_index {
@@ -250,7 +277,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
 
     /// The plan handed to the cycle with id `plan_id`, if the cycle has not handed it back.
     fn live_plan(&self, plan_id: u64) -> Option<&(Arc<Plan>, L::Scene)> {
-        self.live.iter().find(|(p, _)| p.id == plan_id)
+        self.sent.live.iter().find(|(p, _)| p.id == plan_id)
     }
 
     /// A validated, prepared policy arrived: swapped in with one step as the current
@@ -265,7 +292,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
 
     /// The latest cycle report seen.
     pub fn last_report(&self) -> Option<&CycleReport> {
-        self.report.as_ref()
+        self.cycle.report.as_ref()
     }
 
     /// The current policy.
@@ -290,7 +317,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
 
     /// Where the worker is in its excursion.
     pub fn phase(&self) -> Phase {
-        self.phase
+        self.excursion.phase()
     }
 
     /// Whether a plan is wanted.
@@ -301,9 +328,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// The compact code of the state (verdict diagnostics, the run timeline).
     pub fn phase_code(&self) -> PhaseCode {
         phase::phase_code(
-            &self.phase,
+            &self.excursion.phase(),
             &self.planning,
-            self.report.map_or(0, |r| r.t_ns),
+            self.cycle.report.map_or(0, |r| r.t_ns),
         )
     }
 
@@ -317,7 +344,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             Err(Hold::Unsettled) if self.stop_due_on_running() => {
                 // The one plan made on a scene still changing: one joining the running plan
                 // before its scheduled stop (see `plan_due`).
-                if let Some(r) = self.report
+                if let Some(r) = self.cycle.report
                     && self.planning.is_due()
                     && !self.planning.backing_off(r.t_ns)
                     && !self.io.control.shutdown_requested()
@@ -341,7 +368,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         if self.return_home_due(events) || !self.planning.is_due() {
             return;
         }
-        let Some(r) = self.report else {
+        let Some(r) = self.cycle.report else {
             return;
         };
         if self.planning.backing_off(r.t_ns)
@@ -358,24 +385,24 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let mut returned = Vec::new();
         self.io.plans.collect_returned_with(|p| returned.push(p.id));
         if !returned.is_empty() {
-            self.live.retain(|(p, _)| !returned.contains(&p.id));
-            let mut guard = lock_guard(&self.guard);
+            self.sent.live.retain(|(p, _)| !returned.contains(&p.id));
+            let mut guard = lock_guard(&self.io.guard);
             for id in returned {
                 guard.returned(id);
             }
         }
         if let Some(r) = self.io.reports.latest() {
-            if r.mode == Mode::Stopped && self.last_mode != Mode::Stopped {
+            if r.mode == Mode::Stopped && self.cycle.last_mode != Mode::Stopped {
                 self.planning.request();
             }
-            if r.last_refused_plan_id != 0 && r.last_refused_plan_id != self.refused_seen {
-                self.refused_seen = r.last_refused_plan_id;
+            if r.last_refused_plan_id != 0 && r.last_refused_plan_id != self.cycle.refused_seen {
+                self.cycle.refused_seen = r.last_refused_plan_id;
                 // The cycle refuses while it cannot move (a link error, a stop under way):
                 // plan again after a pause, not at the twin thread's polling rate.
                 self.planning.refused(r.t_ns, REFUSAL_BACKOFF_NS);
             }
-            self.last_mode = r.mode;
-            self.report = Some(r);
+            self.cycle.last_mode = r.mode;
+            self.cycle.report = Some(r);
         }
     }
 
@@ -386,7 +413,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let Some((running_id, next)) = self.io.control.progress() else {
             return;
         };
-        let newest = self.newest_sent_id.max(running_id);
+        let newest = self.sent.newest_id.max(running_id);
         if newest <= self.io.control.revoked_up_to() {
             return;
         }
@@ -404,7 +431,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// Whether the plan guard has scheduled a stop on the plan the cycle runs (as of its
     /// last report): a joining plan may then be made on a scene still changing.
     fn stop_due_on_running(&self) -> bool {
-        self.report.is_some_and(|r| {
+        self.cycle.report.is_some_and(|r| {
             r.mode == Mode::Following
                 && self
                     .io
@@ -415,63 +442,108 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     }
 
     /// Whether the way home is in hand this iteration (planned now, or waiting out the
-    /// dwell at the goal or a back-off); the ordinary planning waits meanwhile.
+    /// dwell at the goal or a back-off); the ordinary planning waits meanwhile. One `match`
+    /// over how the arm rests after its last plan and the phase.
     fn return_home_due(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) -> bool {
-        // The plan the cycle ran last, from its report; not while a newer one is on its way.
-        let Some(r) = self.report else {
+        let Some((r, rest, sent_id, policy_id)) = self.rest_after_last_plan() else {
             return false;
         };
-        let Some((sent, _)) = self.live_plan(r.plan_id) else {
-            return false;
-        };
-        if self.live.iter().any(|(p, _)| p.id > r.plan_id) {
-            return false;
-        }
-        let (sent_id, policy_id, sent_len) = (sent.id, sent.policy_id, sent.len());
-        let at_end = r.mode == Mode::Idle && r.next_index >= sent_len;
-        let stopped = r.mode == Mode::Stopped && self.planning.is_due();
-        if !at_end && !stopped {
-            return false;
-        }
-        if at_end && self.phase == Phase::ReturningHome {
-            // Home: the next excursion starts here (after a stop on the way, with the
-            // episode again).
-            if self.path.arrive_home() {
-                self.planning.request();
+        let phase = self.excursion.phase();
+        let home_open =
+            self.settings.return_home && self.path.len() >= 2 && !phase.return_refused_for(sent_id);
+        match (rest, phase, self.scene.scene()) {
+            (Rest::AtEnd, Phase::ReturningHome, _)
+            | (
+                Rest::AtEnd,
+                Phase::Paused {
+                    during: Leg::ReturningHome,
+                    ..
+                },
+                _,
+            ) => {
+                // Home: the next excursion starts here (after a stop on the way, with the
+                // episode again).
+                self.path.arrive_home();
+                if self.excursion.arrive_home() {
+                    self.planning.request();
+                }
+                false
             }
-            return false;
+            (_, _, None) => false,
+            _ if !home_open => false,
+            (Rest::Stopped, _, Some(scene)) => {
+                self.excursion.next(Transition::Stopped {
+                    plan_id: sent_id,
+                    now_ns: r.t_ns,
+                });
+                self.after_pause(r, sent_id, policy_id, scene, events)
+            }
+            (Rest::AtEnd, _, Some(scene)) => {
+                self.excursion.next(Transition::RestingAtGoal {
+                    plan_id: sent_id,
+                    now_ns: r.t_ns,
+                });
+                if let Phase::DwellAtGoal { since_ns, .. } = self.excursion.phase()
+                    && r.t_ns.saturating_sub(since_ns) < self.settings.dwell_ns
+                {
+                    return true;
+                }
+                self.send_way_home(r, sent_id, policy_id, scene, false, events)
+            }
         }
-        if !self.home.enabled || self.path.len() < 2 || self.phase.return_refused_for(sent_id) {
-            return false;
+    }
+
+    /// How the arm rests after the plan the cycle ran last (from its report; not while a
+    /// newer one is on its way), with the report and that plan's and its policy's ids.
+    fn rest_after_last_plan(&self) -> Option<(CycleReport, Rest, u64, u64)> {
+        let r = self.cycle.report?;
+        let (sent, _) = self.live_plan(r.plan_id)?;
+        if self.sent.live.iter().any(|(p, _)| p.id > r.plan_id) {
+            return None;
         }
-        let Some(scene) = self.scene.scene() else {
-            return false;
-        };
-        if stopped {
-            if self.planning.backing_off(r.t_ns) {
-                return true;
-            }
-            // Continue from where the arm stopped when a plan from there passes; only
-            // otherwise back along the executed path.
-            if self.continue_from_rest(r, events) {
-                return true;
-            }
-            // Cut the path where the brake left the arm; off the path, plan as usual.
-            if !self.path.cut_at(&r.cmd.q_rad) || self.path.len() < 2 {
-                return false;
-            }
+        let rest = if r.mode == Mode::Idle && r.next_index >= sent.len() {
+            Rest::AtEnd
+        } else if r.mode == Mode::Stopped && self.planning.is_due() {
+            Rest::Stopped
         } else {
-            self.phase = self.phase.next(Transition::RestingAtGoal {
-                plan_id: sent_id,
-                now_ns: r.t_ns,
-            });
-            if let Phase::DwellAtGoal { since_ns, .. } = self.phase
-                && r.t_ns.saturating_sub(since_ns) < self.home.dwell_ns
-            {
-                return true;
-            }
+            return None;
+        };
+        Some((r, rest, sent.id, sent.policy_id))
+    }
+
+    /// Paused: once no back-off holds planning, a continuation from where the arm stopped
+    /// when one passes; only otherwise back along the executed path, cut where the brake
+    /// left the arm (off the path, the ordinary planning).
+    fn after_pause(
+        &mut self,
+        r: CycleReport,
+        sent_id: u64,
+        policy_id: u64,
+        scene: L::Scene,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) -> bool {
+        if self.planning.backing_off(r.t_ns) || self.continue_from_rest(r, events) {
+            return true;
         }
-        // The executed path reversed, one waypoint per twin step; ends exactly at its start.
+        if !self.path.cut_at(&r.cmd.q_rad) || self.path.len() < 2 {
+            return false;
+        }
+        self.send_way_home(r, sent_id, policy_id, scene, true, events)
+    }
+
+    /// The way home — the executed path reversed, one waypoint per twin step, ending
+    /// exactly at its start — checked in the scene in force and sent (`after_stop`: the
+    /// episode then runs again once home); refused, the arm holds and planning takes over.
+    /// True when it is in hand (sent, or the hand-over slot full).
+    fn send_way_home(
+        &mut self,
+        r: CycleReport,
+        sent_id: u64,
+        policy_id: u64,
+        scene: L::Scene,
+        after_stop: bool,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) -> bool {
         let stride = self.approver.samples_per_step();
         self.path.way_home(stride, &mut self.approver.waypoints);
         let start = MotionState::at_rest(r.cmd.q_rad);
@@ -484,8 +556,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         ) {
             Ok(plan) => plan,
             Err(why) => {
-                self.phase = self
-                    .phase
+                self.excursion
                     .next(Transition::ReturnRefused { plan_id: sent_id });
                 self.planning.request();
                 events.push(TwinEvent::ReturnHomeRefused { why });
@@ -494,9 +565,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         };
         let (plan_id, samples) = (plan.id, plan.len());
         if self.send_plan(plan, scene) {
-            self.phase = self.phase.next(Transition::ReturnSent);
-            if stopped {
-                self.path.interrupt();
+            self.excursion.next(Transition::ReturnSent { after_stop });
+            if after_stop {
                 self.planning.taken();
             }
             events.push(TwinEvent::ReturningHome { plan_id, samples });

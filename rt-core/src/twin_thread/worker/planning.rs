@@ -91,8 +91,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             Mode::Stopping => return,
             Mode::Idle | Mode::Stopped => (MotionState::at_rest(r.cmd.q_rad), None),
             Mode::Following => match self.live_plan(r.plan_id) {
-                Some((s, _)) if r.next_index + self.join_ahead < s.len() => {
-                    let index = r.next_index + self.join_ahead;
+                Some((s, _)) if r.next_index + self.settings.join_ahead < s.len() => {
+                    let index = r.next_index + self.settings.join_ahead;
                     let join = JoinPoint {
                         plan_id: s.id,
                         index,
@@ -118,13 +118,13 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         r: CycleReport,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) -> bool {
-        if !self.continue_after_pause || !self.gate {
+        if !self.settings.continue_after_pause || !self.settings.gate {
             return false;
         }
         let Ok(scene) = self.scene.ready() else {
             return false;
         };
-        let sent_before = self.newest_sent_id;
+        let sent_before = self.sent.newest_id;
         self.plan_from(
             MotionState::at_rest(r.cmd.q_rad),
             None,
@@ -132,7 +132,10 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             RetrainOnFailure::No,
             events,
         );
-        if self.newest_sent_id > sent_before {
+        if self.sent.newest_id > sent_before {
+            self.excursion.next(Transition::ContinuationSent {
+                plan_id: self.sent.newest_id,
+            });
             self.planning.taken();
             return true;
         }
@@ -144,17 +147,17 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// and keeps a copy among the live plans; false when the hand-over slot is full.
     pub(super) fn send_plan(&mut self, plan: Plan, scene: L::Scene) -> bool {
         let copy = Arc::new(plan.clone());
-        lock_guard(&self.guard).sent(copy.clone(), scene);
+        lock_guard(&self.io.guard).sent(copy.clone(), scene);
         if self.io.plans.send(Box::new(plan)).is_err() {
-            lock_guard(&self.guard).returned(copy.id);
+            lock_guard(&self.io.guard).returned(copy.id);
             return false;
         }
-        self.newest_sent_id = copy.id;
-        if self.live.len() == MAX_LIVE_PLANS {
+        self.sent.newest_id = copy.id;
+        if self.sent.live.len() == MAX_LIVE_PLANS {
             // Boxes leaked rather than returned (a full return queue): forget the oldest.
-            self.live.remove(0);
+            self.sent.live.remove(0);
         }
-        self.live.push((copy, scene));
+        self.sent.live.push((copy, scene));
         true
     }
 
@@ -175,7 +178,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     ) {
         let mut first_failure: Option<(Verdict, bool)> = None;
         for candidate in Candidate::ORDER {
-            if candidate == Candidate::Base && !self.gate {
+            if candidate == Candidate::Base && !self.settings.gate {
                 // Without the lookahead gate the current policy's plan is taken as it is.
                 break;
             }
@@ -193,7 +196,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let Some((verdict, lookahead_unsafe)) = first_failure else {
             return;
         };
-        if let (true, Some(budget_s)) = (self.gate, self.sampling_budget_s) {
+        if let (true, Some(budget_s)) = (self.settings.gate, self.settings.sampling_budget_s) {
             let deadline = deadline_in(budget_s);
             for candidate in Candidate::ORDER {
                 if let Tried::Done =
@@ -203,7 +206,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 }
             }
         }
-        if self.gate && self.library.planner_mut().is_some() {
+        if self.settings.gate && self.library.planner_mut().is_some() {
             // No policy passes: retraining is asked for as always, and the planner's path,
             // when it passes the same checks, moves the arm meanwhile.
             if retrain == RetrainOnFailure::Yes {
@@ -216,12 +219,12 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         // With a stop scheduled on the running plan the guard has bounded it already (safe
         // up to the stop's end): it stops there unless a later frame's plan joins it first.
         if lookahead_unsafe
-            && self.live.iter().any(|(_, s)| *s != scene)
+            && self.sent.live.iter().any(|(_, s)| *s != scene)
             && !self.stop_due_on_running()
         {
             self.revoke_under_way(events);
         }
-        if self.gate && retrain == RetrainOnFailure::Yes {
+        if self.settings.gate && retrain == RetrainOnFailure::Yes {
             self.ask_retrain(verdict, scene, events);
         }
     }
@@ -333,7 +336,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             elapsed_s: t0.elapsed().as_secs_f64(),
             source,
         });
-        if self.gate && !(verdict.task_ok && verdict.safe) {
+        if self.settings.gate && !(verdict.task_ok && verdict.safe) {
             return Tried::Failed {
                 verdict,
                 lookahead_unsafe: !verdict.safe,
@@ -344,7 +347,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             return Tried::Done;
         }
         let goal_check = match self.library.get(candidate) {
-            Some(policy) if self.gate => GoalCheck::Policy(policy),
+            Some(policy) if self.settings.gate => GoalCheck::Policy(policy),
             _ => GoalCheck::None,
         };
         let plan = match self.approver.smoothed_checked_plan(
@@ -406,9 +409,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             .sample(policy, &scene, deadline);
         let source = |index| VerdictSource {
             phase: phase::phase_code(
-                &self.phase,
+                &self.excursion.phase(),
                 &self.planning,
-                self.report.map_or(0, |r| r.t_ns),
+                self.cycle.report.map_or(0, |r| r.t_ns),
             ),
             executor: Executor::Policy,
             sample: Some(SampleTag {
@@ -483,10 +486,10 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             self.planning.request();
             return;
         }
-        if let Some((sent, _)) = self.live.last() {
+        if let Some((sent, _)) = self.sent.live.last() {
             self.path
-                .record_episode_plan(start, join, self.phase.returning(), sent);
-            self.phase = self.phase.next(Transition::EpisodePlanSent);
+                .record_episode_plan(start, join, self.excursion.phase().returning(), sent);
+            self.excursion.next(Transition::EpisodePlanSent);
         }
         events.push(TwinEvent::PlanApproved {
             plan_id,
