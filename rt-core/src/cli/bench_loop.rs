@@ -16,7 +16,7 @@ use policy::{MlpPolicy, PolicyExpectation, PolicyLoader};
 use rt_core::cycle::brake::Brake;
 use rt_core::cycle::link::InProcessArm;
 use rt_core::cycle::shield::{Shield, ShieldLimits};
-use rt_core::cycle::thread::spawn_cycle_thread;
+use rt_core::cycle::thread::{CycleThreadResult, spawn_cycle_thread};
 use rt_core::cycle::twin_model::TwinModel;
 use rt_core::cycle::{self, Cycle, CycleConfig, LoopShared};
 use rt_core::launch::load_assets;
@@ -197,6 +197,24 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     let done = cycle_thread
         .join()
         .map_err(|_| anyhow::anyhow!("cycle thread panicked"))?;
+    let counts = twin_thread
+        .join()
+        .map_err(|_| anyhow::anyhow!("twin thread panicked"))??;
+    let _ = log_thread.join();
+    let out = figures(args, cfg.rate_hz, done, counts, full);
+    println!("{out}");
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The bench's figures as one JSON object: the cycle thread's (`done`), the twin thread's
+/// (`counts`) and the full lookahead's (`full`).
+fn figures(
+    args: &BenchLoopArgs,
+    rate_hz: f64,
+    done: CycleThreadResult<TwinModel, InProcessArm>,
+    counts: TwinCounts,
+    full: serde_json::Value,
+) -> serde_json::Value {
     let (stats, rt, allocs, report) = (done.stats, done.rt, done.allocations, *done.cycle.report());
     let TwinCounts {
         mut lookahead_s,
@@ -204,14 +222,11 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
         approved,
         retrains,
         rejected,
-    } = twin_thread
-        .join()
-        .map_err(|_| anyhow::anyhow!("twin thread panicked"))??;
-    let _ = log_thread.join();
+    } = counts;
     lookahead_s.sort_by(f64::total_cmp);
     let s = stats.summary();
-    let out = serde_json::json!({
-        "rate_hz": cfg.rate_hz,
+    serde_json::json!({
+        "rate_hz": rate_hz,
         "seconds": args.seconds,
         "cycles": s.cycles,
         "missed_deadlines": s.missed_deadlines,
@@ -235,9 +250,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
         },
         "full_lookahead": full,
         "rt_setup": rt,
-    });
-    println!("{out}");
-    Ok(ExitCode::SUCCESS)
+    })
 }
 
 /// What the bench's twin thread counted.
