@@ -16,12 +16,14 @@ use policy::{MlpPolicy, PolicyExpectation, PolicyLoader};
 use rt_core::cycle::brake::Brake;
 use rt_core::cycle::link::InProcessArm;
 use rt_core::cycle::shield::{Shield, ShieldLimits};
-use rt_core::cycle::thread::spawn_cycle_thread;
+use rt_core::cycle::thread::{CycleThreadResult, spawn_cycle_thread};
 use rt_core::cycle::twin_model::TwinModel;
 use rt_core::cycle::{self, Cycle, CycleConfig, LoopShared};
 use rt_core::launch::load_assets;
 use rt_core::rt::clock::{Clock, MonotonicClock};
+use rt_core::twin_thread::intake::AcceptedFrame;
 use rt_core::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
+use rt_core::twin_thread::scene_path::ScenePath;
 use rt_core::twin_thread::{TwinEvent, TwinWorker};
 use shm_schemas::PolicyBlobBuilder;
 use shm_schemas::cli_bounds::{f64_within, int_within};
@@ -157,7 +159,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     );
     cyc.start(clock.now_ns())
         .map_err(|e| anyhow::anyhow!("starting the cycle: {e}"))?;
-    let twin = TwinWorker::new(
+    let (twin, path) = TwinWorker::new(
         &cfg,
         lookahead,
         Shield::new(TwinModel::new(model), limits),
@@ -174,7 +176,11 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     let twin_stop = stop.clone();
     let twin_thread = std::thread::Builder::new()
         .name("twin".into())
-        .spawn(move || drive_twin(twin, &loader, task_hash, clock, swap_every, &twin_stop))?;
+        .spawn(move || {
+            drive_twin(
+                twin, path, &loader, task_hash, clock, swap_every, &twin_stop,
+            )
+        })?;
 
     // Cycle thread.
     let req = args.rt.request();
@@ -191,6 +197,24 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     let done = cycle_thread
         .join()
         .map_err(|_| anyhow::anyhow!("cycle thread panicked"))?;
+    let counts = twin_thread
+        .join()
+        .map_err(|_| anyhow::anyhow!("twin thread panicked"))??;
+    let _ = log_thread.join();
+    let out = figures(args, cfg.rate_hz, done, counts, full);
+    println!("{out}");
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The bench's figures as one JSON object: the cycle thread's (`done`), the twin thread's
+/// (`counts`) and the full lookahead's (`full`).
+fn figures(
+    args: &BenchLoopArgs,
+    rate_hz: f64,
+    done: CycleThreadResult<TwinModel, InProcessArm>,
+    counts: TwinCounts,
+    full: serde_json::Value,
+) -> serde_json::Value {
     let (stats, rt, allocs, report) = (done.stats, done.rt, done.allocations, *done.cycle.report());
     let TwinCounts {
         mut lookahead_s,
@@ -198,14 +222,11 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
         approved,
         retrains,
         rejected,
-    } = twin_thread
-        .join()
-        .map_err(|_| anyhow::anyhow!("twin thread panicked"))??;
-    let _ = log_thread.join();
+    } = counts;
     lookahead_s.sort_by(f64::total_cmp);
     let s = stats.summary();
-    let out = serde_json::json!({
-        "rate_hz": cfg.rate_hz,
+    serde_json::json!({
+        "rate_hz": rate_hz,
         "seconds": args.seconds,
         "cycles": s.cycles,
         "missed_deadlines": s.missed_deadlines,
@@ -229,9 +250,7 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
         },
         "full_lookahead": full,
         "rt_setup": rt,
-    });
-    println!("{out}");
-    Ok(ExitCode::SUCCESS)
+    })
 }
 
 /// What the bench's twin thread counted.
@@ -247,6 +266,7 @@ struct TwinCounts {
 /// (once only when zero), the worker stepped every millisecond.
 fn drive_twin(
     mut twin: TwinWorker<TwinLookahead, TwinModel>,
+    mut path: ScenePath<TwinModel>,
     loader: &PolicyLoader,
     task_hash: u64,
     clock: MonotonicClock,
@@ -268,7 +288,10 @@ fn drive_twin(
     while !stop.load(Ordering::Acquire) {
         if last_det.elapsed() >= Duration::from_millis(33) {
             // A fixed synthetic scene, not a camera's view: with a goal and settled.
-            twin.on_detection(scene, clock.now_ns(), true, true, &mut events);
+            // Through the scene path first, then noted by the worker (as in `rt-core run`).
+            let frame = AcceptedFrame::settled(scene, clock.now_ns());
+            path.accepted(frame.scene, frame.stamp_ns, frame.intruders);
+            twin.note_frame(&frame, &mut events);
             last_det = Instant::now();
         }
         let due = match last_swap {

@@ -105,6 +105,19 @@ fn probe(a: &ProbeArgs) -> Result<serde_json::Value> {
     if !a.servo_test {
         return Ok(out);
     }
+    out["servo_test"] = servo_test(a, &mut d, err, state)?;
+    Ok(out)
+}
+
+/// `--servo-test`: a 100 Hz `servo_j` sweep of joint 1 (`amplitude_deg`, `duration_s`) from
+/// where the arm stands, refused unless the controller is ready and error-free (`err`,
+/// `state`); the replies' round trips and the final joints.
+fn servo_test(
+    a: &ProbeArgs,
+    d: &mut XArmDriver,
+    err: ControllerError,
+    state: u8,
+) -> Result<serde_json::Value> {
     if err != ControllerError::None {
         bail!("refusing to move: the controller reports error {err}");
     }
@@ -150,7 +163,7 @@ fn probe(a: &ProbeArgs) -> Result<serde_json::Value> {
     d.stop(now_ns());
     d.flush()?;
     rtt_ns.sort_unstable();
-    out["servo_test"] = json!({
+    Ok(json!({
         "targets": n + 1,
         "rate_hz": 100,
         "amplitude_deg": a.amplitude_deg,
@@ -163,6 +176,5 @@ fn probe(a: &ProbeArgs) -> Result<serde_json::Value> {
         },
         "not_ready_replies": d.stats().not_ready_replies,
         "final_joints_rad": final_joints,
-    });
-    Ok(out)
+    }))
 }

@@ -36,8 +36,6 @@ use twin::{BoxObstacle, Goal, Scene};
 
 use crate::config::IntakeConfig;
 use crate::cycle::Intruders;
-use crate::cycle::shield::ShieldModel;
-use crate::twin_thread::{Lookahead, TwinEvent, TwinWorker};
 
 /// Grid every detected position and size is snapped to, m: sensor noise below it does not
 /// count as a scene change (a change re-runs the lookahead).
@@ -194,13 +192,13 @@ impl IntakeCounters {
 /// monitoring), m/s: below it, the jitter of a still box's estimate.
 pub const MOVING_SPEED_M_S: f64 = 0.05;
 
-/// An accepted frame.
+/// An accepted frame (over the twin's [`Scene`]; the runtime's tests use a toy scene).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct AcceptedFrame {
+pub struct AcceptedFrame<S = Scene> {
     /// The twin's scene (positions snapped to [`SNAP_GRID_M`]). Without a goal in the
     /// frame, its goal is the last one seen (or the start default) and must not be planned
     /// toward: see `goal_seen`.
-    pub scene: Scene,
+    pub scene: S,
     /// The frame carries a goal at or above the confidence floor.
     pub goal_seen: bool,
     /// The frame is marked settled (`DetectionFrame::FRAME_SETTLED`): plans may be
@@ -219,6 +217,41 @@ pub struct AcceptedFrame {
     /// was accepted ([`SceneIntake::goal_epoch`]): a plan approved on this frame's scene is
     /// refused by the plan guard once a later withdrawal is known to it (issue 41 item 1).
     pub goal_epoch: u64,
+}
+
+impl<S> AcceptedFrame<S> {
+    /// A frame of `scene` captured at `stamp_ns` (cycle clock), with a goal, settled, no
+    /// obstacle moving and no stop requested (the tests' and the sweep's usual frame).
+    pub fn settled(scene: S, stamp_ns: u64) -> Self {
+        Self {
+            scene,
+            goal_seen: true,
+            settled: true,
+            stamp_ns,
+            intruders: Intruders::NONE,
+            stop_requested: false,
+            goal_epoch: 0,
+        }
+    }
+}
+
+/// What the twin thread is told of each frame, after the scene path
+/// ([`crate::twin_thread::scene_path::ScenePath`]) has handed it to the cycle and the plan
+/// guard: the intake thread sends it, the twin node passes it on to
+/// [`crate::twin_thread::TwinWorker::note_frame`] / [`crate::twin_thread::TwinWorker::note_refused`].
+// Sent by value (a scene is a few hundred bytes): boxing would allocate once per frame.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, Copy)]
+pub enum FrameNote {
+    /// Accepted: its scene is with the cycle and the plan guard already.
+    Accepted {
+        /// The checked frame.
+        frame: AcceptedFrame,
+        /// Its sequence number (verdicts name the scene they were computed on).
+        sequence: u64,
+    },
+    /// Refused: the cycle has been told (it stops the arm).
+    Refused,
 }
 
 /// Why a [`GoalRequest`] was refused.
@@ -381,40 +414,6 @@ impl SceneIntake {
             Err(r) => self.counters.refused[r.index()] += 1,
         }
         result
-    }
-
-    /// Checks one frame (as [`SceneIntake::accept`]) and hands the outcome to the twin
-    /// worker: an accepted frame's scene ([`TwinWorker::on_detection`]), or the refusal
-    /// ([`TwinWorker::on_refused_detection`]: the cycle stops). The one hand-off of the
-    /// running process and of the adversarial sweep.
-    ///
-    /// # Errors
-    /// The [`FrameRefusal`] (already counted and handed on).
-    pub fn deliver<L, M>(
-        &mut self,
-        frame: &DetectionFrame,
-        mono_now_ns: u64,
-        publishers: usize,
-        twin: &mut TwinWorker<L, M>,
-        events: &mut Vec<TwinEvent<Scene>>,
-    ) -> Result<AcceptedFrame, FrameRefusal>
-    where
-        L: Lookahead<Scene = Scene>,
-        M: ShieldModel<Scene = Scene>,
-    {
-        let outcome = self.accept(frame, mono_now_ns, publishers);
-        match &outcome {
-            Ok(a) => twin.on_moving_detection(
-                a.scene,
-                a.stamp_ns,
-                a.goal_seen,
-                a.settled,
-                a.intruders,
-                events,
-            ),
-            Err(_) => twin.on_refused_detection(),
-        }
-        outcome
     }
 
     fn check(

@@ -23,34 +23,20 @@ use std::sync::mpsc;
 use std::thread::JoinHandle;
 use std::time::Duration;
 
+use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 use shm_schemas::services::{ShmOpenError, create_node, open_service, open_subscriber};
 use shm_schemas::{DetectionFrame, GoalRequest};
 
 use crate::cycle::twin_model::TwinModel;
 use crate::rt::histogram::{Histogram, Summary};
-use crate::twin_thread::intake::{AcceptedFrame, IntakeCounters, SceneIntake};
+use crate::twin_thread::intake::{FrameNote, IntakeCounters, SceneIntake};
 use crate::twin_thread::node::TwinNodeError;
 use crate::twin_thread::scene_path::ScenePath;
 
 /// How often the thread looks for new frames.
 pub const POLL_PERIOD: Duration = Duration::from_micros(100);
-
-/// What the twin thread is told of each frame, after the scene path has handled it.
-// Sent by value (a scene is a few hundred bytes): boxing would allocate once per frame.
-#[allow(clippy::large_enum_variant)]
-#[derive(Debug, Clone, Copy)]
-pub enum FrameNote {
-    /// Accepted: its scene is with the cycle and the plan guard already.
-    Accepted {
-        /// The checked frame.
-        frame: AcceptedFrame,
-        /// Its sequence number (verdicts name the scene they were computed on).
-        sequence: u64,
-    },
-    /// Refused: the cycle has been told (it stops the arm).
-    Refused,
-}
 
 /// What the intake thread counted.
 #[derive(Debug, Clone, Copy)]
@@ -123,39 +109,7 @@ fn run(
     stop: &AtomicBool,
     ready: &mpsc::SyncSender<Result<(), TwinNodeError>>,
 ) -> Result<IntakeFigures, TwinNodeError> {
-    let opened = (|| {
-        let (node, _) = create_node::<ipc::Service>("rt-core-intake")?;
-        let service = open_service::<DetectionFrame, _>(&node, prefix).map_err(|cause| {
-            TwinNodeError::Open {
-                service: "detections",
-                cause,
-            }
-        })?;
-        let sub = service
-            .subscriber_builder()
-            .create()
-            .map_err(|error| TwinNodeError::Open {
-                service: "detections",
-                cause: ShmOpenError::Subscriber {
-                    service: "detections",
-                    error,
-                },
-            })?;
-        let goals = if intake.takes_requests() {
-            Some(
-                open_subscriber::<GoalRequest, _>(&node, prefix).map_err(|cause| {
-                    TwinNodeError::Open {
-                        service: "goal requests",
-                        cause,
-                    }
-                })?,
-            )
-        } else {
-            None
-        };
-        Ok::<_, TwinNodeError>((node, service, sub, goals))
-    })();
-    let (_node, service, sub, goals) = match opened {
+    let ends = match open_ends(prefix, intake.takes_requests()) {
         Ok(ends) => {
             let _ = ready.send(Ok(()));
             ends
@@ -165,37 +119,18 @@ fn run(
             return Err(TwinNodeError::IntakeNotStarted);
         }
     };
+    let IntakeEnds {
+        _node,
+        service,
+        sub,
+        goals,
+    } = ends;
     let mut age = Histogram::new();
     let mut refusals_in_a_row = 0u64;
     let mut goal_epoch = intake.goal_epoch();
     while !stop.load(Ordering::Acquire) {
-        while let Some(sample) = goals
-            .as_ref()
-            .map(|g| g.receive())
-            .transpose()
-            .map_err(|cause| TwinNodeError::Receive {
-                service: "goal requests",
-                cause,
-            })?
-            .flatten()
-        {
-            // Copied out of shared memory before it is checked.
-            let request = *sample.payload();
-            drop(sample);
-            match intake.request(&request) {
-                Ok(()) => tracing::info!(
-                    goal_id = request.goal_id,
-                    command = request.command,
-                    target_m = ?request.target_m,
-                    approach_height_m = request.approach_height_m,
-                    "goal request taken"
-                ),
-                Err(refusal) => tracing::warn!(
-                    goal_id = request.goal_id,
-                    refused_total = intake.counters().goal_requests_refused,
-                    "goal request refused: {refusal}"
-                ),
-            }
+        if let Some(goals) = &goals {
+            take_goal_requests(goals, &mut intake)?;
         }
         // A cancel or a pre-emption revokes every plan toward the withdrawn goal here, on
         // this thread, before the next frame and whatever the twin thread is doing (a
@@ -248,4 +183,83 @@ fn run(
         counters: *intake.counters(),
         detection_age: age.summary(),
     })
+}
+
+/// The intake thread's iceoryx2 ends (made on the thread: ports stay where they were made).
+struct IntakeEnds {
+    _node: Node<ipc::Service>,
+    service: PubSubFactory<ipc::Service, DetectionFrame, ()>,
+    sub: Subscriber<ipc::Service, DetectionFrame, ()>,
+    /// The bridge's goal requests (goal source `action` only).
+    goals: Option<Subscriber<ipc::Service, GoalRequest, ()>>,
+}
+
+/// Opens the node, the detection service and its subscriber under `prefix`, and the goal
+/// requests' subscriber when the intake `takes_requests`.
+fn open_ends(prefix: &str, takes_requests: bool) -> Result<IntakeEnds, TwinNodeError> {
+    let (node, _) = create_node::<ipc::Service>("rt-core-intake")?;
+    let service =
+        open_service::<DetectionFrame, _>(&node, prefix).map_err(|cause| TwinNodeError::Open {
+            service: "detections",
+            cause,
+        })?;
+    let sub = service
+        .subscriber_builder()
+        .create()
+        .map_err(|error| TwinNodeError::Open {
+            service: "detections",
+            cause: ShmOpenError::Subscriber {
+                service: "detections",
+                error,
+            },
+        })?;
+    let goals = if takes_requests {
+        Some(
+            open_subscriber::<GoalRequest, _>(&node, prefix).map_err(|cause| {
+                TwinNodeError::Open {
+                    service: "goal requests",
+                    cause,
+                }
+            })?,
+        )
+    } else {
+        None
+    };
+    Ok(IntakeEnds {
+        _node: node,
+        service,
+        sub,
+        goals,
+    })
+}
+
+/// Takes every goal request waiting into `intake` (each copied out of shared memory before
+/// it is checked), logging what was taken or refused.
+fn take_goal_requests(
+    goals: &Subscriber<ipc::Service, GoalRequest, ()>,
+    intake: &mut SceneIntake,
+) -> Result<(), TwinNodeError> {
+    while let Some(sample) = goals.receive().map_err(|cause| TwinNodeError::Receive {
+        service: "goal requests",
+        cause,
+    })? {
+        // Copied out of shared memory before it is checked.
+        let request = *sample.payload();
+        drop(sample);
+        match intake.request(&request) {
+            Ok(()) => tracing::info!(
+                goal_id = request.goal_id,
+                command = request.command,
+                target_m = ?request.target_m,
+                approach_height_m = request.approach_height_m,
+                "goal request taken"
+            ),
+            Err(refusal) => tracing::warn!(
+                goal_id = request.goal_id,
+                refused_total = intake.counters().goal_requests_refused,
+                "goal request refused: {refusal}"
+            ),
+        }
+    }
+    Ok(())
 }

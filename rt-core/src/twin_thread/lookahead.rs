@@ -292,9 +292,16 @@ pub fn tcp_goal_approach(env: &TwinEnv, scene: &Scene, path_q_rad: &[Joints]) ->
 mod tests {
     use std::path::PathBuf;
 
+    use rand::SeedableRng;
     use twin::{BoxObstacle, Goal, IkSolver, RobotModel, Scene, TaskConfig, is_safe_posture};
 
     use super::*;
+    use crate::config::RuntimeConfig;
+    use crate::cycle::plan::{MotionState, Plan};
+    use crate::twin_thread::path_planner::TwinPathPlanner;
+    use crate::twin_thread::serve::plan_shield;
+    use crate::twin_thread::smoother::PlanSmoother;
+    use crate::twin_thread::worker::FallbackPlanner;
 
     /// The settling of a plan's end onto the goal target adds no waypoint that breaks the
     /// episode's contact rule: with a box placed so that the posture at the target is too
@@ -365,16 +372,6 @@ mod tests {
     #[ignore = "a measurement; prints figures"]
     #[allow(clippy::disallowed_methods)]
     fn sampling_vs_planner_latency() {
-        use rand::SeedableRng;
-
-        use crate::config::RuntimeConfig;
-        use crate::cycle::plan::MotionState;
-        use crate::cycle::plan::Plan;
-        use crate::twin_thread::path_planner::TwinPathPlanner;
-        use crate::twin_thread::serve::plan_shield;
-        use crate::twin_thread::smoother::PlanSmoother;
-        use crate::twin_thread::worker::FallbackPlanner;
-
         let assets = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets");
         let model = RobotModel::load(&assets.join("xarm5.urdf")).unwrap();
         let task = TaskConfig::load(&assets.join("task.toml")).unwrap();
@@ -387,12 +384,6 @@ mod tests {
         let mut smoother = PlanSmoother::new(period_s, cfg.limits, (60.0 * cfg.rate_hz) as usize);
         let start = task.start.joints_rad;
         let state = MotionState::at_rest(start);
-        let q = |v: &mut Vec<f64>, f: f64| {
-            v.sort_by(f64::total_cmp);
-            v.get(((v.len().max(1) - 1) as f64 * f).round() as usize)
-                .copied()
-                .unwrap_or(f64::NAN)
-        };
         for blob in ["policy/policy.blob", "policy-distilled/policy.blob"] {
             let loader = policy::PolicyLoader::new(policy::PolicyExpectation::for_task_obs(
                 task.hash(),
@@ -448,21 +439,45 @@ mod tests {
                 t_planner.push(t1.elapsed().as_secs_f64());
                 planner_ok += usize::from(pok);
             }
-            println!(
-                "{blob}: 400 worlds of the task's sampler (seed 26), {failed} failed the \
-                 deterministic rollout. Sampling (K = {}, {} s budget): {sampled_ok} approved, \
-                 lookahead + sampling + smooth + shield median {:.4} s, p95 {:.4} s, max {:.4} s. \
-                 Planner fallback on the same worlds: {planner_ok} approved, plan + smooth + \
-                 shield median {:.4} s, p95 {:.4} s, max {:.4} s",
-                cfg.sampling.candidates,
-                cfg.sampling.budget_s,
-                q(&mut t_sampling, 0.5),
-                q(&mut t_sampling, 0.95),
-                q(&mut t_sampling, 1.0),
-                q(&mut t_planner, 0.5),
-                q(&mut t_planner, 0.95),
-                q(&mut t_planner, 1.0),
+            print_latency(
+                blob,
+                &cfg,
+                (failed, sampled_ok, planner_ok),
+                &mut t_sampling,
+                &mut t_planner,
             );
         }
+    }
+
+    /// The figures of [`sampling_vs_planner_latency`] for one policy blob: `counts` are the
+    /// worlds its rollout failed, those sampling approved and those the planner approved.
+    fn print_latency(
+        blob: &str,
+        cfg: &RuntimeConfig,
+        (failed, sampled_ok, planner_ok): (usize, usize, usize),
+        t_sampling: &mut [f64],
+        t_planner: &mut [f64],
+    ) {
+        let q = |v: &mut [f64], f: f64| {
+            v.sort_by(f64::total_cmp);
+            v.get(((v.len().max(1) - 1) as f64 * f).round() as usize)
+                .copied()
+                .unwrap_or(f64::NAN)
+        };
+        println!(
+            "{blob}: 400 worlds of the task's sampler (seed 26), {failed} failed the \
+             deterministic rollout. Sampling (K = {}, {} s budget): {sampled_ok} approved, \
+             lookahead + sampling + smooth + shield median {:.4} s, p95 {:.4} s, max {:.4} s. \
+             Planner fallback on the same worlds: {planner_ok} approved, plan + smooth + \
+             shield median {:.4} s, p95 {:.4} s, max {:.4} s",
+            cfg.sampling.candidates,
+            cfg.sampling.budget_s,
+            q(t_sampling, 0.5),
+            q(t_sampling, 0.95),
+            q(t_sampling, 1.0),
+            q(t_planner, 0.5),
+            q(t_planner, 0.95),
+            q(t_planner, 1.0),
+        );
     }
 }

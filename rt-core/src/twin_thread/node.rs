@@ -28,7 +28,7 @@ use twin::Scene;
 use crate::cycle::shield::ShieldModel;
 use crate::cycle::twin_model::TwinModel;
 use crate::cycle::{CycleReport, LoopShared, Mode, StopReason};
-use crate::twin_thread::intake_thread::FrameNote;
+use crate::twin_thread::intake::FrameNote;
 use crate::twin_thread::lookahead::TwinLookahead;
 use crate::twin_thread::{TwinEvent, TwinWorker, Verdict, VerdictSource};
 
@@ -227,19 +227,9 @@ impl TwinNode {
             match note {
                 FrameNote::Accepted { frame, sequence } => {
                     self.scene_seq = sequence;
-                    twin.note_goal_epoch(frame.goal_epoch);
-                    if frame.stop_requested {
-                        twin.note_goal_cancelled(events);
-                    }
-                    twin.note_detection(
-                        frame.scene,
-                        frame.stamp_ns,
-                        frame.goal_seen,
-                        frame.settled,
-                        events,
-                    );
+                    twin.note_frame(&frame, events);
                 }
-                FrameNote::Refused => twin.note_refused_detection(),
+                FrameNote::Refused => twin.note_refused(),
             }
         }
         while let Some(sample) = self.pol_sub.receive().map_err(recv_err("policies"))? {

@@ -311,17 +311,10 @@ impl<M: ShieldModel> PlanGuard<M> {
                     bad
                 }
                 Standing::Joining { join_index } => {
-                    let running = self
-                        .live
-                        .iter()
-                        .find(|p| Some(p.id) == plan.join.map(|j| j.plan_id))
-                        .cloned();
-                    match running {
-                        Some(r) if join_index < r.len() => {
-                            self.first_unsafe(&r.q_rad[join_index], &plan.q_rad, &scene)
-                        }
+                    match self.first_unsafe_joining(&plan, join_index, &scene) {
+                        Some(bad) => bad,
                         // Its join point is past the running plan's end: the cycle refuses it.
-                        _ => continue,
+                        None => continue,
                     }
                 }
                 Standing::NotAdopted => match plan.q_rad.first() {
@@ -367,6 +360,24 @@ impl<M: ShieldModel> PlanGuard<M> {
                 .revoke_up_to_because(newest_checked, capture_ns, accepted_ns);
             self.revocations.push(r);
         }
+    }
+
+    /// The first unsafe sample of `plan`, scheduled to join the running plan at
+    /// `join_index`, from the running plan's sample there; `None` when its join point is
+    /// past the running plan's end (or that plan is gone): nothing to check.
+    fn first_unsafe_joining(
+        &mut self,
+        plan: &Plan,
+        join_index: usize,
+        scene: &M::Scene,
+    ) -> Option<Option<usize>> {
+        let running = self
+            .live
+            .iter()
+            .find(|p| Some(p.id) == plan.join.map(|j| j.plan_id))
+            .cloned()?;
+        (join_index < running.len())
+            .then(|| self.first_unsafe(&running.q_rad[join_index], &plan.q_rad, scene))
     }
 
     fn first_unsafe(

@@ -4,8 +4,11 @@
 //!
 //! In `rt-core run` the path runs on the intake thread (`twin_thread::intake_thread`), so
 //! a planner search, a lookahead or a policy hand-over on the twin thread can delay neither
-//! the cycle's scene nor the re-verification; the tests and the sweep, which step everything
-//! in one thread, call it inline through [`crate::twin_thread::TwinWorker::on_detection`].
+//! the cycle's scene nor the re-verification. The tests and the sweep, which step everything
+//! in one thread, call it themselves in the same order: [`ScenePath::accepted`] (or
+//! [`ScenePath::refused`]), then the worker's one door for a frame,
+//! [`crate::twin_thread::TwinWorker::note_frame`] (or `note_refused`).
+//! [`crate::twin_thread::TwinWorker::new`] makes the path beside the worker.
 
 // The guard is shared by two non-real-time threads (the intake thread and the twin thread);
 // the cycle never takes this lock (it sees scenes through a lock-free latest-value hand-over).

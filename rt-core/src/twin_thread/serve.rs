@@ -1,7 +1,8 @@
-//! `rt-core run` as a library function: [`serve`] builds the cycle and the twin worker
-//! around a robot link, starts the cycle thread, and runs the twin thread's loop (iceoryx2
-//! in, the worker, iceoryx2 out) on the calling thread until a signal, the time limit, an
-//! error or a panic; then it returns the run's figures.
+//! `rt-core run` as a library function: [`serve`] is `start → run_loop → shut_down` around
+//! one struct (`Runtime`): it builds the cycle and the twin worker around a robot link,
+//! starts the cycle, intake and log threads, runs the twin thread's loop (iceoryx2 in, the
+//! worker, iceoryx2 out) on the calling thread until a signal, the time limit, an error or a
+//! panic; then it stops the arm and returns the run's figures.
 //!
 //! Every way out is a controlled stop: SIGINT, SIGTERM and `--seconds` request a shutdown;
 //! an error or a panic of the twin loop, and the watchdog (a stalled or dead cycle thread),
@@ -16,8 +17,9 @@
 #![allow(clippy::disallowed_methods)]
 
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, mpsc};
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use policy::PolicyExpectation;
@@ -27,20 +29,21 @@ use crate::config::RuntimeConfig;
 use crate::cycle::brake::Brake;
 use crate::cycle::link::{DryRunLink, LinkError, RobotLink};
 use crate::cycle::shield::{Shield, ShieldLimits};
-use crate::cycle::thread::spawn_cycle_thread;
+use crate::cycle::thread::{CycleThreadResult, spawn_cycle_thread};
 use crate::cycle::twin_model::TwinModel;
-use crate::cycle::{self, Cycle, CycleConfig, LoopShared, LoopSummary};
+use crate::cycle::{self, Cycle, CycleConfig, CycleControl, LoopShared, LoopSummary, TwinIo};
 use crate::operator_ack::{AckChannelError, AckServer};
 use crate::rt::clock::{Clock, MonotonicClock};
 use crate::rt::histogram::Summary;
 use crate::rt::rt_setup::{self, RtRequest, RtSetupReport};
 use crate::twin_thread::command_log::{CommandLog, CommandLogError};
-use crate::twin_thread::intake::{FrameRefusal, IntakeCounters, SceneIntake};
+use crate::twin_thread::intake::{FrameNote, FrameRefusal, IntakeCounters, SceneIntake};
 use crate::twin_thread::intake_thread::{IntakeThread, spawn_intake_thread};
 use crate::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
 use crate::twin_thread::node::{ProductionWorker, TwinNode, TwinNodeError};
 use crate::twin_thread::path_planner::TwinPathPlanner;
 use crate::twin_thread::reaction::{ReactionSummary, SharedReactionMeter};
+use crate::twin_thread::scene_path::ScenePath;
 use crate::twin_thread::{TwinEvent, TwinWorker};
 
 /// How the twin thread polls between events.
@@ -296,7 +299,9 @@ pub enum ServeError {
     CommandLog(#[from] CommandLogError),
 }
 
-/// Runs the runtime on `link` until stopped; see the module docs.
+/// Runs the runtime on `link` until stopped; see the module docs: [`Runtime::start`], then
+/// [`Runtime::run_loop`] until a signal, the time limit, an error or a panic, then
+/// [`Runtime::shut_down`] (the arm stops under control before anything else).
 ///
 /// # Errors
 /// [`ServeError`].
@@ -307,23 +312,297 @@ pub fn serve<L: RobotLink + 'static>(
     task: TaskConfig,
     link: L,
 ) -> Result<ServeSummary, ServeError> {
-    if task.success.min_box_clearance_m < cfg.shield.min_distance_m {
-        return Err(ServeError::ClearanceBelowShield {
-            task_m: task.success.min_box_clearance_m,
-            shield_m: cfg.shield.min_distance_m,
+    let mut run = Runtime::start(opts, cfg, model, task, link)?;
+    let looped = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run.run_loop()))
+        .unwrap_or_else(|panic| {
+            let msg = panic
+                .downcast_ref::<&str>()
+                .map(|s| (*s).to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            Err(ServeError::TwinPanicked(msg))
         });
+    run.shut_down(looped)
+}
+
+/// A running `rt-core run`: the cycle thread, the intake thread and the log thread started,
+/// the twin thread's ends (the worker, its iceoryx2 node, the command log) on the calling
+/// thread.
+struct Runtime<'a, L: RobotLink + 'static> {
+    opts: &'a ServeOptions,
+    cfg: &'a RuntimeConfig,
+    clock: MonotonicClock,
+    twin: ProductionWorker,
+    node: TwinNode,
+    events: Vec<TwinEvent<Scene>>,
+    command_log: Option<CommandLog>,
+    /// The twin's model, for the published robot state's forward kinematics.
+    fk: TwinModel,
+    shared: Arc<LoopShared>,
+    /// Ends the cycle and log threads at once (after the controlled stop, or its timeout).
+    stop: Arc<AtomicBool>,
+    /// SIGUSR1 seen (caught, logged and dropped).
+    stray_ack_signal: Arc<AtomicBool>,
+    _ack_server: Option<AckServer>,
+    reactions: SharedReactionMeter,
+    cycle_thread: JoinHandle<CycleThreadResult<TwinModel, L>>,
+    log_thread: JoinHandle<()>,
+    intake_thread: IntakeThread,
+    intake_stop: Arc<AtomicBool>,
+}
+
+impl<'a, L: RobotLink + 'static> Runtime<'a, L> {
+    /// Builds the cycle and the worker around `link`, installs the signal handlers and the
+    /// operator's acknowledgement channel, and starts the log, intake and cycle threads.
+    fn start(
+        opts: &'a ServeOptions,
+        cfg: &'a RuntimeConfig,
+        model: RobotModel,
+        task: TaskConfig,
+        link: L,
+    ) -> Result<Self, ServeError> {
+        if task.success.min_box_clearance_m < cfg.shield.min_distance_m {
+            return Err(ServeError::ClearanceBelowShield {
+                task_m: task.success.min_box_clearance_m,
+                shield_m: cfg.shield.min_distance_m,
+            });
+        }
+        // The task's tool (gripper) shape counts in every distance query: the lookahead,
+        // both shields and the state model all use this model.
+        let model = model.with_tool(task.tool.map(|t| t.capsule()));
+        let (twin_io, cycle_io, log_drain) = cycle::wire::<Scene>();
+        let clock = MonotonicClock::new();
+        let cyc = start_cycle(
+            cfg,
+            opts,
+            cycle_shield(cfg, &model, opts.no_lookahead),
+            link,
+            cycle_io,
+            &clock,
+        )?;
+        let (mut twin, scene_path) = build_worker(opts, cfg, &model, task, twin_io);
+        let command_log = open_command_log(opts)?;
+        let control = cyc.control().clone();
+        let stray_ack_signal = install_signals(&control)?;
+        let _ack_server = start_ack_server(opts, &control)?;
+        // `stop` ends the cycle thread at once (after a controlled stop, or when it timed
+        // out); a shutdown (signals, time limit, errors) goes through the cycle's
+        // controlled stop.
+        let stop = Arc::new(AtomicBool::new(false));
+        let shared = Arc::new(LoopShared::default());
+        let reactions = SharedReactionMeter::default();
+        let meter = reactions.clone();
+        let log_thread = log_drain
+            .spawn_observed(Duration::from_millis(20), stop.clone(), move |r| {
+                meter.observe(r);
+            })
+            .map_err(ServeError::Spawn)?;
+        let (intake_thread, intake_stop, frames) =
+            start_intake(opts, cfg, &task, scene_path, &clock)?;
+        let (node, cleanup) = TwinNode::open(
+            &opts.prefix,
+            PolicyExpectation::for_task_obs(task.hash(), task.obs_dim()),
+            frames,
+            !opts.no_lookahead,
+        )?;
+        tracing::info!(?cleanup, prefix = opts.prefix, "iceoryx2 node up");
+        let mut events = Vec::new();
+        if let Some(path) = &opts.policy {
+            node.load_policy_file(path, &mut twin, &mut events)?;
+        }
+        let cycle_thread = spawn_cycle_thread(cyc, clock, opts.rt, stop.clone(), shared.clone())
+            .map_err(ServeError::Spawn)?;
+        Ok(Self {
+            opts,
+            cfg,
+            clock,
+            twin,
+            node,
+            events,
+            command_log,
+            fk: TwinModel::new(model),
+            shared,
+            stop,
+            stray_ack_signal,
+            _ack_server,
+            reactions,
+            cycle_thread,
+            log_thread,
+            intake_thread,
+            intake_stop,
+        })
     }
-    // The task's tool (gripper) shape counts in every distance query: the lookahead, both
-    // shields and the state model all use this model.
-    let model = model.with_tool(task.tool.map(|t| t.capsule()));
+
+    /// The twin thread's loop: receive, step the worker, publish, log, until a shutdown is
+    /// requested or the time limit; an error or the watchdog ends it with an error.
+    fn run_loop(&mut self) -> Result<(), ServeError> {
+        // The twin thread polls its subscribers every 100 µs; a 1 ns timer slack keeps the
+        // sleeps close to that.
+        let _ = rt_setup::set_timer_slack_ns(1);
+        let t0 = Instant::now();
+        let control = self.twin.control().clone();
+        let mut beat = (
+            self.shared.heartbeat.load(Ordering::Acquire),
+            Instant::now(),
+        );
+        let mut following_since: Option<Instant> = None;
+        while !control.shutdown_requested() {
+            if self.opts.seconds > 0.0 && t0.elapsed().as_secs_f64() >= self.opts.seconds {
+                tracing::info!(seconds = self.opts.seconds, "time limit: stopping the arm");
+                break;
+            }
+            self.watch_threads(&mut beat)?;
+            if self.stray_ack_signal.swap(false, Ordering::AcqRel) {
+                tracing::warn!(
+                    "SIGUSR1 ignored: it acknowledges nothing (any process of this user can send \
+                     it, and it names no stop); acknowledge with `rt-core ack --robot HOST`"
+                );
+            }
+            self.node.receive(&mut self.twin, &mut self.events)?;
+            self.twin.step(&mut self.events);
+            let now = self.clock.now_ns();
+            self.node
+                .publish_events(&mut self.events, now, self.cfg.rate_hz)?;
+            if let (Some(log), Some(r)) = (self.command_log.as_mut(), self.twin.last_report()) {
+                log.record(r)?;
+            }
+            self.node
+                .publish_state(self.twin.last_report(), &self.shared, &mut self.fk, now)?;
+            if let Some(InjectedFault::TwinPanic { after_ms }) = self.opts.inject {
+                let following = self
+                    .twin
+                    .last_report()
+                    .is_some_and(|r| r.mode == cycle::Mode::Following);
+                match (following, following_since) {
+                    (true, None) => following_since = Some(Instant::now()),
+                    (true, Some(t)) if t.elapsed() >= Duration::from_millis(after_ms) => {
+                        panic!("injected fault: twin-thread panic {after_ms} ms into a plan")
+                    }
+                    _ => {}
+                }
+            }
+            std::thread::sleep(POLL_PERIOD);
+        }
+        Ok(())
+    }
+
+    /// The watchdog: a cycle thread that has ended or stopped beating (`beat`: its last
+    /// heartbeat and when it changed), or an intake thread that has ended, ends the loop.
+    fn watch_threads(&self, beat: &mut (u64, Instant)) -> Result<(), ServeError> {
+        if self.shared.finished.load(Ordering::Acquire) {
+            return Err(ServeError::CycleStalled("has ended"));
+        }
+        if self.intake_thread.is_finished() {
+            // No scene reaches the cycle any more (it would stop on stale detections).
+            return Err(ServeError::IntakeEnded);
+        }
+        let now_beat = self.shared.heartbeat.load(Ordering::Acquire);
+        if now_beat != beat.0 {
+            *beat = (now_beat, Instant::now());
+        } else if now_beat > 0 && beat.1.elapsed() > WATCHDOG_TIMEOUT {
+            return Err(ServeError::CycleStalled("stopped beating"));
+        }
+        Ok(())
+    }
+
+    /// Whatever ended the loop (`looped`), the arm stops under control before anything
+    /// else: a shutdown is requested and waited for up to [`SHUTDOWN_TIMEOUT`] (the robot
+    /// state still published), then the threads end and the run's figures are gathered.
+    fn shut_down(mut self, looped: Result<(), ServeError>) -> Result<ServeSummary, ServeError> {
+        self.twin.control().request_shutdown();
+        if let Err(e) = &looped {
+            tracing::error!(error = %e, "stopping the arm under control before exiting");
+        }
+        let deadline = Instant::now() + SHUTDOWN_TIMEOUT;
+        while !self.cycle_thread.is_finished() && Instant::now() < deadline {
+            self.twin.take_reports();
+            let now = self.clock.now_ns();
+            let _ =
+                self.node
+                    .publish_state(self.twin.last_report(), &self.shared, &mut self.fk, now);
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        let timed_out = !self.cycle_thread.is_finished();
+        self.stop.store(true, Ordering::Release);
+        if timed_out {
+            // A stalled cycle thread: give it a moment to see `stop`, then leave without it
+            // (the process exit ends it; the controller stops streaming).
+            let grace = Instant::now() + Duration::from_secs(1);
+            while !self.cycle_thread.is_finished() && Instant::now() < grace {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            if !self.cycle_thread.is_finished() {
+                let _ = self.log_thread.join();
+                return Err(looped
+                    .err()
+                    .unwrap_or(ServeError::ShutdownTimeout(SHUTDOWN_TIMEOUT)));
+            }
+        }
+        let commands_logged = match self.command_log.take() {
+            Some(log) => log.finish(),
+            None => Ok(0),
+        };
+        let done = self
+            .cycle_thread
+            .join()
+            .map_err(|_| ServeError::CyclePanicked);
+        // The arm is at rest: the intake thread may end.
+        self.intake_stop.store(true, Ordering::Release);
+        let intake_figures = self.intake_thread.join();
+        // The cycle's last report (at rest) goes out before the exit.
+        self.twin.take_reports();
+        let now = self.clock.now_ns();
+        let _ =
+            self.node
+                .publish_final_state(self.twin.last_report(), &self.shared, &mut self.fk, now);
+        let _ = self.log_thread.join();
+        looped?;
+        let done = done?;
+        if timed_out {
+            return Err(ServeError::ShutdownTimeout(SHUTDOWN_TIMEOUT));
+        }
+        let intake_figures = intake_figures?;
+        let r = done.cycle.report();
+        tracing::info!(
+            stops = r.stops,
+            commands_refused = r.commands_refused,
+            envelope_breaches = r.envelope_breaches,
+            arm_error_code = r.arm_error_code,
+            "the arm is at rest; controller stop state requested"
+        );
+        let (reaction, reactions) = self.reactions.summary();
+        Ok(ServeSummary {
+            cycle: done.stats.summary(),
+            rt: done.rt,
+            allocations_in_cycle: done.allocations,
+            detection_to_twin: intake_figures.detection_age,
+            commands_logged: commands_logged?,
+            commands_refused: r.commands_refused,
+            envelope_breaches: r.envelope_breaches,
+            joins_before_stop: r.joins_before_stop,
+            intake: intake_figures.counters,
+            reaction,
+            reactions,
+        })
+    }
+}
+
+/// The twin worker of `rt-core run` and its scene path: the lookahead (blind with
+/// `--no-lookahead`, verified sampling when configured), the plan check, and the planner
+/// fallback when configured.
+fn build_worker(
+    opts: &ServeOptions,
+    cfg: &RuntimeConfig,
+    model: &RobotModel,
+    task: TaskConfig,
+    twin_io: TwinIo<Scene>,
+) -> (ProductionWorker, ScenePath<TwinModel>) {
     if opts.no_lookahead {
         tracing::warn!(
             "--no-lookahead: plans run whatever the lookahead says; the cycle's shield leaves the \
              obstacle boxes out of its clearance (the table and every limit still hold)"
         );
     }
-    let task_hash = task.hash();
-    let table_height_m = task.sampling.table_height_m;
     let planner = (cfg.planner_fallback.enabled && !opts.no_lookahead)
         .then(|| TwinPathPlanner::new(model.clone(), task, cfg));
     let mut lookahead = TwinLookahead::new(model.clone(), task, LookaheadActions::Policy);
@@ -338,20 +617,10 @@ pub fn serve<L: RobotLink + 'static>(
              rolled out and verified before the planner fallback"
         );
     }
-    let (twin_io, cycle_io, log_drain) = cycle::wire::<Scene>();
-    let clock = MonotonicClock::new();
-    let cyc = start_cycle(
-        cfg,
-        opts,
-        cycle_shield(cfg, &model, opts.no_lookahead),
-        link,
-        cycle_io,
-        &clock,
-    )?;
-    let mut twin = TwinWorker::new(
+    let (mut twin, scene_path) = TwinWorker::new(
         cfg,
         lookahead,
-        plan_shield(cfg, &model, opts.no_lookahead),
+        plan_shield(cfg, model, opts.no_lookahead),
         twin_io,
     );
     if opts.no_lookahead {
@@ -364,58 +633,68 @@ pub fn serve<L: RobotLink + 'static>(
         );
         twin.set_fallback_planner(Box::new(planner));
     }
-    let mut command_log = match (&opts.command_log, opts.dry_run) {
+    (twin, scene_path)
+}
+
+/// The command log: `opts.command_log`, or `dry_run_commands.csv` in a dry run; none
+/// otherwise.
+fn open_command_log(opts: &ServeOptions) -> Result<Option<CommandLog>, ServeError> {
+    Ok(match (&opts.command_log, opts.dry_run) {
         (Some(p), _) => Some(CommandLog::create(p)?),
         (None, true) => Some(CommandLog::create(std::path::Path::new(
             "dry_run_commands.csv",
         ))?),
         (None, false) => None,
-    };
-    // `stop` ends the cycle thread at once (after a controlled stop, or when it timed out);
-    // a shutdown (signals, time limit, errors) goes through the cycle's controlled stop.
-    let stop = Arc::new(AtomicBool::new(false));
-    let control = cyc.control().clone();
+    })
+}
+
+/// The operator's acknowledgement channel, when `opts.ack_channel` asks for one.
+fn start_ack_server(
+    opts: &ServeOptions,
+    control: &Arc<CycleControl>,
+) -> Result<Option<AckServer>, ServeError> {
+    match &opts.ack_channel {
+        Some(a) => AckServer::start(a.path.clone(), control.clone(), a.extra_uids.clone())
+            .map(Some)
+            .map_err(ServeError::AckChannel),
+        None => Ok(None),
+    }
+}
+
+/// SIGINT and SIGTERM request the cycle's controlled stop; SIGUSR1 (the acknowledgement of
+/// earlier versions) clears nothing: any process of the same user can send it and it names
+/// no stop. It is caught, and the returned flag set, to be logged and dropped; the operator
+/// acknowledges through the channel beside the arm's lock (`rt-core ack`).
+fn install_signals(control: &CycleControl) -> Result<Arc<AtomicBool>, ServeError> {
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(sig, control.shutdown_flag()).map_err(ServeError::Signals)?;
     }
-    // SIGUSR1 (the acknowledgement of earlier versions) clears nothing: any process of the
-    // same user can send it and it names no stop. It is caught, logged and dropped; the
-    // operator acknowledges through the channel beside the arm's lock (`rt-core ack`).
     let stray_ack_signal = Arc::new(AtomicBool::new(false));
     signal_hook::flag::register(signal_hook::consts::SIGUSR1, stray_ack_signal.clone())
         .map_err(ServeError::Signals)?;
-    let _ack_server = match &opts.ack_channel {
-        Some(a) => Some(
-            AckServer::start(a.path.clone(), control.clone(), a.extra_uids.clone())
-                .map_err(ServeError::AckChannel)?,
-        ),
-        None => None,
-    };
-    let shared = Arc::new(LoopShared::default());
-    let reactions = SharedReactionMeter::default();
-    let meter = reactions.clone();
-    let log_thread = log_drain
-        .spawn_observed(Duration::from_millis(20), stop.clone(), move |r| {
-            meter.observe(r);
-        })
-        .map_err(ServeError::Spawn)?;
+    Ok(stray_ack_signal)
+}
+
+/// Starts the intake thread: detections go their own way — each accepted scene to the
+/// cycle and the plan guard on `scene_path`, then noted to the twin thread for planning
+/// (the returned receiver). Returns the thread and its stop flag too.
+fn start_intake(
+    opts: &ServeOptions,
+    cfg: &RuntimeConfig,
+    task: &TaskConfig,
+    scene_path: ScenePath<TwinModel>,
+    clock: &MonotonicClock,
+) -> Result<(IntakeThread, Arc<AtomicBool>, mpsc::Receiver<FrameNote>), ServeError> {
     let mut intake = SceneIntake::new(
         cfg.intake,
         (cfg.stale.max_detection_age_s * 1e9) as u64,
-        table_height_m,
+        task.sampling.table_height_m,
         clock.origin_ns(),
     );
     if cfg.goal.source == crate::config::GoalSource::Action {
         intake = intake.with_requested_goals(cfg.goal_bounds(), task.success.goal_hover_m);
     }
-    // Detections go their own way: the intake thread hands each accepted scene to the
-    // cycle and the plan guard, then notes it to the twin thread for planning.
-    let (frame_notes, frames) = std::sync::mpsc::channel();
-    let scene_path = twin.take_scene_path().ok_or_else(|| {
-        ServeError::Spawn(std::io::Error::other(
-            "the worker's scene path was taken before the intake thread started",
-        ))
-    })?;
+    let (frame_notes, frames) = mpsc::channel();
     scene_path.set_clock_origin(clock.origin_ns());
     let intake_stop = Arc::new(AtomicBool::new(false));
     let intake_thread = spawn_intake_thread(
@@ -425,109 +704,7 @@ pub fn serve<L: RobotLink + 'static>(
         frame_notes,
         intake_stop.clone(),
     )?;
-    let (mut node, cleanup) = TwinNode::open(
-        &opts.prefix,
-        PolicyExpectation::for_task_obs(task_hash, task.obs_dim()),
-        frames,
-        !opts.no_lookahead,
-    )?;
-    tracing::info!(?cleanup, prefix = opts.prefix, "iceoryx2 node up");
-    let mut events = Vec::new();
-    if let Some(path) = &opts.policy {
-        node.load_policy_file(path, &mut twin, &mut events)?;
-    }
-    let cycle_thread = spawn_cycle_thread(cyc, clock, opts.rt, stop.clone(), shared.clone())
-        .map_err(ServeError::Spawn)?;
-    let mut fk = TwinModel::new(model);
-    let looped = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        twin_loop(
-            opts,
-            cfg,
-            clock,
-            &mut node,
-            &mut twin,
-            &mut command_log,
-            &mut fk,
-            &shared,
-            &stray_ack_signal,
-            &mut events,
-            &intake_thread,
-        )
-    }))
-    .unwrap_or_else(|panic| {
-        let msg = panic
-            .downcast_ref::<&str>()
-            .map(|s| (*s).to_string())
-            .or_else(|| panic.downcast_ref::<String>().cloned())
-            .unwrap_or_default();
-        Err(ServeError::TwinPanicked(msg))
-    });
-    // Whatever ended the loop, the arm stops under control before anything else.
-    control.request_shutdown();
-    if let Err(e) = &looped {
-        tracing::error!(error = %e, "stopping the arm under control before exiting");
-    }
-    let deadline = Instant::now() + SHUTDOWN_TIMEOUT;
-    while !cycle_thread.is_finished() && Instant::now() < deadline {
-        twin.take_reports();
-        let _ = node.publish_state(twin.last_report(), &shared, &mut fk, clock.now_ns());
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    let timed_out = !cycle_thread.is_finished();
-    stop.store(true, Ordering::Release);
-    if timed_out {
-        // A stalled cycle thread: give it a moment to see `stop`, then leave without it
-        // (the process exit ends it; the controller stops streaming).
-        let grace = Instant::now() + Duration::from_secs(1);
-        while !cycle_thread.is_finished() && Instant::now() < grace {
-            std::thread::sleep(Duration::from_millis(5));
-        }
-        if !cycle_thread.is_finished() {
-            let _ = log_thread.join();
-            return Err(looped
-                .err()
-                .unwrap_or(ServeError::ShutdownTimeout(SHUTDOWN_TIMEOUT)));
-        }
-    }
-    let commands_logged = match command_log.take() {
-        Some(log) => log.finish(),
-        None => Ok(0),
-    };
-    let done = cycle_thread.join().map_err(|_| ServeError::CyclePanicked);
-    // The arm is at rest: the intake thread may end.
-    intake_stop.store(true, Ordering::Release);
-    let intake_figures = intake_thread.join();
-    // The cycle's last report (at rest) goes out before the exit.
-    twin.take_reports();
-    let _ = node.publish_final_state(twin.last_report(), &shared, &mut fk, clock.now_ns());
-    let _ = log_thread.join();
-    looped?;
-    let done = done?;
-    if timed_out {
-        return Err(ServeError::ShutdownTimeout(SHUTDOWN_TIMEOUT));
-    }
-    let intake_figures = intake_figures?;
-    let r = done.cycle.report();
-    tracing::info!(
-        stops = r.stops,
-        commands_refused = r.commands_refused,
-        envelope_breaches = r.envelope_breaches,
-        arm_error_code = r.arm_error_code,
-        "the arm is at rest; controller stop state requested"
-    );
-    Ok(ServeSummary {
-        cycle: done.stats.summary(),
-        rt: done.rt,
-        allocations_in_cycle: done.allocations,
-        detection_to_twin: intake_figures.detection_age,
-        commands_logged: commands_logged?,
-        commands_refused: r.commands_refused,
-        envelope_breaches: r.envelope_breaches,
-        joins_before_stop: r.joins_before_stop,
-        intake: intake_figures.counters,
-        reaction: reactions.summary().0,
-        reactions: reactions.summary().1,
-    })
+    Ok((intake_thread, intake_stop, frames))
 }
 
 /// The cycle's shield in `rt-core run`, the check of every command sent: the configured
@@ -596,79 +773,6 @@ fn start_cycle<L: RobotLink>(
     }
     started.map_err(ServeError::ArmStart)?;
     Ok(cyc)
-}
-
-/// The twin thread's loop: receive, step the worker, publish, log, until a shutdown is
-/// requested or the time limit; an error or the watchdog ends it with an error.
-#[allow(clippy::too_many_arguments)]
-fn twin_loop(
-    opts: &ServeOptions,
-    cfg: &RuntimeConfig,
-    clock: MonotonicClock,
-    node: &mut TwinNode,
-    twin: &mut ProductionWorker,
-    command_log: &mut Option<CommandLog>,
-    fk: &mut TwinModel,
-    shared: &LoopShared,
-    stray_ack_signal: &AtomicBool,
-    events: &mut Vec<TwinEvent<Scene>>,
-    intake_thread: &IntakeThread,
-) -> Result<(), ServeError> {
-    // The twin thread polls its subscribers every 100 µs; a 1 ns timer slack keeps the
-    // sleeps close to that.
-    let _ = rt_setup::set_timer_slack_ns(1);
-    let t0 = Instant::now();
-    let control = twin.control().clone();
-    let mut beat = (shared.heartbeat.load(Ordering::Acquire), Instant::now());
-    let mut following_since: Option<Instant> = None;
-    while !control.shutdown_requested() {
-        if opts.seconds > 0.0 && t0.elapsed().as_secs_f64() >= opts.seconds {
-            tracing::info!(seconds = opts.seconds, "time limit: stopping the arm");
-            break;
-        }
-        // Watchdog: a cycle thread that has ended or stopped beating.
-        if shared.finished.load(Ordering::Acquire) {
-            return Err(ServeError::CycleStalled("has ended"));
-        }
-        if intake_thread.is_finished() {
-            // No scene reaches the cycle any more (it would stop on stale detections).
-            return Err(ServeError::IntakeEnded);
-        }
-        let now_beat = shared.heartbeat.load(Ordering::Acquire);
-        if now_beat != beat.0 {
-            beat = (now_beat, Instant::now());
-        } else if now_beat > 0 && beat.1.elapsed() > WATCHDOG_TIMEOUT {
-            return Err(ServeError::CycleStalled("stopped beating"));
-        }
-        if stray_ack_signal.swap(false, Ordering::AcqRel) {
-            tracing::warn!(
-                "SIGUSR1 ignored: it acknowledges nothing (any process of this user can send it, \
-                 and it names no stop); acknowledge with `rt-core ack --robot HOST`"
-            );
-        }
-        node.receive(twin, events)?;
-        twin.step(events);
-        let now = clock.now_ns();
-        node.publish_events(events, now, cfg.rate_hz)?;
-        if let (Some(log), Some(r)) = (command_log.as_mut(), twin.last_report()) {
-            log.record(r)?;
-        }
-        node.publish_state(twin.last_report(), shared, fk, now)?;
-        if let Some(InjectedFault::TwinPanic { after_ms }) = opts.inject {
-            let following = twin
-                .last_report()
-                .is_some_and(|r| r.mode == cycle::Mode::Following);
-            match (following, following_since) {
-                (true, None) => following_since = Some(Instant::now()),
-                (true, Some(t)) if t.elapsed() >= Duration::from_millis(after_ms) => {
-                    panic!("injected fault: twin-thread panic {after_ms} ms into a plan")
-                }
-                _ => {}
-            }
-        }
-        std::thread::sleep(POLL_PERIOD);
-    }
-    Ok(())
 }
 
 #[cfg(test)]

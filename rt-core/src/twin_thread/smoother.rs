@@ -170,38 +170,60 @@ impl PlanSmoother {
             input.target_acceleration = vec![0.0; DOF];
             t_end += here_s;
             let last = i + 1 == n;
-            loop {
-                if !last && t_s >= t_end - 1e-9 {
-                    break;
-                }
-                let mut r = ruckig.update(&mut input, &mut output);
-                if !matches!(r, RuckigResult::Working | RuckigResult::Finished) {
-                    // Some pass-through velocities have no time-optimal profile from the
-                    // current state (Ruckig -110): pass this waypoint at rest instead.
-                    input.target_velocity = vec![0.0; DOF];
-                    r = ruckig.update(&mut input, &mut output);
-                }
-                let done = match r {
-                    RuckigResult::Working => false,
-                    RuckigResult::Finished => true,
-                    ref e => return Err(SmoothError::Ruckig(ruckig_code(e))),
-                };
-                if plan.len() >= self.max_samples {
-                    return Err(SmoothError::TooLong(self.max_samples));
-                }
-                let mut q = [0.0; DOF];
-                let mut dq = [0.0; DOF];
-                let mut ddq = [0.0; DOF];
-                q.copy_from_slice(&output.new_position);
-                dq.copy_from_slice(&output.new_velocity);
-                ddq.copy_from_slice(&output.new_acceleration);
-                plan.push(q, dq, ddq);
-                output.pass_to_input(&mut input);
-                t_s += self.period_s;
-                // Reached early, a waypoint is held until its time comes.
-                if done && (last || t_s >= t_end - 1e-9) {
-                    break;
-                }
+            self.run_segment(
+                &mut ruckig,
+                &mut input,
+                &mut output,
+                plan,
+                (&mut t_s, t_end, last),
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Ruckig's samples toward `input`'s target appended to `plan`, until the segment's
+    /// time: `(t_s, t_end, last)` — the plan's time so far, the segment's end, and whether
+    /// it is the last segment (then until the target is reached). A target reached early
+    /// is held until its time comes.
+    fn run_segment(
+        &self,
+        ruckig: &mut Ruckig,
+        input: &mut InputParameter,
+        output: &mut OutputParameter,
+        plan: &mut Plan,
+        (t_s, t_end, last): (&mut f64, f64, bool),
+    ) -> Result<(), SmoothError> {
+        loop {
+            if !last && *t_s >= t_end - 1e-9 {
+                break;
+            }
+            let mut r = ruckig.update(input, output);
+            if !matches!(r, RuckigResult::Working | RuckigResult::Finished) {
+                // Some pass-through velocities have no time-optimal profile from the
+                // current state (Ruckig -110): pass this waypoint at rest instead.
+                input.target_velocity = vec![0.0; DOF];
+                r = ruckig.update(input, output);
+            }
+            let done = match r {
+                RuckigResult::Working => false,
+                RuckigResult::Finished => true,
+                ref e => return Err(SmoothError::Ruckig(ruckig_code(e))),
+            };
+            if plan.len() >= self.max_samples {
+                return Err(SmoothError::TooLong(self.max_samples));
+            }
+            let mut q = [0.0; DOF];
+            let mut dq = [0.0; DOF];
+            let mut ddq = [0.0; DOF];
+            q.copy_from_slice(&output.new_position);
+            dq.copy_from_slice(&output.new_velocity);
+            ddq.copy_from_slice(&output.new_acceleration);
+            plan.push(q, dq, ddq);
+            output.pass_to_input(input);
+            *t_s += self.period_s;
+            // Reached early, a waypoint is held until its time comes.
+            if done && (last || *t_s >= t_end - 1e-9) {
+                break;
             }
         }
         Ok(())

@@ -23,8 +23,10 @@
 //!   with the operator's acknowledgement or the cycle's auto-resume;
 //! - a policy swapped in mid-episode.
 //!
-//! Frames go through the production intake ([`SceneIntake::accept`]) and then to the worker
-//! through the same hand-off as `TwinNode::receive` (`SceneIntake::deliver`).
+//! Frames go through the production intake ([`SceneIntake::accept`]), then onto the worker's
+//! scene path (the cycle, the plan guard) and only then to the worker's one door,
+//! `TwinWorker::note_frame` / `note_refused`: the order and the doors of `rt-core run`'s
+//! intake thread and `TwinNode::receive` (`sweep::SweepIntake`).
 //!
 //! # What is counted
 //! Hard counts (must be zero): commanded poses that penetrate (nominal geometry, see the

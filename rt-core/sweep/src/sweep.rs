@@ -26,10 +26,11 @@ use rt_core::cycle::{self, Cycle, CycleConfig, CycleEvent, Mode, StopReason};
 use rt_core::rt::clock::{Clock, ManualClock};
 use rt_core::rt::rt_log::RtLogDrain;
 use rt_core::twin_thread::TwinEvent;
-use rt_core::twin_thread::intake::{FrameRefusal, SceneIntake};
+use rt_core::twin_thread::intake::{AcceptedFrame, FrameRefusal, SceneIntake};
 use rt_core::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
 use rt_core::twin_thread::node::ProductionWorker;
 use rt_core::twin_thread::path_planner::TwinPathPlanner;
+use rt_core::twin_thread::scene_path::ScenePath;
 use rt_core::twin_thread::serve;
 use rt_core::twin_thread::worker::PLANNER_POLICY_ID;
 
@@ -1095,7 +1096,7 @@ pub(crate) struct Rig {
     pub(crate) clock: ManualClock,
     pub(crate) cycle: Cycle<TwinModel, RecordingLink>,
     pub(crate) worker: ProductionWorker,
-    pub(crate) intake: SceneIntake,
+    pub(crate) intake: SweepIntake,
     pub(crate) log: RtLogDrain<CycleEvent>,
     pub(crate) connection: Arc<AtomicBool>,
 }
@@ -1131,7 +1132,7 @@ impl Rig {
         let _ = cycle.start(clock.now_ns());
         let lookahead =
             TwinLookahead::new(assets.model.clone(), assets.task, LookaheadActions::Policy);
-        let mut worker = ProductionWorker::new(
+        let (mut worker, path) = ProductionWorker::new(
             cfg,
             lookahead,
             serve::plan_shield(cfg, &assets.model, false),
@@ -1145,12 +1146,13 @@ impl Rig {
                 .with_tool(assets.task.tool.map(|t| t.capsule()));
             worker.set_fallback_planner(Box::new(TwinPathPlanner::new(armed, assets.task, cfg)));
         }
-        let intake = SceneIntake::new(
+        let checks = SceneIntake::new(
             cfg.intake,
             (cfg.stale.max_detection_age_s * 1e9) as u64,
             assets.task.sampling.table_height_m,
             ORIGIN_NS,
         );
+        let intake = SweepIntake { checks, path };
         Self {
             clock,
             cycle,
@@ -1159,6 +1161,41 @@ impl Rig {
             log,
             connection,
         }
+    }
+}
+
+/// The intake thread of `rt-core run`, stepped inline: each frame through the production
+/// intake, then its scene (or its refusal) onto the worker's scene path — to the cycle and
+/// the plan guard — and only then noted by the worker, the order and the doors the intake
+/// thread and the twin node use (`twin_thread::intake_thread`, `twin_thread::node`).
+pub(crate) struct SweepIntake {
+    checks: SceneIntake,
+    path: ScenePath<TwinModel>,
+}
+
+impl SweepIntake {
+    /// Checks one frame received at `mono_now_ns` from `publishers` publishers and hands
+    /// the outcome on as the intake thread does; the outcome as [`SceneIntake::accept`].
+    pub(crate) fn deliver(
+        &mut self,
+        frame: &DetectionFrame,
+        mono_now_ns: u64,
+        publishers: usize,
+        worker: &mut ProductionWorker,
+        events: &mut Vec<TwinEvent<Scene>>,
+    ) -> Result<AcceptedFrame, FrameRefusal> {
+        let outcome = self.checks.accept(frame, mono_now_ns, publishers);
+        match &outcome {
+            Ok(a) => {
+                self.path.accepted(a.scene, a.stamp_ns, a.intruders);
+                worker.note_frame(a, events);
+            }
+            Err(_) => {
+                self.path.refused();
+                worker.note_refused();
+            }
+        }
+        outcome
     }
 }
 
@@ -1173,7 +1210,7 @@ struct Episode<'a> {
     clock: ManualClock,
     cycle: Cycle<TwinModel, RecordingLink>,
     worker: ProductionWorker,
-    intake: SceneIntake,
+    intake: SweepIntake,
     log: RtLogDrain<CycleEvent>,
     connection: Arc<AtomicBool>,
     events: Vec<TwinEvent<Scene>>,

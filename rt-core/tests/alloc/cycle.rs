@@ -62,8 +62,7 @@ fn the_cycle_allocates_nothing_over_100k_cycles_with_policy_swaps() {
         rig.detections_on = cycles % 20_000 <= 19_800;
         let now = rig.clock.now_ns();
         if rig.detections_on && cycles.is_multiple_of(8) {
-            rig.twin
-                .on_detection(rig.scene, now, true, true, &mut rig.events);
+            rig.detect(rig.scene, now, true, true);
         }
         rig.twin.step(&mut rig.events);
         let taken_before = rig.cycle.report().plans_taken;
@@ -123,14 +122,7 @@ fn the_speed_scaled_cycle_allocates_nothing() {
         let now = rig.clock.now_ns();
         if cycles.is_multiple_of(8) {
             // The box counts as moving: it is what the monitor watches.
-            rig.twin.on_moving_detection(
-                rig.scene,
-                now,
-                true,
-                true,
-                rt_core::cycle::Intruders::ALL_UNKNOWN,
-                &mut rig.events,
-            );
+            rig.detect_moving(rig.scene, now, true, rt_core::cycle::Intruders::ALL_UNKNOWN);
         }
         rig.twin.step(&mut rig.events);
         alloc_count::count_this_thread(true);

@@ -7,23 +7,53 @@
 use rt_core::config::RuntimeConfig;
 use rt_core::cycle::brake::Brake;
 use rt_core::cycle::link::InProcessArm;
-use rt_core::cycle::shield::{Shield, ShieldLimits};
-use rt_core::cycle::{self, Cycle, CycleConfig, CycleEvent, CycleReport, Mode};
+use rt_core::cycle::shield::{Shield, ShieldLimits, ShieldModel};
+use rt_core::cycle::{self, Cycle, CycleConfig, CycleEvent, CycleReport, Intruders, Mode};
 use rt_core::rt::clock::{Clock, ManualClock};
 use rt_core::rt::rt_log::RtLogDrain;
 use rt_core::testing::toy::{ToyArm, ToyLookahead, ToyPolicy, ToyScene};
-use rt_core::twin_thread::{TwinEvent, TwinWorker};
+use rt_core::twin_thread::intake::AcceptedFrame;
+use rt_core::twin_thread::scene_path::ScenePath;
+use rt_core::twin_thread::{Lookahead, TwinEvent, TwinWorker};
 use twin::{DOF, Joints};
 
 pub const START: Joints = [0.0, -0.3, -0.6, 0.4, 0.0];
 pub const TARGET_A: Joints = [0.6, 0.2, -0.9, 0.3, 0.1];
 pub const TARGET_B: Joints = [-0.5, 0.1, -0.7, 0.5, -0.1];
 
+/// An accepted frame of `scene` captured at `stamp_ns`, with a goal or not, settled or not,
+/// nothing moving.
+pub fn frame<S>(scene: S, stamp_ns: u64, goal_seen: bool, settled: bool) -> AcceptedFrame<S> {
+    AcceptedFrame {
+        goal_seen,
+        settled,
+        ..AcceptedFrame::settled(scene, stamp_ns)
+    }
+}
+
+/// An accepted frame through the one door `rt-core run` uses (the intake thread, then the
+/// twin node): its scene onto the scene path — the cycle, the plan guard — then noted by
+/// the worker.
+pub fn deliver<L, M>(
+    path: &mut ScenePath<M>,
+    twin: &mut TwinWorker<L, M>,
+    frame: &AcceptedFrame<L::Scene>,
+    events: &mut Vec<TwinEvent<L::Scene>>,
+) where
+    L: Lookahead,
+    M: ShieldModel<Scene = L::Scene>,
+{
+    path.accepted(frame.scene, frame.stamp_ns, frame.intruders);
+    twin.note_frame(frame, events);
+}
+
 pub struct Rig {
     pub cfg: RuntimeConfig,
     pub clock: ManualClock,
     pub cycle: Cycle<ToyArm, InProcessArm>,
     pub twin: TwinWorker<ToyLookahead, ToyArm>,
+    /// The twin's scene path (the intake thread's in `rt-core run`).
+    pub path: ScenePath<ToyArm>,
     pub log: RtLogDrain<CycleEvent>,
     pub scene: ToyScene,
     pub events: Vec<TwinEvent<ToyScene>>,
@@ -80,7 +110,7 @@ impl Rig {
         );
         let clock = ManualClock::new(1_000_000_000);
         cycle.start(clock.now_ns()).expect("start");
-        let twin = TwinWorker::new(
+        let (twin, path) = TwinWorker::new(
             &cfg,
             ToyLookahead::default(),
             Shield::new(ToyArm, limits),
@@ -91,6 +121,7 @@ impl Rig {
             clock,
             cycle,
             twin,
+            path,
             log,
             scene: ToyScene::empty(),
             events: Vec::new(),
@@ -116,15 +147,9 @@ impl Rig {
             let now = self.clock.now_ns();
             if self.detections_on && self.cycles.is_multiple_of(self.detections_every) {
                 if self.refusing {
-                    self.twin.on_refused_detection();
+                    self.refuse();
                 } else {
-                    self.twin.on_detection(
-                        self.scene,
-                        now,
-                        self.goal_seen,
-                        self.settled,
-                        &mut self.events,
-                    );
+                    self.detect(self.scene, now, self.goal_seen, self.settled);
                 }
             }
             self.twin.step(&mut self.events);
@@ -133,6 +158,36 @@ impl Rig {
             self.clock.advance_ns(period);
             self.cycles += 1;
         }
+    }
+
+    /// An accepted frame of `scene` at `now`, through [`deliver`].
+    pub fn detect(&mut self, scene: ToyScene, now: u64, goal_seen: bool, settled: bool) {
+        self.deliver(&frame(scene, now, goal_seen, settled));
+    }
+
+    /// A settled frame with a goal whose obstacles in `intruders` are seen moving.
+    pub fn detect_moving(
+        &mut self,
+        scene: ToyScene,
+        now: u64,
+        settled: bool,
+        intruders: Intruders,
+    ) {
+        self.deliver(&AcceptedFrame {
+            intruders,
+            ..frame(scene, now, true, settled)
+        });
+    }
+
+    /// `frame` through [`deliver`].
+    pub fn deliver(&mut self, frame: &AcceptedFrame<ToyScene>) {
+        deliver(&mut self.path, &mut self.twin, frame, &mut self.events);
+    }
+
+    /// A refused frame: the scene path tells the cycle, then the worker notes it.
+    pub fn refuse(&mut self) {
+        self.path.refused();
+        self.twin.note_refused();
     }
 
     pub fn mode(&self) -> Mode {

@@ -5,15 +5,17 @@
 //! adopted, or one still being made when the cancel came, was adopted and driven to the
 //! cancelled target.
 //!
-//! The rig steps the deployed path: the scene path taken from the worker (as the intake
-//! thread takes it), frames noted with [`TwinWorker::note_detection`].
+//! The rig steps the deployed path: each frame onto the scene path, then noted by the worker
+//! (`TwinWorker::note_frame`); the withdrawal goes through the scene path, as the intake
+//! thread sends it.
 
-use rt_core::cycle::{Intruders, Mode};
+use rt_core::cycle::Mode;
 use rt_core::rt::clock::Clock;
 use rt_core::testing::toy::ToyScene;
 use rt_core::twin_thread::TwinEvent;
+use rt_core::twin_thread::intake::AcceptedFrame;
 
-use crate::common::{Rig, TARGET_A};
+use crate::common::{Rig, TARGET_A, frame};
 
 fn approved(events: &[TwinEvent<ToyScene>]) -> Vec<u64> {
     events
@@ -29,19 +31,15 @@ fn approved(events: &[TwinEvent<ToyScene>]) -> Vec<u64> {
 fn a_cancel_revokes_a_plan_sent_and_not_adopted_before_the_cycles_next_period() {
     let mut rig = Rig::new();
     rig.detections_on = false;
-    let mut path = rig.twin.take_scene_path().expect("the worker's scene path");
     let now = rig.clock.now_ns();
     let scene = rig.scene;
-    path.accepted(scene, now, Intruders::NONE);
-    rig.twin.note_goal_epoch(0);
-    rig.twin
-        .note_detection(scene, now, true, true, &mut rig.events);
+    rig.detect(scene, now, true, true);
     rig.policy(1, TARGET_A);
     rig.twin.step(&mut rig.events);
     let sent = approved(&rig.events);
     assert_eq!(sent.len(), 1, "{:?}", rig.events);
     // The plan is in the hand-over; the cancel arrives before the cycle's next period.
-    path.goal_withdrawn(1);
+    rig.path.goal_withdrawn(1);
     rig.cycle.process(now);
     assert_ne!(
         rig.mode(),
@@ -56,18 +54,14 @@ fn a_cancel_revokes_a_plan_sent_and_not_adopted_before_the_cycles_next_period() 
 fn a_plan_made_on_a_scene_from_before_the_cancel_is_never_handed_over() {
     let mut rig = Rig::new();
     rig.detections_on = false;
-    let mut path = rig.twin.take_scene_path().expect("the worker's scene path");
     let now = rig.clock.now_ns();
     let scene = rig.scene;
-    path.accepted(scene, now, Intruders::NONE);
-    rig.twin.note_goal_epoch(0);
-    rig.twin
-        .note_detection(scene, now, true, true, &mut rig.events);
+    rig.detect(scene, now, true, true);
     rig.policy(1, TARGET_A);
     // The cancel comes while the twin thread is planning on the scene that had the goal
     // (a planner search takes up to 0.25 s): the plan it then hands over heads for the
     // cancelled goal.
-    path.goal_withdrawn(1);
+    rig.path.goal_withdrawn(1);
     rig.twin.step(&mut rig.events);
     assert!(approved(&rig.events).is_empty(), "{:?}", rig.events);
     for _ in 0..50 {
@@ -86,13 +80,9 @@ fn a_plan_made_on_a_scene_from_before_the_cancel_is_never_handed_over() {
 fn a_cancel_stops_the_running_plan_and_a_later_goal_is_planned_again() {
     let mut rig = Rig::new();
     rig.detections_on = false;
-    let mut path = rig.twin.take_scene_path().expect("the worker's scene path");
     let scene = rig.scene;
     let now = rig.clock.now_ns();
-    path.accepted(scene, now, Intruders::NONE);
-    rig.twin.note_goal_epoch(0);
-    rig.twin
-        .note_detection(scene, now, true, true, &mut rig.events);
+    rig.detect(scene, now, true, true);
     rig.policy(1, TARGET_A);
     rig.twin.step(&mut rig.events);
     for _ in 0..5 {
@@ -100,7 +90,7 @@ fn a_cancel_stops_the_running_plan_and_a_later_goal_is_planned_again() {
         rig.clock.advance_ns(rig.cfg.period_ns());
     }
     assert_eq!(rig.mode(), Mode::Following);
-    path.goal_withdrawn(1);
+    rig.path.goal_withdrawn(1);
     rig.cycle.process(rig.clock.now_ns());
     assert_ne!(
         rig.mode(),
@@ -117,10 +107,10 @@ fn a_cancel_stops_the_running_plan_and_a_later_goal_is_planned_again() {
     }
     let before = approved(&rig.events).len();
     let now = rig.clock.now_ns();
-    path.accepted(scene, now, Intruders::NONE);
-    rig.twin.note_goal_epoch(1);
-    rig.twin
-        .note_detection(scene, now, true, true, &mut rig.events);
+    rig.deliver(&AcceptedFrame {
+        goal_epoch: 1,
+        ..frame(scene, now, true, true)
+    });
     rig.twin.take_reports();
     rig.twin.step(&mut rig.events);
     assert!(

@@ -21,7 +21,7 @@ use rt_core::twin_thread::worker::PlanRejection;
 use rt_core::twin_thread::{GoalApproach, Lookahead, TwinEvent, TwinWorker, Verdict};
 use twin::{DOF, Joints};
 
-use crate::common::{START, TARGET_A};
+use crate::common::{START, TARGET_A, deliver, frame};
 
 const STEP_S: f64 = 0.05;
 
@@ -127,13 +127,19 @@ fn run(cfg: &RuntimeConfig, tolerance_m: f64) -> (Vec<TwinEvent<ToyScene>>, Mode
         target_m,
         tolerance_m,
     };
-    let mut twin = TwinWorker::new(cfg, lookahead, Shield::new(ToyArm, limits), twin_io);
+    let (mut twin, mut path) =
+        TwinWorker::new(cfg, lookahead, Shield::new(ToyArm, limits), twin_io);
     let mut events = Vec::new();
     twin.on_policy(Box::new(ToyPolicy::random(1, TARGET_A, 1)), &mut events);
     for k in 0..(2 * cfg.rate_hz as u64) {
         let now = clock.now_ns();
         if k.is_multiple_of(8) {
-            twin.on_detection(ToyScene::empty(), now, true, true, &mut events);
+            deliver(
+                &mut path,
+                &mut twin,
+                &frame(ToyScene::empty(), now, true, true),
+                &mut events,
+            );
         }
         twin.step(&mut events);
         cycle.process(now);

@@ -70,8 +70,7 @@ fn box_late_on_the_path_and_a_way_around(join_before_stopping: bool, settled: bo
     let (mut rig, blocked) = on_the_way_with_a_box_ahead(join_before_stopping);
     rig.settled = settled;
     let now = rig.clock.now_ns();
-    rig.twin
-        .on_detection(blocked, now, true, settled, &mut rig.events);
+    rig.detect(blocked, now, true, settled);
     rig.policy(2, TARGET_B);
     rig.run(300);
     rig.settled = true;
@@ -118,8 +117,7 @@ fn joined_without_stopping(settled: bool) {
 fn without_a_joining_plan_in_time_the_arm_stops_where_scheduled_short_of_the_danger() {
     let (mut rig, blocked) = on_the_way_with_a_box_ahead(true);
     let now = rig.clock.now_ns();
-    rig.twin
-        .on_detection(blocked, now, true, true, &mut rig.events);
+    rig.detect(blocked, now, true, true);
     let stops = scheduled(&rig.events);
     assert_eq!(stops.len(), 1, "{:?}", rig.events);
     let (plan_id, at_index, due) = stops[0];
@@ -178,14 +176,7 @@ fn without_a_joining_plan_in_time_the_arm_stops_where_scheduled_short_of_the_dan
 fn a_moving_box_far_ahead_stops_the_arm_at_once() {
     let (mut rig, blocked) = on_the_way_with_a_box_ahead(true);
     let now = rig.clock.now_ns();
-    rig.twin.on_moving_detection(
-        blocked,
-        now,
-        true,
-        false,
-        rt_core::cycle::Intruders::ALL_UNKNOWN,
-        &mut rig.events,
-    );
+    rig.detect_moving(blocked, now, false, rt_core::cycle::Intruders::ALL_UNKNOWN);
     assert!(scheduled(&rig.events).is_empty(), "{:?}", rig.events);
     assert_eq!(revoked(&rig.events), 1, "{:?}", rig.events);
     let now = rig.clock.now_ns();

@@ -16,6 +16,8 @@ fn kind(p: Phase) -> &'static str {
         Phase::DwellAtGoal { .. } => "dwell",
         Phase::ReturningHome => "home",
         Phase::HoldingAfterRefusedReturn { .. } => "holding",
+        Phase::Continuing { .. } => "continuing",
+        Phase::Paused { .. } => "paused",
     }
 }
 

@@ -72,20 +72,13 @@ fn a_scene_change_between_sending_a_plan_and_its_adoption_revokes_the_plan() {
     rig.detections_on = false;
     let now = rig.clock.now_ns();
     let scene = rig.scene;
-    rig.twin
-        .on_detection(scene, now, true, true, &mut rig.events);
+    rig.detect(scene, now, true, true);
     rig.policy(1, TARGET_A);
     rig.twin.step(&mut rig.events);
     let sent = approved(&rig.events);
     assert_eq!(sent.len(), 1, "{:?}", rig.events);
     // The plan is in the hand-over, the cycle has not run: a box lands on its path.
-    rig.twin.on_detection(
-        with_box_at_target_a(scene),
-        now,
-        true,
-        true,
-        &mut rig.events,
-    );
+    rig.detect(with_box_at_target_a(scene), now, true, true);
     assert_eq!(revoked(&rig.events), sent, "{:?}", rig.events);
     rig.cycle.process(now);
     assert_ne!(rig.mode(), Mode::Following, "the revoked plan was adopted");
@@ -99,15 +92,14 @@ fn a_plan_the_cycle_refuses_does_not_hide_the_running_plan_from_re_verification(
     rig.detections_on = false;
     let now = rig.clock.now_ns();
     let scene = rig.scene;
-    rig.twin
-        .on_detection(scene, now, true, true, &mut rig.events);
+    rig.detect(scene, now, true, true);
     rig.policy(1, TARGET_A);
     rig.twin.step(&mut rig.events);
     // Before the cycle ran, an unrelated change: the worker's last report still reads
     // "idle", so it plans again from rest — a plan the cycle will refuse.
     let mut far = scene;
     far.push_obstacle(FAR_BOX.0, FAR_BOX.1);
-    rig.twin.on_detection(far, now, true, true, &mut rig.events);
+    rig.detect(far, now, true, true);
     rig.twin.step(&mut rig.events);
     let sent = approved(&rig.events);
     assert_eq!(sent.len(), 2, "{:?}", rig.events);
@@ -124,8 +116,7 @@ fn a_plan_the_cycle_refuses_does_not_hide_the_running_plan_from_re_verification(
     // Now a box lands on the running plan's path.
     let blocked = with_box_at_target_a(far);
     let now = rig.clock.now_ns();
-    rig.twin
-        .on_detection(blocked, now, true, true, &mut rig.events);
+    rig.detect(blocked, now, true, true);
     // Re-verified: revoked, or (failing far enough ahead) its stop scheduled so that a
     // joining plan may take over first (issue 33 item 5).
     assert_eq!(
@@ -236,7 +227,7 @@ fn a_frame_during_a_long_planner_search_reaches_the_cycle_and_the_guard_within_o
     let clock = ManualClock::new(1_000_000_000);
     cycle.start(clock.now_ns()).unwrap();
     let solvable = Arc::new(AtomicBool::new(true));
-    let mut worker = TwinWorker::new(
+    let (mut worker, mut path) = TwinWorker::new(
         &cfg,
         SwitchLookahead {
             solvable: solvable.clone(),
@@ -252,8 +243,7 @@ fn a_frame_during_a_long_planner_search_reaches_the_cycle_and_the_guard_within_o
         entered: entered_tx,
         release: release_rx,
     }));
-    // As in `rt-core run`: the scene path leaves the worker (for the intake thread).
-    let mut path = worker.take_scene_path().unwrap();
+    // As in `rt-core run`: the scene path runs apart from the worker (the intake thread's).
     let mut events = Vec::new();
     let period = cfg.period_ns();
     let mut scene = ToyScene::empty();
@@ -264,7 +254,7 @@ fn a_frame_during_a_long_planner_search_reaches_the_cycle_and_the_guard_within_o
                    events: &mut Vec<TwinEvent<ToyScene>>| {
         path.accepted(scene, now, rt_core::cycle::Intruders::NONE);
         if let Some(w) = worker {
-            w.note_detection(scene, now, true, true, events);
+            w.note_frame(&crate::common::frame(scene, now, true, true), events);
         }
     };
     deliver(

@@ -14,7 +14,7 @@ use rt_core::twin_thread::{GoalApproach, Lookahead, TwinEvent, TwinWorker, Verdi
 use shm_schemas::Executor;
 use twin::Joints;
 
-use crate::common::{Rig, START, TARGET_A};
+use crate::common::{Rig, START, TARGET_A, deliver, frame};
 
 /// Straight joint-space waypoints from `from` to `to`, 20 of them.
 fn straight(from: &Joints, to: &Joints, out: &mut Vec<Joints>) {
@@ -156,7 +156,7 @@ fn run(
     let clock = ManualClock::new(1_000_000_000);
     cycle.start(clock.now_ns()).unwrap();
     let la = ScriptedLookahead { solves: vec![2] };
-    let mut twin = TwinWorker::new(&cfg, la, Shield::new(ToyArm, limits), twin_io);
+    let (mut twin, mut path) = TwinWorker::new(&cfg, la, Shield::new(ToyArm, limits), twin_io);
     if setup.fallback {
         twin.set_fallback_planner(Box::new(StraightPlanner {
             clearance_m: cfg.shield.min_distance_m,
@@ -173,7 +173,12 @@ fn run(
         }
         if k.is_multiple_of(8) {
             let scene = scene_at(k, &events);
-            twin.on_detection(scene, now, true, true, &mut events);
+            deliver(
+                &mut path,
+                &mut twin,
+                &frame(scene, now, true, true),
+                &mut events,
+            );
         }
         twin.step(&mut events);
         cycle.process(now);

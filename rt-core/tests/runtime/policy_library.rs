@@ -11,7 +11,7 @@ use rt_core::testing::toy::{ToyArm, ToyPolicy, ToyScene, toy_cycle};
 use rt_core::twin_thread::{GoalApproach, Lookahead, TwinEvent, TwinWorker, Verdict};
 use twin::Joints;
 
-use crate::common::{START, TARGET_A};
+use crate::common::{START, TARGET_A, deliver, frame};
 
 /// A scripted lookahead: the same straight waypoints to [`TARGET_A`] for every policy; only
 /// the policies in `solves` pass (the others "end in contact").
@@ -73,7 +73,7 @@ fn run(solves: Vec<u64>, policies: &[u64]) -> Vec<TwinEvent<ToyScene>> {
     let clock = ManualClock::new(1_000_000_000);
     cycle.start(clock.now_ns()).unwrap();
     let la = ScriptedLookahead { solves };
-    let mut twin = TwinWorker::new(&cfg, la, Shield::new(ToyArm, limits), twin_io);
+    let (mut twin, mut path) = TwinWorker::new(&cfg, la, Shield::new(ToyArm, limits), twin_io);
     let mut events = Vec::new();
     for id in policies {
         twin.on_policy(Box::new(ToyPolicy::random(*id, TARGET_A, *id)), &mut events);
@@ -81,7 +81,12 @@ fn run(solves: Vec<u64>, policies: &[u64]) -> Vec<TwinEvent<ToyScene>> {
     for k in 0..cfg.rate_hz as u64 {
         let now = clock.now_ns();
         if k.is_multiple_of(8) {
-            twin.on_detection(ToyScene::empty(), now, true, true, &mut events);
+            deliver(
+                &mut path,
+                &mut twin,
+                &frame(ToyScene::empty(), now, true, true),
+                &mut events,
+            );
         }
         twin.step(&mut events);
         cycle.process(now);

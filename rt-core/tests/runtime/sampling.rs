@@ -19,6 +19,7 @@ use rt_core::twin_thread::serve::{cycle_shield, plan_shield};
 use shm_schemas::Executor;
 use twin::{DOF, Scene};
 
+use crate::common::{deliver, frame};
 use crate::twin_common;
 
 /// The events of 2 s of the runtime in the wide tall box with the distilled policy, and
@@ -52,7 +53,7 @@ fn run(sampling: bool) -> (Vec<TwinEvent<Scene>>, u64, Mode, u64) {
     if cfg.sampling.enabled {
         lookahead.set_sampling(Some(cfg.sampling.settings()));
     }
-    let mut worker =
+    let (mut worker, mut path) =
         ProductionWorker::new(&cfg, lookahead, plan_shield(&cfg, &model, false), twin_io);
     let loader = PolicyLoader::new(PolicyExpectation::for_task_obs(task.hash(), task.obs_dim()));
     let blob =
@@ -65,7 +66,12 @@ fn run(sampling: bool) -> (Vec<TwinEvent<Scene>>, u64, Mode, u64) {
     for k in 0..500u64 {
         let now = clock.now_ns();
         if k.is_multiple_of(8) {
-            worker.on_detection(scene, now, true, true, &mut events);
+            deliver(
+                &mut path,
+                &mut worker,
+                &frame(scene, now, true, true),
+                &mut events,
+            );
         }
         worker.step(&mut events);
         cyc.process(now);

@@ -16,10 +16,12 @@ use rt_core::twin_thread::TwinEvent;
 use rt_core::twin_thread::intake::SceneIntake;
 use rt_core::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
 use rt_core::twin_thread::node::ProductionWorker;
+use rt_core::twin_thread::scene_path::ScenePath;
 use rt_core::twin_thread::serve::{cycle_shield, plan_shield};
 use shm_schemas::{ACT_DIM, DetectedObject, DetectionFrame, ObjectClass, PolicyBlobBuilder};
 use twin::{DOF, Scene};
 
+use crate::common::deliver;
 use crate::twin_common;
 
 /// `CLOCK_MONOTONIC` at the cycle clock's origin, ns.
@@ -33,6 +35,7 @@ struct Rig {
     period_ns: u64,
     cycle: Cycle<TwinModel, InProcessArm>,
     worker: ProductionWorker,
+    path: ScenePath<TwinModel>,
     intake: SceneIntake,
     events: Vec<TwinEvent<Scene>>,
     sequence: u64,
@@ -70,7 +73,7 @@ impl Rig {
             task,
             LookaheadActions::ScriptedWithPolicyCost,
         );
-        let mut worker =
+        let (mut worker, path) =
             ProductionWorker::new(&cfg, lookahead, plan_shield(&cfg, &model, false), twin_io);
         let hash = task.hash();
         let loader = PolicyLoader::new(PolicyExpectation::for_task_obs(hash, task.obs_dim()));
@@ -90,6 +93,7 @@ impl Rig {
             period_ns: cfg.period_ns(),
             cycle,
             worker,
+            path,
             intake,
             events,
             sequence: 0,
@@ -118,16 +122,13 @@ impl Rig {
                     GOAL_M,
                     [0.05; 3],
                 )));
-                let accepted = self
-                    .intake
-                    .deliver(
-                        &frame,
-                        ORIGIN_NS + now,
-                        1,
-                        &mut self.worker,
-                        &mut self.events,
-                    )
-                    .unwrap();
+                let accepted = self.intake.accept(&frame, ORIGIN_NS + now, 1).unwrap();
+                deliver(
+                    &mut self.path,
+                    &mut self.worker,
+                    &accepted,
+                    &mut self.events,
+                );
                 assert_eq!(accepted.settled, settled);
             }
             self.worker.step(&mut self.events);

@@ -13,7 +13,7 @@ use rt_core::testing::toy::{ToyArm, ToyLookahead, ToyPolicy, ToyScene};
 use rt_core::twin_thread::TwinWorker;
 use twin::{DOF, Joints};
 
-use crate::common::{START, TARGET_A};
+use crate::common::{START, TARGET_A, deliver, frame};
 
 /// An in-process arm whose report stream can stall: while `stalled`, every read returns the
 /// reading taken when the stall began (its stamp and joints), while the commands still reach
@@ -64,7 +64,7 @@ fn late_readings_pause_the_arm_as_stale_and_never_latch_a_tracking_fault() {
     );
     let clock = ManualClock::new(1_000_000_000);
     cycle.start(clock.now_ns()).expect("start");
-    let mut twin = TwinWorker::new(
+    let (mut twin, mut path) = TwinWorker::new(
         &cfg,
         ToyLookahead::default(),
         Shield::new(ToyArm, limits),
@@ -79,7 +79,12 @@ fn late_readings_pause_the_arm_as_stale_and_never_latch_a_tracking_fault() {
                     n: u64| {
         for _ in 0..n {
             let now = clock.now_ns();
-            twin.on_detection(ToyScene::empty(), now, true, true, &mut events);
+            deliver(
+                &mut path,
+                twin,
+                &frame(ToyScene::empty(), now, true, true),
+                &mut events,
+            );
             twin.step(&mut events);
             cycle.process(now);
             log.drain(|r| cycle_events.push(r.event));

@@ -68,7 +68,7 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
 use crate::cycle::brake::{Brake, PathStop};
-use crate::cycle::link::{LinkError, RobotLink};
+use crate::cycle::link::{LinkError, LinkState, RobotLink};
 use crate::cycle::plan::MotionState;
 use crate::cycle::plan::Plan;
 use crate::cycle::separation::SeparationMonitor;
@@ -489,94 +489,106 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
 
     /// Reads the arm; returns whether the inputs allow motion.
     fn read_inputs(&mut self, now_ns: u64) -> bool {
-        let mut inputs_ok = self.started;
         match self.link.read_state(now_ns) {
-            Ok(st) => {
-                let returned = !self.link_ok;
-                let same_connection = st.session == self.session;
-                self.session = st.session;
-                self.link_ok = true;
-                self.report.measured_q_rad = st.q_rad;
-                self.report.arm_mode = st.mode;
-                self.report.arm_state = st.state;
-                if returned
-                    && same_connection
-                    && !self.report.awaiting_ack
-                    && self.link.commands_reach_arm()
-                {
-                    // The state was late or missing on the same connection (a starved or
-                    // congested controller): the controller kept every command sent and
-                    // holds the arm at the last one, its reference for the next target.
-                    // The measured joints may lag it (reports from before the stall), and
-                    // a command at them would be a jump back the controller faults on
-                    // (error 24). A stop under way ends there.
-                    self.stop_at_last_sent(now_ns);
-                } else if returned {
-                    // The link is back on a re-opened connection (or after a latched stop):
-                    // hold where the arm is, not where the commands left off (the arm got
-                    // none while the link was down, a stop may have run on without it, and
-                    // a restarted controller may report the arm elsewhere; servo mode,
-                    // entered again, holds it where it stands). A stop under way ends here;
-                    // a fresh plan must start from this pose.
-                    self.snap_to(now_ns, st.q_rad);
-                    // A re-opened connection may report the state from before servo mode.
-                    self.controller_ready_seen = false;
-                    self.tracking_bad_cycles = 0;
-                }
-                if st.error_code != 0 {
-                    inputs_ok = false;
-                    self.on_arm_error(now_ns, st.error_code, st.q_rad);
-                } else if self.report.arm_error_code != 0 {
-                    // Cleared on the controller (by the operator); the latch stays until
-                    // acknowledged here.
-                    self.report.arm_error_code = 0;
-                }
-                if let Some(gap_m) = st.model_mismatch_m {
-                    inputs_ok = false;
-                    self.on_model_mismatch(now_ns, gap_m);
-                }
-                // A reading older than the state-age limit shows the joints from before the
-                // commands sent since: it stops the arm as stale (below, a pause), and is
-                // never taken for an arm that stopped following them (a latched fault).
-                let stale = now_ns.saturating_sub(st.stamp_ns) > self.cfg.max_robot_state_age_ns;
-                if st.error_code == 0 && self.started && self.link.commands_reach_arm() {
-                    if !self.watch_controller_state(now_ns, st.state, st.q_rad) {
-                        inputs_ok = false;
-                    }
-                    if !stale && !self.watch_tracking(now_ns, &st.q_rad) {
-                        inputs_ok = false;
-                    }
-                }
-                if stale {
-                    inputs_ok = false;
-                    self.begin_stop(now_ns, StopReason::StaleRobotState, StopMotion::AlongPlan);
-                }
-            }
+            Ok(st) => self.take_state(now_ns, &st),
             Err(e) => {
-                if self.link_ok {
-                    self.io.log.log(now_ns, CycleEvent::LinkError { error: e });
-                }
-                self.link_ok = false;
-                inputs_ok = false;
-                if let LinkError::ControllerError(code) = e {
-                    // An error without a readable state: latched like any controller error.
-                    self.report.arm_error_code = code;
-                    self.latch();
-                    self.begin_stop(now_ns, StopReason::ArmError(code), StopMotion::Brake);
-                } else {
-                    // A lost connection latches; a reading that is late or pending (no
-                    // fresh report, an error code still being read) only stops.
-                    if e == LinkError::Disconnected
-                        && !self.cfg.auto_resume_after_link_loss
-                        && self.started
-                    {
-                        self.latch();
-                    }
-                    self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
-                }
+                self.on_read_error(now_ns, e);
+                false
             }
         }
+    }
+
+    /// A state read from the arm: the link's return handled, then the controller's error,
+    /// the model check, the controller's state, tracking and the state's age watched;
+    /// returns whether the inputs allow motion.
+    fn take_state(&mut self, now_ns: u64, st: &LinkState) -> bool {
+        let mut inputs_ok = self.started;
+        let returned = !self.link_ok;
+        let same_connection = st.session == self.session;
+        self.session = st.session;
+        self.link_ok = true;
+        self.report.measured_q_rad = st.q_rad;
+        self.report.arm_mode = st.mode;
+        self.report.arm_state = st.state;
+        if returned {
+            self.on_link_returned(now_ns, st.q_rad, same_connection);
+        }
+        if st.error_code != 0 {
+            inputs_ok = false;
+            self.on_arm_error(now_ns, st.error_code, st.q_rad);
+        } else if self.report.arm_error_code != 0 {
+            // Cleared on the controller (by the operator); the latch stays until
+            // acknowledged here.
+            self.report.arm_error_code = 0;
+        }
+        if let Some(gap_m) = st.model_mismatch_m {
+            inputs_ok = false;
+            self.on_model_mismatch(now_ns, gap_m);
+        }
+        // A reading older than the state-age limit shows the joints from before the
+        // commands sent since: it stops the arm as stale (below, a pause), and is
+        // never taken for an arm that stopped following them (a latched fault).
+        let stale = now_ns.saturating_sub(st.stamp_ns) > self.cfg.max_robot_state_age_ns;
+        if st.error_code == 0 && self.started && self.link.commands_reach_arm() {
+            if !self.watch_controller_state(now_ns, st.state, st.q_rad) {
+                inputs_ok = false;
+            }
+            if !stale && !self.watch_tracking(now_ns, &st.q_rad) {
+                inputs_ok = false;
+            }
+        }
+        if stale {
+            inputs_ok = false;
+            self.begin_stop(now_ns, StopReason::StaleRobotState, StopMotion::AlongPlan);
+        }
         inputs_ok
+    }
+
+    /// The link is back after a failed reading, the arm measured at `measured_q_rad`.
+    fn on_link_returned(&mut self, now_ns: u64, measured_q_rad: Joints, same_connection: bool) {
+        if same_connection && !self.report.awaiting_ack && self.link.commands_reach_arm() {
+            // The state was late or missing on the same connection (a starved or
+            // congested controller): the controller kept every command sent and
+            // holds the arm at the last one, its reference for the next target.
+            // The measured joints may lag it (reports from before the stall), and
+            // a command at them would be a jump back the controller faults on
+            // (error 24). A stop under way ends there.
+            self.stop_at_last_sent(now_ns);
+        } else {
+            // The link is back on a re-opened connection (or after a latched stop):
+            // hold where the arm is, not where the commands left off (the arm got
+            // none while the link was down, a stop may have run on without it, and
+            // a restarted controller may report the arm elsewhere; servo mode,
+            // entered again, holds it where it stands). A stop under way ends here;
+            // a fresh plan must start from this pose.
+            self.snap_to(now_ns, measured_q_rad);
+            // A re-opened connection may report the state from before servo mode.
+            self.controller_ready_seen = false;
+            self.tracking_bad_cycles = 0;
+        }
+    }
+
+    /// The arm could not be read: a controller error latches and brakes; a lost connection
+    /// latches (unless resuming on its own); any failed reading stops along the plan.
+    fn on_read_error(&mut self, now_ns: u64, e: LinkError) {
+        if self.link_ok {
+            self.io.log.log(now_ns, CycleEvent::LinkError { error: e });
+        }
+        self.link_ok = false;
+        if let LinkError::ControllerError(code) = e {
+            // An error without a readable state: latched like any controller error.
+            self.report.arm_error_code = code;
+            self.latch();
+            self.begin_stop(now_ns, StopReason::ArmError(code), StopMotion::Brake);
+        } else {
+            // A lost connection latches; a reading that is late or pending (no
+            // fresh report, an error code still being read) only stops.
+            if e == LinkError::Disconnected && !self.cfg.auto_resume_after_link_loss && self.started
+            {
+                self.latch();
+            }
+            self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
+        }
     }
 
     /// Latches the stop under way: nothing is sent until an operator acknowledges it by
@@ -666,10 +678,40 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
     /// One cycle at `now_ns`. Returns the mode after it.
     pub fn process(&mut self, now_ns: u64) -> Mode {
         let dt_s = self.dt_s();
+        let inputs_ok = self.take_inputs(now_ns);
+        self.take_revocations(now_ns);
+        self.watch_separation(now_ns, dt_s);
+        while let Some(p) = self.io.plans.take() {
+            self.consider(now_ns, p, inputs_ok);
+        }
+        self.take_acknowledgement(now_ns);
+        // Command: picked by the mode, then the one check before it is sent.
+        match self.mode {
+            Mode::Following => self.follow(now_ns, dt_s),
+            Mode::Stopping => self.stop_step(now_ns, dt_s),
+            Mode::Idle | Mode::Stopped => {
+                self.cmd = MotionState::at_rest(self.cmd.q_rad);
+            }
+        }
+        if self.link_ok && !self.report.awaiting_ack && self.checked(now_ns, dt_s) {
+            self.send_command(now_ns);
+        }
+        if self.mismatch_latch_pending && matches!(self.mode, Mode::Idle | Mode::Stopped) {
+            self.mismatch_latch_pending = false;
+            self.latch();
+        }
+        self.report.shutdown_complete =
+            self.io.control.shutdown_requested() && matches!(self.mode, Mode::Idle | Mode::Stopped);
+        self.publish(now_ns);
+        self.mode
+    }
+
+    /// The newest scene, the arm's state, the cycle's own timing and a shutdown request;
+    /// returns whether they allow motion (a stop is begun where they do not).
+    fn take_inputs(&mut self, now_ns: u64) -> bool {
         if let Some(s) = self.io.scenes.latest() {
             self.scene = Some(s);
         }
-        // Inputs.
         let mut inputs_ok = self.read_inputs(now_ns);
         let gap_ns = now_ns.saturating_sub(self.last_cycle_ns);
         if self.last_cycle_ns != 0 && gap_ns > self.cfg.max_cycle_gap_ns {
@@ -696,78 +738,63 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             inputs_ok = false;
             self.begin_stop(now_ns, StopReason::Shutdown, StopMotion::AlongPlan);
         }
+        inputs_ok
+    }
+
+    /// The twin's revocations: a revoked pending plan is handed back, a revoked running
+    /// plan stops along its path; each logged once, with the scene that caused it.
+    fn take_revocations(&mut self, now_ns: u64) {
         let revoked = self.io.control.revoked_up_to();
         if self.pending.as_ref().is_some_and(|p| p.id <= revoked)
             && let Some(p) = self.pending.take()
         {
-            let (capture_ns, accepted_ns) = self.io.control.revoke_cause();
-            self.io.log.log(
-                now_ns,
-                CycleEvent::PlanRevoked {
-                    plan_id: p.id,
-                    capture_ns,
-                    accepted_ns,
-                },
-            );
+            self.log_revoked(now_ns, p.id);
             self.io.plans.give_back(p);
         }
         if self.mode == Mode::Following && self.plan.as_ref().is_some_and(|p| p.id <= revoked) {
             let plan_id = self.plan.as_ref().map_or(0, |p| p.id);
-            let (capture_ns, accepted_ns) = self.io.control.revoke_cause();
-            self.io.log.log(
-                now_ns,
-                CycleEvent::PlanRevoked {
-                    plan_id,
-                    capture_ns,
-                    accepted_ns,
-                },
-            );
+            self.log_revoked(now_ns, plan_id);
             self.begin_stop(now_ns, StopReason::Revoked, StopMotion::AlongPlan);
         }
-        self.watch_separation(now_ns, dt_s);
-        while let Some(p) = self.io.plans.take() {
-            self.consider(now_ns, p, inputs_ok);
-        }
-        self.take_acknowledgement(now_ns);
-        // Command: picked by the mode, then the one check before it is sent.
-        match self.mode {
-            Mode::Following => self.follow(now_ns, dt_s),
-            Mode::Stopping => self.stop_step(now_ns, dt_s),
-            Mode::Idle | Mode::Stopped => {
-                self.cmd = MotionState::at_rest(self.cmd.q_rad);
-            }
-        }
-        if self.link_ok && !self.report.awaiting_ack && self.checked(now_ns, dt_s) {
-            match self.link.send_servo(now_ns, &self.cmd.q_rad) {
-                Ok(()) => self.last_sent = self.cmd,
-                Err(e) => {
-                    self.io.log.log(now_ns, CycleEvent::LinkError { error: e });
-                    if let LinkError::ControllerError(code) = e {
-                        let q = self.report.measured_q_rad;
-                        self.on_arm_error(now_ns, code, q);
-                    } else if e == LinkError::Disconnected {
-                        self.link_ok = false;
-                        if !self.cfg.auto_resume_after_link_loss {
-                            self.latch();
-                        }
-                        self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
-                    } else {
-                        // Refused before the wire or pending (a full pipeline, an error bit
-                        // whose code is being read): this command did not go out; stop.
-                        self.report.commands_refused += 1;
-                        self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
+    }
+
+    /// Logs plan `plan_id`'s revocation with its cause's capture and acceptance times.
+    fn log_revoked(&mut self, now_ns: u64, plan_id: u64) {
+        let (capture_ns, accepted_ns) = self.io.control.revoke_cause();
+        self.io.log.log(
+            now_ns,
+            CycleEvent::PlanRevoked {
+                plan_id,
+                capture_ns,
+                accepted_ns,
+            },
+        );
+    }
+
+    /// Sends the checked command; a failed send is handled as the link says (a controller
+    /// error, a lost connection, a command refused before the wire).
+    fn send_command(&mut self, now_ns: u64) {
+        match self.link.send_servo(now_ns, &self.cmd.q_rad) {
+            Ok(()) => self.last_sent = self.cmd,
+            Err(e) => {
+                self.io.log.log(now_ns, CycleEvent::LinkError { error: e });
+                if let LinkError::ControllerError(code) = e {
+                    let q = self.report.measured_q_rad;
+                    self.on_arm_error(now_ns, code, q);
+                } else if e == LinkError::Disconnected {
+                    self.link_ok = false;
+                    if !self.cfg.auto_resume_after_link_loss {
+                        self.latch();
                     }
+                    self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
+                } else {
+                    // Refused before the wire or pending (a full pipeline, an error bit
+                    // whose code is being read): this command did not go out; stop.
+                    self.report.commands_refused += 1;
+                    self.begin_stop(now_ns, StopReason::LinkLost, StopMotion::AlongPlan);
                 }
             }
         }
-        if self.mismatch_latch_pending && matches!(self.mode, Mode::Idle | Mode::Stopped) {
-            self.mismatch_latch_pending = false;
-            self.latch();
-        }
-        self.report.shutdown_complete =
-            self.io.control.shutdown_requested() && matches!(self.mode, Mode::Idle | Mode::Stopped);
-        self.publish(now_ns);
-        self.mode
     }
 
     /// The one check of the command picked this cycle, against the last command sent.
@@ -847,8 +874,45 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         }
     }
 
+    /// One period of a plan: a scheduled plan taken at its join point, then a stop the
+    /// guard scheduled (reached), the plan's end, or its next sample.
     fn follow(&mut self, now_ns: u64, dt_s: f64) {
-        // Switch to a scheduled plan at its join point.
+        self.adopt_at_join(now_ns);
+        let Some(plan) = self.plan.as_ref() else {
+            self.mode = Mode::Idle;
+            return;
+        };
+        // A stop the guard scheduled on this plan, no joining plan having taken over by
+        // its sample: stop along the plan now (a pause, as a revocation).
+        if let Some((due_id, due_index)) = self.io.control.stop_due()
+            && due_id == plan.id
+            && self.next >= due_index
+        {
+            let plan_id = plan.id;
+            self.io.log.log(
+                now_ns,
+                CycleEvent::StopDue {
+                    plan_id,
+                    index: due_index,
+                },
+            );
+            self.begin_stop(now_ns, StopReason::Revoked, StopMotion::AlongPlan);
+            self.stop_step(now_ns, dt_s);
+            return;
+        }
+        if self.next >= plan.len() {
+            self.io
+                .log
+                .log(now_ns, CycleEvent::PlanFinished { plan_id: plan.id });
+            self.mode = Mode::Idle;
+            self.cmd = MotionState::at_rest(self.cmd.q_rad);
+            return;
+        }
+        self.play_next(now_ns, dt_s);
+    }
+
+    /// Switches to the scheduled plan when the running one reached its join point.
+    fn adopt_at_join(&mut self, now_ns: u64) {
         if let Some(pending) = &self.pending
             && pending.join.is_some_and(|j| j.index + 1 == self.next)
             && let Some(p) = self.pending.take()
@@ -886,36 +950,15 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             // samples (scaled playback) the arm goes on from there, not back to it.
             self.next = usize::from(self.play_frac > 0.0);
         }
+    }
+
+    /// The running plan's next command: the next sample, or during scaled playback the
+    /// point the playback reached, taken when the far end of the stop envelope is clear of
+    /// the live scene; otherwise a stop along the plan.
+    fn play_next(&mut self, now_ns: u64, dt_s: f64) {
         let Some(plan) = self.plan.as_ref() else {
-            self.mode = Mode::Idle;
             return;
         };
-        // A stop the guard scheduled on this plan, no joining plan having taken over by
-        // its sample: stop along the plan now (a pause, as a revocation).
-        if let Some((due_id, due_index)) = self.io.control.stop_due()
-            && due_id == plan.id
-            && self.next >= due_index
-        {
-            let plan_id = plan.id;
-            self.io.log.log(
-                now_ns,
-                CycleEvent::StopDue {
-                    plan_id,
-                    index: due_index,
-                },
-            );
-            self.begin_stop(now_ns, StopReason::Revoked, StopMotion::AlongPlan);
-            self.stop_step(now_ns, dt_s);
-            return;
-        }
-        if self.next >= plan.len() {
-            self.io
-                .log
-                .log(now_ns, CycleEvent::PlanFinished { plan_id: plan.id });
-            self.mode = Mode::Idle;
-            self.cmd = MotionState::at_rest(self.cmd.q_rad);
-            return;
-        }
         // The next sample, or during scaled playback the point between samples `k` and
         // `k + 1` (`frac` beyond `k`) the playback reached.
         let (k, frac, candidate) = self.separation.playback(plan, self.next, self.play_frac);

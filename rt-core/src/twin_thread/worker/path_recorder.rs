@@ -1,6 +1,7 @@
 //! [`PathRecorder`]: the excursion — the path the arm executed since it left home (at
-//! rest), at the cycle's rate, joined plans included; the way home, that path reversed; and
-//! whether a controlled stop interrupted it (then the episode runs again once home).
+//! rest), at the cycle's rate, joined plans included; and the way home, that path reversed.
+//! Whether a controlled stop interrupted the excursion is the phase's
+//! ([`super::phase::Excursion`]).
 
 use twin::{Joints, max_joint_gap_rad};
 
@@ -18,8 +19,6 @@ pub struct PathRecorder {
     path: Vec<Joints>,
     /// Where the sent plan's samples start in `path`.
     sent_offset: usize,
-    /// A controlled stop interrupted the excursion: run the episode again once home.
-    interrupted: bool,
 }
 
 impl PathRecorder {
@@ -33,16 +32,9 @@ impl PathRecorder {
         self.path.is_empty()
     }
 
-    /// Home: the next excursion starts here. Returns whether a stop interrupted the one
-    /// that ended (the episode is then run again).
-    pub fn arrive_home(&mut self) -> bool {
+    /// Home: the next excursion starts here.
+    pub fn arrive_home(&mut self) {
         self.path.clear();
-        std::mem::take(&mut self.interrupted)
-    }
-
-    /// A controlled stop interrupted the excursion; the arm heads home.
-    pub fn interrupt(&mut self) {
-        self.interrupted = true;
     }
 
     /// Extends the path with an approved episode plan starting at `start` (joining the
