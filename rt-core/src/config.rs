@@ -959,7 +959,6 @@ fn box_within_reach(min_m: &[f64; 3], max_m: &[f64; 3]) -> bool {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

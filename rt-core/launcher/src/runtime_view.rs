@@ -62,7 +62,6 @@ impl RuntimeView {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -173,7 +173,6 @@ pub(crate) fn tanh(x: f32) -> f32 {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -23,5 +23,4 @@ pub use loader::{PolicyExpectation, PolicyLoader, PolicyRejectReason, RejectCoun
 pub use mlp::{MlpPolicy, PolicyEvalError};
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests;

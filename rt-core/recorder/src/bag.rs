@@ -315,7 +315,6 @@ pub struct BagMetadataWriteError {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -63,7 +63,6 @@ pub use recorder::{
 };
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use crate::msgs::{RefereeClearanceMsg, RosMessage, TwinVerdictMsg};
 

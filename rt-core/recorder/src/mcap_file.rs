@@ -371,7 +371,6 @@ impl Drop for McapFile {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::msgs::StringMsg;

@@ -508,7 +508,6 @@ impl Referee {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use shm_schemas::scene_file::{BoxSpec, GoalSpec, TableSpec};

@@ -800,7 +800,6 @@ fn mirror(request: &CancelGoalRequest) -> Option<GoalInfo> {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

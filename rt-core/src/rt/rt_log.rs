@@ -131,7 +131,6 @@ impl<E: Copy + Send + std::fmt::Debug + 'static> RtLogDrain<E> {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

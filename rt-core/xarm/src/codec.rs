@@ -880,7 +880,6 @@ pub fn encode_servo_j(tid: u16, target: &JointTarget, out: &mut [u8; SERVOJ_FRAM
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

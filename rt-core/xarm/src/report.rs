@@ -443,7 +443,6 @@ impl ReportFramer {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

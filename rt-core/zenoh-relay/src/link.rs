@@ -351,7 +351,6 @@ pub fn set_usrpwd(
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
