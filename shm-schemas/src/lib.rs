@@ -41,6 +41,7 @@ pub mod policy_builder;
 pub mod process_ties;
 pub mod retrain;
 pub mod robot_state;
+pub mod runtime_view;
 pub mod scene_file;
 pub mod services;
 pub mod verdict;

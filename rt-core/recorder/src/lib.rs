@@ -54,8 +54,10 @@ pub mod mcap_file;
 pub mod msgs;
 pub mod recorder;
 
-pub use bag::{BagMetadata, BagMetadataWriteError, Durability, OfferedQos, RecordingState};
-pub use mcap_file::{McapFile, McapFileOptions, RecordingStats};
+pub use bag::{
+    BagMetadata, BagMetadataWriteError, Durability, OfferedQos, RecordingState, RecordingStats,
+};
+pub use mcap_file::{McapFile, McapFileOptions};
 pub use msgs::RefereeClearance;
 pub use recorder::{
     DEFAULT_MAX_BYTES, Recorder, RecorderConfig, RecorderConfigError, RecorderStartError,

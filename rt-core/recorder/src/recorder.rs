@@ -19,11 +19,9 @@ use shm_schemas::{
 };
 use twin::{DOF, RobotModel};
 
-use crate::bag::{BagMetadataWriteError, OfferedQos, RecordingState};
+use crate::bag::{BagMetadataWriteError, OfferedQos, RecordingState, RecordingStats};
 use crate::markers::{PlanPath, scene_markers};
-use crate::mcap_file::{
-    McapCreateError, McapFile, McapFileOptions, McapWriteError, RecordingStats,
-};
+use crate::mcap_file::{McapCreateError, McapFile, McapFileOptions, McapWriteError};
 use crate::msgs::{
     DetectionsMsg, Header, JointState, MarkerArray, Quaternion, RefereeClearance,
     RefereeClearanceMsg, RetrainProgressMsg, RetrainRequestMsg, RobotStatusMsg, StringMsg,
