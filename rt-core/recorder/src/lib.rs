@@ -53,6 +53,7 @@ pub mod markers;
 pub mod mcap_file;
 pub mod msgs;
 pub mod recorder;
+pub mod ros_view;
 
 pub use bag::{
     BagMetadata, BagMetadataWriteError, Durability, OfferedQos, RecordingState, RecordingStats,

@@ -264,17 +264,10 @@ fn distance_m(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
-/// The verdict in words, with whether its plan was approved (the action's feedback).
+/// The verdict in words, with whether its plan was approved (the action's feedback; the
+/// scene's text marker, [`recorder::ros_view::verdict_line`]).
 pub fn verdict_words(v: &TwinVerdict) -> String {
-    format!(
-        "{}{}",
-        crate::verdict_text(v),
-        if v.is_plan_approved() {
-            ", approved"
-        } else {
-            ""
-        }
-    )
+    recorder::ros_view::verdict_line(v)
 }
 
 /// Whether a stop reason ends a goal when it lasts: faults, not the pauses of normal
