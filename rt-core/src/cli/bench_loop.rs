@@ -13,14 +13,17 @@ use std::time::{Duration, Instant};
 
 use clap::Args;
 use policy::{MlpPolicy, PolicyExpectation, PolicyLoader};
+use rt_core::config::RuntimeConfig;
 use rt_core::cycle::brake::Brake;
 use rt_core::cycle::link::InProcessArm;
 use rt_core::cycle::shield::{Shield, ShieldLimits};
 use rt_core::cycle::thread::spawn_cycle_thread;
 use rt_core::cycle::twin_model::TwinModel;
-use rt_core::cycle::{self, Cycle, CycleConfig, LoopShared};
+use rt_core::cycle::{self, Cycle, CycleConfig, CycleEvent, CycleReport, LoopShared, LoopSummary};
 use rt_core::launch::load_assets;
 use rt_core::rt::clock::{Clock, MonotonicClock};
+use rt_core::rt::rt_log::RtLogDrain;
+use rt_core::rt::rt_setup::RtSetupReport;
 use rt_core::twin_thread::lookahead::{LookaheadActions, TwinLookahead};
 use rt_core::twin_thread::{TwinEvent, TwinWorker};
 use shm_schemas::PolicyBlobBuilder;
@@ -130,39 +133,10 @@ pub fn run(args: BenchLoopArgs) -> ExitCode {
 
 fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     let (cfg, model, task) = load_assets(&args.assets, Some(args.rate), None)?;
-    let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
     let task_hash = task.hash();
-    let task_for_probe = task;
-    let lookahead = TwinLookahead::new(
-        model.clone(),
-        task,
-        LookaheadActions::ScriptedWithPolicyCost,
-    );
-    let start_q = lookahead.start_q_rad();
-    let full = full_lookahead_ms(&model, &task_for_probe, task_hash)?;
-    let (twin_io, cycle_io, log_drain) = cycle::wire::<Scene>();
-    let arm = InProcessArm::new(
-        start_q,
-        cfg.limits.joint_min_rad,
-        cfg.limits.joint_max_rad,
-        [std::f64::consts::PI; 5],
-    );
+    let full = full_lookahead_ms(&model, &task, task_hash)?;
     let clock = MonotonicClock::new();
-    let mut cyc = Cycle::new(
-        CycleConfig::from_runtime(&cfg),
-        Shield::new(TwinModel::new(model.clone()), limits),
-        Brake::new(&cfg.limits),
-        arm,
-        cycle_io,
-    );
-    cyc.start(clock.now_ns())
-        .map_err(|e| anyhow::anyhow!("starting the cycle: {e}"))?;
-    let twin = TwinWorker::new(
-        &cfg,
-        lookahead,
-        Shield::new(TwinModel::new(model), limits),
-        twin_io,
-    );
+    let (cyc, twin, log_drain) = build_parts(&cfg, model, task, &clock)?;
 
     let stop = Arc::new(AtomicBool::new(false));
     let shared = Arc::new(LoopShared::default());
@@ -191,36 +165,116 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
     let done = cycle_thread
         .join()
         .map_err(|_| anyhow::anyhow!("cycle thread panicked"))?;
-    let (stats, rt, allocs, report) = (done.stats, done.rt, done.allocations, *done.cycle.report());
+    let cycle = CycleCounts {
+        stats: done.stats.summary(),
+        rt: done.rt,
+        allocations: done.allocations,
+        report: *done.cycle.report(),
+    };
+    let twin = twin_thread
+        .join()
+        .map_err(|_| anyhow::anyhow!("twin thread panicked"))??;
+    let _ = log_thread.join();
+    println!(
+        "{}",
+        bench_json(cfg.rate_hz, args.seconds, &cycle, twin, full)
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The bench's cycle (shield on the twin's model, the in-process arm), started, and its twin
+/// worker with the scripted lookahead, wired to each other.
+#[allow(clippy::type_complexity)]
+fn build_parts(
+    cfg: &RuntimeConfig,
+    model: RobotModel,
+    task: TaskConfig,
+    clock: &MonotonicClock,
+) -> anyhow::Result<(
+    Cycle<TwinModel, InProcessArm>,
+    TwinWorker<TwinLookahead, TwinModel>,
+    RtLogDrain<CycleEvent>,
+)> {
+    let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
+    let lookahead = TwinLookahead::new(
+        model.clone(),
+        task,
+        LookaheadActions::ScriptedWithPolicyCost,
+    );
+    let (twin_io, cycle_io, log_drain) = cycle::wire::<Scene>();
+    let arm = InProcessArm::new(
+        lookahead.start_q_rad(),
+        cfg.limits.joint_min_rad,
+        cfg.limits.joint_max_rad,
+        [std::f64::consts::PI; 5],
+    );
+    let mut cyc = Cycle::new(
+        CycleConfig::from_runtime(cfg),
+        Shield::new(TwinModel::new(model.clone()), limits),
+        Brake::new(&cfg.limits),
+        arm,
+        cycle_io,
+    );
+    cyc.start(clock.now_ns())
+        .map_err(|e| anyhow::anyhow!("starting the cycle: {e}"))?;
+    let twin = TwinWorker::new(
+        cfg,
+        lookahead,
+        Shield::new(TwinModel::new(model), limits),
+        twin_io,
+    );
+    Ok((cyc, twin, log_drain))
+}
+
+/// What the bench's cycle thread left behind.
+struct CycleCounts {
+    stats: LoopSummary,
+    rt: RtSetupReport,
+    allocations: u64,
+    report: CycleReport,
+}
+
+/// The bench's one JSON object.
+fn bench_json(
+    rate_hz: f64,
+    seconds: f64,
+    cycle: &CycleCounts,
+    twin: TwinCounts,
+    full: serde_json::Value,
+) -> serde_json::Value {
     let TwinCounts {
         mut lookahead_s,
         swaps,
         approved,
         retrains,
         rejected,
-    } = twin_thread
-        .join()
-        .map_err(|_| anyhow::anyhow!("twin thread panicked"))??;
-    let _ = log_thread.join();
+    } = twin;
     lookahead_s.sort_by(f64::total_cmp);
-    let s = stats.summary();
-    let out = serde_json::json!({
-        "rate_hz": cfg.rate_hz,
-        "seconds": args.seconds,
+    let s = &cycle.stats;
+    let ratio = |n: u64| {
+        if s.cycles > 0 {
+            n as f64 / s.cycles as f64
+        } else {
+            0.0
+        }
+    };
+    serde_json::json!({
+        "rate_hz": rate_hz,
+        "seconds": seconds,
         "cycles": s.cycles,
         "missed_deadlines": s.missed_deadlines,
-        "missed_ratio": if s.cycles > 0 { s.missed_deadlines as f64 / s.cycles as f64 } else { 0.0 },
+        "missed_ratio": ratio(s.missed_deadlines),
         "compute_overruns": s.compute_overruns,
-        "compute_overrun_ratio": if s.cycles > 0 { s.compute_overruns as f64 / s.cycles as f64 } else { 0.0 },
+        "compute_overrun_ratio": ratio(s.compute_overruns),
         "wakeup_latency_us": s.wakeup_latency_us,
         "cycle_compute_us": s.cycle_compute_us,
-        "allocations_in_cycle": allocs,
+        "allocations_in_cycle": cycle.allocations,
         "policy_swaps": swaps,
         "plans_approved": approved,
-        "plans_taken_by_cycle": report.plans_taken,
+        "plans_taken_by_cycle": cycle.report.plans_taken,
         "plans_rejected": rejected,
         "retrain_requests": retrains,
-        "stops": report.stops,
+        "stops": cycle.report.stops,
         "lookahead_ms": {
             "count": lookahead_s.len(),
             "p50": percentile_ms(&lookahead_s, 0.5),
@@ -228,10 +282,8 @@ fn bench(args: &BenchLoopArgs) -> anyhow::Result<ExitCode> {
             "max": percentile_ms(&lookahead_s, 1.0),
         },
         "full_lookahead": full,
-        "rt_setup": rt,
-    });
-    println!("{out}");
-    Ok(ExitCode::SUCCESS)
+        "rt_setup": cycle.rt,
+    })
 }
 
 /// What the bench's twin thread counted.

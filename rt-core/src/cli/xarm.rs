@@ -102,9 +102,16 @@ fn probe(a: &ProbeArgs) -> Result<serde_json::Value> {
         "joints_rad": joints,
         "tcp_pose_mm_rad": pose,
     });
-    if !a.servo_test {
-        return Ok(out);
+    if a.servo_test {
+        check_servo_test(a, err, state)?;
+        out["servo_test"] = servo_test(&mut d, a)?;
     }
+    Ok(out)
+}
+
+/// Refuses the servo test on a controller with an error, paused or resetting, and outside
+/// its bounds.
+fn check_servo_test(a: &ProbeArgs, err: ControllerError, state: u8) -> Result<()> {
     if err != ControllerError::None {
         bail!("refusing to move: the controller reports error {err}");
     }
@@ -117,6 +124,12 @@ fn probe(a: &ProbeArgs) -> Result<serde_json::Value> {
     if !(a.duration_s >= 0.5 && a.duration_s <= 10.0) {
         bail!("--duration-s must be in [0.5, 10]");
     }
+    Ok(())
+}
+
+/// Streams the J1-only motion at 100 Hz (a raised cosine of `amplitude_deg`), stops the
+/// controller, and reports the replies' round-trip times.
+fn servo_test(d: &mut XArmDriver, a: &ProbeArgs) -> Result<serde_json::Value> {
     let q0 = d.enter_servo_mode().context("entering servo mode")?;
     let amp_rad = a.amplitude_deg.to_radians();
     let period = Duration::from_millis(10);
@@ -150,7 +163,7 @@ fn probe(a: &ProbeArgs) -> Result<serde_json::Value> {
     d.stop(now_ns());
     d.flush()?;
     rtt_ns.sort_unstable();
-    out["servo_test"] = json!({
+    Ok(json!({
         "targets": n + 1,
         "rate_hz": 100,
         "amplitude_deg": a.amplitude_deg,
@@ -163,6 +176,5 @@ fn probe(a: &ProbeArgs) -> Result<serde_json::Value> {
         },
         "not_ready_replies": d.stats().not_ready_replies,
         "final_joints_rad": final_joints,
-    });
-    Ok(out)
+    }))
 }
