@@ -20,7 +20,7 @@ pub const SHIPPED_RUNTIME_TOML: &str = include_str!("../../assets/runtime.toml")
 #[derive(Debug, thiserror::Error)]
 pub enum RuntimeConfigError {
     /// The file could not be read.
-    #[error("cannot read {}: {source}", path.display())]
+    #[error("cannot read {}", path.display())]
     Read {
         /// The file.
         path: PathBuf,
@@ -28,7 +28,7 @@ pub enum RuntimeConfigError {
         source: std::io::Error,
     },
     /// The TOML did not parse into the expected shape.
-    #[error("invalid runtime config: {0}")]
+    #[error("invalid runtime config")]
     Parse(#[from] toml::de::Error),
     /// A value is out of its allowed range.
     #[error("invalid runtime config: {field}: {why}")]

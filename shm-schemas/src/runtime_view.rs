@@ -58,7 +58,7 @@ pub fn default_return_home() -> bool {
 #[derive(Debug, thiserror::Error)]
 pub enum RuntimeViewError {
     /// The file could not be read.
-    #[error("cannot read {path}: {source}")]
+    #[error("cannot read {path}")]
     Read {
         /// The file.
         path: String,
@@ -66,7 +66,7 @@ pub enum RuntimeViewError {
         source: std::io::Error,
     },
     /// The file is not TOML of the expected shape.
-    #[error("invalid runtime config: {0}")]
+    #[error("invalid runtime config")]
     Parse(#[from] toml::de::Error),
 }
 
