@@ -75,9 +75,14 @@ docs-check: setup
 	$(MAKE) --no-print-directory _build
 	python3 scripts/docs_check.py --bin "$(BIN)" --rerun
 
+# `cargo doc` with warnings as errors (broken intra-doc links, bad code blocks): in `lint`
+# only. It checks every dependency once more in its own mode (minutes on a fresh cache), so
+# `make test` leaves it out. `--release` shares the build scripts' runs (OpenCV's bindings,
+# libtorch's) with the release build instead of running them again.
 lint: setup
 	$(CARGO) fmt --all --check
 	$(CARGO) clippy --release --workspace --all-targets -- -D warnings
+	RUSTDOCFLAGS="-D warnings" $(CARGO) doc --release --no-deps --workspace
 
 fmt:
 	$(CARGO) fmt --all

@@ -9,11 +9,18 @@ Checks, each failure named with its file and line:
 - README.md is at most 400 lines;
 - README's results table (between `<!-- results:begin -->` and `<!-- results:end -->`) is the
   rendering of docs/results.toml, row for row;
-- every relative link in README.md, ARCHITECTURE.md and docs/*.md points at a file that exists,
-  and so does every repository path written in backticks there (`assets/...`, `rt-core/...`);
-- every command of the results and of README's code blocks exists: `make T` names a Makefile
-  target, `BIN/x sub --flag` (and `foresight`/`make demo ARGS="--flag"`) names a binary, a
-  subcommand and flags its `--help` lists (needs --bin: the release binaries);
+- every relative link in README.md, ARCHITECTURE.md, docs/*.md and the crate READMEs
+  (`rt-core/README.md`, `learner/README.md`, `perception/README.md`, any `<crate>/README.md`)
+  points at a file that exists, and so does every repository path written in backticks there
+  (`assets/...`, `rt-core/...`; in a crate README also the crate's own `src/...`, `tests/...`);
+- every command of the results and of the code blocks of README.md and the crate READMEs
+  exists: `make T` names a Makefile target, `BIN/x sub --flag` (and `foresight`/`make demo
+  ARGS="--flag"`) names a binary, a subcommand and flags its `--help` lists (needs --bin: the
+  release binaries);
+- ARCHITECTURE.md's crate diagram names every workspace package;
+- every crate's nearest clippy.toml (clippy reads the nearest one, it does not merge) carries
+  the root clippy.toml's keys, and rt-core's and the sweep's carry the real-time bans
+  (`RT_BANS`);
 - with --rerun, each result with a `rerun` table is measured again and must give the same
   values (seeded, deterministic benchmarks; timings are dated instead).
 
@@ -40,6 +47,8 @@ BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 MAX_README_LINES = 400
 # Top-level folders whose paths, written in backticks, must exist.
 TREE = ("assets/", "scripts/", "rt-core/", "learner/", "perception/", "shm-schemas/", "tests/", "docs/", ".ci/")
+# A crate README's own folders, whose paths in backticks must exist in the crate.
+CRATE_TREE = ("src/", "tests/", "benches/")
 # Binaries whose flags are checked against their --help.
 BINARIES = {"foresight", "rt-core", "learner", "unseen-worlds", "perception", "xarm-sim", "zenoh-relay", "ros-bridge", "sweep"}
 
@@ -94,8 +103,19 @@ def check_table(p: Problems, rows: list[dict]) -> None:
                 break
 
 
+def crate_dirs() -> list[Path]:
+    """The workspace members' folders (and the excluded fuzz crate's)."""
+    with (ROOT / "Cargo.toml").open("rb") as f:
+        ws = tomllib.load(f)["workspace"]
+    return [ROOT / m for m in ws["members"] + ws.get("exclude", [])]
+
+
+def crate_readmes() -> list[Path]:
+    return [d / "README.md" for d in crate_dirs() if d != ROOT and (d / "README.md").exists()]
+
+
 def docs_files() -> list[Path]:
-    return [README, ROOT / "ARCHITECTURE.md", *sorted((ROOT / "docs").glob("*.md"))]
+    return [README, ROOT / "ARCHITECTURE.md", *sorted((ROOT / "docs").glob("*.md")), *crate_readmes()]
 
 
 def check_paths(p: Problems) -> None:
@@ -113,12 +133,87 @@ def check_paths(p: Problems) -> None:
                     path = (f.parent / target.split("#", 1)[0]).resolve()
                     if not path.exists():
                         p.add(where, f"link to {target}, which does not exist")
+            in_crate = f in crate_readmes()
             for token in re.findall(r"`([^`\s]+)`", line):
                 token = token.rstrip(".,:;")
-                if not token.startswith(TREE) or any(c in token for c in "<>*…{}$|"):
+                if any(c in token for c in "<>*…{}$|"):
                     continue
-                if not (ROOT / token).exists():
-                    p.add(where, f"`{token}` does not exist")
+                if in_crate and token.startswith(CRATE_TREE):
+                    # the crate's own `tests/…`, or the repository's `tests/` crate
+                    if not ((f.parent / token).exists() or (token.startswith(TREE) and (ROOT / token).exists())):
+                        p.add(where, f"`{token}` exists neither in {f.parent.relative_to(ROOT)}/ nor at the top")
+                elif token.startswith(TREE):
+                    if not (ROOT / token).exists():
+                        p.add(where, f"`{token}` does not exist")
+
+
+# The real-time bans each crate folder's clippy.toml must carry (issue 41 item 5): the runtime's,
+# and the sweep's, which steps the runtime's worker and cycle on a manual clock.
+RT_BANS = {
+    "rt-core": {
+        "disallowed-methods": {
+            "std::time::Instant::now",
+            "std::thread::sleep",
+            "std::time::SystemTime::now",
+            "xarm::driver::XArmDriver::send_servo",
+            "xarm::driver::XArmDriver::read_state",
+        },
+        "disallowed-types": {"std::sync::Mutex", "std::sync::RwLock"},
+    },
+    "rt-core/sweep": {
+        "disallowed-methods": {"std::time::Instant::now", "std::thread::sleep", "std::time::SystemTime::now"},
+        "disallowed-types": {"std::sync::Mutex", "std::sync::RwLock"},
+    },
+}
+
+
+def ban_paths(value) -> set[str]:
+    return {v["path"] if isinstance(v, dict) else v for v in value}
+
+
+def check_clippy_configs(p: Problems) -> None:
+    """Clippy reads the nearest clippy.toml and does not merge: each crate's must repeat the
+    root's keys (and the bans in its lists), and rt-core's and the sweep's carry `RT_BANS`."""
+    with (ROOT / "clippy.toml").open("rb") as f:
+        root = tomllib.load(f)
+    for crate in crate_dirs():
+        d = crate
+        while d != ROOT and not (d / "clippy.toml").exists():
+            d = d.parent
+        nearest = d / "clippy.toml"
+        where = f"{nearest.relative_to(ROOT)} (nearest to {crate.relative_to(ROOT) or '.'})"
+        with nearest.open("rb") as f:
+            cfg = tomllib.load(f)
+        for key, want in root.items():
+            if key not in cfg:
+                p.add(where, f"lacks the root clippy.toml's `{key}`")
+            elif isinstance(want, list):
+                missing = ban_paths(want) - ban_paths(cfg[key])
+                if missing:
+                    p.add(where, f"`{key}` lacks the root's {sorted(missing)}")
+            elif cfg[key] != want:
+                p.add(where, f"`{key}` = {cfg[key]!r}, the root's is {want!r}")
+        for key, want in RT_BANS.get(str(crate.relative_to(ROOT)), {}).items():
+            if nearest.parent != crate:
+                p.add(where, f"{crate.relative_to(ROOT)} needs a clippy.toml of its own with its bans")
+                break
+            missing = want - ban_paths(cfg.get(key, []))
+            if missing:
+                p.add(where, f"`{key}` lacks {sorted(missing)}")
+
+
+def check_architecture_diagram(p: Problems) -> None:
+    """ARCHITECTURE.md's first diagram names every workspace package."""
+    text = (ROOT / "ARCHITECTURE.md").read_text()
+    blocks = re.findall(r"(?ms)^```\n(.*?)^```", text)
+    diagram = blocks[0] if blocks else ""
+    with (ROOT / "Cargo.toml").open("rb") as f:
+        members = tomllib.load(f)["workspace"]["members"]
+    for m in members:
+        with (ROOT / m / "Cargo.toml").open("rb") as f:
+            name = tomllib.load(f)["package"]["name"]
+        if not re.search(rf"(?<![\w-]){re.escape(name)}(?![\w-])", diagram):
+            p.add("ARCHITECTURE.md", f"the crate diagram leaves out `{name}` ({m})")
 
 
 def make_targets() -> set[str]:
@@ -144,12 +239,16 @@ def help_text(bin_dir: Path, argv: tuple[str, ...]) -> str | None:
     return _help_cache[argv]
 
 
-def check_command(p: Problems, where: str, command: str, bin_dir: Path | None, targets: set[str]) -> None:
-    try:
-        words = shlex.split(command)
-    except ValueError as e:
-        p.add(where, f"cannot parse `{command}`: {e}")
-        return
+def check_command(p: Problems, where: str, command: str, bin_dir: Path | None, targets: set[str], usage: bool = False) -> None:
+    """`usage`: a synopsis (`[--flag X]`, `a|b`), whose words are read without shell quoting."""
+    if usage:
+        words = re.sub(r"[\[\]|]", " ", command).split()
+    else:
+        try:
+            words = shlex.split(command)
+        except ValueError as e:
+            p.add(where, f"cannot parse `{command}`: {e}")
+            return
     if not words:
         return
     if words[0] == "make":
@@ -191,15 +290,30 @@ def check_commands(p: Problems, rows: list[dict], bin_dir: Path | None) -> None:
     targets = make_targets()
     for i, r in enumerate(rows):
         check_command(p, f"docs/results.toml result {i + 1}", r["command"], bin_dir, targets)
-    in_code = False
-    for n, line in enumerate(README.read_text().splitlines(), 1):
-        if line.startswith("```"):
-            in_code = not in_code
-            continue
-        if in_code:
-            command = line.split("#", 1)[0].strip()
-            if command:
-                check_command(p, f"README.md:{n}", command, bin_dir, targets)
+    for f in [README, *crate_readmes()]:
+        in_code = False
+        # a crate README's `B=…/release/NAME` names the binary of its `$B …` synopsis lines
+        binary, held, held_at = None, "", 0
+        for n, line in enumerate(f.read_text().splitlines(), 1):
+            if line.startswith("```"):
+                in_code = not in_code
+                binary = None
+                continue
+            if not in_code:
+                continue
+            command = line.split(" #", 1)[0].strip() if not line.lstrip().startswith("#") else ""
+            if command.endswith("\\"):
+                held, held_at = held + command[:-1] + " ", held_at or n
+                continue
+            command, at = held + command, held_at or n
+            held, held_at = "", 0
+            if m := re.match(r"^B=\S*/release/([a-z-]+)", command):
+                binary = m.group(1)
+                continue
+            if binary and command.startswith("$B "):
+                check_command(p, f"{f.relative_to(ROOT)}:{at}", binary + command[2:], bin_dir, targets, usage=True)
+            elif command:
+                check_command(p, f"{f.relative_to(ROOT)}:{at}", command, bin_dir, targets, usage=f != README)
 
 
 def dig(value, dotted: str):
@@ -261,6 +375,8 @@ def main() -> int:
         p.add("README.md", f"{lines} lines, more than {MAX_README_LINES}: move detail to docs/")
     check_table(p, rows)
     check_paths(p)
+    check_clippy_configs(p)
+    check_architecture_diagram(p)
     check_commands(p, rows, a.bin)
     if a.rerun:
         if a.bin is None:
@@ -271,7 +387,7 @@ def main() -> int:
         for item in p.items:
             print(f"  {item}", file=sys.stderr)
         return 1
-    print(f"docs-check: README.md ({lines} lines), {len(rows)} results, links, paths and commands OK" + (", figures re-run" if a.rerun else ""))
+    print(f"docs-check: README.md ({lines} lines), {len(rows)} results, links, paths, commands and clippy.toml files OK" + (", figures re-run" if a.rerun else ""))
     return 0
 
 

@@ -3,6 +3,8 @@
 //! under `cli/`. (The unseen-worlds benchmark is its own binary, `unseen-worlds`, so that the
 //! learner does not depend on the benchmark's world generators.)
 
+#![forbid(unsafe_code)]
+
 mod cli;
 
 use anyhow::Result;

@@ -3,7 +3,7 @@
 //! progress, and stop on a step budget, a time budget or a success rule.
 
 use std::io::IsTerminal;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
@@ -312,9 +312,4 @@ fn progress_bar(opts: &RunOptions, steps: u64) -> Option<ProgressBar> {
         b.set_position(steps.min(opts.total_steps));
         b
     })
-}
-
-/// Path of the best checkpoint in `dir`.
-pub fn best_path(dir: &Path) -> PathBuf {
-    dir.join(BEST)
 }

@@ -8,6 +8,11 @@ use serde::Deserialize;
 
 use twin::Joints;
 
+use shm_schemas::runtime_view;
+/// `[shield]`, `[intake]` and `[goal]` are defined once, with their defaults, in the view of
+/// this file that the bridge and the launcher read too ([`shm_schemas::runtime_view`]).
+pub use shm_schemas::runtime_view::{GoalConfig, GoalSource, IntakeConfig, ShieldConfig};
+
 /// The shipped `assets/runtime.toml`.
 pub const SHIPPED_RUNTIME_TOML: &str = include_str!("../../assets/runtime.toml");
 
@@ -15,7 +20,7 @@ pub const SHIPPED_RUNTIME_TOML: &str = include_str!("../../assets/runtime.toml")
 #[derive(Debug, thiserror::Error)]
 pub enum RuntimeConfigError {
     /// The file could not be read.
-    #[error("cannot read {}: {source}", path.display())]
+    #[error("cannot read {}", path.display())]
     Read {
         /// The file.
         path: PathBuf,
@@ -23,7 +28,7 @@ pub enum RuntimeConfigError {
         source: std::io::Error,
     },
     /// The TOML did not parse into the expected shape.
-    #[error("invalid runtime config: {0}")]
+    #[error("invalid runtime config")]
     Parse(#[from] toml::de::Error),
     /// A value is out of its allowed range.
     #[error("invalid runtime config: {field}: {why}")]
@@ -51,29 +56,6 @@ pub struct MotionLimits {
     pub joint_max_rad: Joints,
     /// Maximum TCP speed, m/s (the xArm controller faults at 1 m/s in servo mode).
     pub max_tcp_speed_m_s: f64,
-}
-
-/// Shield limits and margins.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ShieldConfig {
-    /// Workspace box of the TCP, lower corner in the base frame, m.
-    pub workspace_min_m: [f64; 3],
-    /// Workspace box of the TCP, upper corner, m.
-    pub workspace_max_m: [f64; 3],
-    /// Minimum allowed distance robot ↔ obstacles in the live scene, m.
-    pub min_distance_m: f64,
-    /// Margin kept from the joint limits, rad.
-    pub joint_margin_rad: f64,
-    /// Largest distance between the twin's TCP (FK of the measured joints) and the TCP the
-    /// controller reports, m: more refuses the start, or stops the arm while running
-    /// (`ModelMismatch`, latched until acknowledged).
-    #[serde(default = "default_max_tcp_gap_m")]
-    pub max_tcp_gap_m: f64,
-}
-
-fn default_max_tcp_gap_m() -> f64 {
-    crate::cycle::xarm_link::MAX_TCP_GAP_M
 }
 
 /// Ages beyond which an input counts as stale.
@@ -115,90 +97,6 @@ fn default_tracking_error_rad() -> f64 {
 }
 fn default_tracking_error_cycles() -> u32 {
     25
-}
-
-/// What rt-core accepts from perception (`[intake]`): a frame with an object outside the
-/// calibrated workspace, a goal out of reach or a stamp that is not fresh is refused whole
-/// (counted, and the arm stops: see [`crate::twin_thread::intake`]).
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct IntakeConfig {
-    /// A goal detected with less confidence than this counts as no goal (no plan). Obstacles
-    /// are kept whatever their confidence: a false obstacle costs a detour, a missed one a
-    /// collision.
-    #[serde(default = "default_min_goal_confidence")]
-    pub min_goal_confidence: f32,
-    /// The calibrated workspace, lower corner (base frame, m): every detected object's
-    /// centre must lie in this box, or the frame is refused (a detection out there means a
-    /// wrong calibration or a wrong depth, not an object to plan around).
-    #[serde(default = "default_calibrated_min_m")]
-    pub calibrated_min_m: [f64; 3],
-    /// The calibrated workspace, upper corner, m.
-    #[serde(default = "default_calibrated_max_m")]
-    pub calibrated_max_m: [f64; 3],
-    /// A goal's centre must lie this far or farther from the base axis, m (closer, the arm
-    /// would fold onto itself).
-    #[serde(default = "default_goal_min_radius_m")]
-    pub goal_min_radius_m: f64,
-    /// A goal's centre must lie this far or nearer from the base axis, m (the xArm5 reaches
-    /// 0.7 m).
-    #[serde(default = "default_goal_max_radius_m")]
-    pub goal_max_radius_m: f64,
-    /// How far ahead of a frame's capture a moving obstacle's occupancy is predicted, s: a
-    /// frame that is not settled has each obstacle swept along its velocity over this time
-    /// and grown by its velocity's uncertainty (`twin_thread::intake::predicted_occupancy`).
-    /// It covers the frame's way to the cycle, the frames until the next one, and the arm's
-    /// stop (default 0.25 s: two 60 Hz frames, a cycle, and a stop from the plan's speed).
-    #[serde(default = "default_prediction_horizon_s")]
-    pub prediction_horizon_s: f64,
-    /// Sigmas of a velocity's uncertainty the predicted occupancy is grown by.
-    #[serde(default = "default_uncertainty_sigmas")]
-    pub uncertainty_sigmas: f64,
-    /// The assumed speed of an intruder whose velocity is not known yet (ISO/TS 15066's
-    /// hand-arm speed, 1.6 m/s), m/s: the largest velocity uncertainty counted.
-    #[serde(default = "default_intruder_speed_m_s")]
-    pub intruder_speed_m_s: f64,
-}
-
-impl Default for IntakeConfig {
-    fn default() -> Self {
-        Self {
-            min_goal_confidence: default_min_goal_confidence(),
-            calibrated_min_m: default_calibrated_min_m(),
-            calibrated_max_m: default_calibrated_max_m(),
-            goal_min_radius_m: default_goal_min_radius_m(),
-            goal_max_radius_m: default_goal_max_radius_m(),
-            prediction_horizon_s: default_prediction_horizon_s(),
-            uncertainty_sigmas: default_uncertainty_sigmas(),
-            intruder_speed_m_s: default_intruder_speed_m_s(),
-        }
-    }
-}
-
-fn default_prediction_horizon_s() -> f64 {
-    0.25
-}
-fn default_uncertainty_sigmas() -> f64 {
-    2.0
-}
-fn default_intruder_speed_m_s() -> f64 {
-    1.6
-}
-
-fn default_min_goal_confidence() -> f32 {
-    0.5
-}
-fn default_calibrated_min_m() -> [f64; 3] {
-    [-0.8, -0.8, -0.05]
-}
-fn default_calibrated_max_m() -> [f64; 3] {
-    [0.8, 0.8, 1.0]
-}
-fn default_goal_min_radius_m() -> f64 {
-    0.15
-}
-fn default_goal_max_radius_m() -> f64 {
-    0.65
 }
 
 /// The bounds every safety limit is validated against (documented in
@@ -288,7 +186,7 @@ pub struct RuntimeConfig {
     /// to where the episode began along its own executed path, re-checked by the shield in
     /// the scene then in force. Every episode thus starts from the task's start posture,
     /// as in training (the research system's reset between episodes).
-    #[serde(default = "default_return_home")]
+    #[serde(default = "runtime_view::default_return_home")]
     pub return_home: bool,
     /// Rest at the goal before returning home, s.
     #[serde(default = "default_dwell_at_goal_s")]
@@ -361,6 +259,10 @@ impl Default for SeparationConfig {
     }
 }
 
+/// ISO/TS 15066's hand-arm speed, as `[intake]`'s default for an intruder of unknown velocity.
+fn default_intruder_speed_m_s() -> f64 {
+    IntakeConfig::default().intruder_speed_m_s
+}
 fn default_separation_reaction_time_s() -> f64 {
     0.1
 }
@@ -369,40 +271,6 @@ fn default_separation_intrusion_m() -> f64 {
 }
 fn default_separation_uncertainty_m() -> f64 {
     0.02
-}
-
-/// Which source gives the goal (`[goal] source`): the goal cube the camera sees
-/// (`"camera"`, the default) or the ROS 2 `Reach` action served by `ros-bridge`
-/// (`"action"`: the camera's goal cube is ignored, its obstacles still count, and nothing is
-/// planned while no action goal is active). `rt-core run --goal-source` and
-/// `foresight --goal-source` override it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum GoalSource {
-    /// The goal cube in the detections.
-    #[default]
-    Camera,
-    /// The `Reach` action's goal (iceoryx2 `GoalRequest`s from the bridge).
-    Action,
-}
-
-impl GoalSource {
-    /// Its name in the configuration and on command lines.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Camera => "camera",
-            Self::Action => "action",
-        }
-    }
-}
-
-/// `[goal]`: where the goal comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct GoalConfig {
-    /// The goal's source.
-    #[serde(default)]
-    pub source: GoalSource,
 }
 
 /// Who may acknowledge a protective stop (`[operator]`). The acknowledgement reaches
@@ -576,9 +444,6 @@ fn default_continue_after_pause() -> bool {
     true
 }
 
-fn default_return_home() -> bool {
-    true
-}
 fn default_dwell_at_goal_s() -> f64 {
     1.0
 }
@@ -620,14 +485,7 @@ impl RuntimeConfig {
     /// Where a requested goal (the `Reach` action) may lie: `[intake]`'s reach and
     /// calibrated area, `[shield]`'s workspace.
     pub fn goal_bounds(&self) -> shm_schemas::GoalBounds {
-        shm_schemas::GoalBounds {
-            min_radius_m: self.intake.goal_min_radius_m,
-            max_radius_m: self.intake.goal_max_radius_m,
-            table_min_m: self.intake.calibrated_min_m,
-            table_max_m: self.intake.calibrated_max_m,
-            workspace_min_m: self.shield.workspace_min_m,
-            workspace_max_m: self.shield.workspace_max_m,
-        }
+        runtime_view::goal_bounds(&self.intake, &self.shield)
     }
 
     /// The cycle period in nanoseconds.
@@ -959,9 +817,18 @@ fn box_within_reach(min_m: &[f64; 3], max_m: &[f64; 3]) -> bool {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    /// `[shield] max_tcp_gap_m`'s default (defined with the shared view, which cannot name
+    /// rt-core) is the xArm adapter's gap.
+    #[test]
+    fn the_default_tcp_gap_is_the_xarm_links() {
+        assert_eq!(
+            shm_schemas::runtime_view::DEFAULT_MAX_TCP_GAP_M,
+            crate::cycle::xarm_link::MAX_TCP_GAP_M
+        );
+    }
 
     const ASSET: &str = include_str!("../../assets/runtime.toml");
 

@@ -295,7 +295,6 @@ pub fn requested_tcp_target_m(
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

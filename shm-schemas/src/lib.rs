@@ -18,6 +18,10 @@
 //! | [`TwinVerdict`] | rt-core → anyone | [`services::TWIN_VERDICTS`] |
 //! | [`GoalRequest`] | ros-bridge → rt-core | [`services::GOAL_REQUESTS`] |
 //!
+//! Beside the payloads: the scene-file format ([`scene_file`]), and the one view of rt-core's
+//! `runtime.toml` that other processes read too ([`runtime_view`]: `[intake]`, `[shield]`,
+//! `[goal]` with their defaults).
+//!
 //! ```no_run
 //! use iceoryx2::prelude::*;
 //! use shm_schemas::{DetectedObject, DetectionFrame, ObjectClass, services};
@@ -41,6 +45,7 @@ pub mod policy_builder;
 pub mod process_ties;
 pub mod retrain;
 pub mod robot_state;
+pub mod runtime_view;
 pub mod scene_file;
 pub mod services;
 pub mod verdict;

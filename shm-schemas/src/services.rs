@@ -545,7 +545,6 @@ pub fn create_node_with_config<S: Service>(
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod config_tests {
     use super::*;
 

@@ -16,6 +16,8 @@
 
 use std::sync::{Arc, mpsc};
 
+use policy::tanh;
+
 use crate::net::{ActorCritic, HALF_LOG_2PI, LayerSlot, Layout, NetSpec};
 
 /// `C[m,n] = A[m,k] · B[k,n] + beta · C` on strided slices; the strides address elements
@@ -64,45 +66,6 @@ fn gemm(
             csc as isize,
         );
     }
-}
-
-/// `2^t` for `t` in about [-27, 0] (copied from rt-core's `policy` kernel, where it is
-/// tested to keep `tanh` within 4 ulp): round to the nearest integer `k`, a degree-7
-/// polynomial of `2^r`, and `2^k` from the exponent bits. Branch-free, so loops vectorise.
-#[inline(always)]
-fn exp2_neg(t: f32) -> f32 {
-    const ROUND: f32 = 12_582_912.0; // 1.5 · 2^23
-    const C: [f32; 8] = [
-        1.0,
-        core::f32::consts::LN_2,
-        0.240_226_5,
-        0.055_504_11,
-        0.009_618_129,
-        0.001_333_355_8,
-        0.000_154_035_3,
-        0.000_015_252_73,
-    ];
-    let k = (t + ROUND) - ROUND;
-    let r = t - k;
-    let p = C[0]
-        + r * (C[1] + r * (C[2] + r * (C[3] + r * (C[4] + r * (C[5] + r * (C[6] + r * C[7]))))));
-    let scale = f32::from_bits(((k as i32 + 127) as u32) << 23);
-    p * scale
-}
-
-/// Branch-free `tanh` within 4 ulp (the `policy` crate's): odd polynomial below 0.125,
-/// `(1 − e) / (1 + e)` with `e = e^{−2|x|}` above, saturating at 9. NaN stays NaN.
-#[inline(always)]
-fn tanh(x: f32) -> f32 {
-    const LOG2_E: f32 = core::f32::consts::LOG2_E;
-    let a = x.abs().min(9.0);
-    let a2 = a * a;
-    let small = a * (1.0 + a2 * (-1.0 / 3.0 + a2 * (2.0 / 15.0 + a2 * (-17.0 / 315.0))));
-    let e = exp2_neg(-2.0 * LOG2_E * a);
-    let large = (1.0 - e) / (1.0 + e);
-    let r = if a < 0.125 { small } else { large };
-    let r = r.copysign(x);
-    if x.is_nan() { x } else { r }
 }
 
 #[inline(always)]

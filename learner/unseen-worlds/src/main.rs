@@ -33,6 +33,8 @@
 //! `worlds.json`, `worlds.md`, `worlds.png` (per generator: policy vs straight line vs
 //! planner) and, with `--retrain`, `adaptation.png` (retraining time per failed world).
 
+#![forbid(unsafe_code)]
+
 mod plot;
 mod report;
 

@@ -73,7 +73,7 @@ pub struct LaunchArgs {
     /// ROS 2 `Reach` action served by the bridge: needs `--ros`; send goals with
     /// `foresight reach --goal X,Y` or any ROS 2 action client). Default: the runtime
     /// configuration's `[goal] source`. The run's summary.json says which was used.
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = goal_source_choice())]
     pub goal_source: Option<GoalSourceChoice>,
     /// Compute and log every command but send none to the arm.
     #[arg(long)]
@@ -163,25 +163,16 @@ impl OnOff {
 }
 
 /// Where the goal comes from (`--goal-source`, `[goal] source` of the runtime
-/// configuration).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum GoalSourceChoice {
-    /// The camera's goal cube.
-    #[default]
-    Camera,
-    /// The ROS 2 `Reach` action.
-    Action,
-}
+/// configuration): the runtime view's own type.
+pub use shm_schemas::runtime_view::GoalSource as GoalSourceChoice;
 
-impl GoalSourceChoice {
-    /// The word on the command line and in the configuration.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Camera => "camera",
-            Self::Action => "action",
-        }
-    }
+/// `--goal-source`'s parser: `camera` or `action`.
+fn goal_source_choice() -> impl clap::builder::TypedValueParser<Value = GoalSourceChoice> {
+    use clap::builder::TypedValueParser as _;
+    clap::builder::PossibleValuesParser::new(["camera", "action"]).map(|s| match s.as_str() {
+        "action" => GoalSourceChoice::Action,
+        _ => GoalSourceChoice::Camera,
+    })
 }
 
 /// `--goal-source action` (or `[goal] source = "action"`) without `--ros`: nothing would

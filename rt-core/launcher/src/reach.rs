@@ -142,7 +142,6 @@ pub fn run_reach(args: &ReachArgs) -> anyhow::Result<u8> {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use clap::Parser;

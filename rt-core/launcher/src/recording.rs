@@ -85,7 +85,6 @@ pub fn referee_from_status(status: &serde_json::Value) -> Option<RefereeClearanc
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -728,7 +728,6 @@ pub fn write_markdown(
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use shm_schemas::scene_file::{BoxSpec, GoalSpec, TableSpec};

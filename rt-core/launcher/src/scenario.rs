@@ -871,7 +871,6 @@ impl Director {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use shm_schemas::EpisodeEnd;

@@ -186,7 +186,6 @@ pub fn plot_separation(
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use shm_schemas::scene_file::{BoxPath, BoxSpec, GoalSpec, Keyframe, TableSpec};

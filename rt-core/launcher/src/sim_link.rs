@@ -53,8 +53,3 @@ pub fn sim_status(port: u16) -> Option<serde_json::Value> {
         .ok()
         .and_then(|r| serde_json::from_str::<serde_json::Value>(&r).ok())
 }
-
-/// `xarm-sim`'s collision count, if it answers.
-pub fn sim_collisions(port: u16) -> Option<u64> {
-    sim_status(port).and_then(|v| v["collisions"].as_u64())
-}

@@ -295,7 +295,6 @@ fn stop_child(child: &mut Child, grace: Duration) -> Option<ExitStatus> {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

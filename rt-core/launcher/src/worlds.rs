@@ -289,7 +289,6 @@ fn plot(out: &Path, rows: &[WorldRun]) -> Result<(), ReportError> {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

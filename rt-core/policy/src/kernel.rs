@@ -160,7 +160,7 @@ fn exp2_neg(t: f32) -> f32 {
 /// polynomial below |x| = 0.125 (error < 2e-10), `(1 − e) / (1 + e)` with `e = e^{−2|x|}`
 /// from [`exp2_neg`] above, saturating at |x| = 9 (tanh 9 rounds to 1 in `f32`). NaN stays NaN.
 #[inline(always)]
-pub(crate) fn tanh(x: f32) -> f32 {
+pub fn tanh(x: f32) -> f32 {
     const LOG2_E: f32 = core::f32::consts::LOG2_E;
     let a = x.abs().min(9.0);
     let a2 = a * a;
@@ -173,7 +173,6 @@ pub(crate) fn tanh(x: f32) -> f32 {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -108,11 +108,6 @@ impl RejectCounters {
     pub fn accepted(&self) -> u64 {
         self.accepted.load(Ordering::Relaxed)
     }
-
-    /// A snapshot `(reason, count)` of every reason.
-    pub fn snapshot(&self) -> [(PolicyRejectReason, u64); PolicyRejectReason::ALL.len()] {
-        PolicyRejectReason::ALL.map(|r| (r, self.count(r)))
-    }
 }
 
 /// What the running task expects of a policy.

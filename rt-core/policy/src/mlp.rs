@@ -300,7 +300,6 @@ fn clip(x: f32, c: f32) -> f32 {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use shm_schemas::PolicyBlobBuilder;

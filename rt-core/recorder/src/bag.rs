@@ -48,12 +48,11 @@
 //! boundary ([`crate::mcap_file`]), so a crash leaves a readable prefix under its final name,
 //! and the footer is the last thing written (a file with the footer's magic is complete).
 
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::fs::File;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
-
-use crate::mcap_file::RecordingStats;
 
 /// The metadata file's name in a bag folder.
 pub const METADATA_FILE: &str = "metadata.yaml";
@@ -182,6 +181,28 @@ impl RecordingState {
             Self::SizeLimit => "size_limit",
             Self::Failed => "failed",
         }
+    }
+}
+
+/// What was written (the MCAP file's summary, and the bag's metadata of it).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct RecordingStats {
+    /// Messages written, per topic.
+    pub messages: BTreeMap<String, u64>,
+    /// Messages not written because the size limit was reached.
+    pub dropped_at_limit: u64,
+    /// Whether the size limit was reached.
+    pub limit_reached: bool,
+    /// File size (bytes) when closed.
+    pub bytes: u64,
+    /// Log time (ns since the Unix epoch) of the first and the last message written.
+    pub log_time_span_ns: Option<(u64, u64)>,
+}
+
+impl RecordingStats {
+    /// All messages written.
+    pub fn total(&self) -> u64 {
+        self.messages.values().sum()
     }
 }
 
@@ -315,7 +336,6 @@ pub struct BagMetadataWriteError {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -53,9 +53,12 @@ pub mod markers;
 pub mod mcap_file;
 pub mod msgs;
 pub mod recorder;
+pub mod ros_view;
 
-pub use bag::{BagMetadata, BagMetadataWriteError, Durability, OfferedQos, RecordingState};
-pub use mcap_file::{McapFile, McapFileOptions, RecordingStats};
+pub use bag::{
+    BagMetadata, BagMetadataWriteError, Durability, OfferedQos, RecordingState, RecordingStats,
+};
+pub use mcap_file::{McapFile, McapFileOptions};
 pub use msgs::RefereeClearance;
 pub use recorder::{
     DEFAULT_MAX_BYTES, Recorder, RecorderConfig, RecorderConfigError, RecorderStartError,
@@ -63,7 +66,6 @@ pub use recorder::{
 };
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use crate::msgs::{RefereeClearanceMsg, RosMessage, TwinVerdictMsg};
 

@@ -1,10 +1,12 @@
 //! The scene as markers (`visualization_msgs/MarkerArray`): the goal and obstacle boxes of
 //! the latest detection frame, the TCP path the arm has been commanded along since the
-//! last approved plan, and the last verdict as text above the goal.
+//! last approved plan, and the last verdict as text above the goal — the shared view of
+//! [`crate::ros_view`] in the recorder's messages.
 
-use shm_schemas::{DetectionFrame, ObjectClass, TwinVerdict};
+use shm_schemas::{DetectionFrame, TwinVerdict};
 
 use crate::msgs::{Color, Header, Marker, MarkerArray, Vec3};
+use crate::ros_view::scene_view;
 
 /// Points kept of the commanded path (2 mm apart at least).
 pub const MAX_PATH_POINTS: usize = 4000;
@@ -43,119 +45,49 @@ impl PlanPath {
     }
 }
 
-const GOAL: Color = Color {
-    r: 0.1,
-    g: 0.8,
-    b: 0.2,
-    a: 0.8,
-};
-const OBSTACLE: Color = Color {
-    r: 0.85,
-    g: 0.15,
-    b: 0.1,
-    a: 0.7,
-};
-const PATH: Color = Color {
-    r: 0.2,
-    g: 0.4,
-    b: 1.0,
-    a: 1.0,
-};
-
-/// The marker array of the scene: a DELETEALL first, so each message replaces the last.
+/// The marker array of the scene ([`crate::ros_view::scene_view`], the picture `ros-bridge`
+/// publishes too, with the commanded path as the `plan_path` line), in the recorder's
+/// messages: a DELETEALL first, so each message replaces the last.
 pub fn scene_markers(
     header: &Header,
     detections: Option<&DetectionFrame>,
     path: &PlanPath,
     verdict: Option<&TwinVerdict>,
 ) -> MarkerArray {
-    let marker = |ns: &str, id: i32, kind: i32| Marker {
-        header: header.clone(),
-        ns: ns.to_owned(),
-        id,
-        kind,
-        action: Marker::ADD,
-        ..Marker::default()
-    };
-    let mut markers = vec![Marker {
-        action: Marker::DELETE_ALL,
-        ..marker("foresight", 0, 0)
-    }];
-    let mut text_at = Vec3 {
-        x: 0.4,
-        y: 0.0,
-        z: 0.4,
-    };
-    if let Some(frame) = detections {
-        for (i, o) in frame.objects().iter().enumerate() {
-            let (ns, color) = match o.class() {
-                Ok(ObjectClass::Goal) => {
-                    text_at = Vec3 {
-                        x: f64::from(o.center_m[0]),
-                        y: f64::from(o.center_m[1]),
-                        z: f64::from(o.center_m[2] + o.size_m[2] / 2.0) + 0.12,
-                    };
-                    ("goal", GOAL)
-                }
-                Ok(ObjectClass::Obstacle) => ("obstacles", OBSTACLE),
-                Err(_) => continue,
-            };
-            markers.push(Marker {
-                position: Vec3::from_array(o.center_m.map(f64::from)),
-                scale: Vec3::from_array(o.size_m.map(f64::from)),
-                color,
-                ..marker(ns, i as i32, Marker::CUBE)
-            });
-        }
-    }
-    if path.points_m.len() >= 2 {
-        markers.push(Marker {
-            scale: Vec3 {
-                x: 0.006,
-                ..Vec3::default()
-            },
-            color: PATH,
-            points: path
-                .points_m
-                .iter()
-                .copied()
-                .map(Vec3::from_array)
-                .collect(),
-            ..marker("plan_path", 0, Marker::LINE_STRIP)
-        });
-    }
-    if let Some(v) = verdict {
-        let approved = v.is_plan_approved();
-        markers.push(Marker {
-            position: text_at,
-            scale: Vec3 {
-                z: 0.03,
-                ..Vec3::default()
-            },
-            color: if approved { GOAL } else { OBSTACLE },
-            text: format!(
-                "verdict {} (policy {}): {}, {}, min distance {:.1} mm{}",
-                v.verdict_id,
-                v.policy_id,
-                if v.is_task_ok() {
-                    "reaches the goal"
-                } else {
-                    "misses the goal"
+    let view = scene_view(
+        detections,
+        "plan_path",
+        path.points_m.iter().copied(),
+        verdict,
+    );
+    MarkerArray {
+        markers: view
+            .into_iter()
+            .map(|m| Marker {
+                header: header.clone(),
+                ns: m.ns.to_owned(),
+                id: m.id,
+                kind: m.shape.ros_type(),
+                action: m.action.ros_action(),
+                position: Vec3::from_array(m.position_m),
+                scale: Vec3::from_array(m.scale_m),
+                color: Color {
+                    r: m.rgba[0],
+                    g: m.rgba[1],
+                    b: m.rgba[2],
+                    a: m.rgba[3],
                 },
-                if v.is_safe() { "safe" } else { "CONTACT" },
-                v.min_distance_m * 1e3,
-                if approved { ", approved" } else { "" }
-            ),
-            ..marker("verdict", 0, Marker::TEXT_VIEW_FACING)
-        });
+                points: m.points_m.into_iter().map(Vec3::from_array).collect(),
+                text: m.text,
+            })
+            .collect(),
     }
-    MarkerArray { markers }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use shm_schemas::DetectedObject;
+    use shm_schemas::{DetectedObject, ObjectClass};
 
     #[test]
     fn the_markers_show_boxes_path_and_verdict() {

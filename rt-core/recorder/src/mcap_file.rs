@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use crate::bag::{BagMetadata, BagTopic, OfferedQos, RecordingState};
+use crate::bag::{BagMetadata, BagTopic, OfferedQos, RecordingState, RecordingStats};
 use crate::cdr::CdrWriter;
 use crate::msgs::RosMessage;
 
@@ -31,28 +31,6 @@ pub struct McapFileOptions {
 
 /// Room kept for the summary section (schemas, channels, statistics, chunk indexes).
 const SUMMARY_RESERVE_BYTES: u64 = 256 * 1024;
-
-/// What was written.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct RecordingStats {
-    /// Messages written, per topic.
-    pub messages: BTreeMap<String, u64>,
-    /// Messages not written because the size limit was reached.
-    pub dropped_at_limit: u64,
-    /// Whether the size limit was reached.
-    pub limit_reached: bool,
-    /// File size (bytes) when closed.
-    pub bytes: u64,
-    /// Log time (ns since the Unix epoch) of the first and the last message written.
-    pub log_time_span_ns: Option<(u64, u64)>,
-}
-
-impl RecordingStats {
-    /// All messages written.
-    pub fn total(&self) -> u64 {
-        self.messages.values().sum()
-    }
-}
 
 /// Why the file could not be created.
 #[derive(Debug, thiserror::Error)]
@@ -371,7 +349,6 @@ impl Drop for McapFile {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::msgs::StringMsg;

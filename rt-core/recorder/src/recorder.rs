@@ -19,16 +19,15 @@ use shm_schemas::{
 };
 use twin::{DOF, RobotModel};
 
-use crate::bag::{BagMetadataWriteError, OfferedQos, RecordingState};
+use crate::bag::{BagMetadataWriteError, OfferedQos, RecordingState, RecordingStats};
 use crate::markers::{PlanPath, scene_markers};
-use crate::mcap_file::{
-    McapCreateError, McapFile, McapFileOptions, McapWriteError, RecordingStats,
-};
+use crate::mcap_file::{McapCreateError, McapFile, McapFileOptions, McapWriteError};
 use crate::msgs::{
     DetectionsMsg, Header, JointState, MarkerArray, Quaternion, RefereeClearance,
     RefereeClearanceMsg, RetrainProgressMsg, RetrainRequestMsg, RobotStatusMsg, StringMsg,
     TfMessage, Time, TransformStamped, TwinVerdictMsg, Vec3,
 };
+use crate::ros_view::link_transforms;
 
 /// Topics of a recording.
 pub mod topics {
@@ -575,35 +574,24 @@ impl Session {
         self.put(crate::topics::ROBOT_STATUS, now, &status);
     }
 
-    /// Every link frame of the twin's FK (and the TCP), parented to the fixed frame.
+    /// Every link frame of the twin's FK (and the TCP), parented to the fixed frame
+    /// ([`crate::ros_view::link_transforms`], as `ros-bridge` publishes them).
     fn tf(&self, header: &Header, q: &[f64; DOF]) -> TfMessage {
         let poses = self.model.fk(q);
-        let frame = |child: &str, iso: &nalgebra::Isometry3<f64>| {
-            let t = iso.translation.vector;
-            let r = iso.rotation.quaternion();
-            TransformStamped {
+        let transforms = link_transforms(&self.model, &poses, &header.frame_id)
+            .into_iter()
+            .map(|t| TransformStamped {
                 header: header.clone(),
-                child_frame_id: child.to_owned(),
-                translation: Vec3 {
-                    x: t.x,
-                    y: t.y,
-                    z: t.z,
-                },
+                child_frame_id: t.child_frame_id.to_owned(),
+                translation: Vec3::from_array(t.translation_m),
                 rotation: Quaternion {
-                    x: r.i,
-                    y: r.j,
-                    z: r.k,
-                    w: r.w,
+                    x: t.rotation_xyzw[0],
+                    y: t.rotation_xyzw[1],
+                    z: t.rotation_xyzw[2],
+                    w: t.rotation_xyzw[3],
                 },
-            }
-        };
-        let mut transforms: Vec<TransformStamped> = poses
-            .links
-            .iter()
-            .enumerate()
-            .map(|(i, iso)| frame(self.model.link_name(i), iso))
+            })
             .collect();
-        transforms.push(frame("link_tcp", &poses.tcp));
         TfMessage { transforms }
     }
 
@@ -684,7 +672,6 @@ impl Session {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use shm_schemas::{DetectedObject, ObjectClass};

@@ -45,6 +45,8 @@
 //! flops, with far boxes skipped by a bounding-box test; a normal step (clearance above
 //! `D/2`) is two evaluations, ~2 µs. Nothing allocates.
 
+#![forbid(unsafe_code)]
+
 pub mod distance;
 pub mod kinematics;
 
@@ -508,7 +510,6 @@ impl Referee {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use shm_schemas::scene_file::{BoxSpec, GoalSpec, TableSpec};

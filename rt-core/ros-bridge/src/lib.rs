@@ -37,7 +37,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use iceoryx2::prelude::*;
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::Vector3;
+use recorder::ros_view::{link_transforms, scene_view};
 use ros2_client::{
     Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, QosProfile,
     dds::rustdds::DomainParticipantBuilder,
@@ -45,7 +46,7 @@ use ros2_client::{
 };
 use serde::{Deserialize, Serialize};
 use shm_schemas::{
-    DetectionFrame, ObjectClass, RetrainProgress, RetrainRequest, RobotState, TwinVerdict, services,
+    DetectionFrame, RetrainProgress, RetrainRequest, RobotState, TwinVerdict, services,
 };
 
 use msgs::{
@@ -54,26 +55,8 @@ use msgs::{
 };
 use twin::{DOF, LinkPoses, RobotModel};
 
-/// A verdict in words, as the scene markers show it: the policy, whether it reaches the
-/// goal, whether safely, its smallest clearance and length.
-pub fn verdict_text(v: &TwinVerdict) -> String {
-    format!(
-        "policy {}: {} {} (min {:.3} m, {} steps)",
-        v.policy_id,
-        if v.is_task_ok() {
-            "reaches goal"
-        } else {
-            "misses goal"
-        },
-        if v.is_safe() {
-            "safely"
-        } else {
-            "WITH CONTACT"
-        },
-        v.min_distance_m,
-        v.steps
-    )
-}
+/// A verdict in words, as the scene markers show it (the shared view's).
+pub use recorder::ros_view::verdict_text;
 
 /// Why the bridge could not start or stopped.
 #[derive(Debug, thiserror::Error)]
@@ -252,25 +235,6 @@ fn make_publishers(node: &mut Node, urdf: &str) -> Result<Publishers, RosBridgeE
     })
 }
 
-/// Converts one isometry to a ROS transform.
-fn to_transform(iso: &Isometry3<f64>) -> Transform {
-    let t = iso.translation.vector;
-    let q = iso.rotation.quaternion();
-    Transform {
-        translation: RosVector3 {
-            x: t.x,
-            y: t.y,
-            z: t.z,
-        },
-        rotation: Quaternion {
-            x: q.i,
-            y: q.j,
-            z: q.k,
-            w: q.w,
-        },
-    }
-}
-
 /// Builds the `/joint_states` message of a robot state.
 pub fn joint_state_msg(state: &RobotState, frame_id: &str) -> JointState {
     JointState {
@@ -285,172 +249,97 @@ pub fn joint_state_msg(state: &RobotState, frame_id: &str) -> JointState {
     }
 }
 
-/// Builds the `/tf` message: every link frame of the twin's FK, parented to `frame_id`.
+/// Builds the `/tf` message: every link frame of the twin's FK, parented to `frame_id`
+/// ([`recorder::ros_view::link_transforms`], as the recordings hold them).
 pub fn tf_msg(model: &RobotModel, poses: &LinkPoses, frame_id: &str) -> TfMessage {
-    let stamp = now_stamp();
-    let mut transforms = Vec::with_capacity(DOF + 1);
-    for (i, iso) in poses.links.iter().enumerate().skip(1) {
-        transforms.push(TransformStamped {
-            header: Header {
-                stamp,
-                frame_id: frame_id.to_owned(),
+    let header = Header {
+        stamp: now_stamp(),
+        frame_id: frame_id.to_owned(),
+    };
+    let transforms = link_transforms(model, poses, frame_id)
+        .into_iter()
+        .map(|t| TransformStamped {
+            header: header.clone(),
+            child_frame_id: t.child_frame_id.to_owned(),
+            transform: Transform {
+                translation: vector3(t.translation_m),
+                rotation: Quaternion {
+                    x: t.rotation_xyzw[0],
+                    y: t.rotation_xyzw[1],
+                    z: t.rotation_xyzw[2],
+                    w: t.rotation_xyzw[3],
+                },
             },
-            child_frame_id: model.link_name(i).to_owned(),
-            transform: to_transform(iso),
-        });
-    }
-    transforms.push(TransformStamped {
-        header: Header {
-            stamp,
-            frame_id: frame_id.to_owned(),
-        },
-        child_frame_id: "link_tcp".to_owned(),
-        transform: to_transform(&poses.tcp),
-    });
+        })
+        .collect();
     TfMessage { transforms }
 }
 
-fn color(r: f32, g: f32, b: f32, a: f32) -> ColorRgba {
-    ColorRgba { r, g, b, a }
-}
-
-fn box_marker(
-    id: i32,
-    ns: &str,
-    frame_id: &str,
-    center: [f32; 3],
-    size: [f32; 3],
-    c: ColorRgba,
-) -> Marker {
-    Marker {
-        header: Header {
-            stamp: now_stamp(),
-            frame_id: frame_id.to_owned(),
-        },
-        ns: ns.to_owned(),
-        id,
-        kind: Marker::CUBE,
-        action: Marker::ADD,
-        pose: Pose {
-            position: Point {
-                x: f64::from(center[0]),
-                y: f64::from(center[1]),
-                z: f64::from(center[2]),
-            },
-            orientation: Quaternion::default(),
-        },
-        scale: RosVector3 {
-            x: f64::from(size[0]),
-            y: f64::from(size[1]),
-            z: f64::from(size[2]),
-        },
-        color: c,
-        ..Marker::default()
+fn vector3(v: [f64; 3]) -> RosVector3 {
+    RosVector3 {
+        x: v[0],
+        y: v[1],
+        z: v[2],
     }
 }
 
-/// Builds the scene marker array: a DELETEALL, then goal (green) and obstacles (red) from the
-/// latest detections, the TCP trail (blue line), and the verdict as text above the goal.
+/// Builds the scene marker array ([`recorder::ros_view::scene_view`], the picture the
+/// recordings hold, with the TCP trail as the `tcp_trail` line): a DELETEALL, then goal and
+/// obstacles from the latest detections, the TCP trail, and the verdict as text above the goal.
 pub fn scene_markers(
     detections: Option<&DetectionFrame>,
     tcp_trail_m: &VecDeque<[f64; 3]>,
     verdict: Option<&TwinVerdict>,
     frame_id: &str,
 ) -> MarkerArray {
-    let mut markers = vec![Marker {
-        header: Header {
-            stamp: now_stamp(),
-            frame_id: frame_id.to_owned(),
-        },
-        ns: "foresight".to_owned(),
-        action: Marker::DELETE_ALL,
-        ..Marker::default()
-    }];
-    let mut goal_top = [0.4f64, 0.0, 0.3];
-    if let Some(frame) = detections {
-        for (i, obj) in frame.objects().iter().enumerate() {
-            let (ns, c) = match obj.class() {
-                Ok(ObjectClass::Goal) => {
-                    goal_top = [
-                        f64::from(obj.center_m[0]),
-                        f64::from(obj.center_m[1]),
-                        f64::from(obj.center_m[2] + obj.size_m[2] / 2.0) + 0.1,
-                    ];
-                    ("goal", color(0.1, 0.8, 0.2, 0.9))
-                }
-                Ok(ObjectClass::Obstacle) => ("obstacles", color(0.85, 0.15, 0.1, 0.8)),
-                Err(_) => continue,
-            };
-            markers.push(box_marker(
-                i as i32,
-                ns,
-                frame_id,
-                obj.center_m,
-                obj.size_m,
-                c,
-            ));
-        }
-    }
-    if tcp_trail_m.len() >= 2 {
-        markers.push(Marker {
-            header: Header {
-                stamp: now_stamp(),
-                frame_id: frame_id.to_owned(),
-            },
-            ns: "tcp_trail".to_owned(),
-            id: 0,
-            kind: Marker::LINE_STRIP,
-            action: Marker::ADD,
-            scale: RosVector3 {
-                x: 0.005,
-                ..RosVector3::default()
-            },
-            color: color(0.2, 0.4, 1.0, 1.0),
-            points: tcp_trail_m
-                .iter()
-                .map(|p| Point {
-                    x: p[0],
-                    y: p[1],
-                    z: p[2],
-                })
-                .collect(),
-            ..Marker::default()
-        });
-    }
-    if let Some(v) = verdict {
-        let text = verdict_text(v);
-        let c = if v.is_plan_approved() {
-            color(0.1, 0.8, 0.2, 1.0)
-        } else {
-            color(0.9, 0.2, 0.1, 1.0)
-        };
-        markers.push(Marker {
-            header: Header {
-                stamp: now_stamp(),
-                frame_id: frame_id.to_owned(),
-            },
-            ns: "verdict".to_owned(),
-            id: 0,
-            kind: Marker::TEXT_VIEW_FACING,
-            action: Marker::ADD,
-            pose: Pose {
-                position: Point {
-                    x: goal_top[0],
-                    y: goal_top[1],
-                    z: goal_top[2],
+    let header = Header {
+        stamp: now_stamp(),
+        frame_id: frame_id.to_owned(),
+    };
+    let view = scene_view(
+        detections,
+        "tcp_trail",
+        tcp_trail_m.iter().copied(),
+        verdict,
+    );
+    MarkerArray {
+        markers: view
+            .into_iter()
+            .map(|m| Marker {
+                header: header.clone(),
+                ns: m.ns.to_owned(),
+                id: m.id,
+                kind: m.shape.ros_type(),
+                action: m.action.ros_action(),
+                pose: Pose {
+                    position: Point {
+                        x: m.position_m[0],
+                        y: m.position_m[1],
+                        z: m.position_m[2],
+                    },
+                    orientation: Quaternion::default(),
                 },
-                orientation: Quaternion::default(),
-            },
-            scale: RosVector3 {
-                z: 0.03,
-                ..RosVector3::default()
-            },
-            color: c,
-            text,
-            ..Marker::default()
-        });
+                scale: vector3(m.scale_m),
+                color: ColorRgba {
+                    r: m.rgba[0],
+                    g: m.rgba[1],
+                    b: m.rgba[2],
+                    a: m.rgba[3],
+                },
+                points: m
+                    .points_m
+                    .into_iter()
+                    .map(|p| Point {
+                        x: p[0],
+                        y: p[1],
+                        z: p[2],
+                    })
+                    .collect(),
+                text: m.text,
+                ..Marker::default()
+            })
+            .collect(),
     }
-    MarkerArray { markers }
 }
 
 /// Runs the bridge until `stop` is set. Publishes `/joint_states` and `/tf` at `rate_hz`

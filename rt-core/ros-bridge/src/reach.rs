@@ -38,6 +38,7 @@ use ros2_client::{
 };
 use serde::{Deserialize, Serialize};
 use shm_schemas::goal_request::{REQUESTED_GOAL_SIZE_M, requested_tcp_target_m};
+use shm_schemas::runtime_view::{GoalSource, RuntimeView};
 use shm_schemas::{
     GoalBounds, GoalCommand, GoalRequest, RetrainPhase, RetrainProgress, RetrainRequest,
     RobotState, StopReason, TwinVerdict,
@@ -120,92 +121,17 @@ impl ReachSettings {
     }
 }
 
-/// What the bridge reads of rt-core's `assets/runtime.toml`: the goal's bounds and source
-/// (rt-core validates the whole file when it starts; missing keys take rt-core's defaults).
-#[derive(Debug, Deserialize)]
-struct RuntimeView {
-    #[serde(default)]
-    intake: IntakeView,
-    shield: ShieldView,
-    #[serde(default)]
-    goal: GoalView,
-}
-
-#[derive(Debug, Deserialize)]
-struct IntakeView {
-    #[serde(default = "calibrated_min")]
-    calibrated_min_m: [f64; 3],
-    #[serde(default = "calibrated_max")]
-    calibrated_max_m: [f64; 3],
-    #[serde(default = "min_radius")]
-    goal_min_radius_m: f64,
-    #[serde(default = "max_radius")]
-    goal_max_radius_m: f64,
-}
-
-impl Default for IntakeView {
-    fn default() -> Self {
-        Self {
-            calibrated_min_m: calibrated_min(),
-            calibrated_max_m: calibrated_max(),
-            goal_min_radius_m: min_radius(),
-            goal_max_radius_m: max_radius(),
-        }
-    }
-}
-
-fn calibrated_min() -> [f64; 3] {
-    [-0.8, -0.8, -0.05]
-}
-fn calibrated_max() -> [f64; 3] {
-    [0.8, 0.8, 1.0]
-}
-fn min_radius() -> f64 {
-    0.15
-}
-fn max_radius() -> f64 {
-    0.65
-}
-
-#[derive(Debug, Deserialize)]
-struct ShieldView {
-    workspace_min_m: [f64; 3],
-    workspace_max_m: [f64; 3],
-}
-
-#[derive(Debug, Default, Deserialize)]
-struct GoalView {
-    #[serde(default)]
-    source: Option<String>,
-}
-
 /// The goal bounds and whether the goal source is `action`, from the text of rt-core's
-/// runtime configuration.
+/// runtime configuration, read through the one view of it that rt-core itself holds
+/// ([`shm_schemas::runtime_view`]: its sections and defaults; rt-core validates the whole file
+/// when it starts).
 ///
 /// # Errors
-/// The TOML error, or an unknown `goal.source`, in words.
+/// The TOML error in words (an unknown `goal.source` is named as such).
 pub fn runtime_goal_settings(text: &str) -> Result<(GoalBounds, bool), String> {
-    let view: RuntimeView = toml::from_str(text).map_err(|e| e.to_string())?;
-    let action = match view.goal.source.as_deref() {
-        None | Some("camera") => false,
-        Some("action") => true,
-        Some(other) => {
-            return Err(format!(
-                "goal.source = {other:?}: must be \"camera\" or \"action\""
-            ));
-        }
-    };
-    Ok((
-        GoalBounds {
-            min_radius_m: view.intake.goal_min_radius_m,
-            max_radius_m: view.intake.goal_max_radius_m,
-            table_min_m: view.intake.calibrated_min_m,
-            table_max_m: view.intake.calibrated_max_m,
-            workspace_min_m: view.shield.workspace_min_m,
-            workspace_max_m: view.shield.workspace_max_m,
-        },
-        action,
-    ))
+    let view = RuntimeView::from_toml(text).map_err(|e| e.to_string())?;
+    let bounds = view.goal_bounds().ok_or("missing table `[shield]`")?;
+    Ok((bounds, view.goal.source == GoalSource::Action))
 }
 
 /// What the server counted.
@@ -338,17 +264,10 @@ fn distance_m(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
-/// The verdict in words, with whether its plan was approved (the action's feedback).
+/// The verdict in words, with whether its plan was approved (the action's feedback; the
+/// scene's text marker, [`recorder::ros_view::verdict_line`]).
 pub fn verdict_words(v: &TwinVerdict) -> String {
-    format!(
-        "{}{}",
-        crate::verdict_text(v),
-        if v.is_plan_approved() {
-            ", approved"
-        } else {
-            ""
-        }
-    )
+    recorder::ros_view::verdict_line(v)
 }
 
 /// Whether a stop reason ends a goal when it lasts: faults, not the pauses of normal
@@ -800,7 +719,6 @@ fn mirror(request: &CancelGoalRequest) -> Option<GoalInfo> {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -181,7 +181,6 @@ impl<T: Copy + Send + 'static> LatestReceiver<T> {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use std::sync::atomic::AtomicUsize;

@@ -83,11 +83,6 @@ impl<E: Copy + Send + std::fmt::Debug + 'static> RtLogDrain<E> {
         self.dropped.load(Ordering::Relaxed)
     }
 
-    /// Emits every pending record through `tracing`.
-    pub fn drain_to_tracing(&mut self) -> usize {
-        self.drain(trace)
-    }
-
     /// Spawns a thread draining into `tracing` every `period` until `stop` is set (a final
     /// drain follows).
     pub fn spawn(
@@ -131,7 +126,6 @@ impl<E: Copy + Send + std::fmt::Debug + 'static> RtLogDrain<E> {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

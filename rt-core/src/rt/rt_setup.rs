@@ -192,7 +192,6 @@ pub fn sleep_until_monotonic_ns(deadline_ns: u64) {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

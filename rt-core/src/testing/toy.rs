@@ -336,7 +336,6 @@ pub fn toy_cycle(
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

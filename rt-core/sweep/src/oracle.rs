@@ -404,7 +404,6 @@ impl CommandLimits {
 pub const TWIN_PADDING_M: f64 = twin::COLLISION_MARGIN_M;
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -50,16 +50,16 @@ pub const MAX_INJECT_AHEAD_CYCLES: u64 = 200;
 #[derive(Debug, thiserror::Error)]
 pub enum SweepAssetsError {
     /// `runtime.toml`.
-    #[error("runtime.toml: {0}")]
+    #[error("runtime.toml")]
     Config(#[from] rt_core::config::RuntimeConfigError),
     /// `xarm5.urdf`.
-    #[error("xarm5.urdf: {0}")]
+    #[error("xarm5.urdf")]
     Model(#[from] twin::UrdfLoadError),
     /// `task.toml`.
-    #[error("task.toml: {0}")]
+    #[error("task.toml")]
     Task(#[from] twin::TaskConfigError),
     /// The oracle's capsules.
-    #[error("oracle: {0}")]
+    #[error("oracle")]
     Oracle(#[from] OracleBuildError),
 }
 

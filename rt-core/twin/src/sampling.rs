@@ -420,7 +420,6 @@ fn better(a: &Sample, b: &Sample) -> bool {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use std::path::PathBuf;
 

@@ -828,7 +828,6 @@ impl Controller {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use xarm::codec::Response;

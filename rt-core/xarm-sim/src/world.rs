@@ -319,7 +319,6 @@ impl World {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use shm_schemas::scene_file::{BoxPath, BoxSpec, GoalSpec, Keyframe, TableSpec};

@@ -265,8 +265,12 @@ pub enum Request {
     FeedbackCheck,
     /// Foresight's identity challenge (register 0xF0, [`crate::sim_identity`]): a fresh
     /// nonce; `xarm-sim` answers with its proof, a real controller as to any unknown register.
-    SimIdentity([u8; crate::sim_identity::NONCE_LEN]),
+    SimIdentity([u8; SIM_NONCE_LEN]),
 }
+
+/// Bytes of the identity challenge's nonce ([`Request::SimIdentity`]'s payload; the wire's
+/// side of [`crate::sim_identity::NONCE_LEN`]).
+pub const SIM_NONCE_LEN: usize = 16;
 
 /// Why a frame could not be encoded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Error)]
@@ -677,7 +681,7 @@ impl Request {
             | Self::SetJointJerk(_)
             | Self::SetJointMaxAcc(_) => 4,
             Self::GetJointPos(n) => usize::from(n.is_some()),
-            Self::SimIdentity(_) => crate::sim_identity::NONCE_LEN,
+            Self::SimIdentity(_) => SIM_NONCE_LEN,
             _ => 0,
         }
     }
@@ -832,8 +836,8 @@ impl Request {
             }
             Register::FeedbackCheck => Self::FeedbackCheck,
             Register::SimIdentity => {
-                exact(crate::sim_identity::NONCE_LEN)?;
-                let mut nonce = [0u8; crate::sim_identity::NONCE_LEN];
+                exact(SIM_NONCE_LEN)?;
+                let mut nonce = [0u8; SIM_NONCE_LEN];
                 nonce.copy_from_slice(p);
                 Self::SimIdentity(nonce)
             }
@@ -880,7 +884,6 @@ pub fn encode_servo_j(tid: u16, target: &JointTarget, out: &mut [u8; SERVOJ_FRAM
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

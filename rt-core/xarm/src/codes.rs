@@ -226,7 +226,6 @@ impl From<ControllerWarning> for u8 {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

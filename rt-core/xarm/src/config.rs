@@ -6,7 +6,7 @@ use std::net::{IpAddr, ToSocketAddrs};
 use std::time::Duration;
 
 use crate::report::{self, ReportKind};
-use crate::sim_identity::SimSecret;
+use crate::sim_identity::{CommandEndpoint, SimSecret};
 
 /// Driver settings.
 #[derive(Debug, Clone, PartialEq)]
@@ -47,6 +47,17 @@ pub struct XArmConfig {
     /// ([`crate::sim_identity`]) before anything else is sent after `GET_VERSION`. `None`
     /// (the default): no challenge, the arm is driven as a real arm.
     pub sim_secret: Option<SimSecret>,
+}
+
+impl<'a> From<&'a XArmConfig> for CommandEndpoint<'a> {
+    fn from(cfg: &'a XArmConfig) -> Self {
+        Self {
+            host: &cfg.host,
+            command_port: cfg.command_port,
+            connect_timeout: cfg.connect_timeout,
+            reply_timeout: cfg.reply_timeout,
+        }
+    }
 }
 
 impl XArmConfig {

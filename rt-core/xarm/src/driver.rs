@@ -192,11 +192,6 @@ impl XArmDriver {
         (self.error, self.warning)
     }
 
-    /// Whether the command connection is up.
-    pub fn is_connected(&self) -> bool {
-        self.conn.is_some()
-    }
-
     /// Whether the reconnect helper is inside a connection attempt now, and how many
     /// attempts it has made.
     pub fn reconnect_progress(&self) -> Option<(bool, u32)> {

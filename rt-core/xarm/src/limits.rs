@@ -51,7 +51,6 @@ pub fn check_xarm5_joints(q_rad: &[f64; 5]) -> Result<(), JointCheckError> {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -698,7 +698,6 @@ fn utc_text(unix_s: u64) -> String {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

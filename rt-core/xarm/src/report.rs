@@ -403,11 +403,6 @@ impl ReportFramer {
         self.end = (self.end + n).min(self.buf.len());
     }
 
-    /// Bytes buffered and not yet taken.
-    pub fn buffered(&self) -> usize {
-        self.end - self.start
-    }
-
     /// The next whole packet, `Ok(None)` if more bytes are needed.
     ///
     /// # Errors
@@ -443,7 +438,6 @@ impl ReportFramer {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -54,15 +54,14 @@ use crate::codec::{
     self, FrameError, MAX_FRAME_LEN, PROTOCOL_CONNECT, PROTOCOL_PRIVATE, Request, Response,
     STATUS_INVALID,
 };
-use crate::config::XArmConfig;
 
 /// The environment variable that carries the run's secret to `xarm-sim` and `rt-core`
 /// (64 hex digits).
 pub const SIM_SECRET_ENV: &str = "FORESIGHT_SIM_SECRET";
 /// Bytes of the secret.
 pub const SECRET_LEN: usize = 32;
-/// Bytes of the challenge's nonce (the request's payload).
-pub const NONCE_LEN: usize = 16;
+/// Bytes of the challenge's nonce (the request's payload, defined with the wire format).
+pub const NONCE_LEN: usize = codec::SIM_NONCE_LEN;
 /// Bytes of the proof (the reply's data): an HMAC-SHA256.
 pub const PROOF_LEN: usize = 32;
 /// What the proof is about, hashed before the nonce, so that the secret's HMAC means
@@ -256,6 +255,21 @@ pub fn check_reply(
     Ok(())
 }
 
+/// Where [`ask`] puts its question: a controller's command port and the timeouts to use.
+/// Made from an [`crate::config::XArmConfig`] (`From<&XArmConfig>`, in `config.rs`), so
+/// that this module, which the settings name for [`SimSecret`], does not name them back.
+#[derive(Debug, Clone, Copy)]
+pub struct CommandEndpoint<'a> {
+    /// Controller address (host or IP).
+    pub host: &'a str,
+    /// Command port.
+    pub command_port: u16,
+    /// TCP connect timeout.
+    pub connect_timeout: Duration,
+    /// Timeout of each reply.
+    pub reply_timeout: Duration,
+}
+
 /// Asks the controller of `cfg` (command port only; no report stream, no lock) whether it
 /// is `xarm-sim` holding `secret`, as the SDK opens a session: `GET_VERSION` with protocol
 /// id 2, then the challenge with protocol id 3. Sends nothing else, changes nothing on the
@@ -265,8 +279,12 @@ pub fn check_reply(
 /// # Errors
 /// [`SimIdentityError`]: anything but a proof that verifies within `cfg.reply_timeout`
 /// per reply (`cfg.connect_timeout` to connect).
-pub fn ask(cfg: &XArmConfig, secret: &SimSecret) -> Result<(), SimIdentityError> {
-    let addr = (cfg.host.as_str(), cfg.command_port)
+pub fn ask<'a>(
+    cfg: impl Into<CommandEndpoint<'a>>,
+    secret: &SimSecret,
+) -> Result<(), SimIdentityError> {
+    let cfg = cfg.into();
+    let addr = (cfg.host, cfg.command_port)
         .to_socket_addrs()
         .map_err(|e| SimIdentityError::Unreachable(e.kind()))?
         .next()

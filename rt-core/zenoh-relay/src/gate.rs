@@ -68,8 +68,9 @@ use ed25519_dalek::{Signature, Signer as _, SigningKey, VerifyingKey};
 pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(3);
 /// Most connections a [`Door`] keeps before their handshake is done (the oldest goes first).
 pub const MAX_PENDING: usize = 32;
-/// Most proven connections a [`Door`] keeps, and most a [`Dialer`] carries at once.
-pub const MAX_TUNNELS: usize = crate::link::MAX_SESSIONS;
+/// Most proven connections a [`Door`] keeps, and most a [`Dialer`] carries at once: one per
+/// Zenoh session the link allows ([`crate::link::MAX_SESSIONS`] is this value).
+pub const MAX_TUNNELS: usize = 4;
 /// How long a [`Dialer`] waits for the other host's TCP to answer.
 pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
 /// First bytes of both handshake messages (gate version 1).

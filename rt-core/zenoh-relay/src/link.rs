@@ -28,8 +28,9 @@ use crate::gate::{Dialer, Door, GateEvents, GateKey};
 use crate::keys::{KeyError, LinkKeys};
 use crate::wire::{Channel, MAX_MESSAGE_LEN, Side};
 
-/// Most Zenoh sessions a relay keeps (the other relay, and its reconnection).
-pub const MAX_SESSIONS: usize = 4;
+/// Most Zenoh sessions a relay keeps (the other relay, and its reconnection): one per tunnel
+/// the gate carries.
+pub const MAX_SESSIONS: usize = crate::gate::MAX_TUNNELS;
 
 /// Where a relay listens and connects (shared by `zenoh-relay` and `foresight`).
 #[derive(Debug, Clone, Default, PartialEq, Eq, clap::Args)]
@@ -351,7 +352,6 @@ pub fn set_usrpwd(
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -573,7 +573,6 @@ pub fn control_payload<T: for<'de> Deserialize<'de>>(
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use shm_schemas::{PolicyBlobBuilder, RetrainPhase, SchemaError};

@@ -34,6 +34,8 @@
 //! # Ok(()) }
 //! ```
 
+#![forbid(unsafe_code)]
+
 mod draw;
 mod generate;
 mod track;

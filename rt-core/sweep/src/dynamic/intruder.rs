@@ -191,10 +191,6 @@ fn add(a: &Point, b: &Point, s: f64) -> Point {
     [a[0] + b[0] * s, a[1] + b[1] * s, a[2] + b[2] * s]
 }
 
-fn dist(a: &Point, b: &Point) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-}
-
 /// The rehearsal's arm as the placement needs it.
 pub(crate) struct ArmMotion<'a> {
     /// The arm's pose after each cycle.
@@ -450,15 +446,9 @@ impl Intruder {
         }
         !self.changes_s().any(|c| c <= t_s && t_s - c < quiet_s)
     }
-
-    /// The distance it covers from appearing to its target point, m.
-    pub fn approach_m(&self) -> f64 {
-        dist(&self.spec.center_at(self.appear_s), &self.target_m)
-    }
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
