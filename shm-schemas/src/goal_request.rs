@@ -5,6 +5,11 @@
 //!
 //! rt-core uses requested goals only when its goal source is `action` (`[goal] source` in
 //! `assets/runtime.toml`, `foresight --goal-source`); the camera's obstacles count either way.
+//!
+//! The goal service keeps its last sample for late subscribers, so a restarted rt-core
+//! would find the previous run's last reach waiting; rt-core takes a reach only when
+//! [`GoalRequest::check_age`] passes: made after it started and at most
+//! [`MAX_REACH_AGE_NS`] old.
 
 use iceoryx2::prelude::ZeroCopySend;
 
@@ -69,6 +74,40 @@ pub struct GoalRequest {
 
 const _: () = assert!(size_of::<GoalRequest>() == 48);
 
+/// The oldest a reach request may be when rt-core takes it, ns (2 s): the bridge sends it
+/// when it accepts the action goal, and rt-core's intake takes it within a few periods.
+pub const MAX_REACH_AGE_NS: u64 = 2_000_000_000;
+
+/// Why a reach request is too old (or too new) to take ([`GoalRequest::check_age`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum GoalRequestAgeError {
+    /// Made before this rt-core started: a request of an earlier run, replayed to it.
+    #[error(
+        "made {:.3} s before this rt-core started (an earlier run's request, replayed)",
+        *before_ns as f64 / 1e9
+    )]
+    BeforeStart {
+        /// How long before the start, ns.
+        before_ns: u64,
+    },
+    /// Older than [`MAX_REACH_AGE_NS`].
+    #[error(
+        "{:.3} s old, above the limit of {:.3} s (goal_request::MAX_REACH_AGE_NS)",
+        *age_ns as f64 / 1e9,
+        MAX_REACH_AGE_NS as f64 / 1e9
+    )]
+    TooOld {
+        /// Its age, ns.
+        age_ns: u64,
+    },
+    /// Stamped after `now` (no process on this machine can have made it yet).
+    #[error("stamped {:.3} s in the future", *ahead_ns as f64 / 1e9)]
+    InTheFuture {
+        /// How far ahead, ns.
+        ahead_ns: u64,
+    },
+}
+
 impl GoalRequest {
     /// Schema version carried as a service attribute.
     pub const SCHEMA_VERSION: u32 = 1;
@@ -102,6 +141,32 @@ impl GoalRequest {
     /// [`SchemaError::BadEnum`] for an unknown byte.
     pub fn command(&self) -> Result<GoalCommand, SchemaError> {
         GoalCommand::try_from(self.command)
+    }
+
+    /// Whether the request may be taken at `now_ns` by an rt-core that started at
+    /// `started_ns` (both `CLOCK_MONOTONIC`, as `request_time_ns`): made after the start and
+    /// at most [`MAX_REACH_AGE_NS`] before `now_ns`.
+    ///
+    /// # Errors
+    /// The [`GoalRequestAgeError`].
+    pub fn check_age(&self, now_ns: u64, started_ns: u64) -> Result<(), GoalRequestAgeError> {
+        let made = self.request_time_ns;
+        if made < started_ns {
+            return Err(GoalRequestAgeError::BeforeStart {
+                before_ns: started_ns - made,
+            });
+        }
+        if made > now_ns {
+            return Err(GoalRequestAgeError::InTheFuture {
+                ahead_ns: made - now_ns,
+            });
+        }
+        if now_ns - made > MAX_REACH_AGE_NS {
+            return Err(GoalRequestAgeError::TooOld {
+                age_ns: now_ns - made,
+            });
+        }
+        Ok(())
     }
 
     /// Checks the id, the command byte, finite numbers, the approach height's range and the
@@ -307,6 +372,38 @@ mod tests {
             workspace_min_m: [-0.8, -0.8, 0.0],
             workspace_max_m: [0.8, 0.8, 1.0],
         }
+    }
+
+    /// Issue 41 item 5: a request made before rt-core started (the service's history
+    /// replays the last one to a restarted rt-core), one older than the limit and one from
+    /// the future are refused; one made since the start and young enough is taken.
+    #[test]
+    fn a_reach_request_is_taken_only_when_made_since_the_start_and_young() {
+        let started = 5_000_000_000;
+        let at = |t| GoalRequest {
+            request_time_ns: t,
+            ..GoalRequest::reach(1, [0.4, 0.0], 0.0)
+        };
+        at(started).check_age(started + 1, started).unwrap();
+        at(started + 1)
+            .check_age(started + 1 + MAX_REACH_AGE_NS, started)
+            .unwrap();
+        assert_eq!(
+            at(started - 1).check_age(started + 1, started),
+            Err(GoalRequestAgeError::BeforeStart { before_ns: 1 })
+        );
+        assert_eq!(
+            at(started).check_age(started + MAX_REACH_AGE_NS + 1, started),
+            Err(GoalRequestAgeError::TooOld {
+                age_ns: MAX_REACH_AGE_NS + 1
+            })
+        );
+        let e = at(started + 10)
+            .check_age(started + 5, started)
+            .unwrap_err();
+        assert_eq!(e, GoalRequestAgeError::InTheFuture { ahead_ns: 5 });
+        let e = at(1_000_000_000).check_age(started, started).unwrap_err();
+        assert!(e.to_string().contains("4.000 s before"), "{e}");
     }
 
     #[test]

@@ -12,8 +12,8 @@
 //!
 //! A second test drives the real `ros-bridge` alone, with the test standing in for rt-core
 //! on shared memory (it publishes the robot state): a newer goal pre-empts the running one,
-//! whose result says so; each accepted goal reaches rt-core as an iceoryx2 `GoalRequest`
-//! (a reach, then a cancel, or a release once reached).
+//! whose result says so, and rt-core is sent a cancel of it; each accepted goal reaches
+//! rt-core as an iceoryx2 `GoalRequest` (a reach, then a cancel, or a release once reached).
 //!
 //! Everything runs inside a private network namespace (DDS stays there). The test asserts
 //! outcomes, never times (the limits only stop a hung run). Needs the binaries built
@@ -435,10 +435,12 @@ fn the_bridge_preempts_cancels_and_releases_goals_and_tells_rt_core() {
         "{end_d:?}"
     );
 
-    // rt-core was told: reach A, reach B (a newer id: it replaces A), cancel B, reach C,
-    // release C; nothing for the refused goal.
+    // rt-core was told: reach A, cancel A (pre-empted: its plan is revoked), reach B (a
+    // newer id), cancel B, reach C, release C; nothing for the refused goal. (Before issue
+    // 41 a pre-emption told rt-core nothing: reach A, reach B, cancel B, ….)
     let want = [
         GoalCommand::Reach,
+        GoalCommand::Cancel,
         GoalCommand::Reach,
         GoalCommand::Cancel,
         GoalCommand::Reach,
@@ -451,12 +453,16 @@ fn the_bridge_preempts_cancels_and_releases_goals_and_tells_rt_core() {
     assert!(complete.is_some(), "goal requests seen: {seen:?}");
     let commands: Vec<GoalCommand> = seen.iter().map(|r| r.command().unwrap()).collect();
     assert_eq!(commands, want, "{seen:?}");
+    assert_eq!(
+        seen[1].goal_id, seen[0].goal_id,
+        "the pre-emption cancels goal A"
+    );
     assert!(
-        seen[1].goal_id > seen[0].goal_id,
+        seen[2].goal_id > seen[0].goal_id,
         "a newer goal has a newer id"
     );
-    assert_eq!(seen[2].goal_id, seen[1].goal_id, "the cancel names goal B");
-    assert_eq!(seen[4].goal_id, seen[3].goal_id, "the release names goal C");
+    assert_eq!(seen[3].goal_id, seen[2].goal_id, "the cancel names goal B");
+    assert_eq!(seen[5].goal_id, seen[4].goal_id, "the release names goal C");
     assert_eq!(seen[0].target_m, [0.35, 0.15]);
     arm.stop.store(true, Ordering::Relaxed);
     states.join().unwrap();

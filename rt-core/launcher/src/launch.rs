@@ -287,7 +287,7 @@ impl Watch<'_> {
         stop: &AtomicBool,
     ) -> Result<()> {
         let t0 = Instant::now();
-        let mut timeline = std::fs::File::create(self.setup.run.file("timeline.jsonl")?)?;
+        let mut timeline = self.setup.run.create_new_file("timeline.jsonl")?;
         let mut printed = 0;
         let overall_timeout =
             Duration::from_secs_f64(self.args.phase_timeout_s * (self.world.len() as f64) + 60.0);

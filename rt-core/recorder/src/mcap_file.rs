@@ -123,10 +123,12 @@ impl std::fmt::Debug for McapFile {
 }
 
 impl McapFile {
-    /// Creates `path` (and its folder), replacing a file there.
+    /// Creates `path` (and its folder). A file already there is never replaced or truncated
+    /// (another recording, or a run's, may be writing it): that is an error.
     ///
     /// # Errors
-    /// [`McapCreateError`].
+    /// [`McapCreateError`]; [`McapCreateError::Io`] with [`std::io::ErrorKind::AlreadyExists`]
+    /// when `path` exists.
     pub fn create(path: &Path, opts: McapFileOptions) -> Result<Self, McapCreateError> {
         let io = |source| McapCreateError::Io {
             path: path.to_path_buf(),
@@ -135,7 +137,11 @@ impl McapFile {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(io)?;
         }
-        let file = File::create(path).map_err(io)?;
+        let file = File::options()
+            .write(true)
+            .create_new(true)
+            .open(path)
+            .map_err(io)?;
         let written = Arc::new(AtomicU64::new(0));
         let sink = CountingFile {
             file,
@@ -383,6 +389,29 @@ mod tests {
         assert_eq!(&bytes[..8], b"\x89MCAP0\r\n");
         assert_eq!(&bytes[bytes.len() - 8..], b"\x89MCAP0\r\n");
         assert_eq!(stats.bytes, bytes.len() as u64);
+    }
+
+    /// Issue 41 item 5: `File::create` truncated a file already at the path (another
+    /// run's recording, started in the same second); now the file is created new or not
+    /// at all, and what was there stays whole.
+    #[test]
+    fn a_recording_never_truncates_a_file_already_there() {
+        let path = tmp("taken.mcap");
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(&path, b"another run's recording").unwrap();
+        let opts = McapFileOptions {
+            max_bytes: 1 << 20,
+            chunk_bytes: 1024,
+        };
+        match McapFile::create(&path, opts) {
+            Err(McapCreateError::Io { path: p, source }) => {
+                assert_eq!(p, path);
+                assert_eq!(source.kind(), std::io::ErrorKind::AlreadyExists);
+            }
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(std::fs::read(&path).unwrap(), b"another run's recording");
+        std::fs::remove_file(&path).ok();
     }
 
     #[test]

@@ -92,6 +92,13 @@ fn run(args: RosBridgeArgs) -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    if reach.goal_source_action && !reach.dds_loopback_only {
+        eprintln!(
+            "ros-bridge: DDS uses {:?}, not loopback only: every Reach goal is refused \
+             (goals are taken only from programs on this machine; docs/real-arm.md)",
+            args.networks
+        );
+    }
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         if let Err(e) = signal_hook::flag::register(sig, stop.clone()) {
@@ -145,5 +152,6 @@ fn reach_settings(args: &RosBridgeArgs) -> Result<ReachSettings, String> {
         table_height_m: task.sampling.table_height_m,
         goal_hover_m: task.success.goal_hover_m,
         tolerance_m: task.success.tolerance_m,
+        dds_loopback_only: ros_bridge::reach::loopback_only(&args.networks),
     })
 }

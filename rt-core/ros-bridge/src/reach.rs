@@ -6,8 +6,21 @@
 //!   goal source is the camera, is rejected, and its result (`GetResult` for its id) says
 //!   why, naming the bound ([`ReachOutcome::Refused`]).
 //! - An accepted goal goes to rt-core as an iceoryx2 [`GoalRequest`]; rt-core's intake makes
-//!   it the scene's goal (the camera's obstacles still count). A newer goal pre-empts it
-//!   explicitly: the old goal ends [`ReachOutcome::Preempted`], naming the new one.
+//!   it the scene's goal (the camera's obstacles still count) if the request is young and was
+//!   made since rt-core started ([`GoalRequest::check_age`]: the service replays its last
+//!   sample to a restarted rt-core). A newer goal pre-empts it explicitly: the old goal ends
+//!   [`ReachOutcome::Preempted`], naming the new one, and rt-core is sent a cancel of the old
+//!   goal before the new reach (the plan toward the old target is revoked, as for a cancel).
+//! - Who may send goals: DDS (rustdds, without DDS Security) carries no user identity or key
+//!   to check, so the rule is the machine: goals are taken only while the bridge's DDS
+//!   participant is loopback-only (`--ros-network 127.0.0.1`, the default;
+//!   [`loopback_only`]); with any other interface every goal is refused, naming the rule.
+//!   The participant's sockets still listen on every interface, so the robot PC's firewall
+//!   must keep outside RTPS traffic (UDP 7400 and up) off it; any local user on the DDS
+//!   domain can send a goal, which rt-core checks like every other (bounds, lookahead,
+//!   shield).
+//! - Result requests waiting for the active goal are bounded ([`RESULT_WAITERS`]): the
+//!   oldest is answered "too many result requests" to make room for a new one.
 //! - Feedback at 10 Hz: the twin worker's phase and executor (from the latest
 //!   [`TwinVerdict`]), the TCP's distance to the target, the verdict in words.
 //! - It ends [`ReachOutcome::Reached`] when the reported TCP is within the task's
@@ -63,6 +76,42 @@ const AT_REST_RAD_S: f64 = 0.01;
 const AT_REST_FOR: Duration = Duration::from_millis(1500);
 /// Finished goals kept for late result requests and the status array.
 const FINISHED_KEPT: usize = 32;
+/// Result requests that may wait for the active goal's end.
+pub const RESULT_WAITERS: usize = 16;
+
+/// Whether a DDS participant restricted to `networks` is reachable only from this machine
+/// (every address a loopback one; empty means every interface).
+pub fn loopback_only(networks: &[std::net::IpAddr]) -> bool {
+    !networks.is_empty() && networks.iter().all(std::net::IpAddr::is_loopback)
+}
+
+/// At most `N` items waiting, first in first out: a push onto a full queue returns the
+/// oldest, to be answered and dropped.
+#[derive(Debug)]
+struct Bounded<T, const N: usize> {
+    queue: VecDeque<T>,
+}
+
+impl<T, const N: usize> Bounded<T, N> {
+    fn new() -> Self {
+        Self {
+            queue: VecDeque::with_capacity(N),
+        }
+    }
+
+    /// Queues `item`; returns the oldest one when the queue was full.
+    fn push(&mut self, item: T) -> Option<T> {
+        let evicted = (self.queue.len() >= N)
+            .then(|| self.queue.pop_front())
+            .flatten();
+        self.queue.push_back(item);
+        evicted
+    }
+
+    fn drain(&mut self) -> impl Iterator<Item = T> + '_ {
+        self.queue.drain(..)
+    }
+}
 
 /// What the server needs to know of the run.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -78,6 +127,9 @@ pub struct ReachSettings {
     pub goal_hover_m: f64,
     /// The task's `success.tolerance_m`, m.
     pub tolerance_m: f64,
+    /// The bridge's DDS participant is reachable only from this machine
+    /// ([`loopback_only`]); otherwise every goal is refused.
+    pub dds_loopback_only: bool,
 }
 
 impl ReachSettings {
@@ -90,6 +142,14 @@ impl ReachSettings {
             return Err(
                 "the goal source is the camera ([goal] source = \"camera\"); \
                  start with `foresight --ros --goal-source action`"
+                    .into(),
+            );
+        }
+        if !self.dds_loopback_only {
+            return Err(
+                "the Reach action takes goals only from programs on the robot PC, and DDS \
+                 carries no user or key to check: run ros-bridge loopback-only \
+                 (--ros-network 127.0.0.1, the default) to serve goals"
                     .into(),
             );
         }
@@ -176,7 +236,7 @@ struct Active {
     cancelling: bool,
     at_rest_since: Option<Instant>,
     fault_since: Option<(Instant, StopReason)>,
-    result_requests: Vec<RmwRequestId>,
+    result_requests: Bounded<RmwRequestId, RESULT_WAITERS>,
     /// Retrain requests made for this goal's scene: id and obstacles.
     retrains: Vec<(u64, Vec<BoxObstacle>)>,
     distance_m: f64,
@@ -401,7 +461,7 @@ impl ReachServer {
                         cancelling: false,
                         at_rest_since: None,
                         fault_since: None,
-                        result_requests: Vec::new(),
+                        result_requests: Bounded::new(),
                         retrains: Vec::new(),
                         distance_m: f64::NAN,
                         verdict_at_accept: latest_verdict,
@@ -466,7 +526,22 @@ impl ReachServer {
             self.server.receive_result_request()
         {
             if let Some(a) = self.active.as_mut().filter(|a| a.id == goal_id) {
-                a.result_requests.push(req_id);
+                if let Some(oldest) = a.result_requests.push(req_id) {
+                    let _ = self.server.send_result(
+                        oldest,
+                        GetResultResponse {
+                            status: GoalStatusEnum::Unknown,
+                            result: ReachResult {
+                                outcome: 0,
+                                reason: format!(
+                                    "too many result requests wait for this goal (at most \
+                                     {RESULT_WAITERS}); ask again"
+                                ),
+                                distance_m: f64::NAN,
+                            },
+                        },
+                    );
+                }
                 continue;
             }
             let response = match self.finished.iter().find(|f| f.id == goal_id) {
@@ -625,16 +700,17 @@ impl ReachServer {
     }
 
     /// Ends the active goal with `outcome`: rt-core is told (a release after reaching, a
-    /// cancel otherwise, nothing for a pre-emption: the newer goal replaces it), waiting
-    /// result requests are answered, the status array is published.
+    /// cancel otherwise — a pre-emption too, sent before the newer goal's reach so that the
+    /// plan toward the old target is revoked; nothing for a cancel, already sent when it
+    /// came), waiting result requests are answered, the status array is published.
     fn finish(&mut self, outcome: ReachOutcome, reason: String) {
-        let Some(a) = self.active.take() else {
+        let Some(mut a) = self.active.take() else {
             return;
         };
         match outcome {
             ReachOutcome::Reached => self.send(GoalRequest::withdraw(a.seq, GoalCommand::Release)),
-            ReachOutcome::Preempted | ReachOutcome::Cancelled | ReachOutcome::Refused => {}
-            ReachOutcome::Infeasible | ReachOutcome::Stopped => {
+            ReachOutcome::Cancelled | ReachOutcome::Refused => {}
+            ReachOutcome::Preempted | ReachOutcome::Infeasible | ReachOutcome::Stopped => {
                 self.send(GoalRequest::withdraw(a.seq, GoalCommand::Cancel));
             }
         }
@@ -653,7 +729,7 @@ impl ReachServer {
         );
         let result = ReachResult::new(outcome, reason, a.distance_m);
         let status = status_of(outcome);
-        for req_id in a.result_requests {
+        for req_id in a.result_requests.drain() {
             let _ = self.server.send_result(
                 req_id,
                 GetResultResponse {
@@ -736,7 +812,51 @@ mod tests {
             table_height_m: 0.0,
             goal_hover_m: 0.05,
             tolerance_m: 0.02,
+            dds_loopback_only: true,
         }
+    }
+
+    /// Issue 41 item 5: the action had no access control. DDS gives no identity to check,
+    /// so goals are taken only on a loopback-only participant; otherwise every goal is
+    /// refused, naming the rule.
+    #[test]
+    fn goals_are_refused_unless_the_dds_participant_is_loopback_only() {
+        use std::net::{IpAddr, Ipv4Addr, Ipv6Addr};
+        let lo = IpAddr::V4(Ipv4Addr::LOCALHOST);
+        let lan = IpAddr::V4(Ipv4Addr::new(192, 168, 1, 20));
+        assert!(loopback_only(&[lo]));
+        assert!(loopback_only(&[lo, IpAddr::V6(Ipv6Addr::LOCALHOST)]));
+        assert!(!loopback_only(&[]), "no restriction: every interface");
+        assert!(!loopback_only(&[lo, lan]));
+        let ok = ReachGoal {
+            x_m: 0.4,
+            y_m: 0.1,
+            ..ReachGoal::default()
+        };
+        settings().check(&ok).unwrap();
+        let open = ReachSettings {
+            dds_loopback_only: false,
+            ..settings()
+        };
+        let e = open.check(&ok).unwrap_err();
+        assert!(e.contains("--ros-network 127.0.0.1"), "{e}");
+    }
+
+    /// Issue 41 item 5: result requests for the active goal piled up without bound; now
+    /// at most `RESULT_WAITERS` wait, the oldest handed back to be answered.
+    #[test]
+    fn result_requests_waiting_for_a_goal_are_bounded() {
+        let mut w: Bounded<u32, RESULT_WAITERS> = Bounded::new();
+        let mut evicted = Vec::new();
+        for i in 0..1000u32 {
+            evicted.extend(w.push(i));
+        }
+        assert_eq!(w.queue.len(), RESULT_WAITERS);
+        assert_eq!(evicted.len(), 1000 - RESULT_WAITERS);
+        assert_eq!(evicted[..3], [0, 1, 2], "the oldest leave first");
+        let waiting: Vec<u32> = w.drain().collect();
+        assert_eq!(waiting[0], 1000 - RESULT_WAITERS as u32);
+        assert_eq!(w.queue.len(), 0);
     }
 
     #[test]

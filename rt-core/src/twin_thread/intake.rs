@@ -30,7 +30,7 @@
 use shm_schemas::goal_request::{REQUESTED_GOAL_SIZE_M, requested_goal_center_m};
 use shm_schemas::{
     DetectedObject, DetectionFrame, GoalBoundError, GoalBounds, GoalCommand, GoalRequest,
-    ObjectClass, SchemaError,
+    GoalRequestAgeError, ObjectClass, SchemaError,
 };
 use twin::{BoxObstacle, Goal, Scene};
 
@@ -266,6 +266,10 @@ pub enum GoalRequestRefusal {
     /// The target breaks a bound of the workspace or the table.
     #[error("goal out of bounds: {0}")]
     OutOfBounds(GoalBoundError),
+    /// A reach request made before this rt-core started (a replay) or too old
+    /// ([`GoalRequest::check_age`]).
+    #[error("goal request refused by age: {0}")]
+    TooOld(GoalRequestAgeError),
     /// A reach request whose id is not above the last one taken.
     #[error("goal id {found} does not follow {last}")]
     StaleId {
@@ -362,15 +366,21 @@ impl SceneIntake {
     /// replaces the active goal (from the next accepted frame on); a cancel or a release of
     /// the active goal withdraws it (a cancel also stops the arm: the next accepted frame
     /// carries [`AcceptedFrame::stop_requested`]). A withdrawal of another goal changes
-    /// nothing.
+    /// nothing. A reach is taken at `mono_now_ns` (`CLOCK_MONOTONIC`) only when made since
+    /// the cycle clock's origin and young enough ([`GoalRequest::check_age`]).
     ///
     /// # Errors
     /// The [`GoalRequestRefusal`] (counted); the active goal stays as it was.
-    pub fn request(&mut self, req: &GoalRequest) -> Result<(), GoalRequestRefusal> {
+    pub fn request(
+        &mut self,
+        req: &GoalRequest,
+        mono_now_ns: u64,
+    ) -> Result<(), GoalRequestRefusal> {
         let table_height_m = self.table_height_m;
+        let started_ns = self.clock_origin_ns;
         let outcome = match self.requested.as_mut() {
             None => Err(GoalRequestRefusal::SourceIsCamera),
-            Some(r) => r.take(req, table_height_m),
+            Some(r) => r.take(req, table_height_m, mono_now_ns, started_ns),
         };
         match outcome {
             Ok(()) => self.counters.goal_requests += 1,
@@ -627,11 +637,19 @@ fn moving_speed_m_s(o: &DetectedObject, cfg: &IntakeConfig) -> f64 {
 }
 
 impl RequestedGoals {
-    fn take(&mut self, req: &GoalRequest, table_height_m: f64) -> Result<(), GoalRequestRefusal> {
+    fn take(
+        &mut self,
+        req: &GoalRequest,
+        table_height_m: f64,
+        mono_now_ns: u64,
+        started_ns: u64,
+    ) -> Result<(), GoalRequestRefusal> {
         req.validate().map_err(GoalRequestRefusal::Invalid)?;
         let command = req.command().map_err(GoalRequestRefusal::Invalid)?;
         match command {
             GoalCommand::Reach => {
+                req.check_age(mono_now_ns, started_ns)
+                    .map_err(GoalRequestRefusal::TooOld)?;
                 if req.goal_id <= self.last_id {
                     return Err(GoalRequestRefusal::StaleId {
                         last: self.last_id,
@@ -717,6 +735,16 @@ mod tests {
 
     const ORIGIN_NS: u64 = 1_000_000_000_000;
     const MAX_AGE_NS: u64 = 500_000_000;
+    /// When the tests' goal requests are made and taken.
+    const REQUEST_NS: u64 = ORIGIN_NS + 2_000_000_000;
+
+    /// `r` made at [`REQUEST_NS`].
+    fn fresh(r: GoalRequest) -> GoalRequest {
+        GoalRequest {
+            request_time_ns: REQUEST_NS,
+            ..r
+        }
+    }
 
     fn intake() -> SceneIntake {
         SceneIntake::new(IntakeConfig::default(), MAX_AGE_NS, 0.0, ORIGIN_NS)
@@ -1034,7 +1062,7 @@ mod tests {
         ];
         let mut camera = intake();
         assert_eq!(
-            camera.request(&GoalRequest::reach(1, [0.4, 0.0], 0.0)),
+            camera.request(&fresh(GoalRequest::reach(1, [0.4, 0.0], 0.0)), REQUEST_NS),
             Err(GoalRequestRefusal::SourceIsCamera)
         );
         assert_eq!(camera.counters().goal_requests_refused, 1);
@@ -1049,7 +1077,7 @@ mod tests {
         // asserted 1 before: the cube vanished from the scene).
         assert_eq!(a.scene.obstacles.len(), 2, "the camera's objects count");
 
-        k.request(&GoalRequest::reach(1, [0.45, -0.1], 0.0))
+        k.request(&fresh(GoalRequest::reach(1, [0.45, -0.1], 0.0)), REQUEST_NS)
             .unwrap();
         let a = k.accept(&frame(2, now, &seen), now, 1).unwrap();
         assert!(a.goal_seen && !a.stop_requested);
@@ -1058,31 +1086,42 @@ mod tests {
         assert_eq!(k.requested_goal_id(), 1);
 
         // A second goal pre-empts the first; an approach height raises the TCP target.
-        k.request(&GoalRequest::reach(2, [0.35, 0.1], 0.3)).unwrap();
+        k.request(&fresh(GoalRequest::reach(2, [0.35, 0.1], 0.3)), REQUEST_NS)
+            .unwrap();
         let a = k.accept(&frame(3, now, &seen), now, 1).unwrap();
         let target = a.scene.goal_target_m(0.05);
         assert!((target.z - 0.3).abs() <= SNAP_GRID_M, "{target:?}");
         assert_eq!(k.requested_goal_id(), 2);
         // Withdrawing the old goal changes nothing; an old id is refused.
-        k.request(&GoalRequest::withdraw(1, GoalCommand::Cancel))
-            .unwrap();
+        k.request(
+            &fresh(GoalRequest::withdraw(1, GoalCommand::Cancel)),
+            REQUEST_NS,
+        )
+        .unwrap();
         assert_eq!(k.requested_goal_id(), 2);
         assert_eq!(
-            k.request(&GoalRequest::reach(2, [0.4, 0.0], 0.0)),
+            k.request(&fresh(GoalRequest::reach(2, [0.4, 0.0], 0.0)), REQUEST_NS),
             Err(GoalRequestRefusal::StaleId { last: 2, found: 2 })
         );
 
-        k.request(&GoalRequest::withdraw(2, GoalCommand::Cancel))
-            .unwrap();
+        k.request(
+            &fresh(GoalRequest::withdraw(2, GoalCommand::Cancel)),
+            REQUEST_NS,
+        )
+        .unwrap();
         let a = k.accept(&frame(4, now, &seen), now, 1).unwrap();
         assert!(!a.goal_seen && a.stop_requested, "cancelled: no goal, stop");
         let a = k.accept(&frame(5, now, &seen), now, 1).unwrap();
         assert!(!a.stop_requested, "the stop is asked once");
 
         // A release withdraws without a stop.
-        k.request(&GoalRequest::reach(3, [0.4, 0.0], 0.0)).unwrap();
-        k.request(&GoalRequest::withdraw(3, GoalCommand::Release))
+        k.request(&fresh(GoalRequest::reach(3, [0.4, 0.0], 0.0)), REQUEST_NS)
             .unwrap();
+        k.request(
+            &fresh(GoalRequest::withdraw(3, GoalCommand::Release)),
+            REQUEST_NS,
+        )
+        .unwrap();
         let a = k.accept(&frame(6, now, &seen), now, 1).unwrap();
         assert!(!a.goal_seen && !a.stop_requested);
     }
@@ -1092,8 +1131,9 @@ mod tests {
     #[test]
     fn a_requested_goal_out_of_bounds_or_malformed_is_refused_naming_it() {
         let mut k = intake().with_requested_goals(bounds(), 0.05);
-        k.request(&GoalRequest::reach(1, [0.4, 0.0], 0.0)).unwrap();
-        match k.request(&GoalRequest::reach(2, [0.9, 0.0], 0.0)) {
+        k.request(&fresh(GoalRequest::reach(1, [0.4, 0.0], 0.0)), REQUEST_NS)
+            .unwrap();
+        match k.request(&fresh(GoalRequest::reach(2, [0.9, 0.0], 0.0)), REQUEST_NS) {
             Err(GoalRequestRefusal::OutOfBounds(e)) => {
                 assert_eq!(e.bound, "intake.goal_max_radius_m");
             }
@@ -1102,7 +1142,7 @@ mod tests {
         let mut bad = GoalRequest::reach(3, [0.4, 0.0], 0.0);
         bad.command = 7;
         assert_eq!(
-            k.request(&bad),
+            k.request(&bad, REQUEST_NS),
             Err(GoalRequestRefusal::Invalid(SchemaError::BadEnum {
                 field: "command",
                 value: 7
@@ -1110,6 +1150,44 @@ mod tests {
         );
         assert_eq!(k.requested_goal_id(), 1);
         assert_eq!(k.counters().goal_requests_refused, 2);
+    }
+
+    /// Issue 41 item 5: the goal service replays its last sample to a new subscriber, so a
+    /// restarted rt-core took the previous run's last reach and drove to it. A reach made
+    /// before this rt-core's clock origin, or older than `MAX_REACH_AGE_NS`, is refused
+    /// and counted; the active goal stays; a fresh one is taken.
+    #[test]
+    fn a_replayed_or_old_reach_request_is_refused_by_age() {
+        let mut k = intake().with_requested_goals(bounds(), 0.05);
+        let replayed = GoalRequest {
+            request_time_ns: ORIGIN_NS - 3_000_000_000,
+            ..GoalRequest::reach(7, [0.4, 0.0], 0.0)
+        };
+        assert!(matches!(
+            k.request(&replayed, ORIGIN_NS + 1_000_000),
+            Err(GoalRequestRefusal::TooOld(
+                GoalRequestAgeError::BeforeStart { .. }
+            ))
+        ));
+        assert_eq!(k.requested_goal_id(), 0, "the replay is not the goal");
+        let late = fresh(GoalRequest::reach(8, [0.4, 0.0], 0.0));
+        assert!(matches!(
+            k.request(&late, REQUEST_NS + 5_000_000_000),
+            Err(GoalRequestRefusal::TooOld(
+                GoalRequestAgeError::TooOld { .. }
+            ))
+        ));
+        assert_eq!(k.requested_goal_id(), 0);
+        assert_eq!(k.counters().goal_requests_refused, 2);
+        k.request(&late, REQUEST_NS + 1_000_000).unwrap();
+        assert_eq!(k.requested_goal_id(), 8);
+        // A cancel is taken whatever its age: stopping is never refused.
+        let old_cancel = GoalRequest {
+            request_time_ns: ORIGIN_NS - 1,
+            ..GoalRequest::withdraw(8, GoalCommand::Cancel)
+        };
+        k.request(&old_cancel, REQUEST_NS + 9_000_000_000).unwrap();
+        assert_eq!(k.requested_goal_id(), 0);
     }
 
     /// Issue 14, item 7: a second publisher on the detection service went unnoticed.
@@ -1160,7 +1238,8 @@ mod tests {
         // A goal cube standing on a shelf, 0.25 m above the table, in front of the target.
         let cube = DetectedObject::new(1, ObjectClass::Goal, 0.9, [0.35, 0.0, 0.25], [0.05; 3]);
         let mut k = intake().with_requested_goals(bounds(), 0.05);
-        k.request(&GoalRequest::reach(1, [0.5, 0.0], 0.0)).unwrap();
+        k.request(&fresh(GoalRequest::reach(1, [0.5, 0.0], 0.0)), REQUEST_NS)
+            .unwrap();
         let a = k.accept(&frame(1, now, &[cube]), now, 1).unwrap();
         assert!(a.goal_seen);
         assert_eq!(a.scene.goal.center_m[..2], [0.5, 0.0]);

@@ -246,7 +246,7 @@ fn take_goal_requests(
         // Copied out of shared memory before it is checked.
         let request = *sample.payload();
         drop(sample);
-        match intake.request(&request) {
+        match intake.request(&request, shm_schemas::clock::monotonic_now_ns()) {
             Ok(()) => tracing::info!(
                 goal_id = request.goal_id,
                 command = request.command,

@@ -28,9 +28,16 @@
 //!
 //! Secret files are written `0600` and refused when group or others may read them. Each
 //! relay keeps its replay state ([`LinkState`]) in its keys folder.
+//!
+//! Whoever can replace a file of the folder can replace the peer's public key (and so
+//! choose who signs policies) or lower the replay marks, so every file a relay reads — the
+//! folder itself, the secrets, the other host's `.pub` and `link-state.json` — must be owned
+//! by the relay's own user (or root) and writable by no one else: a file another user owns,
+//! or that group or others may write, is refused naming it ([`KeyError::ForeignOwner`],
+//! [`KeyError::Writable`]).
 
 use std::io::Write;
-use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
+use std::os::unix::fs::{MetadataExt, OpenOptionsExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 
 use ed25519_dalek::{SigningKey, VerifyingKey};
@@ -97,6 +104,28 @@ pub enum KeyError {
     #[error("{path}: a secret readable by group or others (mode {mode:o}); run chmod 600 on it")]
     Permissions {
         /// The file.
+        path: PathBuf,
+        /// Its mode bits.
+        mode: u32,
+    },
+    /// A file or the folder belongs to another user (neither this process's user nor
+    /// root): that user could replace the keys or the replay marks.
+    #[error(
+        "{path}: owned by uid {owner}, not by this user (uid {me}) or root; another user could \
+         replace the link's keys or replay marks. Take it over (chown) or make new keys"
+    )]
+    ForeignOwner {
+        /// The file or folder.
+        path: PathBuf,
+        /// Its owner.
+        owner: u32,
+        /// This process's effective uid.
+        me: u32,
+    },
+    /// A file or the folder group or others may write.
+    #[error("{path}: writable by group or others (mode {mode:o}); run chmod go-w on it")]
+    Writable {
+        /// The file or folder.
         path: PathBuf,
         /// Its mode bits.
         mode: u32,
@@ -271,12 +300,40 @@ impl std::fmt::Debug for LinkKeys {
     }
 }
 
+/// This process's effective uid: the user a file of the keys folder must belong to.
+fn effective_uid() -> u32 {
+    // SAFETY: geteuid(2) takes no argument, touches no memory of ours and cannot fail.
+    unsafe { libc::geteuid() }
+}
+
+/// Refuses `path` (described by `meta`) when a user other than `me` or root owns it, or
+/// when group or others may write it.
+fn check_trusted(path: &Path, meta: &std::fs::Metadata, me: u32) -> Result<(), KeyError> {
+    let owner = meta.uid();
+    if owner != me && owner != 0 {
+        return Err(KeyError::ForeignOwner {
+            path: path.to_owned(),
+            owner,
+            me,
+        });
+    }
+    let mode = meta.permissions().mode() & 0o777;
+    if mode & 0o022 != 0 {
+        return Err(KeyError::Writable {
+            path: path.to_owned(),
+            mode,
+        });
+    }
+    Ok(())
+}
+
 fn read_file(
     dir: &Path,
     name: &str,
     what: &'static str,
     side: Side,
     secret: bool,
+    me: u32,
 ) -> Result<(PathBuf, String), KeyError> {
     let path = dir.join(name);
     let meta = match std::fs::metadata(&path) {
@@ -291,6 +348,7 @@ fn read_file(
         }
         Err(e) => return Err(KeyError::Io { path, error: e }),
     };
+    check_trusted(&path, &meta, me)?;
     let mode = meta.permissions().mode() & 0o777;
     if secret && mode & 0o077 != 0 {
         return Err(KeyError::Permissions { path, mode });
@@ -303,8 +361,14 @@ impl LinkKeys {
     /// This side's keys from `dir` (the folder `keygen` wrote for it).
     ///
     /// # Errors
-    /// [`KeyError`] naming the missing, unreadable, world-readable or malformed file.
+    /// [`KeyError`] naming the missing, unreadable, world-readable or malformed file, or the
+    /// file or folder another user owns or may write.
     pub fn load(dir: Option<&Path>, side: Side) -> Result<Self, KeyError> {
+        Self::load_for(dir, side, effective_uid())
+    }
+
+    /// [`LinkKeys::load`] for a process running as `me`.
+    fn load_for(dir: Option<&Path>, side: Side, me: u32) -> Result<Self, KeyError> {
         let dir = dir.ok_or(KeyError::NoFolder)?;
         let dir = std::fs::canonicalize(dir).map_err(|e| {
             if e.kind() == std::io::ErrorKind::NotFound {
@@ -321,12 +385,15 @@ impl LinkKeys {
                 }
             }
         })?;
+        let meta = std::fs::metadata(&dir).map_err(io(&dir))?;
+        check_trusted(&dir, &meta, me)?;
         let (credential_file, text) = read_file(
             &dir,
             CREDENTIAL_FILE,
             "the link credential shared by both hosts",
             side,
             true,
+            me,
         )?;
         let line = text.lines().map(str::trim).find(|l| !l.is_empty());
         let (user, password) = line
@@ -340,11 +407,18 @@ impl LinkKeys {
                         .into(),
             })?;
         let own_name = format!("{}.key", key_stem(side));
-        let (own_path, own) = read_file(&dir, &own_name, "this host's signing key", side, true)?;
+        let (own_path, own) =
+            read_file(&dir, &own_name, "this host's signing key", side, true, me)?;
         let signing = SigningKey::from_bytes(&unhex_32(&own_path, &own)?);
         let peer_name = format!("{}.pub", key_stem(other(side)));
-        let (peer_path, peer) =
-            read_file(&dir, &peer_name, "the other host's public key", side, false)?;
+        let (peer_path, peer) = read_file(
+            &dir,
+            &peer_name,
+            "the other host's public key",
+            side,
+            false,
+            me,
+        )?;
         let peer = VerifyingKey::from_bytes(&unhex_32(&peer_path, &peer)?).map_err(|e| {
             KeyError::Format {
                 path: peer_path.clone(),
@@ -393,8 +467,19 @@ impl LinkState {
     /// Reads the state for `peer_key`; a missing file, or one of other keys, is a fresh state.
     ///
     /// # Errors
-    /// An unreadable or malformed file (refused rather than silently forgotten).
+    /// An unreadable or malformed file (refused rather than silently forgotten), or one
+    /// another user owns or group or others may write (who could lower its marks).
     pub fn load(path: &Path, peer_key: &str) -> Result<Self, KeyError> {
+        Self::load_for(path, peer_key, effective_uid())
+    }
+
+    /// [`LinkState::load`] for a process running as `me`.
+    fn load_for(path: &Path, peer_key: &str, me: u32) -> Result<Self, KeyError> {
+        match std::fs::metadata(path) {
+            Ok(meta) => check_trusted(path, &meta, me)?,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(io(path)(e)),
+        }
         let text = match std::fs::read_to_string(path) {
             Ok(t) => t,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
@@ -524,6 +609,73 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains(CREDENTIAL_FILE) && e.contains("missing"), "{e}");
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    /// Issue 41 item 5: the keys folder, the other host's `.pub` and `link-state.json` are
+    /// checked as the secrets are: one that group or others may write, or that another user
+    /// owns, is refused naming it (before, only the secrets' read bits were checked).
+    #[test]
+    fn a_keys_folder_pub_or_state_file_others_may_write_or_own_is_refused_naming_it() {
+        let d = tmp("trust");
+        let g = generate(&d).unwrap();
+        let me = effective_uid();
+        let dir = std::fs::canonicalize(&g.robot_pc).unwrap();
+        let public = dir.join("learner-host.pub");
+        let state = dir.join(STATE_FILE);
+        LinkState::default().write(&state).unwrap();
+        LinkKeys::load_for(Some(&dir), Side::Controller, me).unwrap();
+        LinkState::load_for(&state, "ed25519:aa", me).unwrap();
+        let chmod = |p: &Path, mode: u32| {
+            std::fs::set_permissions(p, std::fs::Permissions::from_mode(mode)).unwrap();
+        };
+        let keys_err = |me: u32| {
+            LinkKeys::load_for(Some(&dir), Side::Controller, me)
+                .unwrap_err()
+                .to_string()
+        };
+        let state_err = |me: u32| {
+            LinkState::load_for(&state, "ed25519:aa", me)
+                .unwrap_err()
+                .to_string()
+        };
+        let named = |e: &str, p: &Path, what: &str| {
+            assert!(
+                e.starts_with(&format!("{}:", p.display())) && e.contains(what),
+                "{e}"
+            );
+        };
+        // Writable by group or others.
+        for mode in [0o770, 0o703] {
+            chmod(&dir, mode);
+            named(&keys_err(me), &dir, "chmod go-w");
+        }
+        chmod(&dir, 0o700);
+        for mode in [0o664, 0o646] {
+            chmod(&public, mode);
+            named(&keys_err(me), &public, "chmod go-w");
+        }
+        chmod(&public, 0o644);
+        chmod(&state, 0o620);
+        named(&state_err(me), &state, "chmod go-w");
+        chmod(&state, 0o600);
+        // Owned by another user.
+        if me == 0 {
+            for p in [&dir, &public] {
+                std::os::unix::fs::chown(p, Some(65_534), None).unwrap();
+                named(&keys_err(me), p, "owned by uid 65534");
+                std::os::unix::fs::chown(p, Some(0), None).unwrap();
+            }
+            std::os::unix::fs::chown(&state, Some(65_534), None).unwrap();
+            named(&state_err(me), &state, "owned by uid 65534");
+            std::os::unix::fs::chown(&state, Some(0), None).unwrap();
+        } else {
+            // Without root no file can be given away: run as another user instead.
+            named(&keys_err(me + 1), &dir, &format!("owned by uid {me}"));
+            named(&state_err(me + 1), &state, &format!("owned by uid {me}"));
+        }
+        LinkKeys::load_for(Some(&dir), Side::Controller, me).unwrap();
+        LinkState::load_for(&state, "ed25519:aa", me).unwrap();
         std::fs::remove_dir_all(&d).ok();
     }
 
