@@ -60,12 +60,11 @@ mod run_loop;
 
 pub use config::CycleConfig;
 pub use events::{CycleEvent, Mode, StopReason};
-pub use io::{CycleControl, CycleIo, Intruders, SceneUpdate, TwinIo, wire};
+pub use io::{Adoption, CycleControl, CycleIo, Intruders, SceneUpdate, TwinIo, wire};
 pub use report::CycleReport;
 pub use run_loop::{LoopShared, LoopStats, LoopSummary, run_loop};
 
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
 
 use crate::cycle::brake::{Brake, PathStop};
 use crate::cycle::link::{LinkError, RobotLink};
@@ -986,7 +985,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         r.separation_m = self.separation.separation_m();
         match (&self.plan, self.mode) {
             (Some(p), Mode::Following) => self.io.control.set_progress(p.id, self.next),
-            _ => self.io.control.progress.store(0, Ordering::Release),
+            _ => self.io.control.set_not_following(),
         }
         let latch = r
             .awaiting_ack
