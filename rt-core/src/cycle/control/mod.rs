@@ -78,6 +78,10 @@ use twin::{Joints, max_joint_gap_rad};
 /// 250 Hz); then the operator must acknowledge again.
 const ACK_ATTEMPTS: u32 = 50;
 
+/// Fastest measured joint speed at which the arm counts as at rest for an operator's
+/// acknowledgement, rad/s (issue 41 item 5).
+const ACK_REST_SPEED_RAD_S: f64 = 0.01;
+
 /// How the running stop moves the arm.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum StopMotion {
@@ -135,6 +139,8 @@ pub struct Cycle<M: ShieldModel, L: RobotLink> {
     /// The link's connection of the last reading ([`crate::cycle::link::LinkState::session`]):
     /// while it stays the same, the controller's reference is the last command sent.
     session: u32,
+    /// The last reading measured every joint slower than [`ACK_REST_SPEED_RAD_S`].
+    measured_at_rest: bool,
 }
 
 impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
@@ -177,6 +183,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             play_frac: 0.0,
             play_scale: 1.0,
             session: 0,
+            measured_at_rest: false,
         }
     }
 
@@ -496,6 +503,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
                 self.session = st.session;
                 self.link_ok = true;
                 self.report.measured_q_rad = st.q_rad;
+                self.measured_at_rest = st.dq_rad_s.iter().all(|v| v.abs() <= ACK_REST_SPEED_RAD_S);
                 self.report.arm_mode = st.mode;
                 self.report.arm_state = st.state;
                 if returned
@@ -618,9 +626,10 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             self.report.acks_refused += 1;
             return;
         }
-        if !self.link_ok || self.mode == Mode::Stopping {
+        if !self.link_ok || self.mode == Mode::Stopping || !self.measured_at_rest {
             // Dropped, never kept for later: an operator acknowledges an arm at rest on a
-            // live link, and a new acknowledgement is needed once it is.
+            // live link (measured at rest, issue 41 item 5: not merely commanded so), and a
+            // new acknowledgement is needed once it is.
             self.pending_ack = 0;
             self.report.acks_dropped += 1;
             self.io.log.log(now_ns, CycleEvent::AcknowledgementDropped);
