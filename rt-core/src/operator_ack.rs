@@ -3,11 +3,20 @@
 //!
 //! - **Where.** A Unix stream socket beside the arm's lock file (`<lock>.ack`, see
 //!   [`socket_path`]), made by the rt-core that holds the lock; `rt-core ack --robot HOST`
-//!   finds it from the same address.
-//! - **Who.** The kernel gives the peer's user id (`SO_PEERCRED`): accepted from rt-core's
-//!   own user, root and `[operator] ack_uids`; anything else is refused and logged. A signal
-//!   (the SIGUSR1 of earlier versions) clears nothing: any process of the same user can send
-//!   one, and it names no stop.
+//!   finds it from the same address. The folder is the private lock folder
+//!   (`xarm::owner::prepare_lock_folder`: made at start, this user's, writable by it alone),
+//!   so no other user can plant anything in the socket's place; a file there that is not
+//!   this user's socket is named, with how to remove it, and the channel does not open.
+//! - **Who.** The kernel gives the peer's user id (`SO_PEERCRED`) right after `accept`:
+//!   accepted from rt-core's own user, root and `[operator] ack_uids`; anything else is
+//!   refused and closed at once, before a byte is read, and logged. A signal (the SIGUSR1 of
+//!   earlier versions) clears nothing: any process of the same user can send one, and it
+//!   names no stop.
+//! - **Nobody blocks it** (issue 41 item 4). Each accepted connection is served on a
+//!   thread of its own, up to [`MAX_CONNECTIONS`] at once (more are refused at once), and
+//!   has one deadline for its whole request ([`REQUEST_TIMEOUT`]), not one per read: a
+//!   client trickling a byte at a time is cut at the deadline, and meanwhile an operator's
+//!   acknowledgement is served beside it.
 //! - **What.** An acknowledgement names the stop it clears: its number (the cycle counts
 //!   latches) and its reason. The channel first tells what is latched (`status`), the
 //!   operator confirms that stop, and the cycle clears it only if it is still the one
@@ -23,6 +32,7 @@ use std::os::unix::io::AsRawFd;
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use crate::cycle::control::{CycleControl, StopReason};
@@ -30,8 +40,11 @@ use crate::cycle::control::{CycleControl, StopReason};
 /// Longest request or reply line, bytes.
 pub const MAX_LINE: usize = 256;
 
-/// How long a connection may take to send its request.
-const REQUEST_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long a connection may take to send its whole request.
+pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// Connections served at once; one more is refused at once.
+pub const MAX_CONNECTIONS: usize = 8;
 
 /// How long the channel waits for the cycle to take an acknowledgement.
 const CLEAR_WAIT: Duration = Duration::from_secs(2);
@@ -49,7 +62,9 @@ pub enum AckChannelError {
     },
     /// Something that is not this user's socket lies where the channel belongs.
     #[error(
-        "{path}: {why}; the acknowledgement channel cannot open there (remove it, or point FORESIGHT_LOCK_DIR elsewhere)"
+        "{path}: {why}; the acknowledgement channel cannot open there: if no rt-core of \
+         that user runs, remove it (as its owner or root: `rm -f -- '{path}'`) and start \
+         again, or point FORESIGHT_LOCK_DIR elsewhere"
     )]
     PathTaken {
         /// The socket's path.
@@ -57,6 +72,9 @@ pub enum AckChannelError {
         /// What lies there.
         why: String,
     },
+    /// The folder of the socket is not a private lock folder (or cannot be made).
+    #[error("acknowledgement channel: {0}")]
+    Folder(#[from] xarm::owner::ArmLockError),
     /// A socket call failed.
     #[error("{path}: {source}")]
     Io {
@@ -142,6 +160,9 @@ impl AckServer {
             source,
         };
         let me = xarm::owner::effective_uid();
+        if let Some(folder) = path.parent() {
+            xarm::owner::prepare_lock_folder(folder)?;
+        }
         match std::fs::symlink_metadata(&path) {
             Ok(m) if m.file_type().is_socket() && m.uid() == me => {
                 std::fs::remove_file(&path).map_err(io)?;
@@ -166,13 +187,15 @@ impl AckServer {
         let listener = UnixListener::bind(&path).map_err(io)?;
         // Anyone may connect; the peer's user id decides (operators may be other accounts).
         std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o666)).map_err(io)?;
-        let thread_path = path.clone();
+        let thread_path: Arc<Path> = Arc::from(path.as_path());
+        let allowed: Arc<[u32]> = Arc::from(allowed);
         std::thread::Builder::new()
             .name("operator-ack".into())
             .spawn(move || {
+                let busy = Arc::new(AtomicUsize::new(0));
                 for conn in listener.incoming() {
                     match conn {
-                        Ok(stream) => serve_one(stream, &control, &allowed, &thread_path),
+                        Ok(stream) => admit(stream, &control, &allowed, &thread_path, &busy),
                         Err(e) => tracing::warn!("acknowledgement channel: accept: {e}"),
                     }
                 }
@@ -222,29 +245,62 @@ fn peer_credentials(stream: &UnixStream) -> std::io::Result<(i32, u32)> {
     Ok((cred.pid, cred.uid))
 }
 
-/// Reads one line of at most [`MAX_LINE`] bytes.
+/// Reads one line of at most [`MAX_LINE`] bytes (the client's side: one reply).
 fn read_line(stream: &UnixStream) -> std::io::Result<String> {
     let mut line = String::new();
     BufReader::new(stream.take(MAX_LINE as u64)).read_line(&mut line)?;
     Ok(line.trim().to_owned())
 }
 
-fn serve_one(mut stream: UnixStream, control: &CycleControl, allowed: &[u32], path: &Path) {
-    let _ = stream.set_read_timeout(Some(REQUEST_TIMEOUT));
-    let _ = stream.set_write_timeout(Some(REQUEST_TIMEOUT));
+/// Reads one request line of at most [`MAX_LINE`] bytes, all of it before `deadline`: each
+/// read waits only for the time left, so a client sending a byte at a time is cut at the
+/// deadline, not kept as long as each byte comes within a timeout.
+#[allow(
+    clippy::disallowed_methods,
+    reason = "the channel's own threads, off the cycle: the deadline is wall time"
+)]
+fn read_request(mut stream: &UnixStream, deadline: Instant) -> std::io::Result<String> {
+    let mut buf = [0u8; MAX_LINE];
+    let mut n = 0;
+    while n < MAX_LINE && !buf[..n].contains(&b'\n') {
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(std::io::ErrorKind::TimedOut.into());
+        }
+        stream.set_read_timeout(Some(left))?;
+        match stream.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    let line = buf[..n].split(|b| *b == b'\n').next().unwrap_or_default();
+    Ok(String::from_utf8_lossy(line).trim().to_owned())
+}
+
+/// One connection just accepted: a peer that is not an operator (or whose user id is not
+/// known) is refused and closed at once, before anything is read from it; an operator's is
+/// served on a thread of its own, at most [`MAX_CONNECTIONS`] at once.
+#[allow(
+    clippy::disallowed_methods,
+    reason = "the channel's own thread, off the cycle: the request's deadline is wall time"
+)]
+fn admit(
+    mut stream: UnixStream,
+    control: &Arc<CycleControl>,
+    allowed: &Arc<[u32]>,
+    path: &Arc<Path>,
+    busy: &Arc<AtomicUsize>,
+) {
+    let deadline = Instant::now() + REQUEST_TIMEOUT;
+    // A refusal is one short line into an empty socket buffer: it never waits long.
+    let _ = stream.set_write_timeout(Some(Duration::from_millis(100)));
     let (pid, uid) = match peer_credentials(&stream) {
         Ok(c) => c,
         Err(e) => {
             tracing::warn!("acknowledgement channel: peer credentials unknown ({e}): refused");
             let _ = writeln!(stream, "refused the peer's user id is unknown");
-            return;
-        }
-    };
-    // The request is read first, so the peer gets the refusal as a reply.
-    let request = match read_line(&stream) {
-        Ok(l) => l,
-        Err(e) => {
-            tracing::warn!(uid, pid, "acknowledgement channel: no request ({e})");
             return;
         }
     };
@@ -260,6 +316,52 @@ fn serve_one(mut stream: UnixStream, control: &CycleControl, allowed: &[u32], pa
         );
         return;
     }
+    if busy.fetch_add(1, Ordering::AcqRel) >= MAX_CONNECTIONS {
+        busy.fetch_sub(1, Ordering::AcqRel);
+        tracing::warn!(
+            uid,
+            pid,
+            "acknowledgement channel: {MAX_CONNECTIONS} connections served already: refused"
+        );
+        let _ = writeln!(
+            stream,
+            "refused busy ({MAX_CONNECTIONS} connections served now): try again"
+        );
+        return;
+    }
+    let (control, path, slot) = (control.clone(), path.clone(), busy.clone());
+    let spawned = std::thread::Builder::new()
+        .name("operator-ack-conn".into())
+        .spawn(move || {
+            serve_one(stream, &control, uid, pid, &path, deadline);
+            slot.fetch_sub(1, Ordering::AcqRel);
+        });
+    if let Err(e) = spawned {
+        busy.fetch_sub(1, Ordering::AcqRel);
+        tracing::warn!("acknowledgement channel: cannot serve a connection ({e})");
+    }
+}
+
+fn serve_one(
+    mut stream: UnixStream,
+    control: &CycleControl,
+    uid: u32,
+    pid: i32,
+    path: &Path,
+    deadline: Instant,
+) {
+    let _ = stream.set_write_timeout(Some(REQUEST_TIMEOUT));
+    let request = match read_request(&stream, deadline) {
+        Ok(l) => l,
+        Err(e) => {
+            tracing::warn!(
+                uid,
+                pid,
+                "acknowledgement channel: no request in time ({e})"
+            );
+            return;
+        }
+    };
     let reply = answer(&request, control, uid, pid, path);
     let _ = writeln!(stream, "{reply}");
 }
@@ -311,8 +413,8 @@ fn wait_cleared(control: &CycleControl, stop: LatchedStop) -> String {
             return format!("cleared {}", stop.seq);
         }
     }
-    "dropped the cycle did not take it (the link is down or the arm still stopping): \
-     acknowledge again once the arm is at rest on a live link"
+    "dropped the cycle did not take it (the link is down, or the arm is still stopping or \
+     not measured at rest): acknowledge again once the arm is at rest on a live link"
         .into()
 }
 
@@ -334,7 +436,11 @@ fn request(path: &Path, line: &str) -> Result<String, AckChannelError> {
     stream
         .set_read_timeout(Some(REQUEST_TIMEOUT + CLEAR_WAIT + Duration::from_secs(1)))
         .map_err(io)?;
-    writeln!(stream, "{line}").map_err(io)?;
+    match writeln!(stream, "{line}") {
+        // Refused and closed before the request was read: the refusal is still there.
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {}
+        r => r.map_err(io)?,
+    }
     read_line(&stream).map_err(io)
 }
 

@@ -63,6 +63,11 @@ pub const MAX_WEIGHTS: usize = 81_920;
 /// The blob format this build reads and writes (`format_version`).
 pub const POLICY_FORMAT_VERSION: u32 = 1;
 
+/// The policy id no blob may carry: rt-core's planner fallback reports its verified paths
+/// as policy 0 ("none": not a learned policy), so a learned policy with that id would be
+/// indistinguishable from it.
+pub const RESERVED_POLICY_ID: u64 = 0;
+
 /// Activation function. Stored as a `u8`; convert with `Activation::try_from(byte)`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[repr(u8)]
@@ -122,7 +127,7 @@ pub struct PolicyBlob {
     pub n_hidden: u8,
     /// Reserved, zero.
     pub reserved0: u8,
-    /// Identifier of this policy (unique per export; 0 is reserved for "none").
+    /// Identifier of this policy (unique per export; never [`RESERVED_POLICY_ID`]).
     pub policy_id: u64,
     /// Hash of the task configuration the policy was trained for.
     pub task_config_hash: u64,
@@ -366,7 +371,8 @@ impl PolicyBlob {
         self.checksum = self.compute_checksum();
     }
 
-    /// Checks, in this order: format version; activation bytes; dimensions and layer
+    /// Checks, in this order: format version; `policy_id` not [`RESERVED_POLICY_ID`];
+    /// activation bytes; dimensions and layer
     /// sizes within capacity and consistent with `n_weights`; the checksum; every used
     /// number finite; `obs_std > 0`, `obs_clip > 0`, `action_clip > 0`.
     ///
@@ -384,6 +390,11 @@ impl PolicyBlob {
                 expected: POLICY_FORMAT_VERSION,
                 found: self.format_version,
             });
+        }
+        // Issue 41 item 5: a learner's blob with id 0 would be taken for the planner's
+        // verified path in rt-core's verdicts, logs and acknowledgements.
+        if self.policy_id == RESERVED_POLICY_ID {
+            return Err(SchemaError::OutOfRange { field: "policy_id" });
         }
         match Activation::try_from(self.activation)? {
             Activation::Tanh | Activation::Relu => {}
@@ -457,6 +468,23 @@ impl PolicyBlob {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 41 item 5: a blob with the planner's id 0 is refused (before: accepted).
+    #[test]
+    fn a_blob_with_the_reserved_policy_id_is_refused() {
+        let blob = crate::PolicyBlobBuilder::random(7, 42, 17, &[16], 3, 1)
+            .build()
+            .unwrap();
+        assert_eq!(blob.validate(), Ok(()));
+        let mut zero = PolicyBlob::new_boxed();
+        zero.copy_from(&blob);
+        zero.policy_id = RESERVED_POLICY_ID;
+        zero.seal();
+        assert_eq!(
+            zero.validate(),
+            Err(SchemaError::OutOfRange { field: "policy_id" })
+        );
+    }
 
     #[test]
     fn blob_file_bytes_round_trip_and_bad_files_are_rejected() {

@@ -114,6 +114,9 @@ pub struct InProcessArm {
     /// Connections so far: a read after a cut counts a new one ([`LinkState::session`]).
     session: u32,
     cut_seen: bool,
+    /// A target came since the last reading: without one the arm holds still, and reads
+    /// at rest (a controller holding its last target).
+    sent_since_read: bool,
 }
 
 impl InProcessArm {
@@ -138,6 +141,7 @@ impl InProcessArm {
             max_target_step_rad: 0.0,
             session: 0,
             cut_seen: false,
+            sent_since_read: false,
         }
     }
 
@@ -177,6 +181,9 @@ impl RobotLink for InProcessArm {
         if std::mem::take(&mut self.cut_seen) {
             // The connection was cut and is back: a re-opened connection.
             self.session = self.session.wrapping_add(1);
+        }
+        if !std::mem::take(&mut self.sent_since_read) {
+            self.dq_rad_s = [0.0; DOF];
         }
         Ok(LinkState {
             stamp_ns: now_ns,
@@ -221,6 +228,7 @@ impl RobotLink for InProcessArm {
             self.dq_rad_s[j] = if dt_s > 0.0 { step / dt_s } else { 0.0 };
         }
         self.commands += 1;
+        self.sent_since_read = true;
         Ok(())
     }
 }

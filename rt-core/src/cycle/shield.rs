@@ -96,6 +96,13 @@ pub enum ShieldViolation {
     /// A moving command without a scene to check its clearance against.
     #[error("no scene to check the command against")]
     NoScene,
+    /// The TCP would move farther in one target than the controller executes in its own
+    /// servo period ([`MAX_TCP_STEP_M`]), whatever the cycle's period.
+    #[error("TCP step {step_m} m over the controller's {MAX_TCP_STEP_M} m per target")]
+    TcpStep {
+        /// The step, m.
+        step_m: f64,
+    },
     /// The elbow (0) or wrist (1) link origin would move faster than the TCP limit.
     #[error("link point {point} speed {speed_m_s} m/s over the limit")]
     LinkSpeed {
@@ -127,7 +134,9 @@ impl ShieldViolation {
             ShieldViolation::NonFinite => 1,
             ShieldViolation::JointLimit { .. } => 2,
             ShieldViolation::Workspace => 3,
-            ShieldViolation::TcpSpeed { .. } => 4,
+            // One code for both bounds on the TCP's motion (10 + 10 would be another
+            // stop's code, `StopReason::code`).
+            ShieldViolation::TcpSpeed { .. } | ShieldViolation::TcpStep { .. } => 4,
             ShieldViolation::Clearance { .. } => 5,
             ShieldViolation::JointStep { .. } => 6,
             ShieldViolation::LinkSpeed { .. } => 7,
@@ -136,6 +145,12 @@ impl ShieldViolation {
         }
     }
 }
+
+/// The most the TCP may move between two targets, m: what the xArm controller executes in
+/// its 4 ms servo period (its 1 m/s TCP limit with its 25 % slack; `xarm-sim`'s protective
+/// check). At 250 Hz and the configured 0.8 m/s a target moves 3.2 mm; at 100 Hz the speed
+/// limit alone would allow 8 mm, which the controller faults on (issue 41 item 5).
+pub const MAX_TCP_STEP_M: f64 = 0.005;
 
 /// The shield's fixed limits.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -150,6 +165,8 @@ pub struct ShieldLimits {
     pub workspace_max_m: [f64; 3],
     /// Maximum TCP speed (and elbow/wrist origin speed), m/s.
     pub max_tcp_speed_m_s: f64,
+    /// Maximum TCP step between two targets, m ([`MAX_TCP_STEP_M`]).
+    pub max_tcp_step_m: f64,
     /// Maximum joint velocities, rad/s (the step limit is one period of these).
     pub max_velocity_rad_s: Joints,
     /// Minimum clearance, m.
@@ -163,6 +180,16 @@ impl ShieldLimits {
     pub fn max_step_rad(&self, period_s: f64) -> f64 {
         let v = self.max_velocity_rad_s.iter().copied().fold(0.0, f64::max);
         v * period_s * (1.0 + STEP_TOLERANCE)
+    }
+
+    /// The TCP speed a plan sampled every `period_s` may reach: the speed limit, or less
+    /// where one period at it would step farther than [`ShieldLimits::max_tcp_step_m`].
+    pub fn tcp_speed_limit_m_s(&self, period_s: f64) -> f64 {
+        if period_s > 0.0 {
+            self.max_tcp_speed_m_s.min(self.max_tcp_step_m / period_s)
+        } else {
+            self.max_tcp_speed_m_s
+        }
     }
 
     /// From the runtime configuration.
@@ -179,6 +206,7 @@ impl ShieldLimits {
             workspace_min_m: shield.workspace_min_m,
             workspace_max_m: shield.workspace_max_m,
             max_tcp_speed_m_s: limits.max_tcp_speed_m_s,
+            max_tcp_step_m: MAX_TCP_STEP_M,
             max_velocity_rad_s: limits.max_velocity_rad_s,
             min_distance_m: shield.min_distance_m,
         }
@@ -244,8 +272,8 @@ impl<M: ShieldModel> Shield<M> {
 
     /// The one check of a command `q_rad` sent `dt_s` after `prev_q_rad` (the last command
     /// sent): the pose checks, each joint's step against one period at its velocity limit
-    /// (plus [`STEP_TOLERANCE`]), and the speed of the elbow, the wrist and the TCP. Returns
-    /// the clearance, m.
+    /// (plus [`STEP_TOLERANCE`]), the speed of the elbow, the wrist and the TCP, and the
+    /// TCP's step against the controller's [`MAX_TCP_STEP_M`]. Returns the clearance, m.
     ///
     /// # Errors
     /// The first [`ShieldViolation`] found.
@@ -287,6 +315,9 @@ impl<M: ShieldModel> Shield<M> {
                 let dist =
                     ((pa[0] - pb[0]).powi(2) + (pa[1] - pb[1]).powi(2) + (pa[2] - pb[2]).powi(2))
                         .sqrt();
+                if k == WATCHED_POINTS - 1 && dist > self.limits.max_tcp_step_m {
+                    return Err(ShieldViolation::TcpStep { step_m: dist });
+                }
                 let speed_m_s = dist / dt_s;
                 if speed_m_s > self.limits.max_tcp_speed_m_s {
                     return Err(if k == WATCHED_POINTS - 1 {
@@ -417,6 +448,41 @@ mod tests {
             Err(ShieldViolation::TcpSpeed { .. } | ShieldViolation::LinkSpeed { .. })
         ));
         let below_table = [0.0, 2.0, 0.15, 0.5, 0.0];
+        // Issue 41 item 5: within the TCP speed limit at a slow rate (100 Hz), but farther
+        // in one target than the controller's 5 mm (before: passed, the speed alone was
+        // checked, which allows 8 mm at 0.8 m/s and 100 Hz).
+        let mut limits = *s.limits();
+        limits.max_tcp_speed_m_s = 0.8;
+        limits.max_velocity_rad_s = [3.0; DOF];
+        let mut slow_rate = Shield::new(ToyArm, limits);
+        let dt = 0.01;
+        let step_toward = |target_m: f64| {
+            // Joint 0 (the base) alone: the TCP moves on a circle of the reach's radius.
+            let tcp = ToyArm.tcp_position_m(&HOME);
+            let reach_m = tcp[0].hypot(tcp[1]);
+            let mut q = HOME;
+            q[0] += target_m / reach_m;
+            q
+        };
+        let eight_mm = step_toward(0.008);
+        let moved = ToyArm.tcp_position_m(&eight_mm);
+        let from = ToyArm.tcp_position_m(&HOME);
+        let step_m = (0..3)
+            .map(|k| (moved[k] - from[k]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!(step_m > MAX_TCP_STEP_M && step_m / dt <= 0.8, "{step_m}");
+        assert!(matches!(
+            slow_rate.check_step(&HOME, &eight_mm, dt, &empty),
+            Err(ShieldViolation::TcpStep { .. })
+        ));
+        assert!(
+            slow_rate
+                .check_step(&HOME, &step_toward(0.004), dt, &empty)
+                .is_ok()
+        );
+        assert!((limits.tcp_speed_limit_m_s(dt) - 0.5).abs() < 1e-12);
+        assert!((limits.tcp_speed_limit_m_s(0.004) - 0.8).abs() < 1e-12);
         assert_eq!(
             s.check_pose(&below_table, &empty),
             Err(ShieldViolation::Workspace)

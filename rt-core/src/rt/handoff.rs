@@ -4,16 +4,20 @@
 //!   over through a `heapless::spsc` queue — taking one is a single atomic step on the
 //!   receiving side — and **returned** through a second queue so that the sending side, never
 //!   the cycle, frees them.
-//! - [`latest`]: `Copy` values (scene snapshots, cycle reports) through a bounded SPSC queue
-//!   whose consumer keeps the newest; a full queue drops the newest value and counts it.
+//! - [`latest`]: `Copy` values (scene snapshots, cycle reports) through a bounded lock-free
+//!   queue whose consumer keeps the newest; a full queue drops its *oldest* value and counts
+//!   it (`crossbeam_queue::ArrayQueue::force_push`), so after a stall of the consumer the
+//!   next read is the newest value sent, never one from the start of the stall (issue 41).
 //!
 //! Storage is allocated once, when a channel is made (its queues live for the rest of the
-//! process: a runtime makes a handful of channels at start-up). Producer and consumer roles
-//! are enforced by the borrow checker (`heapless::spsc::Queue::split`).
+//! process: a runtime makes a handful of channels at start-up); sending and taking allocate
+//! nothing. Producer and consumer roles are enforced by the borrow checker
+//! (`heapless::spsc::Queue::split`; a latest-value channel's ends are not `Clone`).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use crossbeam_queue::ArrayQueue;
 use heapless::spsc::{Consumer, Producer, Queue};
 
 /// Storage of a boxed channel's queue: up to `BOX_QUEUE_CAPACITY - 1` values in flight.
@@ -119,36 +123,35 @@ impl<T: Send + 'static> BoxReceiver<T> {
 
 /// Producer of a latest-value channel.
 pub struct LatestSender<T: Copy + 'static> {
-    tx: Producer<'static, T>,
+    queue: Arc<ArrayQueue<T>>,
     dropped: Arc<AtomicU64>,
 }
 
 /// Consumer of a latest-value channel.
 pub struct LatestReceiver<T: Copy + 'static> {
-    rx: Consumer<'static, T>,
+    queue: Arc<ArrayQueue<T>>,
 }
 
-/// Storage of a latest-value channel: up to `LATEST_CAPACITY - 1` values queued.
+/// Storage of a latest-value channel: up to `LATEST_CAPACITY` values queued.
 pub const LATEST_CAPACITY: usize = 64;
 
 /// A latest-value channel: see the module docs.
 pub fn latest<T: Copy + Send + 'static>() -> (LatestSender<T>, LatestReceiver<T>) {
-    let q: &'static mut Queue<T, LATEST_CAPACITY> = Box::leak(Box::new(Queue::new()));
-    let (tx, rx) = q.split();
+    let queue = Arc::new(ArrayQueue::new(LATEST_CAPACITY));
     (
         LatestSender {
-            tx,
+            queue: queue.clone(),
             dropped: Arc::new(AtomicU64::new(0)),
         },
-        LatestReceiver { rx },
+        LatestReceiver { queue },
     )
 }
 
 impl<T: Copy + Send + 'static> LatestSender<T> {
-    /// Sends `value`; when the queue is full it is dropped and counted. Returns whether it
-    /// was queued.
+    /// Sends `value`, always queued; when the queue is full its oldest value is dropped
+    /// and counted. Returns whether none was dropped.
     pub fn send(&mut self, value: T) -> bool {
-        if self.tx.enqueue(value).is_ok() {
+        if self.queue.force_push(value).is_none() {
             true
         } else {
             self.dropped.fetch_add(1, Ordering::Relaxed);
@@ -156,7 +159,7 @@ impl<T: Copy + Send + 'static> LatestSender<T> {
         }
     }
 
-    /// Values dropped because the queue was full.
+    /// Values dropped (the oldest) because the queue was full.
     pub fn dropped(&self) -> u64 {
         self.dropped.load(Ordering::Relaxed)
     }
@@ -166,15 +169,15 @@ impl<T: Copy + Send + 'static> LatestReceiver<T> {
     /// The newest value queued since the last call, if any.
     pub fn latest(&mut self) -> Option<T> {
         let mut last = None;
-        while let Some(v) = self.rx.dequeue() {
+        while let Some(v) = self.queue.pop() {
             last = Some(v);
         }
         last
     }
 
-    /// Every value queued since the last call, oldest first.
+    /// Every value queued since the last call and still held, oldest first.
     pub fn drain(&mut self, mut f: impl FnMut(T)) {
-        while let Some(v) = self.rx.dequeue() {
+        while let Some(v) = self.queue.pop() {
             f(v);
         }
     }
@@ -223,16 +226,30 @@ mod tests {
         }
     }
 
+    /// Issue 41: a full queue drops its oldest value, never the newest. Before, the newest
+    /// were dropped: after a stall of the consumer longer than the queue, its next read was
+    /// a value from the start of the stall (here `LATEST_CAPACITY - 2` of
+    /// `LATEST_CAPACITY + 4`).
     #[test]
-    fn latest_keeps_the_newest_and_counts_drops() {
+    fn latest_keeps_the_newest_when_full_and_counts_drops() {
         let (mut tx, mut rx) = latest::<u64>();
         assert_eq!(rx.latest(), None);
-        for i in 0..(LATEST_CAPACITY as u64 + 5) {
+        let newest = LATEST_CAPACITY as u64 + 4;
+        for i in 0..=newest {
             tx.send(i);
         }
-        assert_eq!(tx.dropped(), 6);
-        assert_eq!(rx.latest(), Some(LATEST_CAPACITY as u64 - 2));
+        assert_eq!(tx.dropped(), 5);
+        assert_eq!(rx.latest(), Some(newest));
         assert_eq!(rx.latest(), None);
+        // And what is left to drain after a stall is the newest values, in order.
+        for i in 0..=newest {
+            tx.send(i);
+        }
+        let mut seen = Vec::new();
+        rx.drain(|v| seen.push(v));
+        assert_eq!(seen.len(), LATEST_CAPACITY);
+        assert_eq!(seen.last(), Some(&newest));
+        assert!(seen.windows(2).all(|w| w[1] == w[0] + 1));
     }
 
     #[test]

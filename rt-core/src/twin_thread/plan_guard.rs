@@ -8,7 +8,7 @@
 //! What is live is known from the cycle, never from what was sent last: a plan stays live
 //! until its box comes back through the hand-over ([`PlanGuard::returned`]), and which live
 //! plan runs, and which were adopted already, is read from the cycle's own words
-//! ([`CycleControl::progress`], [`CycleControl::adopted_up_to`]). A plan the cycle refused
+//! ([`CycleControl::adoption`]: its progress and adoption in one word). A plan the cycle refused
 //! therefore never replaces the running one in the guard's view.
 //!
 //! Join before stopping (issue 33 item 5, `join_before_stopping`): when only the running
@@ -272,12 +272,16 @@ impl<M: ShieldModel> PlanGuard<M> {
         if plan.id <= revoked {
             return Standing::Inert;
         }
-        match (self.control.progress(), plan.join) {
+        // Progress and adoption from one load: read apart, a frame between the cycle's
+        // adoption and its next report saw "not following" and "adopted" together and left
+        // the new plan unverified (issue 41 item 3).
+        let adoption = self.control.adoption();
+        match (adoption.following, plan.join) {
             (Some((running, next)), _) if plan.id == running => Standing::Running { next },
             (Some((running, _)), Some(j)) if j.plan_id == running => Standing::Joining {
                 join_index: j.index,
             },
-            (None, None) if plan.id > self.control.adopted_up_to() => Standing::NotAdopted,
+            (None, None) if plan.id > adoption.adopted_up_to => Standing::NotAdopted,
             _ => Standing::Inert,
         }
     }

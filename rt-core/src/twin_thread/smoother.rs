@@ -95,14 +95,20 @@ impl PlanSmoother {
         model: &mut M,
         plan: &mut Plan,
     ) -> Result<(), SmoothError> {
+        // The shield's bound: the speed limit, and no TCP step per sample beyond the
+        // controller's (issue 41 item 5).
+        let limit_m_s = self
+            .limits
+            .max_tcp_speed_m_s
+            .min(crate::cycle::shield::MAX_TCP_STEP_M / self.period_s);
         let mut scale = 1.0;
         for _ in 0..5 {
             self.smooth_scaled(start, waypoints, step_s, scale, plan)?;
             let speed = max_tcp_speed_m_s(model, &start.q_rad, &plan.q_rad, self.period_s);
-            if speed <= self.limits.max_tcp_speed_m_s {
+            if speed <= limit_m_s {
                 return Ok(());
             }
-            scale *= 0.95 * self.limits.max_tcp_speed_m_s / speed;
+            scale *= 0.95 * limit_m_s / speed;
         }
         Err(SmoothError::TcpSpeed)
     }

@@ -282,6 +282,12 @@ impl XRig {
         let (twin_io, cycle_io, log) = cycle::wire::<Scene>();
         let mut cycle_cfg = CycleConfig::from_runtime(&cfg);
         cycle_cfg.auto_resume_after_link_loss = auto_resume;
+        // The rig's cycle runs on wall time on the test's thread, without real-time
+        // priority, beside the whole suite: it keeps the 100 ms freeze bound it was written
+        // for (its freeze tests stall past it). The production bound, 10 periods (40 ms at
+        // 250 Hz, issue 41 item 5), is tested on the manual clock (`runtime/safety.rs`); on
+        // a loaded 2-core machine this rig's cycle was late by more than that 3 times of 3.
+        cycle_cfg.max_cycle_gap_ns = cycle_cfg.max_cycle_gap_ns.max(100_000_000);
         let mut cycle = Cycle::new(
             cycle_cfg,
             Shield::new(

@@ -13,10 +13,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, mpsc};
 
 use rt_core::config::RuntimeConfig;
+use rt_core::cycle::plan::Plan;
 use rt_core::cycle::shield::{Shield, ShieldLimits, ShieldModel};
-use rt_core::cycle::{Mode, StopReason};
+use rt_core::cycle::{Intruders, Mode, SceneUpdate, StopReason};
 use rt_core::rt::clock::{Clock, ManualClock};
 use rt_core::testing::toy::{ToyArm, ToyPolicy, ToyScene, toy_closest_approach_m, toy_cycle};
+use rt_core::twin_thread::plan_guard::PlanGuard;
 use rt_core::twin_thread::worker::{FallbackPlanner, PLANNER_POLICY_ID};
 use rt_core::twin_thread::{GoalApproach, Lookahead, TwinEvent, TwinWorker, Verdict};
 use twin::Joints;
@@ -336,4 +338,132 @@ fn a_frame_during_a_long_planner_search_reaches_the_cycle_and_the_guard_within_o
             .any(|e| matches!(e, TwinEvent::Revoked { plan_id, .. } if *plan_id == running)),
         "{events:?}"
     );
+}
+
+/// An in-process arm whose next servo send, once armed, hands the plan guard a frame: the
+/// frame reaches the guard between the cycle's adoption of a plan and its report of it
+/// (a real link's send takes that long).
+struct InjectingLink {
+    arm: rt_core::cycle::link::InProcessArm,
+    guard: Arc<std::sync::Mutex<PlanGuard<ToyArm>>>,
+    inject: Option<ToyScene>,
+}
+
+impl rt_core::cycle::link::RobotLink for InjectingLink {
+    fn read_state(
+        &mut self,
+        now_ns: u64,
+    ) -> Result<rt_core::cycle::link::LinkState, rt_core::cycle::link::LinkError> {
+        self.arm.read_state(now_ns)
+    }
+
+    fn send_servo(
+        &mut self,
+        now_ns: u64,
+        q_rad: &Joints,
+    ) -> Result<(), rt_core::cycle::link::LinkError> {
+        if let Some(scene) = self.inject.take() {
+            self.guard.lock().unwrap().scene(scene);
+        }
+        self.arm.send_servo(now_ns, q_rad)
+    }
+}
+
+/// A smooth (cosine) plan from `from` to `to` over `duration_s`, sampled at `period_s`.
+fn cosine_plan(id: u64, from: &Joints, to: &Joints, duration_s: f64, period_s: f64) -> Plan {
+    let n = (duration_s / period_s).ceil() as usize;
+    let mut plan = Plan::with_capacity(id, 1, period_s, n + 1);
+    let w = std::f64::consts::PI / duration_s;
+    for k in 0..=n {
+        let t = (k as f64 * period_s).min(duration_s);
+        let s = 0.5 * (1.0 - (w * t).cos());
+        let ds = 0.5 * w * (w * t).sin();
+        let dds = 0.5 * w * w * (w * t).cos();
+        plan.push(
+            std::array::from_fn(|j| from[j] + (to[j] - from[j]) * s),
+            std::array::from_fn(|j| (to[j] - from[j]) * ds),
+            std::array::from_fn(|j| (to[j] - from[j]) * dds),
+        );
+    }
+    plan
+}
+
+/// Issue 41 item 3: the cycle adopts a plan, sends its first command through the link, and
+/// only then reports its progress. A frame that reaches the plan guard in that window (here
+/// from inside the link's send) must still verify the just-adopted plan. Before the fix the
+/// guard read "not following" (the old progress) and then "adopted up to this plan" (the
+/// new adoption), took the plan for one that can no longer move the arm and verified
+/// nothing: the plan ran on into the box, and later frames of the same scene never looked
+/// at it again.
+#[test]
+fn a_frame_between_a_plans_adoption_and_the_cycles_report_still_verifies_the_plan() {
+    let mut cfg = RuntimeConfig::xarm5_default();
+    cfg.return_home = false;
+    let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
+    let (mut twin_io, cycle_io, _log) = rt_core::cycle::wire::<ToyScene>();
+    let period_s = 1.0 / cfg.rate_hz;
+    let guard = Arc::new(std::sync::Mutex::new(PlanGuard::new(
+        Shield::new(ToyArm, limits),
+        period_s,
+        twin_io.control.clone(),
+    )));
+    let link = InjectingLink {
+        arm: rt_core::cycle::link::InProcessArm::new(
+            START,
+            cfg.limits.joint_min_rad,
+            cfg.limits.joint_max_rad,
+            [3.0; twin::DOF],
+        ),
+        guard: guard.clone(),
+        inject: None,
+    };
+    let mut cycle = rt_core::cycle::Cycle::new(
+        rt_core::cycle::CycleConfig::from_runtime(&cfg),
+        Shield::new(ToyArm, limits),
+        rt_core::cycle::brake::Brake::new(&cfg.limits),
+        link,
+        cycle_io,
+    );
+    let clock = ManualClock::new(1_000_000_000);
+    cycle.start(clock.now_ns()).expect("start");
+    let clear = ToyScene::empty();
+    let blocked = with_box_at_target_a(clear);
+    // One period: the cycle's own scene stays clear (only the guard, which looks along
+    // the whole plan, can find the box at its far end).
+    macro_rules! period {
+        () => {{
+            let now = clock.now_ns();
+            twin_io.scenes.send(SceneUpdate {
+                scene: clear,
+                stamp_ns: now,
+                refused: false,
+                intruders: Intruders::NONE,
+            });
+            let mode = cycle.process(now);
+            clock.advance_ns(cfg.period_ns());
+            mode
+        }};
+    }
+    for _ in 0..5 {
+        period!();
+    }
+    guard.lock().unwrap().scene(clear);
+    let plan = cosine_plan(1, &START, &TARGET_A, 5.0, period_s);
+    guard.lock().unwrap().sent(Arc::new(plan.clone()), clear);
+    assert!(twin_io.plans.send(Box::new(plan)).is_ok());
+    cycle.link_mut().inject = Some(blocked);
+    assert_eq!(period!(), Mode::Following, "the plan was not adopted");
+    assert!(cycle.link().inject.is_none(), "the link sent nothing");
+    assert!(
+        twin_io.control.revoked_up_to() >= 1,
+        "the just-adopted plan was not verified against the frame that came in between: {:?}",
+        guard.lock().unwrap().take_revocations()
+    );
+    // Later frames of the same scene change nothing: only that verification could stop it.
+    for _ in 0..5 {
+        guard.lock().unwrap().scene(blocked);
+        period!();
+    }
+    assert_ne!(cycle.mode(), Mode::Following);
+    assert_eq!(cycle.report().stop_reason, StopReason::Revoked);
 }

@@ -253,6 +253,24 @@ fn a_frozen_cycle_stops_at_the_measured_joints_and_latches() {
     assert_eq!(rig.mode(), Mode::Stopped);
 }
 
+/// Issue 41 item 5: a freeze of 50 ms at 250 Hz (12 periods missed) is a freeze. Before,
+/// the bound had a 100 ms floor above its own 10 periods (40 ms), and freezes of 40–100 ms
+/// went undetected: the cycle streamed on as if nothing had happened.
+#[test]
+fn a_freeze_of_fifty_milliseconds_stops_the_arm() {
+    let mut rig = Rig::new();
+    assert_eq!(rig.cfg.rate_hz, 250.0);
+    rig.policy(1, TARGET_A);
+    rig.run(60);
+    assert_eq!(rig.mode(), Mode::Following);
+    let held = rig.arm_q();
+    rig.clock.advance_ns(50_000_000);
+    rig.run(1);
+    let r = *rig.cycle.report();
+    assert_eq!(r.stop_reason, StopReason::Frozen, "{r:?}");
+    assert_eq!(rig.arm_q(), held, "a target was streamed after the freeze");
+}
+
 /// The same freeze on a simulated arm that auto-resumes: a pause, then a fresh plan from
 /// where the arm stands.
 #[test]
@@ -272,4 +290,89 @@ fn a_frozen_cycle_on_an_auto_resuming_arm_stops_then_continues_on_a_fresh_plan()
         "{:?}",
         rig.cycle.report()
     );
+}
+
+/// An in-process arm whose measured joints drift at `drift_rad_s` (an arm still coasting,
+/// or pushed by hand, while the cycle holds it latched).
+struct DriftingArm {
+    arm: rt_core::cycle::link::InProcessArm,
+    drift_rad_s: f64,
+}
+
+impl rt_core::cycle::link::RobotLink for DriftingArm {
+    fn read_state(
+        &mut self,
+        now_ns: u64,
+    ) -> Result<rt_core::cycle::link::LinkState, rt_core::cycle::link::LinkError> {
+        let mut st = self.arm.read_state(now_ns)?;
+        st.dq_rad_s[0] += self.drift_rad_s;
+        Ok(st)
+    }
+
+    fn send_servo(
+        &mut self,
+        now_ns: u64,
+        q_rad: &twin::Joints,
+    ) -> Result<(), rt_core::cycle::link::LinkError> {
+        self.arm.send_servo(now_ns, q_rad)
+    }
+}
+
+/// Issue 41 item 5: an acknowledgement counts only with the arm measured at rest. Before,
+/// one taken while the measured joints still moved (an arm coasting or pushed, the stop
+/// not over on the controller's side) re-enabled motion at once.
+#[test]
+fn an_acknowledgement_while_the_arm_is_measured_moving_is_dropped() {
+    use rt_core::rt::clock::{Clock, ManualClock};
+    let mut cfg = rt_core::config::RuntimeConfig::xarm5_default();
+    cfg.return_home = false;
+    let limits = rt_core::cycle::shield::ShieldLimits::from_config(&cfg.limits, &cfg.shield);
+    let (twin_io, cycle_io, _log) = rt_core::cycle::wire::<rt_core::testing::toy::ToyScene>();
+    let arm = rt_core::cycle::link::InProcessArm::new(
+        crate::common::START,
+        cfg.limits.joint_min_rad,
+        cfg.limits.joint_max_rad,
+        [3.0; twin::DOF],
+    );
+    let conn = arm.connection();
+    let mut cycle = rt_core::cycle::Cycle::new(
+        rt_core::cycle::CycleConfig::from_runtime(&cfg),
+        rt_core::cycle::shield::Shield::new(rt_core::testing::toy::ToyArm, limits),
+        rt_core::cycle::brake::Brake::new(&cfg.limits),
+        DriftingArm {
+            arm,
+            drift_rad_s: 0.0,
+        },
+        cycle_io,
+    );
+    let clock = ManualClock::new(1_000_000_000);
+    cycle.start(clock.now_ns()).expect("start");
+    let period = |cycle: &mut rt_core::cycle::Cycle<_, DriftingArm>| {
+        cycle.process(clock.now_ns());
+        clock.advance_ns(cfg.period_ns());
+    };
+    period(&mut cycle);
+    // A lost link latches; it comes back.
+    conn.store(false, Ordering::Release);
+    period(&mut cycle);
+    conn.store(true, Ordering::Release);
+    period(&mut cycle);
+    assert!(cycle.report().awaiting_ack, "{:?}", cycle.report());
+    // The arm is measured moving: the acknowledgement is dropped, the stop stays.
+    cycle.link_mut().drift_rad_s = 0.05;
+    period(&mut cycle);
+    twin_io.control.acknowledge_latched();
+    period(&mut cycle);
+    let r = *cycle.report();
+    assert!(
+        r.awaiting_ack,
+        "cleared while the arm was measured moving: {r:?}"
+    );
+    assert_eq!(r.acks_dropped, 1, "{r:?}");
+    // At rest, a new acknowledgement counts.
+    cycle.link_mut().drift_rad_s = 0.0;
+    period(&mut cycle);
+    twin_io.control.acknowledge_latched();
+    period(&mut cycle);
+    assert!(!cycle.report().awaiting_ack, "{:?}", cycle.report());
 }

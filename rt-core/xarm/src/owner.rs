@@ -7,15 +7,19 @@
 //! file, so it dies with the process whatever the way out (a crash, `kill -9`), and a stale
 //! lock cannot exist. The file itself stays; only the lock on it counts.
 //!
-//! Where: `$FORESIGHT_LOCK_DIR` if set, else the machine's own lock folder, `/run/lock`
-//! (or `/tmp` where there is none): a folder owned by root, sticky and writable by all, so
-//! two users of one machine lock the same file and cannot both drive one arm, and neither
-//! can remove the other's lock file. The files lie directly in it (`foresight-xarm-…`); no
-//! sub-folder that another user could have made first. Every folder is checked before use
-//! ([`check_lock_folder`]): it and each folder above it must be a real folder (no symbolic
-//! link), owned by root or by this user, and sticky if others may write to it; otherwise
-//! the lock is refused ([`ArmLockError::InsecureFolder`], naming the folder and why), since
-//! another user could remove or replace the lock file under a running owner.
+//! Where: `$FORESIGHT_LOCK_DIR` if set, else the folder `foresight` in the machine's own
+//! lock folder, `/run/lock/foresight` (`/tmp/foresight` where there is no `/run/lock`). The
+//! lock folder is private (issue 41 item 4): made at start by rt-core's user with mode 0755
+//! and checked before every use to be owned by that user and writable by nobody else, so no
+//! other user can plant a file, a socket or a link where the lock or the operator's
+//! acknowledgement channel (`<lock>.ack`) belongs. Operators of another account reach the
+//! channel through the folder's search permission; the channel decides by their user id.
+//! Every folder above it must be a real folder (no symbolic link), owned by root or by this
+//! user, and sticky if others may write to it (`/run/lock` and `/tmp` are). Otherwise the
+//! lock is refused ([`ArmLockError::InsecureFolder`], naming the folder and why). Two users
+//! of one machine still cannot both drive one arm: the second finds the lock folder owned
+//! by the first and is refused, naming it. A file another user put in the lock's place is
+//! named with the way to remove it ([`ArmLockError::Planted`]).
 //!
 //! Name: the *canonical* controller address ([`canonical_addr`]), so every spelling of one
 //! arm is one lock: the name is resolved (trailing dots and case ignored) to the first
@@ -31,8 +35,9 @@
 //! with POSIX locks on the server (Linux ≥ 2.6.12) and is only as good as the server's lock
 //! manager: keep the lock folder on a local file system.
 //!
-//! The file is [`LOCK_FILE_MODE`] (0644): every user may open it to take the lock and to
-//! read who holds it; only its creator may write it.
+//! The file is [`LOCK_FILE_MODE`] (0600): no other user may open it, so none can take (or
+//! hold) the lock with a read-only descriptor and refuse rt-core the arm. Who holds it is
+//! still named to other users from the kernel's lock table ([`owner_of`]).
 //!
 //! The holder writes one fixed-size record (pid, since, address, command line) at offset 0
 //! in a single write, closed by an end line that repeats the pid; a reader that catches a
@@ -59,16 +64,23 @@ use crate::config::XArmConfig;
 /// Environment variable naming the lock folder (default [`DEFAULT_LOCK_DIR`]).
 pub const LOCK_DIR_ENV: &str = "FORESIGHT_LOCK_DIR";
 
-/// The lock file's mode: readable by all, writable by its creator only (issue 30 item 7).
-/// Every user may open it read-only, and a read-only descriptor takes the `flock` as well, so
-/// two users still cannot both drive one arm; only the creator can write the holder record,
-/// so nobody else can plant a false one. Not 0600: the file stays after its owner ends, and
-/// a file other users cannot open would shut them out of that arm for good (or until root
-/// removes it), while telling them nothing about who holds it.
-pub const LOCK_FILE_MODE: u32 = 0o644;
+/// The lock file's mode: readable and writable by its creator only (issue 41 item 4). A
+/// file others could open (0644 before) let any user take a read-only descriptor's `flock`
+/// on it and refuse rt-core the arm. The file lies in a private folder
+/// ([`LOCK_FOLDER_MODE`]), so another user's rt-core never needs to open it: it is refused
+/// at the folder, naming its owner.
+pub const LOCK_FILE_MODE: u32 = 0o600;
 
-/// The machine-wide lock folders, in order of preference: the first that exists is used.
+/// The lock folder's mode when rt-core makes it: writable by its owner only; others may
+/// pass through it to the acknowledgement channel's socket.
+pub const LOCK_FOLDER_MODE: u32 = 0o755;
+
+/// The machine-wide lock folders, in order of preference: the first that exists holds the
+/// private lock folder [`LOCK_SUBDIR`].
 pub const DEFAULT_LOCK_DIRS: [&str; 2] = ["/run/lock", "/tmp"];
+
+/// The private lock folder's name in the machine-wide one.
+pub const LOCK_SUBDIR: &str = "foresight";
 
 /// Prefix of the lock files' names.
 const LOCK_FILE_PREFIX: &str = "foresight-xarm-";
@@ -123,18 +135,35 @@ pub enum ArmLockError {
         /// Why.
         kind: ErrorKind,
     },
-    /// The lock folder (or one above it) could let another user remove or replace the lock
-    /// file under a running owner.
+    /// The lock folder (or one above it) could let another user remove, replace or plant
+    /// a file where the lock or the acknowledgement channel belongs.
     #[error(
-        "refusing the lock folder {}: {why}; use a folder owned by root or by this user, \
-         not writable by others unless sticky (like /tmp), e.g. FORESIGHT_LOCK_DIR=/run/lock",
-        .path.display()
+        "refusing the lock folder {}: {why}; the lock folder must be this user's own and \
+         writable by it alone (rt-core makes it, mode 755, when it is missing), every folder \
+         above it owned by root or by this user and not writable by others unless sticky \
+         (like /tmp); if nothing of another user runs from it, remove it (as its owner or \
+         root: `rm -r -- '{}'`) or set FORESIGHT_LOCK_DIR to a folder of your own",
+        .path.display(), .path.display()
     )]
     InsecureFolder {
         /// The folder.
         path: PathBuf,
         /// Why.
         why: InsecureFolderWhy,
+    },
+    /// Something that is not this user's lock file lies in its place: a symbolic link, or
+    /// a file of another user.
+    #[error(
+        "{} lies where the arm's lock file {} belongs: rt-core does not use it; if no \
+         rt-core of that user runs, remove it (as its owner or root: `rm -f -- '{}'`) and \
+         start again",
+        .what, .path.display(), .path.display()
+    )]
+    Planted {
+        /// The lock file's path.
+        path: PathBuf,
+        /// What lies there ("a file of uid 1001", "a symbolic link").
+        what: String,
     },
     /// Another process holds the arm.
     #[error(
@@ -177,6 +206,13 @@ pub enum InsecureFolderWhy {
     /// The lock file is not a regular file.
     #[error("the lock file is not a regular file")]
     NotAFile,
+    /// The lock folder itself is writable by its group or by others (sticky or not): they
+    /// could plant a file where the lock or the acknowledgement channel belongs.
+    #[error("it is writable by others than its owner (mode {mode:o})")]
+    NotPrivate {
+        /// The folder's permission bits.
+        mode: u32,
+    },
 }
 
 /// The exclusive right to command one arm; released when dropped or when the process ends
@@ -226,8 +262,7 @@ impl ArmLock {
     pub fn acquire_in(dir: &Path, cfg: &XArmConfig) -> Result<Self, ArmLockError> {
         let addr = canonical_addr(&cfg.host, cfg.command_port)?;
         let path = dir.join(lock_file_name(addr));
-        make_dir(dir)?;
-        check_lock_folder(dir)?;
+        prepare_lock_folder(dir)?;
         let file = open(&path)?;
         match file.try_lock() {
             Ok(()) => {}
@@ -340,6 +375,28 @@ pub fn owner_in(dir: &Path, cfg: &XArmConfig) -> Result<LockHolder, ArmOwnerErro
     {
         Ok(f) => f,
         Err(e) if e.kind() == ErrorKind::NotFound => return Err(not_held()),
+        // Another user's lock (0600, issue 41 item 4): the kernel's lock table names the
+        // holder without opening the file.
+        Err(e) if e.kind() == ErrorKind::PermissionDenied => {
+            let meta = std::fs::symlink_metadata(&path).map_err(|e| ArmLockError::Io {
+                path: path.clone(),
+                kind: e.kind(),
+            })?;
+            let table =
+                std::fs::read_to_string("/proc/locks").map_err(|_| ArmOwnerError::Unconfirmed {
+                    addr,
+                    path: path.clone(),
+                })?;
+            return match flock_holder(&table, meta.ino()) {
+                Some(pid) => Ok(LockHolder {
+                    pid,
+                    since_unix_s: 0,
+                    addr: addr.to_string(),
+                    command_line: String::new(),
+                }),
+                None => Err(not_held()),
+            };
+        }
         Err(e) => {
             return Err(ArmLockError::Io {
                 path,
@@ -394,8 +451,8 @@ fn flock_holder(table: &str, ino: u64) -> Option<u32> {
     })
 }
 
-/// The lock folder: `$FORESIGHT_LOCK_DIR` if set, else the first of [`DEFAULT_LOCK_DIRS`]
-/// that exists.
+/// The lock folder: `$FORESIGHT_LOCK_DIR` if set, else [`LOCK_SUBDIR`] in the first of
+/// [`DEFAULT_LOCK_DIRS`] that exists.
 pub fn lock_dir() -> PathBuf {
     if let Some(d) = std::env::var_os(LOCK_DIR_ENV) {
         return PathBuf::from(d);
@@ -405,6 +462,18 @@ pub fn lock_dir() -> PathBuf {
         .map(PathBuf::from)
         .find(|d| d.is_dir())
         .unwrap_or_else(|| PathBuf::from("/tmp"))
+        .join(LOCK_SUBDIR)
+}
+
+/// Makes the lock folder `dir` when it is missing ([`LOCK_FOLDER_MODE`]) and checks it
+/// ([`check_lock_folder`]): what rt-core does before it puts its lock or its
+/// acknowledgement channel there.
+///
+/// # Errors
+/// As [`check_lock_folder`]; [`ArmLockError::Io`] when it cannot be made.
+pub fn prepare_lock_folder(dir: &Path) -> Result<(), ArmLockError> {
+    make_dir(dir)?;
+    check_lock_folder(dir)
 }
 
 /// The canonical address of the controller at `host:port`, the key of its lock: the name
@@ -477,9 +546,10 @@ pub fn effective_uid() -> u32 {
     unsafe { libc::geteuid() }
 }
 
-/// Checks that `dir` and every folder above it cannot be used by another user to remove or
-/// replace a lock file: each is a real folder (not a symbolic link), owned by root or by
-/// this user, and sticky when others may write to it.
+/// Checks that `dir` and every folder above it cannot be used by another user to remove,
+/// replace or plant a lock file: each is a real folder (not a symbolic link), owned by root
+/// or by this user, and sticky when others may write to it; and `dir` itself is this
+/// user's and writable by it alone (issue 41 item 4).
 ///
 /// # Errors
 /// [`ArmLockError::InsecureFolder`] naming the first folder that fails and why;
@@ -500,7 +570,7 @@ fn check_lock_folder_as(dir: &Path, uid: u32) -> Result<(), ArmLockError> {
             })?
             .join(dir)
     };
-    for folder in abs.ancestors() {
+    for (depth, folder) in abs.ancestors().enumerate() {
         let meta = std::fs::symlink_metadata(folder).map_err(|e| ArmLockError::Io {
             path: folder.to_path_buf(),
             kind: e.kind(),
@@ -524,12 +594,23 @@ fn check_lock_folder_as(dir: &Path, uid: u32) -> Result<(), ArmLockError> {
         if mode & 0o022 != 0 && mode & 0o1000 == 0 {
             return Err(insecure(InsecureFolderWhy::WritableNotSticky { mode }));
         }
+        // The lock folder itself: this user's, and nobody else may write in it.
+        if depth == 0 {
+            if meta.uid() != uid {
+                return Err(insecure(InsecureFolderWhy::OtherOwner {
+                    owner_uid: meta.uid(),
+                }));
+            }
+            if mode & 0o022 != 0 {
+                return Err(insecure(InsecureFolderWhy::NotPrivate { mode }));
+            }
+        }
     }
     Ok(())
 }
 
-/// Makes a missing `$FORESIGHT_LOCK_DIR` (sticky, writable by all, owned by this user; the
-/// check that follows decides whether it may be used).
+/// Makes a missing lock folder ([`LOCK_FOLDER_MODE`], owned by this user; the check that
+/// follows decides whether it may be used).
 fn make_dir(dir: &Path) -> Result<(), ArmLockError> {
     if std::fs::symlink_metadata(dir).is_ok() {
         return Ok(());
@@ -540,12 +621,13 @@ fn make_dir(dir: &Path) -> Result<(), ArmLockError> {
     };
     match std::fs::DirBuilder::new()
         .recursive(true)
-        .mode(0o1777)
+        .mode(LOCK_FOLDER_MODE)
         .create(dir)
     {
         Ok(()) => {
-            // Sticky and writable by all, like /tmp (the mode above is cut by the umask).
-            let _ = std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o1777));
+            // The mode above is cut by the umask; writable by its owner only in any case.
+            let _ =
+                std::fs::set_permissions(dir, std::fs::Permissions::from_mode(LOCK_FOLDER_MODE));
             Ok(())
         }
         Err(_) if dir.is_dir() => Ok(()),
@@ -554,44 +636,54 @@ fn make_dir(dir: &Path) -> Result<(), ArmLockError> {
 }
 
 fn open(path: &Path) -> Result<File, ArmLockError> {
-    let opts = |write: bool| {
-        let mut o = OpenOptions::new();
-        o.read(true)
-            .write(write)
-            .create(write)
-            .truncate(false)
-            .mode(LOCK_FILE_MODE)
-            // Never follow a link planted in a shared folder.
-            // (O_NONBLOCK: a FIFO planted under the name must not block the open.)
-            .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK);
-        o
-    };
+    let mut opts = OpenOptions::new();
+    opts.read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .mode(LOCK_FILE_MODE)
+        // Never follow a link planted under the name (one made after the check below).
+        // (O_NONBLOCK: a FIFO planted under the name must not block the open.)
+        .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK);
     let io = |e: std::io::Error| ArmLockError::Io {
         path: path.to_path_buf(),
         kind: e.kind(),
     };
-    let file = match opts(true).open(path) {
-        Ok(f) => {
-            // The mode above is cut by the umask; a file of ours from a version that made it
-            // writable by all (0666) is narrowed too. Another user's file keeps its mode (we
-            // may not change it).
-            if f.metadata().is_ok_and(|m| m.uid() == effective_uid()) {
-                let _ = f.set_permissions(std::fs::Permissions::from_mode(LOCK_FILE_MODE));
-            }
-            f
+    let me = effective_uid();
+    // A link or another user's file in the lock's place is named, never used (root could
+    // open it, and a lock on another user's file is one they can take from us).
+    match std::fs::symlink_metadata(path) {
+        Ok(m) if m.file_type().is_symlink() => return Err(planted(path, "a symbolic link")),
+        Ok(m) if m.uid() != me => {
+            return Err(planted(path, &format!("a file of uid {}", m.uid())));
         }
-        // Another user's file we may not write: a read-only descriptor locks as well.
-        Err(e) if e.kind() == ErrorKind::PermissionDenied => opts(false).open(path).map_err(io)?,
-        Err(e) => return Err(io(e)),
-    };
+        _ => {}
+    }
+    let file = opts.open(path).map_err(io)?;
+    let meta = file.metadata().map_err(io)?;
+    if meta.uid() != me {
+        return Err(planted(path, &format!("a file of uid {}", meta.uid())));
+    }
+    // The mode above is cut by the umask; a file of ours from a version that made it
+    // readable by others (0644, 0666) is narrowed too.
+    if meta.mode() & 0o777 != LOCK_FILE_MODE {
+        let _ = file.set_permissions(std::fs::Permissions::from_mode(LOCK_FILE_MODE));
+    }
     // A FIFO or a device planted under the name is no lock file.
-    if !file.metadata().map_err(io)?.is_file() {
+    if !meta.is_file() {
         return Err(ArmLockError::InsecureFolder {
             path: path.to_path_buf(),
             why: InsecureFolderWhy::NotAFile,
         });
     }
     Ok(file)
+}
+
+fn planted(path: &Path, what: &str) -> ArmLockError {
+    ArmLockError::Planted {
+        path: path.to_path_buf(),
+        what: what.to_owned(),
+    }
 }
 
 fn record_text(h: &LockHolder) -> [u8; RECORD_LEN] {
@@ -735,22 +827,23 @@ mod tests {
         std::fs::remove_dir_all(&d).ok();
     }
 
-    /// Issue 30 item 7: the lock file is writable by its creator only (0644), also when an
-    /// older version left it writable by all (0666); the lock still works for a second
-    /// owner (refused while held, granted after).
+    /// Issue 30 item 7, narrowed by issue 41 item 4: the lock file is its creator's alone
+    /// (0600; 0644 before, which let any user `flock` a read-only descriptor of it and
+    /// refuse rt-core the arm), also when an older version left it open to others (0666,
+    /// 0644); the lock still works for a second owner (refused while held, granted after).
     #[test]
-    fn the_lock_file_is_writable_by_its_creator_only() {
+    fn the_lock_file_is_readable_and_writable_by_its_creator_only() {
         let d = dir("mode");
         let cfg = XArmConfig::from_addr("127.0.0.1:5030");
         let first = ArmLock::acquire_in(&d, &cfg).unwrap();
         let mode = |p: &Path| std::fs::metadata(p).unwrap().mode() & 0o777;
-        assert_eq!(mode(first.path()), 0o644, "{}", first.path().display());
+        assert_eq!(mode(first.path()), 0o600, "{}", first.path().display());
         let path = first.path().to_path_buf();
         drop(first);
         // A file left 0666 by an older version is narrowed by its owner's next lock.
         std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o666)).unwrap();
         let again = ArmLock::acquire_in(&d, &cfg).unwrap();
-        assert_eq!(mode(&path), 0o644);
+        assert_eq!(mode(&path), 0o600);
         assert!(ArmLock::acquire_in(&d, &cfg).is_err());
         drop(again);
         std::fs::remove_dir_all(&d).ok();
@@ -856,9 +949,10 @@ mod tests {
             ArmLock::acquire_in(&inner, &cfg),
             Err(ArmLockError::InsecureFolder { ref path, .. }) if *path == open
         ));
-        // Sticky (like /tmp): accepted.
+        // Sticky (like /tmp): accepted above the lock folder (issue 41 item 4: the lock
+        // folder itself is private, see the next test).
         set_mode(&open, 0o1777);
-        drop(ArmLock::acquire_in(&open, &cfg).unwrap());
+        drop(ArmLock::acquire_in(&inner, &cfg).unwrap());
         // A symbolic link to a good folder: refused.
         let link = dir("link");
         symlink(&open, &link).unwrap();
@@ -909,6 +1003,88 @@ mod tests {
             let _ = std::fs::remove_file(d);
             let _ = std::fs::remove_dir_all(d);
         }
+    }
+
+    /// Issue 41 item 4: the lock folder is made private (0755, this user's) and a folder
+    /// others may write in is refused as the lock folder, sticky or not: another user
+    /// could plant a file where the lock or the acknowledgement channel belongs (before,
+    /// a missing folder was made 1777 and a sticky one was used as it was).
+    #[test]
+    fn the_lock_folder_is_made_private_and_a_shared_one_is_refused() {
+        let cfg = XArmConfig::from_addr("127.0.0.1:5031");
+        let d = dir("private").join("locks");
+        let lock = ArmLock::acquire_in(&d, &cfg).unwrap();
+        let meta = std::fs::metadata(&d).unwrap();
+        assert_eq!(meta.mode() & 0o7777, LOCK_FOLDER_MODE, "{}", d.display());
+        assert_eq!(meta.uid(), effective_uid());
+        drop(lock);
+        for shared in [0o1777, 0o1775, 0o775] {
+            std::fs::set_permissions(&d, std::fs::Permissions::from_mode(shared)).unwrap();
+            let e = ArmLock::acquire_in(&d, &cfg).unwrap_err();
+            assert!(
+                matches!(
+                    e,
+                    ArmLockError::InsecureFolder {
+                        why: InsecureFolderWhy::NotPrivate { .. }
+                            | InsecureFolderWhy::WritableNotSticky { .. },
+                        ref path,
+                    } if *path == d
+                ),
+                "mode {shared:o}: {e}"
+            );
+            if shared & 0o1000 != 0 {
+                assert!(
+                    matches!(
+                        e,
+                        ArmLockError::InsecureFolder {
+                            why: InsecureFolderWhy::NotPrivate { .. },
+                            ..
+                        }
+                    ),
+                    "a sticky shared folder: {e}"
+                );
+            }
+            assert!(e.to_string().contains("rm -r"), "{e}");
+        }
+        // The default folder is the private one inside the machine's.
+        if std::env::var_os(LOCK_DIR_ENV).is_none() {
+            assert_eq!(lock_dir().file_name().unwrap(), LOCK_SUBDIR);
+        }
+        std::fs::remove_dir_all(d.parent().unwrap()).ok();
+    }
+
+    /// Issue 41 item 4: a link, or a file of another user, in the lock file's place is
+    /// named with the way to remove it, never locked (before, root locked another user's
+    /// file, which that user could lock in turn and so refuse rt-core the arm).
+    #[test]
+    fn a_foreign_file_in_the_locks_place_is_named_with_the_way_to_remove_it() {
+        let d = dir("planted");
+        make_dir(&d).unwrap();
+        let cfg = XArmConfig::from_addr("127.0.0.1:5032");
+        let path = d.join(lock_file_name(canonical_addr("127.0.0.1", 5032).unwrap()));
+        std::os::unix::fs::symlink("/dev/null", &path).unwrap();
+        let e = ArmLock::acquire_in(&d, &cfg).unwrap_err();
+        assert!(matches!(e, ArmLockError::Planted { .. }), "{e}");
+        let msg = e.to_string();
+        assert!(
+            msg.contains("symbolic link")
+                && msg.contains(&format!("rm -f -- '{}'", path.display())),
+            "{msg}"
+        );
+        std::fs::remove_file(&path).unwrap();
+        // Another user's file (root can make one here; others cannot, which is the point).
+        if effective_uid() == 0 {
+            std::fs::write(&path, b"").unwrap();
+            std::os::unix::fs::chown(&path, Some(65_534), None).unwrap();
+            let e = ArmLock::acquire_in(&d, &cfg).unwrap_err();
+            let msg = e.to_string();
+            assert!(
+                matches!(e, ArmLockError::Planted { .. }) && msg.contains("uid 65534"),
+                "{msg}"
+            );
+            assert!(msg.contains("rm -f --"), "{msg}");
+        }
+        std::fs::remove_dir_all(&d).ok();
     }
 
     #[test]

@@ -33,19 +33,21 @@ pub struct CycleConfig {
     /// Longest time between two cycles while the arm moves, ns: a longer gap (the process
     /// stopped, a paused VM, a long page fault) is a stop at the measured joints
     /// ([`super::StopReason::Frozen`]), never a resumption from where the plan's clock left
-    /// off. [`FREEZE_BOUND_PERIODS`] periods, at least [`FREEZE_BOUND_MIN_NS`].
+    /// off. [`FREEZE_BOUND_PERIODS`] periods (at least [`FREEZE_BOUND_MIN_PERIODS`]).
     pub max_cycle_gap_ns: u64,
     /// Speed and separation monitoring (`[separation]`): the playback scale by separation.
     pub separation: SeparationParams,
 }
 
-/// Periods a cycle may come late before it counts as a freeze.
+/// Periods a cycle may come late before it counts as a freeze: 40 ms at 250 Hz, above a
+/// shared CI machine's worst wake-up seen (11 ms at p99), so a loaded machine does not
+/// latch a real arm; a stopped process is stopped for seconds.
 pub const FREEZE_BOUND_PERIODS: u64 = 10;
 
-/// The freeze bound's floor, ns (100 ms: far above a shared CI machine's worst wake-up seen,
-/// 11 ms at p99, so a loaded machine does not latch a real arm; a stopped process is
-/// stopped for seconds).
-pub const FREEZE_BOUND_MIN_NS: u64 = 100_000_000;
+/// The freeze bound's floor, in periods (issue 41 item 5: it was 100 ms, above the bound
+/// itself at 250 Hz, so freezes of 40–100 ms went undetected). The bound is never below
+/// two periods: one whole period missed.
+pub const FREEZE_BOUND_MIN_PERIODS: u64 = 2;
 
 impl CycleConfig {
     /// From the runtime configuration.
@@ -53,7 +55,7 @@ impl CycleConfig {
         Self {
             period_ns: cfg.period_ns(),
             max_detection_age_ns: (cfg.stale.max_detection_age_s * 1e9) as u64,
-            max_cycle_gap_ns: (FREEZE_BOUND_PERIODS * cfg.period_ns()).max(FREEZE_BOUND_MIN_NS),
+            max_cycle_gap_ns: FREEZE_BOUND_PERIODS.max(FREEZE_BOUND_MIN_PERIODS) * cfg.period_ns(),
             max_robot_state_age_ns: (cfg.stale.max_robot_state_age_s * 1e9) as u64,
             start_tolerance_rad: 0.02,
             brake_horizon_samples: {

@@ -68,11 +68,15 @@ pub struct CycleControl {
     revoke_capture_ns: AtomicU64,
     /// … and when that scene was accepted (0 = not known), ns.
     revoke_accepted_ns: AtomicU64,
-    /// Plan id (upper 40 bits) and next sample index (lower 24 bits) of the plan the cycle
-    /// is following, written every cycle: the twin re-verifies from here.
-    pub(super) progress: AtomicU64,
+    /// The cycle's adoption and progress in one word, so that no reader can see one new
+    /// and the other old (issue 41 item 3; see [`Adoption`]): plan id (upper 40 bits) and
+    /// next sample index (lower 24 bits) of the plan the cycle is following, or, with the
+    /// index [`NOT_FOLLOWING`], the newest plan id adopted while it follows none (0: none
+    /// adopted, not following). Written at adoption and every cycle.
+    adoption: AtomicU64,
     /// The newest plan id the cycle has adopted (started from rest or switched to at its
-    /// join point), 0 for none: a plan from rest with a higher id has not run yet.
+    /// join point): the cycle's own record, which it republishes in [`Self::adoption`]
+    /// when it stops following.
     adopted_up_to: AtomicU64,
     /// A controlled stop of the whole process was requested.
     shutdown: Arc<AtomicBool>,
@@ -91,6 +95,26 @@ pub struct CycleControl {
 
 /// Bits of the sample index in [`CycleControl`]'s progress word.
 const PROGRESS_INDEX_BITS: u32 = 24;
+
+/// The sample index that says "not following" in the adoption word.
+const NOT_FOLLOWING: u64 = (1 << PROGRESS_INDEX_BITS) - 1;
+
+/// How the cycle stands with its plans, read in one load ([`CycleControl::adoption`]).
+///
+/// The cycle adopts a plan, sends its command through the link (which may take a while on
+/// a real controller) and then publishes its progress. When adoption and progress were two
+/// words, a reader between the two saw "not following" together with "adopted up to the
+/// new plan", and the plan guard took a just-adopted plan for one that can no longer move
+/// the arm: it went unverified against that frame (issue 41 item 3). In one word a reader
+/// sees either the state before the adoption (the plan not adopted: verified whole) or
+/// the one after (the plan followed from its first sample: verified from there).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Adoption {
+    /// The plan the cycle follows and its next sample (`None` when following none).
+    pub following: Option<(u64, usize)>,
+    /// The newest plan id adopted (0 for none): at least the followed plan's.
+    pub adopted_up_to: u64,
+}
 
 impl CycleControl {
     /// Revokes every plan with an id up to `plan_id` (running and pending).
@@ -122,29 +146,55 @@ impl CycleControl {
         self.revoked_up_to.load(Ordering::Acquire)
     }
 
-    /// The newest plan id the cycle has adopted (0 for none).
-    pub fn adopted_up_to(&self) -> u64 {
-        self.adopted_up_to.load(Ordering::Acquire)
+    /// The cycle's adoption and progress as of one instant (one load; see [`Adoption`]).
+    pub fn adoption(&self) -> Adoption {
+        let w = self.adoption.load(Ordering::Acquire);
+        let (id, index) = (w >> PROGRESS_INDEX_BITS, w & NOT_FOLLOWING);
+        if w == 0 || index == NOT_FOLLOWING {
+            Adoption {
+                following: None,
+                adopted_up_to: id,
+            }
+        } else {
+            Adoption {
+                following: Some((id, index as usize)),
+                adopted_up_to: id,
+            }
+        }
     }
 
+    /// The newest plan id the cycle has adopted (0 for none); with
+    /// [`CycleControl::progress`], read both at once through [`CycleControl::adoption`].
+    pub fn adopted_up_to(&self) -> u64 {
+        self.adoption().adopted_up_to
+    }
+
+    /// Plan `plan_id` adopted: followed from its first sample from now on, published at
+    /// once (before the link's send, so a frame read meanwhile verifies it).
     pub(super) fn note_adopted(&self, plan_id: u64) {
         self.adopted_up_to.fetch_max(plan_id, Ordering::AcqRel);
+        self.set_progress(plan_id, 0);
     }
 
     /// The plan the cycle follows and its next sample, as of the last cycle (`None` when
     /// not following).
     pub fn progress(&self) -> Option<(u64, usize)> {
-        let w = self.progress.load(Ordering::Acquire);
-        (w != 0).then_some((
-            w >> PROGRESS_INDEX_BITS,
-            (w & ((1 << PROGRESS_INDEX_BITS) - 1)) as usize,
-        ))
+        self.adoption().following
     }
 
     pub(super) fn set_progress(&self, plan_id: u64, next_index: usize) {
-        let index = (next_index as u64).min((1 << PROGRESS_INDEX_BITS) - 1);
-        self.progress
+        let index = (next_index as u64).min(NOT_FOLLOWING - 1);
+        self.adoption
             .store((plan_id << PROGRESS_INDEX_BITS) | index, Ordering::Release);
+    }
+
+    /// Following no plan: publishes the newest plan adopted with the "not following" mark.
+    pub(super) fn set_not_following(&self) {
+        let adopted = self.adopted_up_to.load(Ordering::Acquire);
+        self.adoption.store(
+            (adopted << PROGRESS_INDEX_BITS) | NOT_FOLLOWING,
+            Ordering::Release,
+        );
     }
 
     /// Schedules a stop of plan `plan_id` once its next sample reaches `index`, instead of

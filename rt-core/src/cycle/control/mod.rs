@@ -60,12 +60,11 @@ mod run_loop;
 
 pub use config::CycleConfig;
 pub use events::{CycleEvent, Mode, StopReason};
-pub use io::{CycleControl, CycleIo, Intruders, SceneUpdate, TwinIo, wire};
+pub use io::{Adoption, CycleControl, CycleIo, Intruders, SceneUpdate, TwinIo, wire};
 pub use report::CycleReport;
 pub use run_loop::{LoopShared, LoopStats, LoopSummary, run_loop};
 
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
 
 use crate::cycle::brake::{Brake, PathStop};
 use crate::cycle::link::{LinkError, LinkState, RobotLink};
@@ -78,6 +77,10 @@ use twin::{Joints, max_joint_gap_rad};
 /// Periods an acknowledgement is retried when the link cannot pass it on (≈ 0.2 s at
 /// 250 Hz); then the operator must acknowledge again.
 const ACK_ATTEMPTS: u32 = 50;
+
+/// Fastest measured joint speed at which the arm counts as at rest for an operator's
+/// acknowledgement, rad/s (issue 41 item 5).
+const ACK_REST_SPEED_RAD_S: f64 = 0.01;
 
 /// How the running stop moves the arm.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -136,6 +139,8 @@ pub struct Cycle<M: ShieldModel, L: RobotLink> {
     /// The link's connection of the last reading ([`crate::cycle::link::LinkState::session`]):
     /// while it stays the same, the controller's reference is the last command sent.
     session: u32,
+    /// The last reading measured every joint slower than [`ACK_REST_SPEED_RAD_S`].
+    measured_at_rest: bool,
 }
 
 impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
@@ -178,6 +183,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             play_frac: 0.0,
             play_scale: 1.0,
             session: 0,
+            measured_at_rest: false,
         }
     }
 
@@ -508,6 +514,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         self.session = st.session;
         self.link_ok = true;
         self.report.measured_q_rad = st.q_rad;
+        self.measured_at_rest = st.dq_rad_s.iter().all(|v| v.abs() <= ACK_REST_SPEED_RAD_S);
         self.report.arm_mode = st.mode;
         self.report.arm_state = st.state;
         if returned {
@@ -631,9 +638,10 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
             self.report.acks_refused += 1;
             return;
         }
-        if !self.link_ok || self.mode == Mode::Stopping {
+        if !self.link_ok || self.mode == Mode::Stopping || !self.measured_at_rest {
             // Dropped, never kept for later: an operator acknowledges an arm at rest on a
-            // live link, and a new acknowledgement is needed once it is.
+            // live link (measured at rest, issue 41 item 5: not merely commanded so), and a
+            // new acknowledgement is needed once it is.
             self.pending_ack = 0;
             self.report.acks_dropped += 1;
             self.io.log.log(now_ns, CycleEvent::AcknowledgementDropped);
@@ -1029,7 +1037,7 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         r.separation_m = self.separation.separation_m();
         match (&self.plan, self.mode) {
             (Some(p), Mode::Following) => self.io.control.set_progress(p.id, self.next),
-            _ => self.io.control.progress.store(0, Ordering::Release),
+            _ => self.io.control.set_not_following(),
         }
         let latch = r
             .awaiting_ack
