@@ -127,17 +127,9 @@ fn run(
     } = ends;
     let mut age = Histogram::new();
     let mut refusals_in_a_row = 0u64;
-    let mut goal_epoch = intake.goal_epoch();
     while !stop.load(Ordering::Acquire) {
         if let Some(goals) = &goals {
-            take_goal_requests(goals, &mut intake)?;
-        }
-        // A cancel or a pre-emption revokes every plan toward the withdrawn goal here, on
-        // this thread, before the next frame and whatever the twin thread is doing (a
-        // planner search may be about to hand over a plan toward it: the guard refuses it).
-        if intake.goal_epoch() != goal_epoch {
-            goal_epoch = intake.goal_epoch();
-            path.goal_withdrawn(goal_epoch);
+            take_goal_requests(goals, &mut intake, &mut path)?;
         }
         while let Some(sample) = sub.receive().map_err(|cause| TwinNodeError::Receive {
             service: "detections",
@@ -234,11 +226,16 @@ fn open_ends(prefix: &str, takes_requests: bool) -> Result<IntakeEnds, TwinNodeE
 }
 
 /// Takes every goal request waiting into `intake` (each copied out of shared memory before
-/// it is checked), logging what was taken or refused.
+/// it is checked), logging what was taken or refused. A cancel or a pre-emption among them
+/// revokes every plan toward the withdrawn goal through `path`, here on the intake thread,
+/// before the next frame and whatever the twin thread is doing (a planner search may be
+/// about to hand over a plan toward it: the plan guard refuses it).
 fn take_goal_requests(
     goals: &Subscriber<ipc::Service, GoalRequest, ()>,
     intake: &mut SceneIntake,
+    path: &mut ScenePath<TwinModel>,
 ) -> Result<(), TwinNodeError> {
+    let goal_epoch = intake.goal_epoch();
     while let Some(sample) = goals.receive().map_err(|cause| TwinNodeError::Receive {
         service: "goal requests",
         cause,
@@ -260,6 +257,9 @@ fn take_goal_requests(
                 "goal request refused: {refusal}"
             ),
         }
+    }
+    if intake.goal_epoch() != goal_epoch {
+        path.goal_withdrawn(intake.goal_epoch());
     }
     Ok(())
 }
