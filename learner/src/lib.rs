@@ -6,7 +6,7 @@
 //! then [`run::train`] (the loop around it) and [`retrain::RetrainJob`] (one retraining on a
 //! reported scene).
 //!
-//! - [`env`]: the environment interface ([`env::Env`], [`env::SceneSampler`]) and a toy task
+//! - [`env`](mod@env): the environment interface ([`env::Env`], [`env::SceneSampler`]) and a toy task
 //!   for tests; [`twin_env`]: the twin behind it and the scene distributions (pre-training
 //!   curriculum, retraining around a reported scene);
 //! - [`net`]: the Gaussian actor-critic (one flat parameter tensor);

@@ -165,7 +165,7 @@ pub enum RetrainPhase {
     /// The step or time budget ran out without a passing policy.
     BudgetExhausted = 4,
     /// The learner's feasibility check found no safe way to the goal (final): see
-    /// [`RetrainProgress::infeasible`] for the reason. Nothing is trained.
+    /// [`RetrainProgress::infeasible_kind`] for the reason. Nothing is trained.
     Infeasible = 5,
 }
 

@@ -109,7 +109,7 @@ pub struct LessonCounts {
     /// Skipped: no safe way found by the feasibility check.
     pub infeasible: usize,
     /// Skipped: no via-point route, and no planner path re-tracked cleanly in
-    /// [`PATH_TRIES`] tries.
+    /// `PATH_TRIES` tries.
     pub no_clean_path: usize,
 }
 

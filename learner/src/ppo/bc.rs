@@ -100,7 +100,7 @@ impl ClearanceHinge {
     }
 
     /// The hinge's mean over the rows of `mean` (`[b, 3]`), with `geom` the rows'
-    /// [`Self::geometry`] (`[b, 4]`): `weight · mean((relu(margin − d_next) / scale)²)`.
+    /// `Self::geometry` (`[b, 4]`): `weight · mean((relu(margin − d_next) / scale)²)`.
     pub fn loss(&self, mean: &Tensor, geom: &Tensor) -> Tensor {
         let d = geom.narrow(1, 0, 1);
         let n = geom.narrow(1, 1, 3);

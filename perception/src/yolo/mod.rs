@@ -1,7 +1,7 @@
 //! The YOLO detector: stock YOLOv8 / YOLO11 exports (`[1, 4 + C, N]`, NMS in our code) and
 //! end-to-end NMS-free exports (`[1, N, 6]`), run by ONNX Runtime (default) or OpenCV DNN
 //! ([`backend`]). Letterbox preprocessing at the model's own input size, decoding
-//! ([`decode`]), class names from the model's metadata or a labels file ([`classes`]), and
+//! ([`decode`](mod@decode)), class names from the model's metadata or a labels file ([`classes`]), and
 //! the 3D measurement of each box from depth. A model that cannot run, or whose output fits
 //! neither layout, is refused at load with the reason (a warm-up inference runs there).
 //!

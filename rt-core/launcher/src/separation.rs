@@ -62,7 +62,7 @@ pub struct SeparationTrace {
 }
 
 impl SeparationTrace {
-    /// Adds a sample (merged with the last when closer than [`MIN_SPACING_S`]).
+    /// Adds a sample (merged with the last when closer than `MIN_SPACING_S`).
     pub fn push(&mut self, s: SeparationSample) {
         if !s.separation_m.is_finite() {
             return;

@@ -158,7 +158,7 @@ fn exp2_neg(t: f32) -> f32 {
 /// `tanh` for `f32`, within 4 ulp of the exact value, branch-free so that applying it to
 /// a layer vectorises (several times faster than glibc's `tanhf`): an odd Taylor
 /// polynomial below |x| = 0.125 (error < 2e-10), `(1 − e) / (1 + e)` with `e = e^{−2|x|}`
-/// from [`exp2_neg`] above, saturating at |x| = 9 (tanh 9 rounds to 1 in `f32`). NaN stays NaN.
+/// from `exp2_neg` above, saturating at |x| = 9 (tanh 9 rounds to 1 in `f32`). NaN stays NaN.
 #[inline(always)]
 pub fn tanh(x: f32) -> f32 {
     const LOG2_E: f32 = core::f32::consts::LOG2_E;

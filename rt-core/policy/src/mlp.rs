@@ -67,7 +67,7 @@ pub enum PolicyEvalError {
 ///
 /// All memory is allocated by [`MlpPolicy::with_capacity`] (one weight buffer sized to the
 /// blob format's [`MAX_WEIGHTS`] plus layout padding, fixed arrays for everything else); loading another blob
-/// into it ([`MlpPolicy::load_from`], used by [`super::PolicyLoader::prepare_into`]) and
+/// into it (`MlpPolicy::load_from`, used by [`super::PolicyLoader::prepare_into`]) and
 /// evaluating it ([`MlpPolicy::act`]) never allocate. Scratch vectors live on the stack
 /// (2 × 1 KB), so `act` takes `&self` and a policy can be shared read-only between threads.
 ///
@@ -99,7 +99,7 @@ pub struct MlpPolicy {
 impl MlpPolicy {
     /// An empty policy holding buffers for the largest network a blob can describe (the
     /// only allocation this type makes). [`Self::is_loaded`] is `false` until
-    /// [`Self::load_from`].
+    /// `Self::load_from`.
     pub fn with_capacity() -> Self {
         Self {
             policy_id: 0,

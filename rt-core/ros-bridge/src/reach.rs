@@ -287,7 +287,7 @@ pub(crate) fn action_qos_profiles() -> (QosProfile, QosProfile) {
     (service, status)
 }
 
-/// The action server's QoS ([`action_qos_profiles`]).
+/// The action server's QoS (`action_qos_profiles`).
 pub fn reach_server_qos() -> ActionServerQosPolicies {
     let (service, status) = action_qos_profiles();
     ActionServerQosPolicies {

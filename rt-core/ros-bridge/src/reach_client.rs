@@ -62,7 +62,7 @@ pub struct ReachEnd {
     pub result: ReachResult,
 }
 
-/// The client QoS, the server's ([`crate::reach::action_qos_profiles`]).
+/// The client QoS, the server's (`crate::reach::action_qos_profiles`).
 pub fn reach_client_qos() -> ActionClientQosPolicies {
     let (service, status) = action_qos_profiles();
     ActionClientQosPolicies {

@@ -61,7 +61,8 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use crate::config::XArmConfig;
 
-/// Environment variable naming the lock folder (default [`DEFAULT_LOCK_DIR`]).
+/// Environment variable naming the lock folder (default: the first of [`DEFAULT_LOCK_DIRS`]
+/// that exists).
 pub const LOCK_DIR_ENV: &str = "FORESIGHT_LOCK_DIR";
 
 /// The lock file's mode: readable and writable by its creator only (issue 41 item 4). A

@@ -4,8 +4,8 @@
 //! live connection is handed over.
 //!
 //! The hand-over is two single-slot, lock-free SPSC queues (`heapless::spsc`): the cycle
-//! posts a [`Job`] carrying the dead connection (its sockets are closed and its memory freed
-//! on the helper, not on the cycle) and the helper posts the [`Reopened`] connection back.
+//! posts a `Job` carrying the dead connection (its sockets are closed and its memory freed
+//! on the helper, not on the cycle) and the helper posts the `Reopened` connection back.
 //! On this path the cycle never blocks, takes a lock, allocates or formats a log line; the
 //! helper does the logging. It is the driver's only reconnect path: both the first connection
 //! and every re-open go through [`Session::open`].

@@ -245,7 +245,7 @@ fn footprint<R: Rng + ?Sized>(rng: &mut R, range: [f64; 2]) -> [f64; 2] {
 }
 
 /// One world of `generator` from `rng`, with its kind; `None` when no valid placement was
-/// found in [`WORLD_TRIES`] attempts (a generator or task that leaves no room).
+/// found in `WORLD_TRIES` attempts (a generator or task that leaves no room).
 pub fn draw_world<R: Rng + ?Sized>(
     generator: Generator,
     env: &TwinEnv,
