@@ -449,7 +449,7 @@ fn a_frame_between_a_plans_adoption_and_the_cycles_report_still_verifies_the_pla
     }
     guard.lock().unwrap().scene(clear);
     let plan = cosine_plan(1, &START, &TARGET_A, 5.0, period_s);
-    guard.lock().unwrap().sent(Arc::new(plan.clone()), clear);
+    assert!(guard.lock().unwrap().sent(Arc::new(plan.clone()), clear, 0));
     assert!(twin_io.plans.send(Box::new(plan)).is_ok());
     cycle.link_mut().inject = Some(blocked);
     assert_eq!(period!(), Mode::Following, "the plan was not adopted");
