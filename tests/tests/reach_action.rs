@@ -135,6 +135,13 @@ fn the_reach_action_reaches_refuses_reports_infeasible_and_cancels() {
     let (code, text) = reach(&["--goal", "0.35,0.15", "--cancel-after-s", "0.5"]);
     assert_eq!(code, 5, "cancelled: {text}");
     assert!(text.contains("result: cancelled"), "{text}");
+    // The result says where the arm was when the cancel took effect, and how close to the
+    // target it came afterwards (issue 41, item 1).
+    assert!(
+        text.contains("cancelled with the TCP at (")
+            && text.contains("closest to the target afterwards"),
+        "the result says where the cancel took effect: {text}"
+    );
     let prefix = printed
         .lock()
         .unwrap()
@@ -246,6 +253,14 @@ fn a_cancel_while_the_plan_is_made_never_drives_toward_the_cancelled_target() {
         closest_m >= 0.05,
         "the TCP came {closest_m:.3} m from the cancelled target"
     );
+    // The result's own figure agrees: after the cancel the TCP stayed 5 cm away.
+    let reported_m: f64 = text
+        .split("closest to the target afterwards ")
+        .nth(1)
+        .and_then(|rest| rest.split(" m").next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("the result gives the closest approach: {text}"));
+    assert!(reported_m >= 0.05, "the result says {reported_m} m: {text}");
     assert!(
         foresight
             .interrupt_and_wait(Duration::from_secs(120))

@@ -234,6 +234,11 @@ struct Active {
     target_m: [f64; 3],
     accepted_at: Instant,
     cancelling: bool,
+    /// Where the TCP was when the cancel took effect (the first state read after the
+    /// cancel went to rt-core, which takes it within one cycle), m.
+    cancelled_at_tcp_m: Option<[f64; 3]>,
+    /// The TCP's closest approach to the target since the cancel took effect, m.
+    closest_after_cancel_m: f64,
     at_rest_since: Option<Instant>,
     fault_since: Option<(Instant, StopReason)>,
     result_requests: Bounded<RmwRequestId, RESULT_WAITERS>,
@@ -317,6 +322,27 @@ fn status_of(outcome: ReachOutcome) -> GoalStatusEnum {
         ReachOutcome::Reached => GoalStatusEnum::Succeeded,
         ReachOutcome::Cancelled => GoalStatusEnum::Canceled,
         _ => GoalStatusEnum::Aborted,
+    }
+}
+
+/// A cancelled goal's result: where the arm was when the cancel took effect, how close it
+/// came to the target afterwards, and where it rests.
+fn cancelled_words(a: &Active) -> String {
+    let at = |p: &[f64; 3]| format!("({:.3}, {:.3}, {:.3}) m", p[0], p[1], p[2]);
+    match a.cancelled_at_tcp_m {
+        Some(p) => format!(
+            "cancelled with the TCP at {}, {:.3} m from the target; closest to the target \
+             afterwards {:.3} m; the arm is at rest {:.3} m from the target",
+            at(&p),
+            distance_m(&p, &a.target_m),
+            a.closest_after_cancel_m,
+            a.distance_m
+        ),
+        None => format!(
+            "cancelled; the arm is at rest {:.3} m from the target (no state read after the \
+             cancel)",
+            a.distance_m
+        ),
     }
 }
 
@@ -459,6 +485,8 @@ impl ReachServer {
                         target_m,
                         accepted_at: Instant::now(),
                         cancelling: false,
+                        cancelled_at_tcp_m: None,
+                        closest_after_cancel_m: f64::INFINITY,
                         at_rest_since: None,
                         fault_since: None,
                         result_requests: Bounded::new(),
@@ -609,6 +637,10 @@ impl ReachServer {
         }
         if let Some((state, fresh)) = inputs.state {
             a.distance_m = distance_m(&state.tcp_m, &a.target_m);
+            if a.cancelling && fresh {
+                a.cancelled_at_tcp_m.get_or_insert(state.tcp_m);
+                a.closest_after_cancel_m = a.closest_after_cancel_m.min(a.distance_m);
+            }
             if fresh {
                 let moving = state
                     .joint_velocities_rad_s
@@ -635,12 +667,7 @@ impl ReachServer {
             end = if a.cancelling {
                 a.at_rest_since
                     .is_some_and(|since| now - since >= AT_REST_FOR)
-                    .then(|| {
-                        (
-                            ReachOutcome::Cancelled,
-                            "cancelled; the arm is at rest".into(),
-                        )
-                    })
+                    .then(|| (ReachOutcome::Cancelled, cancelled_words(a)))
             } else if a.distance_m <= settings.tolerance_m {
                 Some((
                     ReachOutcome::Reached,

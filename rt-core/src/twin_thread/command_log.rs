@@ -1,6 +1,8 @@
 //! The command log: one CSV line per cycle that followed a plan, from the cycle's reports
 //! (written by the twin thread; the cycle only fills its report). Lines are whole; the file
-//! is flushed at least every 100 ms and at the end.
+//! is flushed at least every 100 ms and at the end. A log never replaces another: an
+//! existing file at the path is refused, named, and left as it is (a previous run's log is
+//! not truncated); a device or FIFO there (`/dev/full`, a pipe) is written without truncation.
 
 // The log writer runs on the twin thread (not real-time): it flushes by wall time.
 #![allow(clippy::disallowed_methods)]
@@ -32,16 +34,38 @@ pub struct CommandLog {
 }
 
 impl CommandLog {
-    /// Creates (truncates) the log and writes its header.
+    /// Creates the log and writes its header. The file must not exist yet (a regular file
+    /// already there is refused and left untouched); an existing device or FIFO is opened
+    /// for writing as it is.
     ///
     /// # Errors
-    /// [`CommandLogError`] when the file cannot be created or written.
+    /// [`CommandLogError`] when the file exists, cannot be created or written.
     pub fn create(path: &Path) -> Result<Self, CommandLogError> {
         let err = |source| CommandLogError {
             path: path.to_path_buf(),
             source,
         };
-        let file = std::fs::File::create(path).map_err(err)?;
+        let special = std::fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir());
+        let file = if special {
+            std::fs::OpenOptions::new().write(true).open(path)
+        } else {
+            std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(path)
+                .map_err(|e| {
+                    if e.kind() == std::io::ErrorKind::AlreadyExists {
+                        std::io::Error::new(
+                            e.kind(),
+                            "already exists (a previous run's log?): refusing to overwrite \
+                             it; move it away or give another --command-log",
+                        )
+                    } else {
+                        e
+                    }
+                })
+        }
+        .map_err(err)?;
         let mut out = std::io::BufWriter::new(file);
         writeln!(out, "t_ns,cycle,plan_id,q0_rad,q1_rad,q2_rad,q3_rad,q4_rad").map_err(err)?;
         tracing::info!(path = %path.display(), "logging computed commands");
@@ -98,5 +122,35 @@ impl CommandLog {
     pub fn finish(mut self) -> Result<u64, CommandLogError> {
         self.out.flush().map_err(|e| self.err(e))?;
         Ok(self.lines)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_existing_log_is_refused_by_name_and_left_untouched() {
+        let dir = std::env::temp_dir().join(format!("foresight-cmdlog-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("commands.csv");
+        std::fs::write(&path, "a previous run's lines\n").unwrap();
+        let e = CommandLog::create(&path).unwrap_err();
+        assert_eq!(e.source.kind(), std::io::ErrorKind::AlreadyExists);
+        assert!(e.to_string().contains("commands.csv"), "{e}");
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            "a previous run's lines\n",
+            "the previous log is kept"
+        );
+        let fresh = dir.join("fresh.csv");
+        let log = CommandLog::create(&fresh).unwrap();
+        assert_eq!(log.finish().unwrap(), 0);
+        assert!(
+            std::fs::read_to_string(&fresh)
+                .unwrap()
+                .starts_with("t_ns,cycle")
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

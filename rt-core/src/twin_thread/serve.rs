@@ -105,7 +105,7 @@ pub struct ServeOptions {
     pub no_lookahead: bool,
     /// Dry run (the link withholds every command); a command log is written.
     pub dry_run: bool,
-    /// The command log's path (default in dry runs: `dry_run_commands.csv`).
+    /// The command log's path (default in dry runs: `dry_run_commands-<unix s>-<pid>.csv`).
     pub command_log: Option<PathBuf>,
     /// A policy blob file to start with.
     pub policy: Option<PathBuf>,
@@ -636,14 +636,19 @@ fn build_worker(
     (twin, scene_path)
 }
 
-/// The command log: `opts.command_log`, or `dry_run_commands.csv` in a dry run; none
+/// The command log: `opts.command_log`, or `dry_run_commands-<unix s>-<pid>.csv` in a dry run; none
 /// otherwise.
 fn open_command_log(opts: &ServeOptions) -> Result<Option<CommandLog>, ServeError> {
     Ok(match (&opts.command_log, opts.dry_run) {
         (Some(p), _) => Some(CommandLog::create(p)?),
-        (None, true) => Some(CommandLog::create(std::path::Path::new(
-            "dry_run_commands.csv",
-        ))?),
+        (None, true) => {
+            // A name of its own per run: a log never replaces another.
+            let secs = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_secs());
+            let name = format!("dry_run_commands-{secs}-{}.csv", std::process::id());
+            Some(CommandLog::create(std::path::Path::new(&name))?)
+        }
         (None, false) => None,
     })
 }
