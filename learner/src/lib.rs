@@ -44,6 +44,7 @@ pub mod export;
 pub mod metrics;
 pub mod net;
 pub mod normalize;
+pub mod onnx;
 pub mod ppo;
 pub mod random;
 pub mod retrain;

@@ -30,7 +30,8 @@ enum Cmd {
     Eval(cli::eval::EvalArgs),
     /// PPO training throughput on the pre-training task; prints one JSON line.
     Bench(cli::bench::BenchArgs),
-    /// Export a checkpoint's policy as PolicyBlob bytes.
+    /// Export a checkpoint's policy as PolicyBlob bytes, and with --onnx as policy.onnx
+    /// + policy.schema.json (normaliser folded in).
     Export(cli::export::ExportArgs),
     /// Retraining service: answers RetrainRequests with PolicyBlobs over iceoryx2.
     Serve(cli::serve::ServeArgs),

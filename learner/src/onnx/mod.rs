@@ -1,0 +1,379 @@
+//! A policy taken elsewhere: `policy.onnx` and `policy.schema.json` from a [`PolicyBlob`]
+//! (`learner export --onnx DIR`).
+//!
+//! The ONNX graph computes exactly what rt-core's `policy::MlpPolicy` computes from the same
+//! blob, with the observation normaliser folded in, so a user feeds raw observations (SI
+//! units, the layout of the `twin` crate's docs) and reads the clipped action:
+//!
+//! ```text
+//! observation [batch, obs_dim] → Sub(mean) → Div(std) → Clip(±obs_clip)
+//!   → (Gemm → Tanh|Relu) × hidden layers → Gemm (→ output activation)
+//!   → Clip(±action_clip) → Mul(action_scale) → action [batch, act_dim]
+//! ```
+//!
+//! Opset 13, IR version 7 (ONNX Runtime ≥ 1.8 runs it). The only numeric difference from
+//! rt-core is `tanh`: the kernel's is within 4 ulp of the exact one ONNX Runtime uses.
+//!
+//! The schema file says what the graph expects and returns: the observation layout with
+//! units, the action space, the limits, the policy's identity and every version, so that a
+//! loader can refuse a policy whose contract it does not know (a mismatched policy loaded
+//! blind has crashed real robots).
+
+pub mod proto;
+
+use std::path::{Path, PathBuf};
+
+use shm_schemas::{Activation, PAPER_OBS_DIM, POLICY_FORMAT_VERSION, PolicyBlob};
+
+use crate::checkpoint::{CheckpointError, write_atomic};
+use proto::{Dim, Msg};
+
+/// Version of `policy.schema.json`'s layout.
+pub const SCHEMA_VERSION: u32 = 1;
+/// The ONNX opset the graph uses.
+pub const OPSET: i64 = 13;
+/// The ONNX IR version the model declares (the one of opset 13).
+pub const IR_VERSION: i64 = 7;
+/// The graph's input name.
+pub const INPUT: &str = "observation";
+/// The graph's output name.
+pub const OUTPUT: &str = "action";
+/// The file names written into the export folder.
+pub const ONNX_FILE: &str = "policy.onnx";
+/// See [`ONNX_FILE`].
+pub const SCHEMA_FILE: &str = "policy.schema.json";
+
+/// Values per extra box of the `nearest_boxes` observation (`twin` crate docs).
+const PER_EXTRA_BOX: usize = 6;
+
+/// Why an export could not be made or written.
+#[derive(Debug, thiserror::Error)]
+pub enum OnnxExportError {
+    /// The blob's observation length matches no observation layout the `twin` crate has.
+    #[error(
+        "obs_dim {0} matches no known observation layout (17 for the paper's, 17 + 6·(k−1) for nearest_boxes with k = 2..=3 boxes)"
+    )]
+    UnknownObservation(usize),
+    /// The blob's action length is not the Cartesian step's.
+    #[error("act_dim {0} is not a known action space (3: the Cartesian step [dx, dy, dz])")]
+    UnknownActionSpace(usize),
+    /// The export folder could not be made.
+    #[error("cannot create the export folder {}", .path.display())]
+    Folder {
+        /// Folder.
+        path: PathBuf,
+        /// OS error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file could not be written.
+    #[error("writing the export")]
+    Write(#[from] CheckpointError),
+}
+
+/// The observation layout of a blob's `obs_dim`: its kind and one entry per index.
+///
+/// # Errors
+/// [`OnnxExportError::UnknownObservation`].
+pub fn observation_layout(
+    obs_dim: usize,
+) -> Result<(&'static str, Vec<serde_json::Value>), OnnxExportError> {
+    let extra = obs_dim.checked_sub(PAPER_OBS_DIM);
+    let boxes = match extra {
+        Some(e) if e % PER_EXTRA_BOX == 0 && e / PER_EXTRA_BOX <= 2 => 1 + e / PER_EXTRA_BOX,
+        _ => return Err(OnnxExportError::UnknownObservation(obs_dim)),
+    };
+    let mut layout = Vec::with_capacity(obs_dim);
+    let mut put = |name: String, unit: &str| {
+        let index = layout.len();
+        layout.push(serde_json::json!({"index": index, "name": name, "unit": unit}));
+    };
+    put("t (step index / max_steps)".into(), "1");
+    for a in ["x", "y"] {
+        put(format!("goal cube centre {a}"), "m");
+    }
+    for a in ["x", "y", "z"] {
+        put(format!("tcp position {a}"), "m");
+    }
+    for a in ["x", "y", "z"] {
+        put(format!("tcp velocity {a}"), "m/s");
+    }
+    put("nearest box height".into(), "m");
+    put("nearest box width".into(), "m");
+    for a in ["x", "y", "z"] {
+        put(format!("closest robot point to the nearest box {a}"), "m");
+    }
+    for a in ["x", "y", "z"] {
+        put(format!("closest point of the nearest box {a}"), "m");
+    }
+    for j in 2..=boxes {
+        put(format!("box {j} height"), "m");
+        put(format!("box {j} width"), "m");
+        for a in ["x", "y", "z"] {
+            put(format!("closest point of box {j} to the robot {a}"), "m");
+        }
+        put(format!("box {j} robot distance (capped at 1)"), "m");
+    }
+    let kind = if boxes == 1 { "paper" } else { "nearest_boxes" };
+    Ok((kind, layout))
+}
+
+fn activation_op(a: Activation) -> Option<&'static str> {
+    match a {
+        Activation::Identity => None,
+        Activation::Tanh => Some("Tanh"),
+        Activation::Relu => Some("Relu"),
+    }
+}
+
+fn activation_name(a: Activation) -> &'static str {
+    activation_op(a).map_or("identity", |op| match op {
+        "Tanh" => "tanh",
+        _ => "relu",
+    })
+}
+
+/// The blob's network as an ONNX model (the bytes of `policy.onnx`).
+///
+/// # Errors
+/// [`OnnxExportError`] for an observation or action layout this exporter does not know.
+pub fn policy_onnx(blob: &PolicyBlob) -> Result<Vec<u8>, OnnxExportError> {
+    let obs_dim = blob.obs_dim as usize;
+    let act_dim = blob.act_dim as usize;
+    observation_layout(obs_dim)?;
+    if act_dim != shm_schemas::ACT_DIM {
+        return Err(OnnxExportError::UnknownActionSpace(act_dim));
+    }
+    // A validated blob's activations are known values.
+    let hidden_act = Activation::try_from(blob.activation).unwrap_or(Activation::Tanh);
+    let output_act = Activation::try_from(blob.output_activation).unwrap_or(Activation::Identity);
+    let n_hidden = blob.n_hidden as usize;
+    let mut graph = Msg::new().string(2, "foresight_policy");
+    let mut inits = vec![
+        proto::tensor("obs_mean", &[obs_dim as i64], &blob.obs_mean[..obs_dim]),
+        proto::tensor("obs_std", &[obs_dim as i64], &blob.obs_std[..obs_dim]),
+        proto::tensor("obs_clip_lo", &[], &[-blob.obs_clip]),
+        proto::tensor("obs_clip_hi", &[], &[blob.obs_clip]),
+        proto::tensor("action_clip_lo", &[], &[-blob.action_clip]),
+        proto::tensor("action_clip_hi", &[], &[blob.action_clip]),
+        proto::tensor(
+            "action_scale",
+            &[act_dim as i64],
+            &blob.action_scale[..act_dim],
+        ),
+    ];
+    let mut nodes = vec![
+        proto::node("centre", "Sub", &[INPUT, "obs_mean"], &["centred"], &[]),
+        proto::node("scale", "Div", &["centred", "obs_std"], &["scaled"], &[]),
+        proto::node(
+            "clip_obs",
+            "Clip",
+            &["scaled", "obs_clip_lo", "obs_clip_hi"],
+            &["x0"],
+            &[],
+        ),
+    ];
+    let mut input = "x0".to_owned();
+    let mut in_dim = obs_dim;
+    let mut offset = 0usize;
+    for k in 0..=n_hidden {
+        let out_dim = if k == n_hidden {
+            act_dim
+        } else {
+            blob.hidden_sizes[k] as usize
+        };
+        let (w, b) = (format!("w{k}"), format!("b{k}"));
+        let w_len = in_dim * out_dim;
+        inits.push(proto::tensor(
+            &w,
+            &[out_dim as i64, in_dim as i64],
+            &blob.weights[offset..offset + w_len],
+        ));
+        inits.push(proto::tensor(
+            &b,
+            &[out_dim as i64],
+            &blob.weights[offset + w_len..offset + w_len + out_dim],
+        ));
+        offset += w_len + out_dim;
+        let pre = format!("z{k}");
+        nodes.push(proto::node(
+            &format!("dense{k}"),
+            "Gemm",
+            &[&input, &w, &b],
+            &[&pre],
+            &[proto::int_attribute("transB", 1)],
+        ));
+        let act = if k == n_hidden {
+            output_act
+        } else {
+            hidden_act
+        };
+        input = match activation_op(act) {
+            Some(op) => {
+                let post = format!("h{k}");
+                nodes.push(proto::node(&format!("act{k}"), op, &[&pre], &[&post], &[]));
+                post
+            }
+            None => pre,
+        };
+        in_dim = out_dim;
+    }
+    nodes.push(proto::node(
+        "clip_action",
+        "Clip",
+        &[&input, "action_clip_lo", "action_clip_hi"],
+        &["clipped"],
+        &[],
+    ));
+    nodes.push(proto::node(
+        "scale_action",
+        "Mul",
+        &["clipped", "action_scale"],
+        &[OUTPUT],
+        &[],
+    ));
+    for n in &nodes {
+        graph = graph.msg(1, n);
+    }
+    for t in &inits {
+        graph = graph.msg(5, t);
+    }
+    graph = graph
+        .string(
+            10,
+            "Foresight policy: raw observation in (SI units), clipped action out; see policy.schema.json",
+        )
+        .msg(
+            11,
+            &proto::float_value_info(
+                INPUT,
+                &[Dim::Named("batch"), Dim::Fixed(obs_dim as i64)],
+                "raw observation (SI units), layout in policy.schema.json",
+            ),
+        )
+        .msg(
+            12,
+            &proto::float_value_info(
+                OUTPUT,
+                &[Dim::Named("batch"), Dim::Fixed(act_dim as i64)],
+                "action in [-action_clip, action_clip] × action_scale",
+            ),
+        );
+    let opset = Msg::new().string(1, "").int(2, OPSET);
+    let meta = |k: &str, v: String| Msg::new().string(1, k).string(2, &v);
+    let model = Msg::new()
+        .int(1, IR_VERSION)
+        .string(2, "foresight-learner")
+        .string(3, env!("CARGO_PKG_VERSION"))
+        .int(5, i64::from(POLICY_FORMAT_VERSION))
+        .msg(7, &graph)
+        .msg(8, &opset)
+        .msg(14, &meta("policy_id", blob.policy_id.to_string()))
+        .msg(
+            14,
+            &meta(
+                "task_config_hash",
+                format!("{:#018x}", blob.task_config_hash),
+            ),
+        )
+        .msg(14, &meta("schema", SCHEMA_FILE.into()));
+    Ok(model.into_bytes())
+}
+
+/// The contents of `policy.schema.json` for `blob`; `action_scale_m` is the task's
+/// `action.scale_m` when the task that trained the policy is known (its hash matches).
+///
+/// # Errors
+/// [`OnnxExportError`] for an observation or action layout this exporter does not know.
+pub fn policy_schema(
+    blob: &PolicyBlob,
+    action_scale_m: Option<f64>,
+) -> Result<serde_json::Value, OnnxExportError> {
+    let obs_dim = blob.obs_dim as usize;
+    let act_dim = blob.act_dim as usize;
+    let (kind, layout) = observation_layout(obs_dim)?;
+    if act_dim != shm_schemas::ACT_DIM {
+        return Err(OnnxExportError::UnknownActionSpace(act_dim));
+    }
+    let hidden: Vec<u32> = blob.hidden_sizes[..blob.n_hidden as usize].to_vec();
+    let act = |b: u8| Activation::try_from(b).map_or("unknown", activation_name);
+    Ok(serde_json::json!({
+        "schema_version": SCHEMA_VERSION,
+        "policy": {
+            "policy_id": blob.policy_id,
+            "task_config_hash": format!("{:#018x}", blob.task_config_hash),
+            "blob_format_version": POLICY_FORMAT_VERSION,
+            "producer": format!("foresight-learner {}", env!("CARGO_PKG_VERSION")),
+        },
+        "onnx": {
+            "file": ONNX_FILE,
+            "opset": OPSET,
+            "ir_version": IR_VERSION,
+            "input": {"name": INPUT, "shape": ["batch", obs_dim], "dtype": "float32"},
+            "output": {"name": OUTPUT, "shape": ["batch", act_dim], "dtype": "float32"},
+            "normaliser": "folded in: (observation - mean) / std, clipped to ±obs_clip",
+        },
+        "observation": {
+            "kind": kind,
+            "dim": obs_dim,
+            "units": "raw SI units as the twin computes them (the graph normalises)",
+            "layout": layout,
+            "obs_clip": blob.obs_clip,
+        },
+        "action": {
+            "space": "cartesian_step",
+            "dim": act_dim,
+            "names": ["dx", "dy", "dz"],
+            "limits": [-blob.action_clip, blob.action_clip],
+            "scale": &blob.action_scale[..act_dim],
+            "unit": "a fraction of action.scale_m: the TCP displacement asked for one step is action × action.scale_m (m); IK turns it into joints",
+            "action_scale_m": action_scale_m,
+        },
+        "network": {
+            "hidden": hidden,
+            "activation": act(blob.activation),
+            "output_activation": act(blob.output_activation),
+        },
+    }))
+}
+
+/// Writes `policy.onnx` and `policy.schema.json` into `dir` (made if missing), each
+/// atomically; returns their paths.
+///
+/// # Errors
+/// [`OnnxExportError`].
+pub fn write_export(
+    dir: &Path,
+    blob: &PolicyBlob,
+    action_scale_m: Option<f64>,
+) -> Result<(PathBuf, PathBuf), OnnxExportError> {
+    let onnx = policy_onnx(blob)?;
+    let schema = policy_schema(blob, action_scale_m)?;
+    std::fs::create_dir_all(dir).map_err(|source| OnnxExportError::Folder {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let (onnx_path, schema_path) = (dir.join(ONNX_FILE), dir.join(SCHEMA_FILE));
+    write_atomic(&onnx_path, &onnx)?;
+    let mut text = serde_json::to_string_pretty(&schema).unwrap_or_default();
+    text.push('\n');
+    write_atomic(&schema_path, text.as_bytes())?;
+    Ok((onnx_path, schema_path))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_observation_layouts_are_the_twins() {
+        assert_eq!(observation_layout(17).unwrap().0, "paper");
+        let (kind, layout) = observation_layout(29).unwrap();
+        assert_eq!((kind, layout.len()), ("nearest_boxes", 29));
+        assert_eq!(layout[28]["name"], "box 3 robot distance (capped at 1)");
+        for bad in [0, 16, 18, 35] {
+            let e = observation_layout(bad).unwrap_err();
+            assert!(e.to_string().contains(&format!("obs_dim {bad}")), "{e}");
+        }
+    }
+}
