@@ -95,6 +95,40 @@ impl TryFrom<u8> for Activation {
     }
 }
 
+/// The action space a policy's output lives in. Stored as a `u8` (`PolicyBlob::action_space`);
+/// convert with `ActionSpace::try_from(byte)`. The observation layout is fixed by `obs_dim`
+/// under [`POLICY_FORMAT_VERSION`] (the `twin` crate's table).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum ActionSpace {
+    /// The paper's: a Cartesian TCP step `[dx, dy, dz]` in `[-1, 1]`, times the task's
+    /// `action.scale_m`; the twin's IK turns it into joints. Byte 0, so every blob written
+    /// before the field existed (it was reserved, zero) reads as this space.
+    CartesianStep = 0,
+}
+
+impl ActionSpace {
+    /// The space's name, as the export schema and the logs write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::CartesianStep => "cartesian_step",
+        }
+    }
+}
+
+impl TryFrom<u8> for ActionSpace {
+    type Error = SchemaError;
+    fn try_from(value: u8) -> Result<Self, SchemaError> {
+        match value {
+            0 => Ok(Self::CartesianStep),
+            _ => Err(SchemaError::BadEnum {
+                field: "action_space",
+                value: u32::from(value),
+            }),
+        }
+    }
+}
+
 /// A borrowed view of one dense layer inside a blob.
 #[derive(Debug, Clone, Copy)]
 pub struct LayerView<'a> {
@@ -125,8 +159,9 @@ pub struct PolicyBlob {
     pub output_activation: u8,
     /// Number of hidden layers (≤ [`MAX_HIDDEN_LAYERS`]).
     pub n_hidden: u8,
-    /// Reserved, zero.
-    pub reserved0: u8,
+    /// The [`ActionSpace`] the network's output lives in, as a byte. A reader refuses a
+    /// value it does not know, by name, rather than run the output as another space's.
+    pub action_space: u8,
     /// Identifier of this policy (unique per export; never [`RESERVED_POLICY_ID`]).
     pub policy_id: u64,
     /// Hash of the task configuration the policy was trained for.
@@ -260,7 +295,7 @@ impl PolicyBlob {
         self.activation = other.activation;
         self.output_activation = other.output_activation;
         self.n_hidden = other.n_hidden;
-        self.reserved0 = other.reserved0;
+        self.action_space = other.action_space;
         self.policy_id = other.policy_id;
         self.task_config_hash = other.task_config_hash;
         self.checksum = other.checksum;
@@ -347,7 +382,7 @@ impl PolicyBlob {
             self.activation,
             self.output_activation,
             self.n_hidden,
-            self.reserved0,
+            self.action_space,
         ]);
         h.write_u64(self.policy_id);
         h.write_u64(self.task_config_hash);
@@ -404,6 +439,9 @@ impl PolicyBlob {
                 });
             }
         }
+        // A space this build does not know is refused by name: its output would otherwise be
+        // run as a Cartesian step (issue 40 item 3).
+        ActionSpace::try_from(self.action_space)?;
         Activation::try_from(self.output_activation).map_err(|_| SchemaError::BadEnum {
             field: "output_activation",
             value: u32::from(self.output_activation),

@@ -17,7 +17,7 @@
 
 use crate::error::SchemaError;
 use crate::policy_blob::{
-    Activation, MAX_ACT, MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_OBS, MAX_WEIGHTS,
+    ActionSpace, Activation, MAX_ACT, MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_OBS, MAX_WEIGHTS,
     POLICY_FORMAT_VERSION, PolicyBlob,
 };
 
@@ -222,7 +222,7 @@ impl PolicyBlobBuilder {
         blob.activation = self.activation as u8;
         blob.output_activation = self.output_activation as u8;
         blob.n_hidden = n_hidden as u8;
-        blob.reserved0 = 0;
+        blob.action_space = ActionSpace::CartesianStep as u8;
         blob.policy_id = self.policy_id;
         blob.task_config_hash = self.task_config_hash;
         blob.obs_dim = obs_dim as u32;

@@ -23,7 +23,7 @@ pub mod proto;
 
 use std::path::{Path, PathBuf};
 
-use shm_schemas::{Activation, PAPER_OBS_DIM, POLICY_FORMAT_VERSION, PolicyBlob};
+use shm_schemas::{ActionSpace, Activation, PAPER_OBS_DIM, POLICY_FORMAT_VERSION, PolicyBlob};
 
 use crate::checkpoint::{CheckpointError, write_atomic};
 use proto::{Dim, Msg};
@@ -54,9 +54,17 @@ pub enum OnnxExportError {
         "obs_dim {0} matches no known observation layout (17 for the paper's, 17 + 6·(k−1) for nearest_boxes with k = 2..=3 boxes)"
     )]
     UnknownObservation(usize),
-    /// The blob's action length is not the Cartesian step's.
-    #[error("act_dim {0} is not a known action space (3: the Cartesian step [dx, dy, dz])")]
-    UnknownActionSpace(usize),
+    /// The blob's action space is not one this exporter knows, or its length is not the
+    /// space's.
+    #[error(
+        "the policy's action space (action_space {space}, act_dim {act_dim}) is not one this exporter knows (action_space 0, act_dim 3: the Cartesian step [dx, dy, dz])"
+    )]
+    UnknownActionSpace {
+        /// `PolicyBlob::action_space`.
+        space: u8,
+        /// `PolicyBlob::act_dim`.
+        act_dim: usize,
+    },
     /// The export folder could not be made.
     #[error("cannot create the export folder {}", .path.display())]
     Folder {
@@ -118,6 +126,20 @@ pub fn observation_layout(
     Ok((kind, layout))
 }
 
+/// The blob's action space, when this exporter knows it and the length is the space's.
+fn action_space(blob: &PolicyBlob) -> Result<ActionSpace, OnnxExportError> {
+    let unknown = OnnxExportError::UnknownActionSpace {
+        space: blob.action_space,
+        act_dim: blob.act_dim as usize,
+    };
+    match ActionSpace::try_from(blob.action_space) {
+        Ok(space @ ActionSpace::CartesianStep) if blob.act_dim as usize == shm_schemas::ACT_DIM => {
+            Ok(space)
+        }
+        _ => Err(unknown),
+    }
+}
+
 fn activation_op(a: Activation) -> Option<&'static str> {
     match a {
         Activation::Identity => None,
@@ -141,9 +163,7 @@ pub fn policy_onnx(blob: &PolicyBlob) -> Result<Vec<u8>, OnnxExportError> {
     let obs_dim = blob.obs_dim as usize;
     let act_dim = blob.act_dim as usize;
     observation_layout(obs_dim)?;
-    if act_dim != shm_schemas::ACT_DIM {
-        return Err(OnnxExportError::UnknownActionSpace(act_dim));
-    }
+    action_space(blob)?;
     // A validated blob's activations are known values.
     let hidden_act = Activation::try_from(blob.activation).unwrap_or(Activation::Tanh);
     let output_act = Activation::try_from(blob.output_activation).unwrap_or(Activation::Identity);
@@ -292,9 +312,7 @@ pub fn policy_schema(
     let obs_dim = blob.obs_dim as usize;
     let act_dim = blob.act_dim as usize;
     let (kind, layout) = observation_layout(obs_dim)?;
-    if act_dim != shm_schemas::ACT_DIM {
-        return Err(OnnxExportError::UnknownActionSpace(act_dim));
-    }
+    let space = action_space(blob)?;
     let hidden: Vec<u32> = blob.hidden_sizes[..blob.n_hidden as usize].to_vec();
     let act = |b: u8| Activation::try_from(b).map_or("unknown", activation_name);
     Ok(serde_json::json!({
@@ -321,7 +339,7 @@ pub fn policy_schema(
             "obs_clip": blob.obs_clip,
         },
         "action": {
-            "space": "cartesian_step",
+            "space": space.name(),
             "dim": act_dim,
             "names": ["dx", "dy", "dz"],
             "limits": [-blob.action_clip, blob.action_clip],

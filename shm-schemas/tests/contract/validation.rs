@@ -304,6 +304,26 @@ fn policy() -> Box<PolicyBlob> {
 
 #[test]
 fn policy_blob_rejects_bad_input() {
+    // An action space this build does not know (a joint-space policy from a newer learner,
+    // say) is refused by name, never run as a Cartesian step (issue 40 item 3). Before, the
+    // byte was reserved and never checked.
+    let mut b = policy();
+    b.action_space = 1;
+    b.seal();
+    let e = b.validate().unwrap_err();
+    assert_eq!(
+        e,
+        SchemaError::BadEnum {
+            field: "action_space",
+            value: 1
+        }
+    );
+    assert!(e.to_string().contains("action_space"), "{e}");
+    assert_eq!(
+        ActionSpace::try_from(policy().action_space),
+        Ok(ActionSpace::CartesianStep)
+    );
+
     let mut b = policy();
     b.weights[100] = f32::NAN;
     b.seal();
