@@ -31,7 +31,7 @@ use shm_schemas::{DetectionFrame, GoalRequest};
 
 use crate::cycle::twin_model::TwinModel;
 use crate::rt::histogram::{Histogram, Summary};
-use crate::twin_thread::intake::{FrameNote, IntakeCounters, SceneIntake};
+use crate::twin_thread::intake::{AcceptedFrame, FrameNote, IntakeCounters, SceneIntake};
 use crate::twin_thread::node::TwinNodeError;
 use crate::twin_thread::scene_path::ScenePath;
 
@@ -127,10 +127,15 @@ fn run(
     } = ends;
     let mut age = Histogram::new();
     let mut refusals_in_a_row = 0u64;
+    let mut drain = FrameDrain::default();
     while !stop.load(Ordering::Acquire) {
         if let Some(goals) = &goals {
             take_goal_requests(goals, &mut intake, &mut path)?;
         }
+        // Every waiting frame is checked and counted, in order; only the newest accepted one
+        // goes on to the plan guard, the cycle and the twin thread (issue 42 item 6: a
+        // starved thread catching up re-verifies the plans once, against the world as it is
+        // now, not once per stale frame).
         while let Some(sample) = sub.receive().map_err(|cause| TwinNodeError::Receive {
             service: "detections",
             cause,
@@ -143,18 +148,11 @@ fn run(
             let mono_now_ns = shm_schemas::clock::monotonic_now_ns();
             match intake.accept(&frame, mono_now_ns, publishers) {
                 Ok(accepted) => {
-                    path.accepted(accepted.scene, accepted.stamp_ns, accepted.intruders);
-                    age.record_ns(
-                        shm_schemas::clock::monotonic_now_ns()
-                            .saturating_sub(frame.capture_time_ns),
-                    );
+                    drain.accepted(accepted, frame.sequence, frame.capture_time_ns);
                     refusals_in_a_row = 0;
-                    let _ = notes.send(FrameNote::Accepted {
-                        frame: accepted,
-                        sequence: frame.sequence,
-                    });
                 }
                 Err(refusal) => {
+                    drain.refused();
                     path.refused();
                     if refusals_in_a_row.is_multiple_of(100) {
                         tracing::warn!(
@@ -169,12 +167,91 @@ fn run(
                 }
             }
         }
+        if let Some(newest) = drain.take() {
+            path.accepted(
+                newest.frame.scene,
+                newest.frame.stamp_ns,
+                newest.frame.intruders,
+            );
+            age.record_ns(
+                shm_schemas::clock::monotonic_now_ns().saturating_sub(newest.capture_time_ns),
+            );
+            let _ = notes.send(FrameNote::Accepted {
+                frame: newest.frame,
+                sequence: newest.sequence,
+            });
+        }
         std::thread::sleep(POLL_PERIOD);
+    }
+    if drain.superseded > 0 {
+        tracing::info!(
+            superseded = drain.superseded,
+            "accepted frames superseded by a newer one in the same poll (checked and counted, not re-verified against)"
+        );
     }
     Ok(IntakeFigures {
         counters: *intake.counters(),
         detection_age: age.summary(),
     })
+}
+
+/// The newest accepted frame of one poll, and what the older ones it supersedes carried
+/// that must not be lost: a cancel's stop request rides on the next frame delivered.
+#[derive(Debug)]
+struct FrameDrain<S = twin::Scene> {
+    newest: Option<Newest<S>>,
+    /// A stop was requested by a frame not delivered yet.
+    stop_requested: bool,
+    /// Accepted frames superseded before delivery, since start.
+    superseded: u64,
+}
+
+/// An accepted frame waiting for delivery.
+#[derive(Debug, Clone, Copy)]
+struct Newest<S> {
+    frame: AcceptedFrame<S>,
+    sequence: u64,
+    capture_time_ns: u64,
+}
+
+impl<S> Default for FrameDrain<S> {
+    fn default() -> Self {
+        Self {
+            newest: None,
+            stop_requested: false,
+            superseded: 0,
+        }
+    }
+}
+
+impl<S> FrameDrain<S> {
+    /// An accepted frame: it supersedes an older one not delivered yet.
+    fn accepted(&mut self, frame: AcceptedFrame<S>, sequence: u64, capture_time_ns: u64) {
+        self.stop_requested |= frame.stop_requested;
+        if self.newest.is_some() {
+            self.superseded += 1;
+        }
+        self.newest = Some(Newest {
+            frame,
+            sequence,
+            capture_time_ns,
+        });
+    }
+
+    /// A refused frame (delivered at once by the caller): an accepted frame older than it
+    /// is stale and never delivered; a stop it requested waits for the next accepted one.
+    fn refused(&mut self) {
+        if self.newest.take().is_some() {
+            self.superseded += 1;
+        }
+    }
+
+    /// The frame to deliver, carrying every stop requested since the last delivery.
+    fn take(&mut self) -> Option<Newest<S>> {
+        let mut newest = self.newest.take()?;
+        newest.frame.stop_requested |= std::mem::take(&mut self.stop_requested);
+        Some(newest)
+    }
 }
 
 /// The intake thread's iceoryx2 ends (made on the thread: ports stay where they were made).
@@ -262,4 +339,47 @@ fn take_goal_requests(
         path.goal_withdrawn(intake.goal_epoch());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A frame over a stand-in scene (the drain never looks at the scene).
+    fn frame(stamp_ns: u64, stop_requested: bool) -> AcceptedFrame<u32> {
+        let mut f = AcceptedFrame::settled(7, stamp_ns);
+        f.stop_requested = stop_requested;
+        f
+    }
+
+    #[test]
+    fn only_the_newest_accepted_frame_of_a_poll_goes_on_and_a_stop_request_is_never_lost() {
+        let mut drain = FrameDrain::<u32>::default();
+        assert!(drain.take().is_none(), "nothing waiting");
+        // Three frames waited (a starved thread): the newest goes on, with the older
+        // frame's stop request.
+        drain.accepted(frame(1, false), 1, 10);
+        drain.accepted(frame(2, true), 2, 20);
+        drain.accepted(frame(3, false), 3, 30);
+        let newest = drain.take().unwrap();
+        assert_eq!((newest.sequence, newest.frame.stamp_ns), (3, 3));
+        assert!(
+            newest.frame.stop_requested,
+            "the cancel's stop rides on the newest"
+        );
+        assert_eq!(drain.superseded, 2);
+        assert!(drain.take().is_none());
+        // An accepted frame older than a refusal is stale: not delivered; its stop request
+        // waits for the next accepted frame.
+        drain.accepted(frame(4, true), 4, 40);
+        drain.refused();
+        assert!(drain.take().is_none());
+        drain.accepted(frame(5, false), 5, 50);
+        let next = drain.take().unwrap();
+        assert_eq!(next.sequence, 5);
+        assert!(next.frame.stop_requested);
+        // Delivered once: the next frame carries no stale request.
+        drain.accepted(frame(6, false), 6, 60);
+        assert!(!drain.take().unwrap().frame.stop_requested);
+    }
 }
