@@ -299,9 +299,9 @@ pub enum ServeError {
     CommandLog(#[from] CommandLogError),
 }
 
-/// Runs the runtime on `link` until stopped; see the module docs: [`Runtime::start`], then
-/// [`Runtime::run_loop`] until a signal, the time limit, an error or a panic, then
-/// [`Runtime::shut_down`] (the arm stops under control before anything else).
+/// Runs the runtime on `link` until stopped; see the module docs: `Runtime::start`, then
+/// `Runtime::run_loop` until a signal, the time limit, an error or a panic, then
+/// `Runtime::shut_down` (the arm stops under control before anything else).
 ///
 /// # Errors
 /// [`ServeError`].
@@ -776,7 +776,6 @@ fn start_cycle<L: RobotLink>(
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
