@@ -118,7 +118,7 @@ pub enum ColourDetectorConfigError {
 #[derive(Debug, thiserror::Error)]
 pub enum DetectorConfigError {
     /// The file could not be read.
-    #[error("cannot read detector config {path}: {source}")]
+    #[error("cannot read detector config {path}")]
     Io {
         /// The file.
         path: PathBuf,
@@ -134,7 +134,7 @@ pub enum DetectorConfigError {
         message: String,
     },
     /// Bad values.
-    #[error("invalid detector config {path}: {source}")]
+    #[error("invalid detector config {path}")]
     Invalid {
         /// The file.
         path: PathBuf,
@@ -212,10 +212,10 @@ pub enum DetectError {
     #[error(transparent)]
     Frame(#[from] FrameError),
     /// OpenCV failed.
-    #[error("OpenCV: {0}")]
+    #[error("OpenCV")]
     OpenCv(#[from] opencv::Error),
     /// ONNX Runtime could not run the model.
-    #[error("model: ONNX Runtime: {0}")]
+    #[error("model: ONNX Runtime")]
     Ort(#[source] ort::Error),
     /// The model's output changed shape since it was loaded.
     #[error("model: output shape {got:?} differs from the one seen at load ({expected:?})")]

@@ -146,7 +146,7 @@ pub fn default_urdf() -> PathBuf {
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
     /// A port could not be bound.
-    #[error("cannot bind {addr}: {source}")]
+    #[error("cannot bind {addr}")]
     Bind {
         /// Address.
         addr: SocketAddr,
