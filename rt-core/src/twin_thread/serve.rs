@@ -74,7 +74,7 @@ pub enum InjectedFaultParseError {
     #[error("unknown fault (known: twin-panic:MS)")]
     Unknown,
     /// `twin-panic:MS` with an `MS` that is not a whole number of milliseconds.
-    #[error("twin-panic:MS: bad MS: {0}")]
+    #[error("twin-panic:MS: MS is not a whole number of milliseconds")]
     BadAfterMs(#[from] std::num::ParseIntError),
 }
 
