@@ -78,11 +78,13 @@ docs-check: setup
 # `cargo doc` with warnings as errors (broken intra-doc links, bad code blocks): in `lint`
 # only. It checks every dependency once more in its own mode (minutes on a fresh cache), so
 # `make test` leaves it out. `--release` shares the build scripts' runs (OpenCV's bindings,
-# libtorch's) with the release build instead of running them again.
+# libtorch's) with the release build instead of running them again. error_messages.py: no
+# error message prints a source it also returns (the chain printers show it once).
 lint: setup
 	$(CARGO) fmt --all --check
 	$(CARGO) clippy --release --workspace --all-targets -- -D warnings
 	RUSTDOCFLAGS="-D warnings" $(CARGO) doc --release --no-deps --workspace
+	python3 scripts/error_messages.py
 
 fmt:
 	$(CARGO) fmt --all

@@ -30,7 +30,7 @@ pub const BEST: &str = "best.ckpt";
 #[derive(Debug, thiserror::Error)]
 pub enum CheckpointError {
     /// File system error.
-    #[error("checkpoint I/O on {path}: {source}")]
+    #[error("checkpoint I/O on {path}")]
     Io {
         /// The file.
         path: PathBuf,
@@ -38,7 +38,7 @@ pub enum CheckpointError {
         source: std::io::Error,
     },
     /// torch could not encode or decode the tensors.
-    #[error("checkpoint tensors: {0}")]
+    #[error("checkpoint tensors")]
     Tensor(#[from] tch::TchError),
     /// The checkpoint's network is not the trainer's.
     #[error("checkpoint network {checkpoint:?} does not match the trainer's {trainer:?}")]
@@ -52,7 +52,7 @@ pub enum CheckpointError {
     #[error("invalid checkpoint: missing tensor {0}")]
     MissingTensor(&'static str),
     /// The metadata could not be encoded or decoded.
-    #[error("invalid checkpoint: metadata: {0}")]
+    #[error("invalid checkpoint: metadata")]
     Meta(#[from] serde_json::Error),
     /// Another format version (the file's own text, hence a `String`).
     #[error("invalid checkpoint: format {found:?}, expected {FORMAT:?}")]
@@ -81,7 +81,7 @@ pub enum CheckpointError {
     #[error("invalid checkpoint: non-finite weights")]
     NonFinite,
     /// The weights do not make a network of the stored shape.
-    #[error("checkpoint weights: {0}")]
+    #[error("checkpoint weights")]
     Network(#[from] NetFromFlatError),
 }
 

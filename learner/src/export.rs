@@ -22,13 +22,13 @@ use crate::normalize::ObsNormalizer;
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
     /// The builder rejected the network.
-    #[error("policy blob: {0}")]
+    #[error("policy blob")]
     Build(#[from] PolicyBuildError),
     /// Writing failed.
-    #[error("{0}")]
+    #[error(transparent)]
     Write(#[from] CheckpointError),
     /// Reading failed.
-    #[error("cannot read {}: {source}", .path.display())]
+    #[error("cannot read {}", .path.display())]
     Read {
         /// File.
         path: PathBuf,
@@ -36,7 +36,7 @@ pub enum ExportError {
         source: std::io::Error,
     },
     /// The file is not a valid blob (wrong length, or a field fails validation).
-    #[error("invalid policy blob file: {0}")]
+    #[error("invalid policy blob file")]
     Invalid(#[source] SchemaError),
 }
 

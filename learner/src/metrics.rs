@@ -236,7 +236,7 @@ impl MetricsLog {
 #[derive(Debug, thiserror::Error)]
 pub enum MetricsPlotError {
     /// Writing the temporary file or renaming it failed.
-    #[error("reward plot {}: {source}", path.display())]
+    #[error("reward plot {}", path.display())]
     Io {
         /// The file.
         path: PathBuf,

@@ -97,7 +97,7 @@ pub enum NetFromFlatError {
         expected: usize,
     },
     /// torch could not create the parameter tensor.
-    #[error("parameter tensor: {0}")]
+    #[error("parameter tensor")]
     Tensor(#[from] tch::TchError),
 }
 

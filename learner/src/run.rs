@@ -2,6 +2,7 @@
 //! `last.ckpt`, write `metrics.csv` and the reward curve `reward.svg` next to them, show
 //! progress, and stop on a step budget, a time budget or a success rule.
 
+use shm_schemas::error_chain::error_chain;
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -281,7 +282,7 @@ impl Run {
     fn write_metrics(&self, opts: &RunOptions) -> Result<(), CheckpointError> {
         self.log.write_csv(&opts.out_dir.join(METRICS_CSV))?;
         if let Err(e) = self.log.plot(&opts.out_dir.join(REWARD_SVG), &opts.title) {
-            tracing::warn!("reward plot not drawn: {e}");
+            tracing::warn!("reward plot not drawn: {}", error_chain(&e));
         }
         Ok(())
     }

@@ -11,6 +11,7 @@
 //! The command-line flags behind [`ServiceConfig`] and [`RetrainSettings`] are documented
 //! in `learner serve --help`.
 
+use shm_schemas::error_chain::error_chain;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -62,19 +63,19 @@ pub enum ServeError {
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
     /// The policy could not be packed into a blob.
-    #[error("policy blob: {0}")]
+    #[error("policy blob")]
     Blob(#[from] PolicyBuildError),
     /// The iceoryx2 node could not be created.
-    #[error("iceoryx2 node: {0}")]
+    #[error("iceoryx2 node")]
     Node(#[from] NodeCreateError),
     /// A port (requests, policies, progress) could not be opened.
-    #[error("iceoryx2: {0}")]
+    #[error("iceoryx2")]
     Open(#[from] ShmOpenError),
     /// No shared-memory sample could be loaned for a policy.
-    #[error("iceoryx2 loan: {0}")]
+    #[error("iceoryx2 loan")]
     Loan(#[from] LoanError),
     /// A policy could not be sent.
-    #[error("iceoryx2 send: {0}")]
+    #[error("iceoryx2 send")]
     Send(#[from] SendError),
 }
 
@@ -269,7 +270,11 @@ impl<'a> Server<'a> {
         let (sum, before) = match res {
             Ok(o) => (o.summary, o.before),
             Err(e) => {
-                tracing::error!(request = req.request_id, "retraining failed: {e}");
+                tracing::error!(
+                    request = req.request_id,
+                    "retraining failed: {}",
+                    error_chain(&e)
+                );
                 return Ok(Handled::Skipped);
             }
         };

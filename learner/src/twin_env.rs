@@ -18,7 +18,7 @@ use crate::env::{Env, SceneSampler, StepInfo};
 #[derive(Debug, thiserror::Error)]
 pub enum TaskLoadError {
     /// The task file.
-    #[error("task config {}: {source}", .path.display())]
+    #[error("task config {}", .path.display())]
     Task {
         /// File.
         path: PathBuf,
@@ -27,7 +27,7 @@ pub enum TaskLoadError {
         source: TaskConfigError,
     },
     /// The robot model.
-    #[error("robot model {}: {source}", .path.display())]
+    #[error("robot model {}", .path.display())]
     Model {
         /// File.
         path: PathBuf,

@@ -106,7 +106,7 @@ pub enum CalibrationDefect {
 #[derive(Debug, thiserror::Error)]
 pub enum CalibrationError {
     /// The file could not be read or written.
-    #[error("calibration file {path}: {source}")]
+    #[error("calibration file {path}")]
     Io {
         /// The file.
         path: PathBuf,
@@ -124,8 +124,8 @@ pub enum CalibrationError {
     /// Values out of range or geometrically inconsistent (in the file `path`, when loaded
     /// from one).
     #[error(
-        "invalid calibration: {}{defect}",
-        .path.as_ref().map(|p| format!("{}: ", p.display())).unwrap_or_default()
+        "invalid calibration{}",
+        .path.as_ref().map(|p| format!(": {}", p.display())).unwrap_or_default()
     )]
     Invalid {
         /// The calibration file, if any.
@@ -147,7 +147,7 @@ pub enum CalibrationError {
         path: PathBuf,
     },
     /// OpenCV failed.
-    #[error("OpenCV failed during calibration: {0}")]
+    #[error("OpenCV failed during calibration")]
     OpenCv(#[from] opencv::Error),
 }
 
@@ -688,6 +688,7 @@ pub fn order_image_corners(c: [[f64; 2]; 4]) -> [[f64; 2]; 4] {
 mod tests {
     use super::*;
     use crate::synthetic::SyntheticCamera;
+    use shm_schemas::error_chain::error_chain;
     use shm_schemas::scene_file::SceneFile;
 
     fn setup() -> (SyntheticCamera, SceneFile, CalibrationFile) {
@@ -739,12 +740,12 @@ mod tests {
         // Wrong corner order (two swapped): not convex.
         let mut bad = file.clone();
         bad.corners_px.swap(0, 1);
-        let e = Calibration::new(bad).unwrap_err().to_string();
+        let e = error_chain(&Calibration::new(bad).unwrap_err()).to_string();
         assert!(e.contains("convex"), "{e}");
         // Mirrored order: convex, but the camera would have to stand below the table.
         let mut mirrored = file.clone();
         mirrored.corners_px.reverse();
-        let e = Calibration::new(mirrored).unwrap_err().to_string();
+        let e = error_chain(&Calibration::new(mirrored).unwrap_err()).to_string();
         assert!(
             e.contains("below the table") || e.contains("reproject"),
             "{e}"
@@ -753,30 +754,25 @@ mod tests {
         let mut off = file.clone();
         off.corners_px[2] = [5000.0, 10.0];
         assert!(
-            Calibration::new(off)
-                .unwrap_err()
+            error_chain(&Calibration::new(off).unwrap_err())
                 .to_string()
                 .contains("outside")
         );
         let mut wrong = file.clone();
         wrong.workspace.size_m = [0.9, 0.3];
         assert!(
-            Calibration::new(wrong)
-                .unwrap_err()
+            error_chain(&Calibration::new(wrong).unwrap_err())
                 .to_string()
                 .contains("reproject")
         );
         std::fs::write(dir.join("bad.toml"), "corners_px = 3\n").unwrap();
-        let e = Calibration::load(&dir.join("bad.toml"))
-            .unwrap_err()
-            .to_string();
+        let e = error_chain(&Calibration::load(&dir.join("bad.toml")).unwrap_err()).to_string();
         assert!(
             e.contains("malformed calibration file") && e.contains("bad.toml"),
             "{e}"
         );
         assert!(
-            Calibration::load(&dir.join("missing.toml"))
-                .unwrap_err()
+            error_chain(&Calibration::load(&dir.join("missing.toml")).unwrap_err())
                 .to_string()
                 .contains("missing.toml")
         );
@@ -832,7 +828,7 @@ mod tests {
             ),
         )
         .unwrap();
-        let m = Calibration::load(&p).unwrap_err().to_string();
+        let m = error_chain(&Calibration::load(&p).unwrap_err()).to_string();
         assert!(m.contains("malformed") && m.contains("frame_id"), "{m}");
         // A bad value: the field is named with the file.
         std::fs::write(
@@ -843,7 +839,7 @@ mod tests {
             ),
         )
         .unwrap();
-        let m = Calibration::load(&p).unwrap_err().to_string();
+        let m = error_chain(&Calibration::load(&p).unwrap_err()).to_string();
         assert!(m.contains("camera.frame_id") && m.contains("c.toml"), "{m}");
         // A malformed file that also lacks [camera] is reported as malformed.
         std::fs::write(&p, "corners_px = [[1.0, 2.0]]\n").unwrap();
@@ -886,9 +882,8 @@ mod tests {
             opencv::core::Scalar::all(128.0),
         )
         .unwrap();
-        let e = find_workspace_corners(&grey, DEFAULT_TAPE_HSV)
-            .unwrap_err()
-            .to_string();
+        let e =
+            error_chain(&find_workspace_corners(&grey, DEFAULT_TAPE_HSV).unwrap_err()).to_string();
         assert!(e.contains("tape"), "{e}");
     }
 }

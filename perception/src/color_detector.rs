@@ -118,7 +118,7 @@ pub enum ColourDetectorConfigError {
 #[derive(Debug, thiserror::Error)]
 pub enum DetectorConfigError {
     /// The file could not be read.
-    #[error("cannot read detector config {path}: {source}")]
+    #[error("cannot read detector config {path}")]
     Io {
         /// The file.
         path: PathBuf,
@@ -134,7 +134,7 @@ pub enum DetectorConfigError {
         message: String,
     },
     /// Bad values.
-    #[error("invalid detector config {path}: {source}")]
+    #[error("invalid detector config {path}")]
     Invalid {
         /// The file.
         path: PathBuf,
@@ -212,10 +212,10 @@ pub enum DetectError {
     #[error(transparent)]
     Frame(#[from] FrameError),
     /// OpenCV failed.
-    #[error("OpenCV: {0}")]
+    #[error("OpenCV")]
     OpenCv(#[from] opencv::Error),
     /// ONNX Runtime could not run the model.
-    #[error("model: ONNX Runtime: {0}")]
+    #[error("model: ONNX Runtime")]
     Ort(#[source] ort::Error),
     /// The model's output changed shape since it was loaded.
     #[error("model: output shape {got:?} differs from the one seen at load ({expected:?})")]
@@ -311,18 +311,7 @@ impl ColourDetector {
         frame.validate()?;
         let (w, h) = (frame.bgr.cols(), frame.bgr.rows());
         if let Some(cal) = calibration {
-            let k = cal.file.intrinsics;
-            if k.width_px as i32 != w || k.height_px as i32 != h {
-                return Err(FrameError::BadColour(ImageDefect::Size {
-                    what: "the image",
-                    width: w,
-                    height: h,
-                    other: "the calibration is for",
-                    other_width: k.width_px as i32,
-                    other_height: k.height_px as i32,
-                })
-                .into());
-            }
+            check_calibrated_size(cal, w, h)?;
         }
         let roi = self.search_region(w, h, calibration);
         let view = Mat::roi(&frame.bgr, roi)?;
@@ -334,18 +323,7 @@ impl ColourDetector {
         let mut out = Vec::new();
         for ci in 0..self.config.classes.len() {
             let class = &self.config.classes[ci];
-            let lo = Scalar::new(
-                f64::from(class.hsv_min[0]),
-                f64::from(class.hsv_min[1]),
-                f64::from(class.hsv_min[2]),
-                0.0,
-            );
-            let hi = Scalar::new(
-                f64::from(class.hsv_max[0]),
-                f64::from(class.hsv_max[1]),
-                f64::from(class.hsv_max[2]),
-                0.0,
-            );
+            let (lo, hi) = (hsv_scalar(class.hsv_min), hsv_scalar(class.hsv_max));
             let kind = class.kind;
             opencv::core::in_range(&self.hsv, &lo, &hi, &mut self.mask)?;
             let rw = roi.width as usize;
@@ -401,6 +379,28 @@ impl ColourDetector {
         }
         Ok(out)
     }
+}
+
+/// Refuses an image of another size than the one `cal` was made for.
+fn check_calibrated_size(cal: &Calibration, w: i32, h: i32) -> Result<(), DetectError> {
+    let k = cal.file.intrinsics;
+    if k.width_px as i32 != w || k.height_px as i32 != h {
+        return Err(FrameError::BadColour(ImageDefect::Size {
+            what: "the image",
+            width: w,
+            height: h,
+            other: "the calibration is for",
+            other_width: k.width_px as i32,
+            other_height: k.height_px as i32,
+        })
+        .into());
+    }
+    Ok(())
+}
+
+/// An HSV triple as OpenCV's `Scalar` (fourth channel 0).
+fn hsv_scalar(hsv: [u8; 3]) -> Scalar {
+    Scalar::new(f64::from(hsv[0]), f64::from(hsv[1]), f64::from(hsv[2]), 0.0)
 }
 
 /// Without depth: the table point under the middle of the blob's bottom edge, and the

@@ -21,13 +21,13 @@ pub enum FrameError {
         message: String,
     },
     /// The colour image was empty or of the wrong type.
-    #[error("bad colour image: {0}")]
+    #[error("bad colour image")]
     BadColour(#[source] ImageDefect),
     /// The depth image was of the wrong type or size.
-    #[error("bad depth image: {0}")]
+    #[error("bad depth image")]
     BadDepth(#[source] ImageDefect),
     /// A depth image file is of the wrong type.
-    #[error("bad depth image: {}: {defect}", .path.display())]
+    #[error("bad depth image: {}", .path.display())]
     BadDepthFile {
         /// The file.
         path: PathBuf,
@@ -36,7 +36,7 @@ pub enum FrameError {
         defect: ImageDefect,
     },
     /// OpenCV failed.
-    #[error("OpenCV: {0}")]
+    #[error("OpenCV")]
     OpenCv(#[from] opencv::Error),
 }
 
@@ -119,7 +119,7 @@ pub enum ImageMsgConvertError {
         data_len: usize,
     },
     /// OpenCV could not allocate or expose the `Mat`.
-    #[error("OpenCV: {}", .0.message)]
+    #[error("OpenCV could not make the image")]
     OpenCv(#[from] opencv::Error),
 }
 

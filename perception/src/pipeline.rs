@@ -31,6 +31,7 @@
 //! refused stamps) are rate-limited ([`crate::log_limit`]); dropped frames are reported in an
 //! info line at most every 10 s.
 
+use shm_schemas::error_chain::error_chain;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
@@ -334,9 +335,7 @@ fn capture_loop(
     let mut counts = CaptureCounts::default();
     let mut next = Instant::now();
     let mut failures_in_row = 0;
-    let mut stamp_log = LogLimiter::new(WARN_INTERVAL);
-    let mut depth_log = LogLimiter::new(WARN_INTERVAL);
-    let mut camera_log = LogLimiter::new(WARN_INTERVAL);
+    let mut logs = RefusalLogs::new();
     let mut drop_log = LogLimiter::new(DROP_LOG_INTERVAL);
     while !stop() && max_frames.is_none_or(|m| counts.frames < m) {
         if !handoff.sleep_until(next) {
@@ -356,56 +355,14 @@ fn capture_loop(
             Err(SourceError::Failed(m)) => {
                 counts.bad_frames += 1;
                 failures_in_row += 1;
-                tracing::warn!("source failed: {m}");
+                tracing::warn!("source failed: {}", error_chain(&m));
                 if failures_in_row >= MAX_FAILURES_IN_ROW {
                     return Err(SourceError::Failed(m));
                 }
                 continue;
             }
-            Err(SourceError::Stamp(e)) => {
-                failures_in_row = 0;
-                counts.bad_frames += 1;
-                counts.bad_stamps += 1;
-                if let Some(held_back) = stamp_log.allow(Instant::now()) {
-                    tracing::warn!(
-                        bad_stamps = counts.bad_stamps,
-                        "image refused: {e} ({held_back} more refused since the last warning)"
-                    );
-                }
-                continue;
-            }
-            Err(SourceError::Depth(e)) => {
-                failures_in_row = 0;
-                counts.bad_frames += 1;
-                counts.unpaired_depth += 1;
-                interrupted_at_ns.fetch_max(monotonic_now_ns(), Ordering::AcqRel);
-                if let Some(held_back) = depth_log.allow(Instant::now()) {
-                    tracing::warn!(
-                        unpaired_depth = counts.unpaired_depth,
-                        "frame refused, no settled frame until depth is fresh again: {e} ({held_back} more refused since the last warning)"
-                    );
-                }
-                continue;
-            }
-            Err(SourceError::WrongCamera(e)) => {
-                // Another camera publishes on our topic, or the calibration is not this
-                // camera's: nothing it shows is measured, and no settled frame is published
-                // until the calibrated camera's frames have been quiet again.
-                failures_in_row = 0;
-                counts.bad_frames += 1;
-                counts.wrong_camera += 1;
-                interrupted_at_ns.fetch_max(monotonic_now_ns(), Ordering::AcqRel);
-                if let Some(held_back) = camera_log.allow(Instant::now()) {
-                    tracing::error!(
-                        wrong_camera = counts.wrong_camera,
-                        "image refused: {e} ({held_back} more refused since the last error)"
-                    );
-                }
-                continue;
-            }
             Err(e) => {
-                counts.bad_frames += 1;
-                tracing::warn!("skipping a bad frame: {e}");
+                logs.refused(e, &mut counts, &mut failures_in_row, interrupted_at_ns);
                 continue;
             }
         };
@@ -423,6 +380,83 @@ fn capture_loop(
         }
     }
     Ok(counts)
+}
+
+/// The capture's rate-limited logs of refused frames, one per reason.
+struct RefusalLogs {
+    stamp: LogLimiter,
+    depth: LogLimiter,
+    camera: LogLimiter,
+}
+
+impl RefusalLogs {
+    fn new() -> Self {
+        Self {
+            stamp: LogLimiter::new(WARN_INTERVAL),
+            depth: LogLimiter::new(WARN_INTERVAL),
+            camera: LogLimiter::new(WARN_INTERVAL),
+        }
+    }
+
+    /// Counts and logs a frame the source refused (a bad stamp, depth not fresh, another
+    /// camera's image, a bad frame); the capture goes on. A refused stamp, depth or camera
+    /// ends a run of source failures (the source delivers); a stale depth or another camera
+    /// also marks the stream interrupted now (no settled frame until it is quiet again).
+    fn refused(
+        &mut self,
+        e: SourceError,
+        counts: &mut CaptureCounts,
+        failures_in_row: &mut u32,
+        interrupted_at_ns: &AtomicU64,
+    ) {
+        match e {
+            SourceError::Stamp(e) => {
+                *failures_in_row = 0;
+                counts.bad_frames += 1;
+                counts.bad_stamps += 1;
+                if let Some(held_back) = self.stamp.allow(Instant::now()) {
+                    tracing::warn!(
+                        bad_stamps = counts.bad_stamps,
+                        "image refused: {} ({held_back} more refused since the last warning)",
+                        error_chain(&e)
+                    );
+                }
+            }
+            SourceError::Depth(e) => {
+                *failures_in_row = 0;
+                counts.bad_frames += 1;
+                counts.unpaired_depth += 1;
+                interrupted_at_ns.fetch_max(monotonic_now_ns(), Ordering::AcqRel);
+                if let Some(held_back) = self.depth.allow(Instant::now()) {
+                    tracing::warn!(
+                        unpaired_depth = counts.unpaired_depth,
+                        "frame refused, no settled frame until depth is fresh again: {} ({held_back} more refused since the last warning)",
+                        error_chain(&e)
+                    );
+                }
+            }
+            SourceError::WrongCamera(e) => {
+                // Another camera publishes on our topic, or the calibration is not this
+                // camera's: nothing it shows is measured, and no settled frame is published
+                // until the calibrated camera's frames have been quiet again.
+                *failures_in_row = 0;
+                counts.bad_frames += 1;
+                counts.wrong_camera += 1;
+                interrupted_at_ns.fetch_max(monotonic_now_ns(), Ordering::AcqRel);
+                if let Some(held_back) = self.camera.allow(Instant::now()) {
+                    tracing::error!(
+                        wrong_camera = counts.wrong_camera,
+                        "image refused: {} ({held_back} more refused since the last error)",
+                        error_chain(&e)
+                    );
+                }
+            }
+            e => {
+                counts.bad_frames += 1;
+                tracing::warn!("skipping a bad frame: {}", error_chain(&e));
+            }
+        }
+    }
 }
 
 /// The detector side: processes and publishes the frames handed over until the capture
@@ -498,7 +532,11 @@ fn detect_loop(
             }
             Err(e) => {
                 stats.failed += 1;
-                tracing::warn!(sequence = frame.sequence, "frame not processed: {e}");
+                tracing::warn!(
+                    sequence = frame.sequence,
+                    "frame not processed: {}",
+                    error_chain(&e)
+                );
             }
         }
     }

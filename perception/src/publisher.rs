@@ -25,16 +25,16 @@ use crate::tracker::TrackedObject;
 #[derive(Debug, thiserror::Error)]
 pub enum PublishError {
     /// The node could not be created.
-    #[error("cannot create the iceoryx2 node: {0}")]
+    #[error("cannot create the iceoryx2 node")]
     Node(#[from] services::NodeCreateError),
     /// The service or port could not be opened.
     #[error(transparent)]
     Open(#[from] services::ShmOpenError),
     /// Loaning or sending a sample failed.
-    #[error("cannot send a DetectionFrame: {0}")]
+    #[error("cannot send a DetectionFrame")]
     Send(#[source] iceoryx2::port::SendError),
     /// The frame failed its own validation (a bug or a wild measurement).
-    #[error("DetectionFrame failed validation: {0}")]
+    #[error("DetectionFrame failed validation")]
     Invalid(#[from] shm_schemas::SchemaError),
     /// The frame has no capture time (`capture_time_ns` = 0): consumers could not tell its
     /// age, so it is not sent.

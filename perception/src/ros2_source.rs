@@ -778,6 +778,7 @@ impl FrameSource for Ros2Source {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use shm_schemas::error_chain::error_chain;
 
     #[test]
     fn the_source_is_loopback_only_unless_opened() {
@@ -887,7 +888,7 @@ mod tests {
                     expected: "zed_left".into()
                 }
             );
-            let m = SourceError::from(e).to_string();
+            let m = error_chain(&SourceError::from(e)).to_string();
             assert!(
                 m.contains("/c")
                     && m.contains(&format!("{got:?}"))
@@ -955,8 +956,7 @@ mod tests {
             ..img.clone()
         };
         assert!(
-            colour_from_msg(&short)
-                .unwrap_err()
+            error_chain(&colour_from_msg(&short).unwrap_err())
                 .to_string()
                 .contains("bytes")
         );
@@ -965,8 +965,7 @@ mod tests {
             ..img
         };
         assert!(
-            colour_from_msg(&odd)
-                .unwrap_err()
+            error_chain(&colour_from_msg(&odd).unwrap_err())
                 .to_string()
                 .contains("unsupported")
         );

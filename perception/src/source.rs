@@ -2,6 +2,7 @@
 //! videos, and ROS 2 topics ([`crate::ros2_source`]). A source hands out one [`Frame`] per
 //! call; a bad frame is an error for that frame only — the next call moves on.
 
+use shm_schemas::error_chain::error_chain;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::time::Instant;
@@ -64,13 +65,13 @@ pub enum SourceError {
     #[error("cannot open source: {0}")]
     Open(String),
     /// The synthetic camera's description is refused.
-    #[error("cannot open source: {0}")]
+    #[error("cannot open source")]
     Camera(#[source] crate::synthetic::SyntheticCameraLoadError),
     /// The synthetic camera's world (a script or a scene file) is refused.
-    #[error("cannot open source: {0}")]
+    #[error("cannot open source")]
     World(#[source] shm_schemas::scene_file::SceneFileError),
     /// An image file, folder or video could not open.
-    #[error("cannot open source: {}: {problem}", .path.display())]
+    #[error("cannot open source: {}", .path.display())]
     Path {
         /// As given.
         path: PathBuf,
@@ -83,18 +84,18 @@ pub enum SourceError {
     Frame(#[from] FrameError),
     /// This frame's capture stamp was refused (zero, in the future, too old); the source
     /// goes on.
-    #[error("image refused: {0}")]
+    #[error("image refused")]
     Stamp(#[from] crate::stamp::StampError),
     /// This colour image has no depth image of the same moment (none received, or only
     /// stale ones: [`crate::ros2_source::pair_depth`]); the source goes on.
-    #[error("frame refused: {0}")]
+    #[error("frame refused")]
     Depth(#[from] DepthPairError),
     /// This image comes from another camera than the calibration's (its `header.frame_id`
     /// differs: [`WrongCameraError`]); the source goes on.
-    #[error("image refused: {0}")]
+    #[error("image refused")]
     WrongCamera(#[from] WrongCameraError),
     /// A transport failure.
-    #[error("source failed: {0}")]
+    #[error("source failed")]
     Failed(#[source] SourceFailure),
 }
 
@@ -105,13 +106,13 @@ pub enum PathProblem {
     #[error("no such file or folder")]
     Missing,
     /// The folder cannot be listed.
-    #[error("{0}")]
+    #[error("the folder cannot be listed")]
     ReadDir(#[source] std::io::Error),
     /// The folder holds no image.
     #[error("no images in the folder")]
     NoImages,
     /// OpenCV refused the video.
-    #[error("{}", .0.message)]
+    #[error("OpenCV refused the video")]
     Video(#[source] opencv::Error),
     /// OpenCV opened nothing.
     #[error("OpenCV cannot open this video")]
@@ -125,10 +126,10 @@ pub enum SourceFailure {
     #[error("no render")]
     NoRender,
     /// A video frame could not be read.
-    #[error("{}", .0.message)]
+    #[error("a video frame could not be read")]
     Video(#[source] opencv::Error),
     /// The colour topic could not be read.
-    #[error("colour topic: {0:?}")]
+    #[error("the colour topic could not be read")]
     ColourTopic(#[source] ros2_client::ReadError),
     /// No colour image arrived in time.
     #[error("no image on {topic} within {within_s:.1} s")]
@@ -139,7 +140,7 @@ pub enum SourceFailure {
         within_s: f64,
     },
     /// The capture thread could not start.
-    #[error("cannot start the capture thread: {0}")]
+    #[error("cannot start the capture thread")]
     CaptureThread(#[source] std::io::Error),
 }
 
@@ -307,7 +308,10 @@ impl SyntheticSource {
                 self.generation += 1;
             }
             Err(e) => {
-                tracing::warn!("scene file changed but cannot be used, keeping the last scene: {e}")
+                tracing::warn!(
+                    "scene file changed but cannot be used, keeping the last scene: {}",
+                    error_chain(&e)
+                )
             }
         }
     }

@@ -78,7 +78,7 @@ pub enum SyntheticCameraConfigError {
 #[derive(Debug, thiserror::Error)]
 pub enum SyntheticCameraLoadError {
     /// The file could not be read.
-    #[error("cannot read synthetic camera file {path}: {source}")]
+    #[error("cannot read synthetic camera file {path}")]
     Io {
         /// The file.
         path: PathBuf,
@@ -94,7 +94,7 @@ pub enum SyntheticCameraLoadError {
         message: String,
     },
     /// Out-of-range values.
-    #[error("invalid synthetic camera file {path}: {source}")]
+    #[error("invalid synthetic camera file {path}")]
     Invalid {
         /// The file.
         path: PathBuf,

@@ -404,49 +404,13 @@ impl Tracker {
             track_hit[ti] = true;
             det_used[di] = true;
             let d = &detections[di];
-            let t = &mut self.tracks[ti];
-            t.latest = (d.position_m, d.size_m);
-            t.confidence = d.confidence;
-            t.missed = 0;
-            t.seen = t.seen.saturating_add(1);
-            match t.reported {
-                None => {
-                    if t.seen >= cfg.persist_frames {
-                        t.reported = Some(t.latest);
-                        t.confirmed_frames = 1;
-                        changed = true;
-                        t.history.clear();
-                    }
-                }
-                Some(rep) => {
-                    let dev = max_dev(&rep, &t.latest);
-                    t.confirmed_frames = t.confirmed_frames.saturating_add(1);
-                    if size_dev(&rep.1, &t.latest.1) > cfg.jump_m {
-                        // Another box at the same place: its velocity is not known.
-                        t.history.clear();
-                    }
-                    if dev > cfg.jump_m {
-                        t.reported = Some(t.latest);
-                        t.changing = 0;
-                        t.confirmed_frames = 1;
-                        changed = true;
-                    } else if dev > cfg.noise_tolerance_m {
-                        t.changing += 1;
-                        if t.changing >= cfg.persist_frames {
-                            t.reported = Some(t.latest);
-                            t.changing = 0;
-                            t.confirmed_frames = 1;
-                            changed = true;
-                        }
-                    } else {
-                        t.changing = 0;
-                    }
-                }
-            }
-            if t.reported.is_some() {
-                t.history.push(capture_time_ns, d.position_m);
-                t.velocity = t.history.estimate(&velocity_settings);
-            }
+            changed |= update_matched(
+                &mut self.tracks[ti],
+                d,
+                &cfg,
+                &velocity_settings,
+                capture_time_ns,
+            );
         }
         let mut keep = Vec::with_capacity(self.tracks.len());
         for (ti, mut t) in std::mem::take(&mut self.tracks).into_iter().enumerate() {
@@ -516,6 +480,63 @@ impl Tracker {
         v.sort_by_key(|o| (o.kind != ObjectKind::Goal, o.id));
         v
     }
+}
+
+/// A track matched by detection `d` this frame: takes its position and size, and reports
+/// it once it persisted (`persist_frames`), jumped (`jump_m`) or drifted past the noise
+/// tolerance for `persist_frames` frames; a reported track's velocity is re-estimated.
+/// Returns whether the reported objects changed.
+fn update_matched(
+    t: &mut Track,
+    d: &Detection,
+    cfg: &TrackerConfig,
+    velocity_settings: &VelocitySettings,
+    capture_time_ns: u64,
+) -> bool {
+    let mut changed = false;
+    t.latest = (d.position_m, d.size_m);
+    t.confidence = d.confidence;
+    t.missed = 0;
+    t.seen = t.seen.saturating_add(1);
+    match t.reported {
+        None => {
+            if t.seen >= cfg.persist_frames {
+                t.reported = Some(t.latest);
+                t.confirmed_frames = 1;
+                changed = true;
+                t.history.clear();
+            }
+        }
+        Some(rep) => {
+            let dev = max_dev(&rep, &t.latest);
+            t.confirmed_frames = t.confirmed_frames.saturating_add(1);
+            if size_dev(&rep.1, &t.latest.1) > cfg.jump_m {
+                // Another box at the same place: its velocity is not known.
+                t.history.clear();
+            }
+            if dev > cfg.jump_m {
+                t.reported = Some(t.latest);
+                t.changing = 0;
+                t.confirmed_frames = 1;
+                changed = true;
+            } else if dev > cfg.noise_tolerance_m {
+                t.changing += 1;
+                if t.changing >= cfg.persist_frames {
+                    t.reported = Some(t.latest);
+                    t.changing = 0;
+                    t.confirmed_frames = 1;
+                    changed = true;
+                }
+            } else {
+                t.changing = 0;
+            }
+        }
+    }
+    if t.reported.is_some() {
+        t.history.push(capture_time_ns, d.position_m);
+        t.velocity = t.history.estimate(velocity_settings);
+    }
+    changed
 }
 
 #[cfg(test)]

@@ -30,6 +30,7 @@
 //! taken before connecting ([`open_xarm`]): a second rt-core on the same controller is
 //! refused with the holder named.
 
+use shm_schemas::error_chain::error_chain;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -313,7 +314,7 @@ pub fn run(opts: &LaunchOptions) -> Result<(), LaunchError> {
         let path = r.path().display().to_string();
         match r.stop() {
             Ok(stats) => tracing::info!(%path, messages = stats.total(), "recording closed"),
-            Err(e) => tracing::warn!(%path, "recording ended badly: {e}"),
+            Err(e) => tracing::warn!(%path, "recording ended badly: {}", error_chain(&e)),
         }
     }
     served

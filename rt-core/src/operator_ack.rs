@@ -73,10 +73,10 @@ pub enum AckChannelError {
         why: String,
     },
     /// The folder of the socket is not a private lock folder (or cannot be made).
-    #[error("acknowledgement channel: {0}")]
+    #[error("acknowledgement channel")]
     Folder(#[from] xarm::owner::ArmLockError),
     /// A socket call failed.
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Io {
         /// The socket's path.
         path: PathBuf,

@@ -18,9 +18,10 @@
 //! | [`TwinVerdict`] | rt-core → anyone | [`services::TWIN_VERDICTS`] |
 //! | [`GoalRequest`] | ros-bridge → rt-core | [`services::GOAL_REQUESTS`] |
 //!
-//! Beside the payloads: the scene-file format ([`scene_file`]), and the one view of rt-core's
+//! Beside the payloads: the scene-file format ([`scene_file`]), the one view of rt-core's
 //! `runtime.toml` that other processes read too ([`runtime_view`]: `[intake]`, `[shield]`,
-//! `[goal]` with their defaults).
+//! `[goal]` with their defaults), and [`error_chain`], how every process prints an error
+//! with its causes.
 //!
 //! ```no_run
 //! use iceoryx2::prelude::*;
@@ -39,6 +40,7 @@ pub mod cli_bounds;
 pub mod clock;
 pub mod detection;
 pub mod error;
+pub mod error_chain;
 pub mod goal_request;
 pub mod policy_blob;
 pub mod policy_builder;

@@ -69,7 +69,7 @@ pub const MAX_SCENE_EXTENT_M: f64 = 3.0;
 #[derive(Debug, thiserror::Error)]
 pub enum SceneFileError {
     /// The file could not be read.
-    #[error("cannot read scene file {path}: {source}")]
+    #[error("cannot read scene file {path}")]
     Io {
         /// The file.
         path: PathBuf,

@@ -154,49 +154,7 @@ impl Rig {
         let obstacles: Obstacles = Arc::new(Mutex::new(Vec::new()));
         let stop = Arc::new(AtomicBool::new(false));
         let (obs, st, pfx) = (obstacles.clone(), stop.clone(), prefix.clone());
-        let detector = std::thread::spawn(move || {
-            let (node, _) = create_node::<ipc::Service>("test_detector").expect("node");
-            let detections =
-                open_publisher::<DetectionFrame, _>(&node, &pfx).expect("detection publisher");
-            let mut seq = 0;
-            while !st.load(Ordering::Acquire) {
-                seq += 1;
-                let mut frame = DetectionFrame {
-                    sequence: seq,
-                    capture_time_ns: shm_schemas::clock::monotonic_now_ns(),
-                    camera_id: 1,
-                    flags: DetectionFrame::FRAME_SETTLED,
-                    ..DetectionFrame::default()
-                };
-                frame.push(DetectedObject::new(
-                    1,
-                    ObjectClass::Goal,
-                    0.99,
-                    GOAL_M,
-                    [GOAL_SIZE_M; 3],
-                ));
-                for (i, (c, s)) in obs
-                    .lock()
-                    .map(|v| v.clone())
-                    .unwrap_or_default()
-                    .iter()
-                    .enumerate()
-                {
-                    frame.push(DetectedObject::new(
-                        10 + i as u32,
-                        ObjectClass::Obstacle,
-                        0.9,
-                        *c,
-                        *s,
-                    ));
-                }
-                if let Ok(mut sample) = loan_zeroed(&detections) {
-                    *sample.payload_mut() = frame;
-                    let _ = sample.send();
-                }
-                std::thread::sleep(Duration::from_millis(33));
-            }
-        });
+        let detector = std::thread::spawn(move || detector_loop(&obs, &st, &pfx));
         Self {
             rt,
             node,
@@ -309,4 +267,49 @@ pub fn first_state_with_policy(
         Seen::State(st) if st.active_policy_id == policy => Some((*t, *st)),
         _ => None,
     })
+}
+
+/// The rig's detector: publishes a settled frame with the goal and the current `obstacles`
+/// every 33 ms under `prefix` until `stop`.
+fn detector_loop(obs: &Obstacles, st: &AtomicBool, pfx: &str) {
+    let (node, _) = create_node::<ipc::Service>("test_detector").expect("node");
+    let detections = open_publisher::<DetectionFrame, _>(&node, pfx).expect("detection publisher");
+    let mut seq = 0;
+    while !st.load(Ordering::Acquire) {
+        seq += 1;
+        let mut frame = DetectionFrame {
+            sequence: seq,
+            capture_time_ns: shm_schemas::clock::monotonic_now_ns(),
+            camera_id: 1,
+            flags: DetectionFrame::FRAME_SETTLED,
+            ..DetectionFrame::default()
+        };
+        frame.push(DetectedObject::new(
+            1,
+            ObjectClass::Goal,
+            0.99,
+            GOAL_M,
+            [GOAL_SIZE_M; 3],
+        ));
+        for (i, (c, s)) in obs
+            .lock()
+            .map(|v| v.clone())
+            .unwrap_or_default()
+            .iter()
+            .enumerate()
+        {
+            frame.push(DetectedObject::new(
+                10 + i as u32,
+                ObjectClass::Obstacle,
+                0.9,
+                *c,
+                *s,
+            ));
+        }
+        if let Ok(mut sample) = loan_zeroed(&detections) {
+            *sample.payload_mut() = frame;
+            let _ = sample.send();
+        }
+        std::thread::sleep(Duration::from_millis(33));
+    }
 }

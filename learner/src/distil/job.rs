@@ -116,7 +116,7 @@ pub enum DistilJobError {
     #[error(transparent)]
     Task(#[from] TaskLoadError),
     /// The checkpoint to start from could not be loaded.
-    #[error("checkpoint {}: {source}", .path.display())]
+    #[error("checkpoint {}", .path.display())]
     Load {
         /// The checkpoint file.
         path: PathBuf,
@@ -149,7 +149,7 @@ pub enum DistilJobError {
         worlds: usize,
     },
     /// The output folder could not be created.
-    #[error("output folder {}: {source}", .path.display())]
+    #[error("output folder {}", .path.display())]
     Output {
         /// The folder.
         path: PathBuf,
@@ -162,7 +162,7 @@ pub enum DistilJobError {
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
     /// The summary could not be encoded.
-    #[error("{SUMMARY}: {0}")]
+    #[error("{SUMMARY}")]
     Json(#[from] serde_json::Error),
 }
 

@@ -266,17 +266,9 @@ pub fn behaviour_clone(
     if let Some((ax, ay)) = &anchor {
         report.anchor_loss_before = loss_of(net, ax, ay);
     }
-    let batch = cfg.batch.max(1);
-    let n_demo = if anchor.is_some() {
-        ((batch as f64 * cfg.demo_share.clamp(0.0, 1.0)).round() as usize).clamp(1, batch)
-    } else {
-        batch
-    };
+    let (batch, n_demo) = batch_split(cfg, anchor.is_some());
     let n_anchor = batch - n_demo;
-    let pick = |rng: &mut ChaCha8Rng, n: usize, of: usize| -> Tensor {
-        let idx: Vec<i64> = (0..n).map(|_| rng.random_range(0..of) as i64).collect();
-        Tensor::from_slice(&idx).to_device(dev)
-    };
+    let pick = |rng: &mut ChaCha8Rng, n: usize, of: usize| pick_rows(rng, n, of, dev);
     let mut adam = Adam::new(&net.theta, cfg.lr);
     for _ in 0..cfg.steps {
         let i = pick(rng, n_demo, report.demo_pairs);
@@ -305,6 +297,24 @@ pub fn behaviour_clone(
         report.anchor_loss_after = loss_of(net, ax, ay);
     }
     report
+}
+
+/// A minibatch's size and its demonstration rows: all of them without anchors, else
+/// [`BcConfig::demo_share`] of it (at least one row).
+fn batch_split(cfg: &BcConfig, with_anchors: bool) -> (usize, usize) {
+    let batch = cfg.batch.max(1);
+    let n_demo = if with_anchors {
+        ((batch as f64 * cfg.demo_share.clamp(0.0, 1.0)).round() as usize).clamp(1, batch)
+    } else {
+        batch
+    };
+    (batch, n_demo)
+}
+
+/// `n` row indices drawn uniformly from `0..of` with `rng`, as a tensor on `dev`.
+fn pick_rows(rng: &mut ChaCha8Rng, n: usize, of: usize, dev: tch::Device) -> Tensor {
+    let idx: Vec<i64> = (0..n).map(|_| rng.random_range(0..of) as i64).collect();
+    Tensor::from_slice(&idx).to_device(dev)
 }
 
 /// The policy's own (raw observation, mean action) pairs along one deterministic episode

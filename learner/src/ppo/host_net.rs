@@ -385,15 +385,30 @@ impl Shard {
             *g += dl;
         }
 
-        // Critic: mean squared error.
+        sums.value = self.critic_grad(net, inv_b, cfg, &mut d);
+        self.d = d;
+        sums
+    }
+
+    /// The critic's part of [`Shard::loss_grad`]: the sum of squared errors of the values
+    /// against the returns (returned), its gradient added into `self.grad`; `d` is scratch.
+    fn critic_grad(
+        &mut self,
+        net: &HostView<'_>,
+        inv_b: f32,
+        cfg: LossCfg,
+        d: &mut Vec<f32>,
+    ) -> f64 {
+        let (theta, layout, n) = (net.theta, net.layout, self.rows.n);
         mlp_forward(theta, &layout.critic, &self.rows.obs, n, &mut self.critic);
         let v = self.critic.outs.last().map_or(&[][..], Vec::as_slice);
         d.clear();
         d.resize(n, 0.0);
         let k = 2.0 * cfg.vf_coef * inv_b;
+        let mut value = 0.0;
         for ((dv, vi), r) in d.iter_mut().zip(v).zip(&self.rows.returns) {
             let e = vi - r;
-            sums.value += f64::from(e * e);
+            value += f64::from(e * e);
             *dv = k * e;
         }
         mlp_backward(
@@ -402,12 +417,11 @@ impl Shard {
             &self.rows.obs,
             n,
             &self.critic,
-            &mut d,
+            d,
             &mut self.scratch,
             &mut self.grad,
         );
-        self.d = d;
-        sums
+        value
     }
 }
 

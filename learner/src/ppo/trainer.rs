@@ -56,7 +56,7 @@ pub struct IterStats {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum TrainerBuildError {
     /// The PPO configuration is invalid.
-    #[error("PPO configuration: {0}")]
+    #[error("PPO configuration")]
     Config(#[from] PpoConfigValidateError),
 }
 

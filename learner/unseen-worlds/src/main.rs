@@ -337,17 +337,7 @@ fn run(args: WorldsArgs, device: tch::Device) -> Result<()> {
             serve.task.display()
         );
     }
-    let base = Checkpoint::load(&serve.checkpoint)
-        .with_context(|| format!("loading {}", serve.checkpoint.display()))?;
-    if base.meta.task_hash != env.task_hash() {
-        anyhow::bail!(
-            "{} was trained on task hash {:#x}, {} has {:#x}",
-            serve.checkpoint.display(),
-            base.meta.task_hash,
-            serve.task.display(),
-            env.task_hash()
-        );
-    }
+    let base = load_checkpoint(serve, &env)?;
     let net = base.network(device)?;
     let norm = ObsNormalizer::from_stats(&base.meta.obs_rms.to_rms(), base.meta.ppo.clip_obs);
     let workers = base.meta.ppo.effective_workers();
@@ -358,23 +348,7 @@ fn run(args: WorldsArgs, device: tch::Device) -> Result<()> {
     );
     let base_kept = evaluate(&net, &norm, &env, &kept_scenes, workers);
     let base_ok = successes(&net, &norm, &env, &kept_scenes, workers);
-    let mlp = if args.samples.is_empty() {
-        None
-    } else {
-        sampling_settings(&args, 1)
-            .validate()
-            .map_err(|(field, why)| anyhow::anyhow!("--sample {field}: {why}"))?;
-        let blob = learner::export::export_blob(&base, 1)?;
-        let loader = PolicyLoader::new(PolicyExpectation::for_task_obs(
-            env.task_hash(),
-            env.env.config().obs_dim(),
-        ));
-        Some(
-            loader
-                .prepare(&blob)
-                .map_err(|e| anyhow::anyhow!("the exported blob is refused: {e:?}"))?,
-        )
-    };
+    let mlp = exported_policy(&args, &base, &env)?;
     let bench = Bench {
         args: &args,
         env: &env,
@@ -422,6 +396,45 @@ fn run(args: WorldsArgs, device: tch::Device) -> Result<()> {
     }
     println!("wrote {}", out.join("worlds.md").display());
     Ok(())
+}
+
+/// The checkpoint of `serve`, refused when it was trained on another task than `env`.
+fn load_checkpoint(serve: &RetrainFlags, env: &TwinTask) -> Result<Checkpoint> {
+    let base = Checkpoint::load(&serve.checkpoint)
+        .with_context(|| format!("loading {}", serve.checkpoint.display()))?;
+    if base.meta.task_hash != env.task_hash() {
+        anyhow::bail!(
+            "{} was trained on task hash {:#x}, {} has {:#x}",
+            serve.checkpoint.display(),
+            base.meta.task_hash,
+            serve.task.display(),
+            env.task_hash()
+        );
+    }
+    Ok(base)
+}
+
+/// With `--samples`: `base` exported and loaded as rt-core runs it (the sampling settings
+/// checked first); without: `None`.
+fn exported_policy(
+    args: &WorldsArgs,
+    base: &Checkpoint,
+    env: &TwinTask,
+) -> Result<Option<MlpPolicy>> {
+    if args.samples.is_empty() {
+        return Ok(None);
+    }
+    sampling_settings(args, 1)
+        .validate()
+        .map_err(|(field, why)| anyhow::anyhow!("--sample {field}: {why}"))?;
+    let blob = learner::export::export_blob(base, 1)?;
+    let loader = PolicyLoader::new(PolicyExpectation::for_task_obs(
+        env.task_hash(),
+        env.env.config().obs_dim(),
+    ));
+    Ok(Some(loader.prepare(&blob).map_err(|e| {
+        anyhow::anyhow!("the exported blob is refused: {e:?}")
+    })?))
 }
 
 /// The sampling settings of `args` with `k` candidates.

@@ -34,6 +34,34 @@ pub(crate) fn png_atomic(path: &Path, draw: impl FnOnce(&Path) -> Result<()>) ->
 /// One series of bars: legend, colour and the rate it shows.
 type Bars = (&'static str, RGBColor, fn(&Aggregate) -> f64);
 
+/// The three rates [`plot_rates`] shows, in bar order.
+const RATE_SERIES: [Bars; 3] = [
+    ("policy zero-shot", RGBColor(31, 119, 180), |a| {
+        a.zero_shot_rate
+    }),
+    ("scripted straight line", RGBColor(255, 127, 14), |a| {
+        a.straight_line_rate
+    }),
+    ("planner path (ceiling)", RGBColor(150, 150, 150), |a| {
+        a.planner_rate
+    }),
+];
+
+/// The `k`-th series' bars, one per generator: the bar's left edge (the generator's slot
+/// plus the series' offset) and its height, `value` in percent.
+fn bar_tops(tables: &[GeneratorTable], k: usize, value: fn(&Aggregate) -> f64) -> Vec<(f64, f64)> {
+    tables
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            (
+                i as f64 + 0.15 + 0.24 * k as f64,
+                100.0 * value(&t.aggregate),
+            )
+        })
+        .collect()
+}
+
 /// Grouped bars: per generator, the policy zero-shot, the straight line and the planner
 /// (success rate over the feasible worlds), each labelled with its value.
 pub(crate) fn plot_rates(path: &Path, tables: &[GeneratorTable], seed: u64) -> Result<()> {
@@ -80,28 +108,8 @@ pub(crate) fn plot_rates(path: &Path, tables: &[GeneratorTable], seed: u64) -> R
         .light_line_style(RGBColor(235, 235, 235))
         .draw()
         .map_err(|e| err(&e))?;
-    let series: [Bars; 3] = [
-        ("policy zero-shot", RGBColor(31, 119, 180), |a| {
-            a.zero_shot_rate
-        }),
-        ("scripted straight line", RGBColor(255, 127, 14), |a| {
-            a.straight_line_rate
-        }),
-        ("planner path (ceiling)", RGBColor(150, 150, 150), |a| {
-            a.planner_rate
-        }),
-    ];
-    for (k, (label, colour, value)) in series.into_iter().enumerate() {
-        let bars: Vec<(f64, f64)> = tables
-            .iter()
-            .enumerate()
-            .map(|(i, t)| {
-                (
-                    i as f64 + 0.15 + 0.24 * k as f64,
-                    100.0 * value(&t.aggregate),
-                )
-            })
-            .collect();
+    for (k, (label, colour, value)) in RATE_SERIES.into_iter().enumerate() {
+        let bars = bar_tops(tables, k, value);
         chart
             .draw_series(
                 bars.iter()

@@ -34,7 +34,7 @@ pub use decode::{Letterbox, OutputLayout, RawBox, decode, decode_end_to_end, iou
 #[derive(Debug, thiserror::Error)]
 pub enum YoloLoadError {
     /// The model or labels file is missing or unreadable.
-    #[error("cannot read {path}: {source}")]
+    #[error("cannot read {path}")]
     Io {
         /// The file.
         path: PathBuf,
@@ -42,7 +42,7 @@ pub enum YoloLoadError {
         source: std::io::Error,
     },
     /// The ONNX bytes could not be read or patched.
-    #[error("cannot use model {path}: {source}")]
+    #[error("cannot use model {path}")]
     Patch {
         /// The model.
         path: PathBuf,
@@ -91,7 +91,7 @@ pub enum YoloLoadError {
         allowed: &'static str,
     },
     /// The settings file is not valid TOML for [`YoloFile`].
-    #[error("invalid YOLO settings: {}: {source}", .path.display())]
+    #[error("invalid YOLO settings: {}", .path.display())]
     Toml {
         /// The file.
         path: PathBuf,

@@ -139,7 +139,7 @@ pub enum LearnerHostError {
     #[error("--peer and --listen only mean something with --learner-host")]
     LinkWithoutLearnerHost,
     /// The link settings are refused.
-    #[error("--learner-host: {0}")]
+    #[error("--learner-host")]
     Link(#[from] LinkError),
 }
 
@@ -455,6 +455,7 @@ impl LaunchArgs {
 mod tests {
     use super::*;
     use clap::Parser;
+    use shm_schemas::error_chain::error_chain;
 
     fn args(extra: &[&str]) -> LaunchArgs {
         LaunchArgs::parse_from(std::iter::once("foresight").chain(extra.iter().copied()))
@@ -483,10 +484,12 @@ mod tests {
             Err(LearnerHostError::Link(LinkError::Nowhere))
         ));
         // Issue 25 item 1: no unauthenticated link; the keys are checked before anything starts.
-        let e = args(&["--learner-host", "--peer", "tcp/10.0.0.2:7447"])
-            .check_learner_host()
-            .unwrap_err()
-            .to_string();
+        let e = error_chain(
+            &args(&["--learner-host", "--peer", "tcp/10.0.0.2:7447"])
+                .check_learner_host()
+                .unwrap_err(),
+        )
+        .to_string();
         assert!(
             e.contains("--link-keys") && e.contains("zenoh-relay keygen"),
             "{e}"
@@ -496,15 +499,17 @@ mod tests {
         zenoh_relay::keys::generate(&keys).unwrap();
         let robot_pc = keys.join("robot-pc").display().to_string();
         let learner_host = keys.join("learner-host").display().to_string();
-        let e = args(&[
-            "--learner-host",
-            "--peer",
-            "tcp/10.0.0.2:7447",
-            "--link-keys",
-            &learner_host,
-        ])
-        .check_learner_host()
-        .unwrap_err()
+        let e = error_chain(
+            &args(&[
+                "--learner-host",
+                "--peer",
+                "tcp/10.0.0.2:7447",
+                "--link-keys",
+                &learner_host,
+            ])
+            .check_learner_host()
+            .unwrap_err(),
+        )
         .to_string();
         assert!(
             e.contains("controller.key") && e.contains("robot-pc"),
@@ -523,7 +528,10 @@ mod tests {
         let e = args(&["--learner-host", "--peer", "10.0.0.2"])
             .check_learner_host()
             .unwrap_err();
-        assert!(e.to_string().contains("--peer 10.0.0.2"), "{e}");
+        assert!(
+            error_chain(&e).to_string().contains("--peer 10.0.0.2"),
+            "{e}"
+        );
         assert_eq!(
             args(&["--listen", "tcp/0.0.0.0:7447"]).check_learner_host(),
             Err(LearnerHostError::LinkWithoutLearnerHost)

@@ -92,7 +92,7 @@ impl std::fmt::Debug for Observer {
 #[derive(Debug, thiserror::Error)]
 pub enum ObserverError {
     /// The iceoryx2 node could not be created.
-    #[error("cannot create the launcher's iceoryx2 node: {0}")]
+    #[error("cannot create the launcher's iceoryx2 node")]
     Node(#[source] services::NodeCreateError),
     /// A subscriber could not be opened.
     #[error(transparent)]

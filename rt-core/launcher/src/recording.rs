@@ -6,6 +6,7 @@
 //! `ros2 bag play runs/<run>` open it. `--no-record` turns it off. A recording that cannot
 //! start or ends badly is a note in the report, never the end of a run.
 
+use shm_schemas::error_chain::error_chain;
 use std::path::Path;
 
 use recorder::{Recorder, RecorderConfig, RefereeClearance};
@@ -47,7 +48,7 @@ pub fn start(
     match Recorder::start(cfg) {
         Ok(r) => Some(r),
         Err(e) => {
-            notes.push(format!("not recorded: {e}"));
+            notes.push(format!("not recorded: {}", error_chain(&e)));
             None
         }
     }
@@ -63,7 +64,10 @@ pub fn stop(recording: Option<Recorder>, notes: &mut Vec<String>) {
             stats.dropped_at_limit
         )),
         Ok(_) => {}
-        Err(e) => notes.push(format!("the recording {path} ended badly: {e}")),
+        Err(e) => notes.push(format!(
+            "the recording {path} ended badly: {}",
+            error_chain(&e)
+        )),
     }
 }
 

@@ -58,7 +58,7 @@ pub enum ProcessEvent {
 #[derive(Debug, thiserror::Error)]
 pub enum SuperviseError {
     /// The program or its log file could not be opened.
-    #[error("cannot start {name} ({program}): {source}")]
+    #[error("cannot start {name} ({program})")]
     Spawn {
         /// Name.
         name: String,

@@ -327,7 +327,7 @@ impl BagMetadata {
 
 /// `metadata.yaml` could not be written.
 #[derive(Debug, thiserror::Error)]
-#[error("cannot write the bag metadata {path}: {source}")]
+#[error("cannot write the bag metadata {path}")]
 pub struct BagMetadataWriteError {
     /// The file.
     pub path: PathBuf,

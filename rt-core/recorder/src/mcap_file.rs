@@ -36,7 +36,7 @@ const SUMMARY_RESERVE_BYTES: u64 = 256 * 1024;
 #[derive(Debug, thiserror::Error)]
 pub enum McapCreateError {
     /// The folder or file could not be created.
-    #[error("cannot create {path}: {source}")]
+    #[error("cannot create {path}")]
     Io {
         /// The file.
         path: PathBuf,
@@ -44,7 +44,7 @@ pub enum McapCreateError {
         source: std::io::Error,
     },
     /// The MCAP header could not be written.
-    #[error("cannot start the MCAP file {path}: {source}")]
+    #[error("cannot start the MCAP file {path}")]
     Mcap {
         /// The file.
         path: PathBuf,
@@ -61,7 +61,7 @@ pub enum McapWriteError {
     UnknownTopic(String),
     /// The mcap writer failed (disk full, I/O error); the file is readable up to its last
     /// finished chunk and nothing more is written.
-    #[error("writing {path}: {source}")]
+    #[error("writing {path}")]
     Mcap {
         /// The file.
         path: PathBuf,

@@ -5,6 +5,7 @@
 //! before it returns; [`Recorder::stop`] (or dropping the handle) drains what is left, closes
 //! the file and rewrites `metadata.yaml` with the final counts.
 
+use shm_schemas::error_chain::error_chain;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -163,7 +164,7 @@ pub enum RecorderStartError {
     #[error(transparent)]
     Config(#[from] RecorderConfigError),
     /// The URDF could not be read as a robot model.
-    #[error("the recorder cannot read the URDF: {0}")]
+    #[error("the recorder cannot read the URDF")]
     Urdf(#[source] twin::UrdfLoadError),
     /// The file could not be created.
     #[error(transparent)]
@@ -175,13 +176,13 @@ pub enum RecorderStartError {
     #[error(transparent)]
     Metadata(#[from] BagMetadataWriteError),
     /// The iceoryx2 node could not be created.
-    #[error("the recorder cannot subscribe to the run's services: {0}")]
+    #[error("the recorder cannot subscribe to the run's services")]
     Node(#[source] shm_schemas::services::NodeCreateError),
     /// A subscriber could not be opened.
-    #[error("the recorder cannot subscribe to the run's services: {0}")]
+    #[error("the recorder cannot subscribe to the run's services")]
     Subscribe(#[source] shm_schemas::ShmOpenError),
     /// The thread could not be started.
-    #[error("the recorder thread could not start: {0}")]
+    #[error("the recorder thread could not start")]
     Thread(#[source] std::io::Error),
     /// The thread ended before it was ready.
     #[error("the recorder thread could not start: ended before it was ready")]
@@ -346,7 +347,7 @@ impl Recorder {
 impl Drop for Recorder {
     fn drop(&mut self) {
         if let Err(e) = self.stop_and_join() {
-            tracing::warn!(path = %self.path.display(), "recording ended badly: {e}");
+            tracing::warn!(path = %self.path.display(), "recording ended badly: {}", error_chain(&e));
         }
     }
 }
@@ -468,7 +469,7 @@ impl Session {
             return;
         }
         if let Err(e) = self.file.write(topic, t_ns, msg) {
-            tracing::warn!("recording stopped: {e}");
+            tracing::warn!("recording stopped: {}", error_chain(&e));
             self.error = Some(e);
         }
     }
@@ -489,7 +490,7 @@ impl Session {
             }
             if last_flush.elapsed() >= flush_every {
                 if let Err(e) = self.file.flush() {
-                    tracing::warn!("recording stopped: {e}");
+                    tracing::warn!("recording stopped: {}", error_chain(&e));
                     self.error = Some(e);
                 }
                 last_flush = Instant::now();

@@ -71,10 +71,10 @@ pub enum RosBridgeError {
     )]
     NoReachServer(std::time::Duration),
     /// The iceoryx2 node could not be created.
-    #[error("shared-memory set-up failed: {0}")]
+    #[error("shared-memory set-up failed")]
     ShmNode(#[source] services::NodeCreateError),
     /// An iceoryx2 port could not be opened.
-    #[error("shared-memory set-up failed: {0}")]
+    #[error("shared-memory set-up failed")]
     Shm(#[from] shm_schemas::ShmOpenError),
 }
 

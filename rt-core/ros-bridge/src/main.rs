@@ -3,6 +3,7 @@
 
 #![forbid(unsafe_code)]
 
+use shm_schemas::error_chain::error_chain;
 use std::net::IpAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -129,7 +130,7 @@ fn run(args: RosBridgeArgs) -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => {
-            eprintln!("ros-bridge: {e}");
+            eprintln!("ros-bridge: {}", error_chain(&e));
             ExitCode::FAILURE
         }
     }

@@ -220,7 +220,6 @@ impl PathStop {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::config::RuntimeConfig;

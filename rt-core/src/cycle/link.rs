@@ -278,7 +278,6 @@ impl<L: RobotLink> RobotLink for DryRunLink<L> {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -358,7 +358,6 @@ impl<M: ShieldModel> Shield<M> {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::config::RuntimeConfig;

@@ -126,7 +126,6 @@ impl ShieldModel for TwinModel {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::config::RuntimeConfig;

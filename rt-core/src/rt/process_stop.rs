@@ -139,16 +139,6 @@ pub fn signal_name(signal: libc::c_int) -> String {
         .map_or_else(|| format!("signal {signal}"), str::to_owned)
 }
 
-/// SIGPIPE deliveries so far (each ignored).
-pub fn pipe_signals() -> usize {
-    PIPE_SIGNALS.load(Ordering::Relaxed)
-}
-
-/// SIGUSR1 deliveries caught by the early handler (dropped acknowledgements).
-pub fn early_acks() -> usize {
-    EARLY_ACKS.load(Ordering::Relaxed)
-}
-
 /// Marks the calling thread as a running cycle thread until dropped; the panic hook waits
 /// for every one of them to end before the process aborts. Create it first thing on the
 /// cycle thread and drop it after the controller was put in its stop state.

@@ -15,7 +15,7 @@ use crate::cycle::{CycleReport, Mode};
 
 /// Why the command log could not be written.
 #[derive(Debug, thiserror::Error)]
-#[error("command log {path}: {source}")]
+#[error("command log {path}")]
 pub struct CommandLogError {
     /// The file.
     pub path: PathBuf,

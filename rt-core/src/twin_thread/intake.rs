@@ -727,7 +727,6 @@ pub fn predicted_occupancy(o: &DetectedObject, cfg: &IntakeConfig) -> ([f32; 3],
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use shm_schemas::MAX_DETECTIONS;

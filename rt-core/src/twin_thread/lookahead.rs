@@ -288,7 +288,6 @@ pub fn tcp_goal_approach(env: &TwinEnv, scene: &Scene, path_q_rad: &[Joints]) ->
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use std::path::PathBuf;
 

@@ -42,7 +42,7 @@ const STATE_PERIOD_NS: u64 = 4_000_000;
 #[derive(Debug, thiserror::Error)]
 pub enum TwinNodeError {
     /// The node could not be created.
-    #[error("creating the iceoryx2 node: {0}")]
+    #[error("creating the iceoryx2 node")]
     NodeCreate(#[from] NodeCreateError),
     /// A service could not be opened.
     #[error("opening the {service} service: {cause}")]

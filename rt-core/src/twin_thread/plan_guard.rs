@@ -160,15 +160,12 @@ impl<M: ShieldModel> PlanGuard<M> {
     /// An accepted scene captured at `capture_ns` (the cycle's clock): as
     /// [`PlanGuard::scene`], and a revocation it causes carries its capture and acceptance
     /// times to the cycle's log (the reaction time's start).
-    pub fn scene_captured(&mut self, scene: M::Scene, capture_ns: u64) {
-        self.scene_captured_moving(scene, capture_ns, false);
-    }
-
-    /// [`PlanGuard::scene_captured`] for a scene in which obstacles are seen moving
-    /// (`moving`): then no stop is scheduled, a failing plan is revoked at once. A moving
-    /// obstacle is predicted only over the intake's horizon (`prediction_horizon_s`, 0.25 s),
-    /// shorter than any wait for a join plus the stop: where it will be when the arm passes
-    /// is not verified, so the arm does not go on towards it.
+    ///
+    /// In a scene in which obstacles are seen moving (`moving`), no stop is scheduled: a
+    /// failing plan is revoked at once. A moving obstacle is predicted only over the intake's
+    /// horizon (`prediction_horizon_s`, 0.25 s), shorter than any wait for a join plus the
+    /// stop: where it will be when the arm passes is not verified, so the arm does not go on
+    /// towards it.
     pub fn scene_captured_moving(&mut self, scene: M::Scene, capture_ns: u64, moving: bool) {
         self.scene_moving = moving;
         let accepted_ns = self.clock_origin_ns.map_or(0, |origin| {
@@ -255,11 +252,6 @@ impl<M: ShieldModel> PlanGuard<M> {
     /// Revocations made since the last call (oldest first).
     pub fn take_revocations(&mut self) -> Vec<Revocation> {
         std::mem::take(&mut self.revocations)
-    }
-
-    /// Plans live now (handed over, not handed back).
-    pub fn live_ids(&self) -> impl Iterator<Item = u64> + '_ {
-        self.live.iter().map(|p| p.id)
     }
 
     /// Re-verifications run so far (one per live plan checked).

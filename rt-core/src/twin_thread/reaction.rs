@@ -152,7 +152,6 @@ fn summarize(samples_ns: &[u64]) -> Summary {
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -74,7 +74,7 @@ pub enum InjectedFaultParseError {
     #[error("unknown fault (known: twin-panic:MS)")]
     Unknown,
     /// `twin-panic:MS` with an `MS` that is not a whole number of milliseconds.
-    #[error("twin-panic:MS: bad MS: {0}")]
+    #[error("twin-panic:MS: MS is not a whole number of milliseconds")]
     BadAfterMs(#[from] std::num::ParseIntError),
 }
 
@@ -299,9 +299,9 @@ pub enum ServeError {
     CommandLog(#[from] CommandLogError),
 }
 
-/// Runs the runtime on `link` until stopped; see the module docs: [`Runtime::start`], then
-/// [`Runtime::run_loop`] until a signal, the time limit, an error or a panic, then
-/// [`Runtime::shut_down`] (the arm stops under control before anything else).
+/// Runs the runtime on `link` until stopped; see the module docs: `Runtime::start`, then
+/// `Runtime::run_loop` until a signal, the time limit, an error or a panic, then
+/// `Runtime::shut_down` (the arm stops under control before anything else).
 ///
 /// # Errors
 /// [`ServeError`].
@@ -781,7 +781,6 @@ fn start_cycle<L: RobotLink>(
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

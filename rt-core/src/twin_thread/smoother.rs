@@ -16,7 +16,7 @@
 //!   cycle) go into a [`Plan`] that the cycle streams sample by sample. The shield then
 //!   re-checks each sample in the cycle against the live scene.
 //! - **Controlled stops** start from an arbitrary state inside the cycle, so they use
-//!   [`Brake`]: per joint, a jerk-limited deceleration to zero velocity (acceleration ramps at
+//!   [`Brake`](crate::cycle::brake::Brake): per joint, a jerk-limited deceleration to zero velocity (acceleration ramps at
 //!   most `max_jerk`, is bounded by `max_acceleration`, and is shaped by
 //!   `a = −sign(v)·min(A, √(2J|v|))` so that velocity and acceleration reach zero together),
 //!   computed with plain `f64` arithmetic on fixed arrays. No allocation, no FFI, bounded
@@ -256,7 +256,6 @@ pub fn max_tcp_speed_m_s<M: ShieldModel>(
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::config::RuntimeConfig;

@@ -271,6 +271,74 @@ fn fixed_group<'a>(
     Ok(out)
 }
 
+/// `joint1`..`joint5`, checked to be the only movable joints, all revolute, and to form one
+/// chain from a root link (a link that is no joint's child).
+fn chain_joints(robot: &urdf_rs::Robot) -> Result<Vec<&urdf_rs::Joint>, UrdfLoadError> {
+    let movable = robot
+        .joints
+        .iter()
+        .filter(|j| j.joint_type != urdf_rs::JointType::Fixed)
+        .count();
+    let mut joints: Vec<&urdf_rs::Joint> = Vec::with_capacity(DOF);
+    for i in 1..=DOF {
+        let wanted = format!("joint{i}");
+        let joint = robot
+            .joints
+            .iter()
+            .find(|j| j.name == wanted)
+            .ok_or(UrdfLoadError::MissingJoint(i))?;
+        if joint.joint_type != urdf_rs::JointType::Revolute {
+            return Err(UrdfLoadError::UnsupportedJointType(i));
+        }
+        joints.push(joint);
+    }
+    if movable != DOF {
+        return Err(UrdfLoadError::WrongJointCount(movable));
+    }
+    // The root link: not the child of any joint.
+    let root = &joints[0].parent.link;
+    if robot.joints.iter().any(|j| &j.child.link == root) {
+        return Err(UrdfLoadError::BrokenChain(1));
+    }
+    for i in 1..DOF {
+        if joints[i].parent.link != joints[i - 1].child.link {
+            return Err(UrdfLoadError::BrokenChain(i + 1));
+        }
+    }
+    Ok(joints)
+}
+
+/// The collision capsules of every frame's links (each frame's link and the links fixed to
+/// it), in the frame's coordinates; every moving link must have at least one.
+fn collision_capsules(
+    robot: &urdf_rs::Robot,
+    link_names: &[&str; N_FRAMES],
+) -> Result<heapless::Vec<LinkCapsule, MAX_CAPSULES>, UrdfLoadError> {
+    let mut capsules = heapless::Vec::new();
+    let mut missing = None;
+    for (frame, link_name) in link_names.iter().enumerate() {
+        let before = capsules.len();
+        for (link, to_frame) in fixed_group(robot, link_name, frame)? {
+            for c in &link.collision {
+                let origin = iso(&c.origin).ok_or(UrdfLoadError::BadCollision(frame))?;
+                capsules
+                    .push(capsule(frame, &(to_frame * origin), &c.geometry)?)
+                    .map_err(|_| UrdfLoadError::TooManyShapes)?;
+            }
+        }
+        if frame > 0 && capsules.len() == before && missing.is_none() {
+            missing = Some(LinkName::new(link_name));
+        }
+    }
+    if capsules.is_empty() {
+        return Err(UrdfLoadError::NoCollisionShapes);
+    }
+    if let Some(link) = missing {
+        return Err(UrdfLoadError::MissingCollision(link));
+    }
+    Ok(capsules)
+}
+
 fn name(s: &str) -> Result<heapless::String<NAME_CAPACITY>, UrdfLoadError> {
     let mut out = heapless::String::new();
     out.push_str(s).map_err(|_| UrdfLoadError::NameTooLong)?;
@@ -293,37 +361,8 @@ impl RobotModel {
     /// [`UrdfLoadError`] naming what is wrong.
     pub fn from_urdf_str(text: &str) -> Result<Self, UrdfLoadError> {
         let robot = urdf_rs::read_from_string(text).map_err(|_| UrdfLoadError::Parse)?;
-        let movable = robot
-            .joints
-            .iter()
-            .filter(|j| j.joint_type != urdf_rs::JointType::Fixed)
-            .count();
-        let mut joints: Vec<&urdf_rs::Joint> = Vec::with_capacity(DOF);
-        for i in 1..=DOF {
-            let wanted = format!("joint{i}");
-            let joint = robot
-                .joints
-                .iter()
-                .find(|j| j.name == wanted)
-                .ok_or(UrdfLoadError::MissingJoint(i))?;
-            if joint.joint_type != urdf_rs::JointType::Revolute {
-                return Err(UrdfLoadError::UnsupportedJointType(i));
-            }
-            joints.push(joint);
-        }
-        if movable != DOF {
-            return Err(UrdfLoadError::WrongJointCount(movable));
-        }
-        // The root link: not the child of any joint.
+        let joints = chain_joints(&robot)?;
         let root = &joints[0].parent.link;
-        if robot.joints.iter().any(|j| &j.child.link == root) {
-            return Err(UrdfLoadError::BrokenChain(1));
-        }
-        for i in 1..DOF {
-            if joints[i].parent.link != joints[i - 1].child.link {
-                return Err(UrdfLoadError::BrokenChain(i + 1));
-            }
-        }
         let mut joint_origin = [Isometry3::identity(); DOF];
         let mut joint_axis = [Vector3::z_axis(); DOF];
         let mut limits = JointLimits {
@@ -372,28 +411,7 @@ impl RobotModel {
         for (frame, link_name) in link_names.iter().enumerate() {
             names[frame] = name(link_name)?;
         }
-        let mut capsules = heapless::Vec::new();
-        let mut missing = None;
-        for (frame, link_name) in link_names.iter().enumerate() {
-            let before = capsules.len();
-            for (link, to_frame) in fixed_group(&robot, link_name, frame)? {
-                for c in &link.collision {
-                    let origin = iso(&c.origin).ok_or(UrdfLoadError::BadCollision(frame))?;
-                    capsules
-                        .push(capsule(frame, &(to_frame * origin), &c.geometry)?)
-                        .map_err(|_| UrdfLoadError::TooManyShapes)?;
-                }
-            }
-            if frame > 0 && capsules.len() == before && missing.is_none() {
-                missing = Some(LinkName::new(link_name));
-            }
-        }
-        if capsules.is_empty() {
-            return Err(UrdfLoadError::NoCollisionShapes);
-        }
-        if let Some(link) = missing {
-            return Err(UrdfLoadError::MissingCollision(link));
-        }
+        let capsules = collision_capsules(&robot, &link_names)?;
         let mut model = Self {
             joint_origin,
             joint_axis,

@@ -146,7 +146,7 @@ pub fn default_urdf() -> PathBuf {
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
     /// A port could not be bound.
-    #[error("cannot bind {addr}: {source}")]
+    #[error("cannot bind {addr}")]
     Bind {
         /// Address.
         addr: SocketAddr,
@@ -254,6 +254,62 @@ fn bind(ip: IpAddr, port: u16) -> Result<(TcpListener, u16), SimError> {
     Ok((l, port))
 }
 
+/// Loads the robot model and applies the first scene when it is scheduled at or before 0 s
+/// (in force since `opts.first_scene_in_force_since_ns`, else `start_ns`); returns the world
+/// and the rest of the schedule, in time order.
+fn load_world(
+    opts: &SimOptions,
+    start_ns: u64,
+) -> Result<(World, Vec<(f64, SceneFile)>), SimError> {
+    let mut world = World::load(&opts.urdf, opts.contact_margin_m)?;
+    let mut schedule = opts.scenes.clone();
+    schedule.sort_by(|a, b| a.0.total_cmp(&b.0));
+    if let Some((at, first)) = schedule.first()
+        && *at <= 0.0
+    {
+        world.set_scene_since(
+            first,
+            opts.first_scene_in_force_since_ns.unwrap_or(start_ns),
+        )?;
+        schedule.remove(0);
+    }
+    Ok((world, schedule))
+}
+
+/// The listeners of one simulated arm: the ports actually bound (0 asks the OS for one),
+/// the command listener, one listener per report kind and the control listener.
+type Listeners = (
+    SimPorts,
+    TcpListener,
+    Vec<(ReportKind, TcpListener)>,
+    TcpListener,
+);
+
+/// Binds the command, report and control ports on `ip`.
+fn bind_all(ip: IpAddr, asked: SimPorts) -> Result<Listeners, SimError> {
+    let (cmd_l, command) = bind(ip, asked.command)?;
+    let mut ports = SimPorts { command, ..asked };
+    let mut report_listeners = Vec::new();
+    for kind in [
+        ReportKind::RealTime,
+        ReportKind::Normal,
+        ReportKind::Rich,
+        ReportKind::Real,
+    ] {
+        let (l, p) = bind(ip, asked.report(kind))?;
+        match kind {
+            ReportKind::RealTime => ports.report_rt = p,
+            ReportKind::Normal => ports.report_normal = p,
+            ReportKind::Rich => ports.report_rich = p,
+            ReportKind::Real => ports.report_real = p,
+        }
+        report_listeners.push((kind, l));
+    }
+    let (ctl_l, control) = bind(ip, asked.control)?;
+    ports.control = control;
+    Ok((ports, cmd_l, report_listeners, ctl_l))
+}
+
 fn spawn(
     threads: &mut Vec<JoinHandle<()>>,
     name: &str,
@@ -277,19 +333,8 @@ impl SimServer {
     /// are invalid.
     pub fn start(opts: SimOptions) -> Result<Self, SimError> {
         opts.protective.validate()?;
-        let mut world = World::load(&opts.urdf, opts.contact_margin_m)?;
         let (start, start_ns) = (Instant::now(), monotonic_now_ns());
-        let mut schedule = opts.scenes.clone();
-        schedule.sort_by(|a, b| a.0.total_cmp(&b.0));
-        if let Some((at, first)) = schedule.first()
-            && *at <= 0.0
-        {
-            world.set_scene_since(
-                first,
-                opts.first_scene_in_force_since_ns.unwrap_or(start_ns),
-            )?;
-            schedule.remove(0);
-        }
+        let (world, schedule) = load_world(&opts, start_ns)?;
         let mut controller = Controller::new(opts.q0_rad);
         controller.set_model(world.model().clone());
         controller.set_protective_limits(opts.protective);
@@ -307,30 +352,7 @@ impl SimServer {
             start,
             start_ns,
         });
-        let ip = opts.bind;
-        let (cmd_l, command) = bind(ip, opts.ports.command)?;
-        let mut ports = SimPorts {
-            command,
-            ..opts.ports
-        };
-        let mut report_listeners = Vec::new();
-        for kind in [
-            ReportKind::RealTime,
-            ReportKind::Normal,
-            ReportKind::Rich,
-            ReportKind::Real,
-        ] {
-            let (l, p) = bind(ip, opts.ports.report(kind))?;
-            match kind {
-                ReportKind::RealTime => ports.report_rt = p,
-                ReportKind::Normal => ports.report_normal = p,
-                ReportKind::Rich => ports.report_rich = p,
-                ReportKind::Real => ports.report_real = p,
-            }
-            report_listeners.push((kind, l));
-        }
-        let (ctl_l, control) = bind(ip, opts.ports.control)?;
-        ports.control = control;
+        let (ports, cmd_l, report_listeners, ctl_l) = bind_all(opts.bind, opts.ports)?;
 
         let mut threads = Vec::new();
         let s = shared.clone();

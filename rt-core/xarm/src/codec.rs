@@ -757,18 +757,13 @@ impl Request {
         };
         let exact = |n: usize| if p.len() == n { Ok(()) } else { Err(bad()) };
         let at_least = |n: usize| if p.len() >= n { Ok(()) } else { Err(bad()) };
-        let joint_target = || -> Result<JointTarget, FrameError> {
+        let joint_target = || {
             at_least(40)?;
-            let mut joints_rad = [0.0f32; WIRE_JOINTS];
-            for (i, q) in joints_rad.iter_mut().enumerate() {
-                *q = le_f32(p, 4 * i);
-            }
-            Ok(JointTarget {
-                joints_rad,
-                speed_rad_s: le_f32(p, 28),
-                acc_rad_s2: le_f32(p, 32),
-                mvtime_s: le_f32(p, 36),
-            })
+            Ok::<_, FrameError>(joint_target_at(p))
+        };
+        let first_f32 = || {
+            at_least(4)?;
+            Ok::<_, FrameError>(le_f32(p, 0))
         };
         let req = match Register::from(reg) {
             Register::GetVersion => Self::GetVersion,
@@ -800,33 +795,12 @@ impl Request {
             Register::MoveServoJ => Self::ServoJ(joint_target()?),
             Register::MoveServoCart => {
                 at_least(36)?;
-                let mut pose = [0.0f32; 6];
-                for (i, v) in pose.iter_mut().enumerate() {
-                    *v = le_f32(p, 4 * i);
-                }
-                Self::ServoCart {
-                    pose,
-                    speed_mm_s: le_f32(p, 24),
-                    acc_mm_s2: le_f32(p, 28),
-                    tool_frame: le_f32(p, 32) != 0.0,
-                }
+                Self::servo_cart_at(p)
             }
-            Register::SetTcpJerk => {
-                at_least(4)?;
-                Self::SetTcpJerk(le_f32(p, 0))
-            }
-            Register::SetTcpMaxAcc => {
-                at_least(4)?;
-                Self::SetTcpMaxAcc(le_f32(p, 0))
-            }
-            Register::SetJointJerk => {
-                at_least(4)?;
-                Self::SetJointJerk(le_f32(p, 0))
-            }
-            Register::SetJointMaxAcc => {
-                at_least(4)?;
-                Self::SetJointMaxAcc(le_f32(p, 0))
-            }
+            Register::SetTcpJerk => Self::SetTcpJerk(first_f32()?),
+            Register::SetTcpMaxAcc => Self::SetTcpMaxAcc(first_f32()?),
+            Register::SetJointJerk => Self::SetJointJerk(first_f32()?),
+            Register::SetJointMaxAcc => Self::SetJointMaxAcc(first_f32()?),
             Register::GetTcpPose => Self::GetTcpPose,
             Register::GetJointPos => Self::GetJointPos(p.first().copied()),
             Register::GetTcpPoseAa => Self::GetTcpPoseAa,
@@ -846,6 +820,36 @@ impl Request {
             }
         };
         Ok((h, req))
+    }
+
+    /// A Cartesian servo request from a payload of at least 36 bytes: the pose (6 × f32),
+    /// speed, acceleration and the tool-frame flag.
+    fn servo_cart_at(p: &[u8]) -> Self {
+        let mut pose = [0.0f32; 6];
+        for (i, v) in pose.iter_mut().enumerate() {
+            *v = le_f32(p, 4 * i);
+        }
+        Self::ServoCart {
+            pose,
+            speed_mm_s: le_f32(p, 24),
+            acc_mm_s2: le_f32(p, 28),
+            tool_frame: le_f32(p, 32) != 0.0,
+        }
+    }
+}
+
+/// A joint target from a payload of at least 40 bytes: the joints (7 × f32), speed,
+/// acceleration and move time.
+fn joint_target_at(p: &[u8]) -> JointTarget {
+    let mut joints_rad = [0.0f32; WIRE_JOINTS];
+    for (i, q) in joints_rad.iter_mut().enumerate() {
+        *q = le_f32(p, 4 * i);
+    }
+    JointTarget {
+        joints_rad,
+        speed_rad_s: le_f32(p, 28),
+        acc_rad_s2: le_f32(p, 32),
+        mvtime_s: le_f32(p, 36),
     }
 }
 

@@ -54,6 +54,7 @@
 //! out by its own stale connection). A [`Dialer`] carries at most [`MAX_TUNNELS`] of its
 //! Zenoh's connections at once.
 
+use shm_schemas::error_chain::error_chain;
 use std::collections::VecDeque;
 use std::io::{Read, Write};
 use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream, ToSocketAddrs};
@@ -167,7 +168,7 @@ pub enum HandshakeError {
     #[error("socket: {0}")]
     Io(std::io::ErrorKind),
     /// The OS random source failed.
-    #[error("random source: {0}")]
+    #[error("random source")]
     Random(#[source] getrandom::Error),
 }
 
@@ -506,7 +507,10 @@ impl Arrival {
             } else {
                 "connector_unauthenticated"
             };
-            (self.events)(kind, format!("connection from {} refused: {e}", self.from));
+            (self.events)(
+                kind,
+                format!("connection from {} refused: {}", self.from, error_chain(&e)),
+            );
             let _ = s.shutdown(Shutdown::Both);
             return;
         }
@@ -625,7 +629,10 @@ fn dial(local: TcpStream, remote: &str, key: &GateKey, events: &GateEvents) {
             HandshakeError::BadProof | HandshakeError::NotARelay => "listener_unauthenticated",
             _ => "listener_no_handshake",
         };
-        events(kind, format!("the listener at {remote} was refused: {e}"));
+        events(
+            kind,
+            format!("the listener at {remote} was refused: {}", error_chain(&e)),
+        );
         let _ = out.shutdown(Shutdown::Both);
         let _ = local.shutdown(Shutdown::Both);
         return;

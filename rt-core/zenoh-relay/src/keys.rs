@@ -142,7 +142,7 @@ pub enum KeyError {
     #[error("{0}: already exists; keygen does not overwrite keys (choose another --out)")]
     Exists(PathBuf),
     /// The operating system's random source failed.
-    #[error("random source: {0}")]
+    #[error("random source")]
     Random(#[source] getrandom::Error),
     /// Reading or writing a file.
     #[error("{path}: {error}")]

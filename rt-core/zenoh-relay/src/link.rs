@@ -130,7 +130,7 @@ fn free_loopback_port() -> Result<SocketAddr, LinkError> {
 
 impl From<KeyError> for LinkError {
     fn from(e: KeyError) -> Self {
-        Self::Keys(e.to_string())
+        Self::Keys(shm_schemas::error_chain::error_chain(&e).to_string())
     }
 }
 

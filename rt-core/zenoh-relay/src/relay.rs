@@ -32,6 +32,7 @@
 //!
 //! Nothing of the real-time path crosses: no robot state, no detections, no verdicts.
 
+use shm_schemas::error_chain::error_chain;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -114,13 +115,13 @@ pub enum RelayError {
     #[error(transparent)]
     Link(#[from] LinkError),
     /// The iceoryx2 node could not be created.
-    #[error("iceoryx2: {0}")]
+    #[error("iceoryx2")]
     ShmNode(#[source] services::NodeCreateError),
     /// An iceoryx2 port could not be opened.
-    #[error("iceoryx2: {0}")]
+    #[error("iceoryx2")]
     Shm(#[from] ShmOpenError),
     /// The replay state file cannot be read or written (the message names it).
-    #[error("replay state: {0}")]
+    #[error("replay state")]
     State(#[source] KeyError),
 }
 
@@ -218,7 +219,11 @@ fn admit(
     let (header, payload) = match wire::decode(bytes, channel, verifier) {
         Ok(v) => v,
         Err(e) => {
-            note(refusals, e.kind(), format!("{channel:?} refused: {e}"));
+            note(
+                refusals,
+                e.kind(),
+                format!("{channel:?} refused: {}", error_chain(&e)),
+            );
             return false;
         }
     };
@@ -522,7 +527,7 @@ impl Relay {
             }
             Err(e) => {
                 if self.warn.allow("state", Instant::now()) {
-                    tracing::error!("{e}");
+                    tracing::error!("{}", error_chain(&e));
                 }
                 false
             }
@@ -593,7 +598,7 @@ impl Relay {
     }
 
     fn reject(&mut self, channel: Channel, e: &WireError) {
-        self.refuse(e.kind(), format!("{channel:?} refused: {e}"));
+        self.refuse(e.kind(), format!("{channel:?} refused: {}", error_chain(e)));
     }
 
     /// Counts a refusal by `kind` and keeps its words for the status file.

@@ -314,7 +314,7 @@ pub enum WireError {
         expected: u32,
     },
     /// The payload is not a valid message (length, a field out of range, a bad checksum).
-    #[error("payload: {0}")]
+    #[error("payload")]
     Payload(#[from] MessageBytesError),
     /// A control message's JSON is malformed.
     #[error("payload of {channel:?}: {error}")]
@@ -575,6 +575,7 @@ pub fn control_payload<T: for<'de> Deserialize<'de>>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use shm_schemas::error_chain::error_chain;
     use shm_schemas::{PolicyBlobBuilder, RetrainPhase, SchemaError};
 
     fn keys() -> (Signer, Verifier) {
@@ -775,9 +776,11 @@ mod tests {
             ),
         ];
         for (bytes, field) in cases {
-            let e = decode_message::<RetrainProgress>(&bytes, Channel::RetrainProgress, &v)
-                .unwrap_err()
-                .to_string();
+            let e = error_chain(
+                &decode_message::<RetrainProgress>(&bytes, Channel::RetrainProgress, &v)
+                    .unwrap_err(),
+            )
+            .to_string();
             assert!(e.contains(field), "{field}: {e}");
         }
         // The right header on the wrong key.
@@ -787,7 +790,7 @@ mod tests {
         let short = encode(&bound(1), &[0u8; 40], &s);
         let e =
             decode_message::<RetrainProgress>(&short, Channel::RetrainProgress, &v).unwrap_err();
-        assert!(e.to_string().contains("40 bytes"), "{e}");
+        assert!(error_chain(&e).to_string().contains("40 bytes"), "{e}");
     }
 
     #[test]

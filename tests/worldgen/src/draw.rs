@@ -326,19 +326,7 @@ fn draw_kind<R: Rng + ?Sized>(
                 let c = on_segment(between(r, [0.35, 0.65]), between(r, [-0.04, 0.04]));
                 let [sx, sy] = footprint(r, [0.04, 0.08]);
                 standing(g, c, [sx, sy, between(r, [0.05, 0.25])])
-            }) && place_one(env, &mut scene, rng, |r| {
-                // Beside one face of the goal cube, 0.03–0.08 m from it.
-                let [sx, sy] = footprint(r, [0.04, 0.08]);
-                let gap = between(r, [0.03, 0.08]);
-                let along = between(r, [-0.03, 0.03]);
-                let side = sign(r);
-                let c = if r.random::<bool>() {
-                    [gx + side * ((g.size_m + sx) / 2.0 + gap), gy + along]
-                } else {
-                    [gx + along, gy + side * ((g.size_m + sy) / 2.0 + gap)]
-                };
-                standing(g, c, [sx, sy, between(r, [0.10, 0.35])])
-            })
+            }) && place_one(env, &mut scene, rng, |r| beside_goal(g, r, [gx, gy]))
         }
         WorldKind::SideGoalTallBase => place_one(env, &mut scene, rng, |r| {
             let side = if r.random::<bool>() {
@@ -350,26 +338,52 @@ fn draw_kind<R: Rng + ?Sized>(
             let [sx, sy] = footprint(r, [0.04, 0.08]);
             standing(g, c, [sx, sy, between(r, [0.30, 0.40])])
         }),
-        WorldKind::FarSideTall => {
-            let rho = gx.hypot(gy);
-            let phi = gy.atan2(gx);
-            [1.0, -1.0].into_iter().all(|side| {
-                place_one(env, &mut scene, rng, |r| {
-                    let radius = rho + between(r, [0.08, 0.20]);
-                    let angle = phi + side * between(r, [0.1, 0.5]);
-                    let [sx, sy] = footprint(r, FOOTPRINT_M);
-                    standing(
-                        g,
-                        [radius * angle.cos(), radius * angle.sin()],
-                        [sx, sy, between(r, [0.25, 0.40])],
-                    )
-                })
-            }) && place_one(env, &mut scene, rng, |r| {
-                let [sx, sy] = footprint(r, FOOTPRINT_M);
-                let c = [between(r, TABLE_X_M), between(r, TABLE_Y_M)];
-                standing(g, c, [sx, sy, between(r, [0.04, 0.12])])
-            })
-        }
+        WorldKind::FarSideTall => place_far_side_tall(g, env, &mut scene, rng, [gx, gy]),
     };
     placed.then_some(scene)
+}
+
+/// [`WorldKind::PathAndGoal`]'s second box: beside one face of the goal cube (centred at
+/// `[gx, gy]`), 0.03–0.08 m from it.
+fn beside_goal<R: Rng + ?Sized>(g: &GoalRanges, r: &mut R, [gx, gy]: [f64; 2]) -> BoxObstacle {
+    let [sx, sy] = footprint(r, [0.04, 0.08]);
+    let gap = between(r, [0.03, 0.08]);
+    let along = between(r, [-0.03, 0.03]);
+    let side = sign(r);
+    let c = if r.random::<bool>() {
+        [gx + side * ((g.size_m + sx) / 2.0 + gap), gy + along]
+    } else {
+        [gx + along, gy + side * ((g.size_m + sy) / 2.0 + gap)]
+    };
+    standing(g, c, [sx, sy, between(r, [0.10, 0.35])])
+}
+
+/// [`WorldKind::FarSideTall`]'s boxes: two tall ones beyond the goal (at `[gx, gy]`), one on
+/// each side of its bearing, and a low one anywhere on the table; `false` when one could not
+/// be placed.
+fn place_far_side_tall<R: Rng + ?Sized>(
+    g: &GoalRanges,
+    env: &TwinEnv,
+    scene: &mut Scene,
+    rng: &mut R,
+    [gx, gy]: [f64; 2],
+) -> bool {
+    let rho = gx.hypot(gy);
+    let phi = gy.atan2(gx);
+    [1.0, -1.0].into_iter().all(|side| {
+        place_one(env, scene, rng, |r| {
+            let radius = rho + between(r, [0.08, 0.20]);
+            let angle = phi + side * between(r, [0.1, 0.5]);
+            let [sx, sy] = footprint(r, FOOTPRINT_M);
+            standing(
+                g,
+                [radius * angle.cos(), radius * angle.sin()],
+                [sx, sy, between(r, [0.25, 0.40])],
+            )
+        })
+    }) && place_one(env, scene, rng, |r| {
+        let [sx, sy] = footprint(r, FOOTPRINT_M);
+        let c = [between(r, TABLE_X_M), between(r, TABLE_Y_M)];
+        standing(g, c, [sx, sy, between(r, [0.04, 0.12])])
+    })
 }

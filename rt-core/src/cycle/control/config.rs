@@ -33,7 +33,7 @@ pub struct CycleConfig {
     /// Longest time between two cycles while the arm moves, ns: a longer gap (the process
     /// stopped, a paused VM, a long page fault) is a stop at the measured joints
     /// ([`super::StopReason::Frozen`]), never a resumption from where the plan's clock left
-    /// off. [`FREEZE_BOUND_PERIODS`] periods (at least [`FREEZE_BOUND_MIN_PERIODS`]).
+    /// off. `FREEZE_BOUND_PERIODS` periods (at least `FREEZE_BOUND_MIN_PERIODS`).
     pub max_cycle_gap_ns: u64,
     /// Speed and separation monitoring (`[separation]`): the playback scale by separation.
     pub separation: SeparationParams,

@@ -4,8 +4,8 @@
 //! hold), re-checks it with the shield against the live scene, sends it, and reports.
 //!
 //! `process` allocates nothing, takes no lock, does no blocking I/O and no formatting: the
-//! hand-overs are lock-free SPSC queues ([`super::handoff`]), plans are returned to the
-//! twin for freeing, and events go to the log ring ([`super::rt_log`]).
+//! hand-overs are lock-free SPSC queues ([`crate::rt::handoff`]), plans are returned to the
+//! twin for freeing, and events go to the log ring ([`crate::rt::rt_log`]).
 //!
 //! One check for every command: whatever picked it (a plan sample, a stop step, a hold, the
 //! first command after a reconnect), a command passes [`Shield::check_step`] against the

@@ -304,11 +304,6 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         self.library.current()
     }
 
-    /// The base policy (the first received), once another has replaced it as current.
-    pub fn base_policy(&self) -> Option<&L::Policy> {
-        self.library.base()
-    }
-
     /// The lookahead.
     pub fn lookahead_mut(&mut self) -> &mut L {
         self.approver.lookahead_mut()

@@ -90,11 +90,6 @@ impl<P, S: Copy + PartialEq> PolicyLibrary<P, S> {
         self.current.as_deref()
     }
 
-    /// The base policy, once another has replaced it as current.
-    pub fn base(&self) -> Option<&P> {
-        self.base.as_deref()
-    }
-
     /// Installs the planner fallback.
     pub fn set_planner(&mut self, planner: Box<dyn FallbackPlanner<S>>) {
         self.planner = Some(planner);

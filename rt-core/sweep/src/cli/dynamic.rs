@@ -127,39 +127,7 @@ fn yes(b: bool) -> &'static str {
 }
 
 fn print_tables(s: &DynamicSummary) {
-    let st = &s.settings;
-    let b = &s.brake;
-    println!();
-    println!(
-        "dynamic sweep seed {} episodes {} (run {}, {} worlds redrawn, {} without a reached world; {} cycles, {} commands checked) in {:.1} s = {:.2} episodes/s",
-        st.seed,
-        s.episodes,
-        s.episodes_run,
-        s.world_redraws,
-        s.episodes_without_a_reached_world,
-        s.cycles,
-        s.commands_checked,
-        s.wall_s,
-        s.episodes_per_s
-    );
-    println!(
-        "frames {:.0} Hz, latency {:.0}-{:.0} ms; intruders {:.1}-{:.1} m/s; settled {:.1} s after the last change; goal within {:.0} s after the intruder left",
-        st.frame_rate_hz,
-        st.latency_min_s * 1e3,
-        st.latency_max_s * 1e3,
-        st.min_speed_m_s,
-        st.max_speed_m_s,
-        st.settle_quiet_s,
-        st.reach_limit_s
-    );
-    println!(
-        "brake limits: {:?} rad/s, {:?} rad/s2 (path stop at 80 %), {:?} rad/s3; stop from full speed {:.3} s (+1 period)",
-        b.max_velocity_rad_s,
-        b.max_acceleration_rad_s2,
-        b.max_jerk_rad_s3,
-        b.braking_horizon.horizon_s
-    );
-    println!("{:-<112}", "");
+    print_header(s);
     let h = &s.hard;
     println!(
         "HARD COUNTS (must be 0): still boxes {}, table {}, joint steps {}, TCP speed {}, joint limits {}, non-finite {}",
@@ -211,6 +179,60 @@ fn print_tables(s: &DynamicSummary) {
         yes(t.reaction_p99_at_most_1_cycle),
         s.all.reaction.from_delivery_cycles.p99
     );
+    print_contact_examples(s);
+    println!("{:-<112}", "");
+    println!("COUNTERS");
+    for (k, v) in &s.counts {
+        println!("  {k:<52} {v:>10}");
+    }
+    if let Some(p) = &s.bundled_problem {
+        println!("bundled policy not used ({p}): the goal-seeker ran in its place");
+    }
+    for f in &s.failures {
+        println!("FAILURE {f:?}");
+    }
+}
+
+/// The run's settings: seed, episodes, frames, intruders and the brake's limits.
+fn print_header(s: &DynamicSummary) {
+    let st = &s.settings;
+    let b = &s.brake;
+    println!();
+    println!(
+        "dynamic sweep seed {} episodes {} (run {}, {} worlds redrawn, {} without a reached world; {} cycles, {} commands checked) in {:.1} s = {:.2} episodes/s",
+        st.seed,
+        s.episodes,
+        s.episodes_run,
+        s.world_redraws,
+        s.episodes_without_a_reached_world,
+        s.cycles,
+        s.commands_checked,
+        s.wall_s,
+        s.episodes_per_s
+    );
+    println!(
+        "frames {:.0} Hz, latency {:.0}-{:.0} ms; intruders {:.1}-{:.1} m/s; settled {:.1} s after the last change; goal within {:.0} s after the intruder left",
+        st.frame_rate_hz,
+        st.latency_min_s * 1e3,
+        st.latency_max_s * 1e3,
+        st.min_speed_m_s,
+        st.max_speed_m_s,
+        st.settle_quiet_s,
+        st.reach_limit_s
+    );
+    println!(
+        "brake limits: {:?} rad/s, {:?} rad/s2 (path stop at 80 %), {:?} rad/s3; stop from full speed {:.3} s (+1 period)",
+        b.max_velocity_rad_s,
+        b.max_acceleration_rad_s2,
+        b.max_jerk_rad_s3,
+        b.braking_horizon.horizon_s
+    );
+    println!("{:-<112}", "");
+}
+
+/// Up to 8 examples of avoidable and of unavoidable contacts while moving, with the onset
+/// of each (what came too close, when, and why it was or was not avoidable).
+fn print_contact_examples(s: &DynamicSummary) {
     for (title, list) in [
         (
             "AVOIDABLE CONTACT WHILE MOVING",
@@ -250,16 +272,5 @@ fn print_tables(s: &DynamicSummary) {
                 mm(e.contact.depth_m)
             );
         }
-    }
-    println!("{:-<112}", "");
-    println!("COUNTERS");
-    for (k, v) in &s.counts {
-        println!("  {k:<52} {v:>10}");
-    }
-    if let Some(p) = &s.bundled_problem {
-        println!("bundled policy not used ({p}): the goal-seeker ran in its place");
-    }
-    for f in &s.failures {
-        println!("FAILURE {f:?}");
     }
 }
