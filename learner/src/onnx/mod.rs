@@ -164,11 +164,6 @@ pub fn policy_onnx(blob: &PolicyBlob) -> Result<Vec<u8>, OnnxExportError> {
     let act_dim = blob.act_dim as usize;
     observation_layout(obs_dim)?;
     action_space(blob)?;
-    // A validated blob's activations are known values.
-    let hidden_act = Activation::try_from(blob.activation).unwrap_or(Activation::Tanh);
-    let output_act = Activation::try_from(blob.output_activation).unwrap_or(Activation::Identity);
-    let n_hidden = blob.n_hidden as usize;
-    let mut graph = Msg::new().string(2, "foresight_policy");
     let mut inits = vec![
         proto::tensor("obs_mean", &[obs_dim as i64], &blob.obs_mean[..obs_dim]),
         proto::tensor("obs_std", &[obs_dim as i64], &blob.obs_std[..obs_dim]),
@@ -193,27 +188,54 @@ pub fn policy_onnx(blob: &PolicyBlob) -> Result<Vec<u8>, OnnxExportError> {
             &[],
         ),
     ];
-    let mut input = "x0".to_owned();
-    let mut in_dim = obs_dim;
+    let last = dense_layers(blob, "x0", &mut nodes, &mut inits);
+    nodes.push(proto::node(
+        "clip_action",
+        "Clip",
+        &[&last, "action_clip_lo", "action_clip_hi"],
+        &["clipped"],
+        &[],
+    ));
+    nodes.push(proto::node(
+        "scale_action",
+        "Mul",
+        &["clipped", "action_scale"],
+        &[OUTPUT],
+        &[],
+    ));
+    Ok(model(blob, &graph(blob, &nodes, &inits)))
+}
+
+/// The network's layers from `input` on: a `Gemm` (weights `[out, in]`, `transB = 1`) and
+/// its activation per layer, their weights as initialisers. Returns the last output's name.
+fn dense_layers(
+    blob: &PolicyBlob,
+    input: &str,
+    nodes: &mut Vec<Msg>,
+    inits: &mut Vec<Msg>,
+) -> String {
+    // A validated blob's activations are known values.
+    let hidden_act = Activation::try_from(blob.activation).unwrap_or(Activation::Tanh);
+    let output_act = Activation::try_from(blob.output_activation).unwrap_or(Activation::Identity);
+    let n_hidden = blob.n_hidden as usize;
+    let mut input = input.to_owned();
+    let mut in_dim = blob.obs_dim as usize;
     let mut offset = 0usize;
     for k in 0..=n_hidden {
         let out_dim = if k == n_hidden {
-            act_dim
+            blob.act_dim as usize
         } else {
             blob.hidden_sizes[k] as usize
         };
         let (w, b) = (format!("w{k}"), format!("b{k}"));
         let w_len = in_dim * out_dim;
+        let weights = &blob.weights[offset..offset + w_len + out_dim];
         inits.push(proto::tensor(
             &w,
             &[out_dim as i64, in_dim as i64],
-            &blob.weights[offset..offset + w_len],
+            &weights[..w_len],
         ));
-        inits.push(proto::tensor(
-            &b,
-            &[out_dim as i64],
-            &blob.weights[offset + w_len..offset + w_len + out_dim],
-        ));
+        inits.push(proto::tensor(&b, &[out_dim as i64], &weights[w_len..]));
         offset += w_len + out_dim;
         let pre = format!("z{k}");
         nodes.push(proto::node(
@@ -238,27 +260,19 @@ pub fn policy_onnx(blob: &PolicyBlob) -> Result<Vec<u8>, OnnxExportError> {
         };
         in_dim = out_dim;
     }
-    nodes.push(proto::node(
-        "clip_action",
-        "Clip",
-        &[&input, "action_clip_lo", "action_clip_hi"],
-        &["clipped"],
-        &[],
-    ));
-    nodes.push(proto::node(
-        "scale_action",
-        "Mul",
-        &["clipped", "action_scale"],
-        &[OUTPUT],
-        &[],
-    ));
-    for n in &nodes {
+    input
+}
+
+/// The `GraphProto`: nodes, initialisers, the input and the output.
+fn graph(blob: &PolicyBlob, nodes: &[Msg], inits: &[Msg]) -> Msg {
+    let mut graph = Msg::new().string(2, "foresight_policy");
+    for n in nodes {
         graph = graph.msg(1, n);
     }
-    for t in &inits {
+    for t in inits {
         graph = graph.msg(5, t);
     }
-    graph = graph
+    graph
         .string(
             10,
             "Foresight policy: raw observation in (SI units), clipped action out; see policy.schema.json",
@@ -267,7 +281,7 @@ pub fn policy_onnx(blob: &PolicyBlob) -> Result<Vec<u8>, OnnxExportError> {
             11,
             &proto::float_value_info(
                 INPUT,
-                &[Dim::Named("batch"), Dim::Fixed(obs_dim as i64)],
+                &[Dim::Named("batch"), Dim::Fixed(i64::from(blob.obs_dim))],
                 "raw observation (SI units), layout in policy.schema.json",
             ),
         )
@@ -275,18 +289,22 @@ pub fn policy_onnx(blob: &PolicyBlob) -> Result<Vec<u8>, OnnxExportError> {
             12,
             &proto::float_value_info(
                 OUTPUT,
-                &[Dim::Named("batch"), Dim::Fixed(act_dim as i64)],
+                &[Dim::Named("batch"), Dim::Fixed(i64::from(blob.act_dim))],
                 "action in [-action_clip, action_clip] × action_scale",
             ),
-        );
+        )
+}
+
+/// The `ModelProto` around `graph`: versions, producer, opset and the policy's identity.
+fn model(blob: &PolicyBlob, graph: &Msg) -> Vec<u8> {
     let opset = Msg::new().string(1, "").int(2, OPSET);
     let meta = |k: &str, v: String| Msg::new().string(1, k).string(2, &v);
-    let model = Msg::new()
+    Msg::new()
         .int(1, IR_VERSION)
         .string(2, "foresight-learner")
         .string(3, env!("CARGO_PKG_VERSION"))
         .int(5, i64::from(POLICY_FORMAT_VERSION))
-        .msg(7, &graph)
+        .msg(7, graph)
         .msg(8, &opset)
         .msg(14, &meta("policy_id", blob.policy_id.to_string()))
         .msg(
@@ -296,8 +314,8 @@ pub fn policy_onnx(blob: &PolicyBlob) -> Result<Vec<u8>, OnnxExportError> {
                 format!("{:#018x}", blob.task_config_hash),
             ),
         )
-        .msg(14, &meta("schema", SCHEMA_FILE.into()));
-    Ok(model.into_bytes())
+        .msg(14, &meta("schema", SCHEMA_FILE.into()))
+        .into_bytes()
 }
 
 /// The contents of `policy.schema.json` for `blob`; `action_scale_m` is the task's

@@ -125,18 +125,55 @@ fn run(
         sub,
         goals,
     } = ends;
-    let mut age = Histogram::new();
-    let mut refusals_in_a_row = 0u64;
-    let mut drain = FrameDrain::default();
+    let mut frames = FramePoll {
+        sub,
+        service,
+        drain: FrameDrain::default(),
+        refusals_in_a_row: 0,
+        age: Histogram::new(),
+    };
     while !stop.load(Ordering::Acquire) {
         if let Some(goals) = &goals {
             take_goal_requests(goals, &mut intake, &mut path)?;
         }
-        // Every waiting frame is checked and counted, in order; only the newest accepted one
-        // goes on to the plan guard, the cycle and the twin thread (issue 42 item 6: a
-        // starved thread catching up re-verifies the plans once, against the world as it is
-        // now, not once per stale frame).
-        while let Some(sample) = sub.receive().map_err(|cause| TwinNodeError::Receive {
+        frames.take(&mut intake, &mut path, notes)?;
+        std::thread::sleep(POLL_PERIOD);
+    }
+    if frames.drain.superseded > 0 {
+        tracing::info!(
+            superseded = frames.drain.superseded,
+            "accepted frames superseded by a newer one in the same poll (checked and counted, not re-verified against)"
+        );
+    }
+    Ok(IntakeFigures {
+        counters: *intake.counters(),
+        detection_age: frames.age.summary(),
+    })
+}
+
+/// The detection frames' end of the intake thread: its subscriber, what one poll keeps and
+/// what the thread measures.
+struct FramePoll {
+    sub: Subscriber<ipc::Service, DetectionFrame, ()>,
+    service: PubSubFactory<ipc::Service, DetectionFrame, ()>,
+    drain: FrameDrain,
+    refusals_in_a_row: u64,
+    /// Capture → handed to the cycle, of the frames handed on.
+    age: Histogram,
+}
+
+impl FramePoll {
+    /// One poll: every waiting frame is checked and counted, in order (a refused one stops
+    /// the arm at once); only the newest accepted one goes on to the plan guard, the cycle
+    /// and the twin thread (issue 42 item 6: a starved thread catching up re-verifies the
+    /// plans once, against the world as it is now, not once per stale frame).
+    fn take(
+        &mut self,
+        intake: &mut SceneIntake,
+        path: &mut ScenePath<TwinModel>,
+        notes: &mpsc::Sender<FrameNote>,
+    ) -> Result<(), TwinNodeError> {
+        while let Some(sample) = self.sub.receive().map_err(|cause| TwinNodeError::Receive {
             service: "detections",
             cause,
         })? {
@@ -144,17 +181,18 @@ fn run(
             // write the sample).
             let frame = *sample.payload();
             drop(sample);
-            let publishers = service.dynamic_config().number_of_publishers();
+            let publishers = self.service.dynamic_config().number_of_publishers();
             let mono_now_ns = shm_schemas::clock::monotonic_now_ns();
             match intake.accept(&frame, mono_now_ns, publishers) {
                 Ok(accepted) => {
-                    drain.accepted(accepted, frame.sequence, frame.capture_time_ns);
-                    refusals_in_a_row = 0;
+                    self.drain
+                        .accepted(accepted, frame.sequence, frame.capture_time_ns);
+                    self.refusals_in_a_row = 0;
                 }
                 Err(refusal) => {
-                    drain.refused();
+                    self.drain.refused();
                     path.refused();
-                    if refusals_in_a_row.is_multiple_of(100) {
+                    if self.refusals_in_a_row.is_multiple_of(100) {
                         tracing::warn!(
                             sequence = frame.sequence,
                             camera_id = frame.camera_id,
@@ -162,18 +200,18 @@ fn run(
                             "detection frame refused, the arm stops: {refusal}"
                         );
                     }
-                    refusals_in_a_row += 1;
+                    self.refusals_in_a_row += 1;
                     let _ = notes.send(FrameNote::Refused);
                 }
             }
         }
-        if let Some(newest) = drain.take() {
+        if let Some(newest) = self.drain.take() {
             path.accepted(
                 newest.frame.scene,
                 newest.frame.stamp_ns,
                 newest.frame.intruders,
             );
-            age.record_ns(
+            self.age.record_ns(
                 shm_schemas::clock::monotonic_now_ns().saturating_sub(newest.capture_time_ns),
             );
             let _ = notes.send(FrameNote::Accepted {
@@ -181,18 +219,8 @@ fn run(
                 sequence: newest.sequence,
             });
         }
-        std::thread::sleep(POLL_PERIOD);
+        Ok(())
     }
-    if drain.superseded > 0 {
-        tracing::info!(
-            superseded = drain.superseded,
-            "accepted frames superseded by a newer one in the same poll (checked and counted, not re-verified against)"
-        );
-    }
-    Ok(IntakeFigures {
-        counters: *intake.counters(),
-        detection_age: age.summary(),
-    })
 }
 
 /// The newest accepted frame of one poll, and what the older ones it supersedes carried
