@@ -8,7 +8,7 @@
 //! sampling before the planner (`sampling`), and the operator's acknowledgement channel
 //! (`operator_ack`), and a controller starved of CPU while the arm moves
 //! (`starved_controller`), and a plan unsafe far ahead joined by a safe one without
-//! stopping (`join_before_stop`).
+//! stopping (`join_before_stop`), and planning while a box moves (`moving_world`).
 
 #![allow(missing_docs, clippy::unwrap_used, clippy::expect_used)]
 // The tests drive the runtime from threads of their own and wait in wall time; the bans of
@@ -28,6 +28,7 @@ mod goal_cancel;
 mod goal_reach;
 mod join_before_stop;
 mod limits;
+mod moving_world;
 mod operator_ack;
 mod phase;
 mod plan_guard;

@@ -4,9 +4,11 @@
 //! Plans are made only on a *settled* scene (perception's `FRAME_SETTLED`: every object
 //! confirmed, nothing appearing, disappearing or moving): an intermediate view of a
 //! changing world is re-verified against (and may revoke the running plan) but never gets a
-//! plan approved — but one: a plan joining the running one before the stop the plan guard
-//! scheduled on it (`TwinWorker`'s join before stopping). Scenes that do not come from a
-//! camera (a fixed scene, a bench) are settled.
+//! plan approved — but two: a plan joining the running one before the stop the plan guard
+//! scheduled on it (`TwinWorker`'s join before stopping), and, with `plan_in_moving_world`,
+//! a plan from rest on the scene as it is now ([`SceneView::ready_unsettled`]; see the
+//! worker's `moving` module). Scenes that do not come from a camera (a fixed scene, a bench)
+//! are settled.
 
 /// Why no plan can be made on the scene now.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -85,6 +87,20 @@ impl<S: Copy + PartialEq> SceneView<S> {
             return Err(Hold::NoGoal);
         }
         Ok(scene)
+    }
+
+    /// As [`SceneView::ready`] but for the world still changing: the scene with its
+    /// moving boxes as their predicted volumes, or why none can be planned on (refused, no
+    /// scene, no goal).
+    ///
+    /// # Errors
+    /// The [`Hold`] other than [`Hold::Unsettled`].
+    pub fn ready_unsettled(&self) -> Result<S, Hold> {
+        match self.ready() {
+            Err(Hold::Unsettled) if self.goal_seen => self.scene.ok_or(Hold::NoScene),
+            Err(Hold::Unsettled) => Err(Hold::NoGoal),
+            other => other,
+        }
     }
 
     /// The latest accepted scene, whatever its gates.
