@@ -243,6 +243,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         // goal count it was accepted under, and refused there once a later withdrawal (a
         // cancel or a pre-emption) is known (issue 41 item 1).
         self.scene.set_goal_epoch(frame.goal_epoch);
+        self.scene.set_moving_seen(frame.intruders.mask != 0);
         if frame.stop_requested {
             self.note_goal_cancelled(events);
         }

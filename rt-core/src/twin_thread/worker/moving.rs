@@ -10,6 +10,14 @@
 //! the arm (or revokes the plan before the cycle adopts it) as for any plan. A box moving
 //! beside or away from the way thus no longer delays the start.
 //!
+//! Only a world that changes because something is *seen moving* (the frame names moving
+//! obstacles: the intake's `Intruders`) is planned on this way. A frame unsettled only
+//! because perception is still confirming its object set (a world change: the new goal
+//! with the old box, a box not confirmed yet and so not in the frame) still waits for the
+//! settled one (issue 15). An object just seen, of unknown velocity, counts as moving, but
+//! its volume is grown by the assumed intruder speed over the horizon and blocks every plan
+//! until its velocity is known.
+//!
 //! What stays as before: while the arm follows a plan, an unsettled frame gets no new plan
 //! of its own but the join before a scheduled stop (the running plan is re-verified); and
 //! a planning that fails on a scene still changing asks for no retraining (a moment of a
@@ -28,14 +36,19 @@ pub(super) enum RetrainOnFailure {
 
 impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// Whether a plan from rest may be made on the current scene although it is not
-    /// settled: planning in a moving world is on, and the cycle (as of its last report)
-    /// stands still — idle or stopped, not following a plan nor stopping.
+    /// settled: planning in a moving world is on, the latest frame shows an obstacle moving
+    /// (a frame unsettled only because perception is still confirming its objects — a world
+    /// change, a box not yet in the frame — still waits for the settled one), and the cycle
+    /// (as of its last report) stands still — idle or stopped, not following nor stopping.
     pub(super) fn plans_in_moving_world(&self) -> bool {
         self.settings.plan_in_moving_world
-            && self
-                .cycle
-                .report
-                .is_some_and(|r| matches!(r.mode, Mode::Idle | Mode::Stopped))
+            && self.scene.moving_seen()
+            && self.cycle.report.is_some_and(|r| {
+                // Not while a plan sent since is on its way (the cycle may have adopted it
+                // already): a plan from rest would be refused once it follows.
+                matches!(r.mode, Mode::Idle | Mode::Stopped)
+                    && !self.sent.live.iter().any(|(p, _)| p.id > r.plan_id)
+            })
     }
 
     /// The scene a plan from rest is made on, with whether a failure there asks for

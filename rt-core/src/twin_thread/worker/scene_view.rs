@@ -46,6 +46,9 @@ pub struct SceneView<S> {
     no_goal_reported: bool,
     /// [`Hold::Unsettled`] was reported for the current unsettled stretch.
     unsettled_reported: bool,
+    /// The latest frame shows an obstacle moving (its `intruders`): a world still changing
+    /// because something moves, not only because its object set is being confirmed.
+    moving_seen: bool,
     /// Action goals withdrawn when the latest frame was accepted (see
     /// [`crate::twin_thread::intake::AcceptedFrame::goal_epoch`]): plans made on this scene
     /// are registered with it.
@@ -62,6 +65,7 @@ impl<S: Copy + PartialEq> Default for SceneView<S> {
             settled: false,
             no_goal_reported: false,
             unsettled_reported: false,
+            moving_seen: false,
             goal_epoch: 0,
         }
     }
@@ -144,6 +148,16 @@ impl<S: Copy + PartialEq> SceneView<S> {
             change.scene_changed = true;
         }
         change
+    }
+
+    /// Whether the latest frame shows an obstacle moving.
+    pub fn moving_seen(&self) -> bool {
+        self.moving_seen
+    }
+
+    /// The latest frame shows an obstacle moving (`moving`) or none.
+    pub fn set_moving_seen(&mut self, moving: bool) {
+        self.moving_seen = moving;
     }
 
     /// The withdrawn-goal count the latest frame was accepted under.
