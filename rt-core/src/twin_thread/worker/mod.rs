@@ -539,7 +539,10 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         scene: L::Scene,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) -> bool {
-        if self.planning.backing_off(r.t_ns) || self.continue_from_rest(r, events) {
+        if self.planning.backing_off(r.t_ns)
+            || self.continue_from_rest(r, events)
+            || self.home_waits_for_the_world()
+        {
             return true;
         }
         if !self.path.cut_at(&r.cmd.q_rad) || self.path.len() < 2 {

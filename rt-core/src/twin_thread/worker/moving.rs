@@ -51,6 +51,18 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             })
     }
 
+    /// After a pause in a world still moving, when no continuation passed: the way home
+    /// waits (true) and the continuation is tried again on the next frame — the box that
+    /// stopped the arm may be passing, and going home at once costs the episode (with the
+    /// setting off, nothing was planned before the world settled).
+    pub(super) fn home_waits_for_the_world(&mut self) -> bool {
+        let waits = self.plans_in_moving_world() && self.scene.ready() == Err(Hold::Unsettled);
+        if waits {
+            self.planning.taken();
+        }
+        waits
+    }
+
     /// The scene a plan from rest is made on, with whether a failure there asks for
     /// retraining: a settled scene with a goal, or — planning in a moving world, the arm at
     /// rest — the scene as it is now (its moving boxes as their predicted volumes).
