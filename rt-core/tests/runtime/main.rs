@@ -8,8 +8,9 @@
 //! sampling before the planner (`sampling`), and the operator's acknowledgement channel
 //! (`operator_ack`), and a controller starved of CPU while the arm moves
 //! (`starved_controller`), and a plan unsafe far ahead joined by a safe one without
-//! stopping (`join_before_stop`), and planning while a box moves (`moving_world`), and a planner-made plan that joins
-//! the running one in time despite its search (`planner_join`).
+//! stopping (`join_before_stop`), and planning while a box moves (`moving_world`), and a
+//! planner-made plan that joins the running one in time despite its search
+//! (`planner_join`).
 
 #![allow(missing_docs, clippy::unwrap_used, clippy::expect_used)]
 // The tests drive the runtime from threads of their own and wait in wall time; the bans of
