@@ -58,6 +58,27 @@ pub struct MotionLimits {
     pub max_tcp_speed_m_s: f64,
 }
 
+/// Share of the acceleration limit the stop along the plan's time scaling may use
+/// (`cycle::brake::PathStop`): the plan's own acceleration (scaled by `s² ≤ 1`) takes the
+/// rest.
+pub const PATH_STOP_ACCEL_SHARE: f64 = 0.8;
+
+impl MotionLimits {
+    /// The longest stop of the arm from its velocity limits, s: the longer of the
+    /// per-joint jerk-limited brake's bound (`v/a + a/j`) and the stop along the plan
+    /// (`1.5·v / (share·a)`, `cycle::brake::PathStop::duration_s`), over all joints.
+    pub fn longest_stop_s(&self) -> f64 {
+        (0..twin::DOF)
+            .map(|j| {
+                let (v, a) = (self.max_velocity_rad_s[j], self.max_acceleration_rad_s2[j]);
+                let brake_s = v / a + a / self.max_jerk_rad_s3[j];
+                let path_s = 1.5 * v / (PATH_STOP_ACCEL_SHARE * a);
+                brake_s.max(path_s)
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
 /// Ages beyond which an input counts as stale.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -182,6 +203,12 @@ pub struct RuntimeConfig {
     /// executed path; off: always home first, then the episode again from its start.
     #[serde(default = "default_continue_after_pause")]
     pub continue_after_pause: bool,
+    /// Plan from rest on the scene as it is now, also while perception sees something move
+    /// (a frame not settled): each moving box counts as the volume it may sweep over
+    /// `intake.prediction_horizon_s` (the reaction plus the stop), and every later frame
+    /// re-verifies the plan as ever (issue 42 item 1). Off: plans only on settled scenes.
+    #[serde(default = "default_plan_in_moving_world")]
+    pub plan_in_moving_world: bool,
     /// After an episode reaches its goal, the arm rests `dwell_at_goal_s` and then returns
     /// to where the episode began along its own executed path, re-checked by the shield in
     /// the scene then in force. Every episode thus starts from the task's start posture,
@@ -218,6 +245,10 @@ pub struct RuntimeConfig {
     /// Speed and separation monitoring (ISO/TS 15066), off by default.
     #[serde(default)]
     pub separation: SeparationConfig,
+    /// The prediction horizon configured below its floor, s, when it was raised at load
+    /// ([`RuntimeConfig::raise_horizon_to_floor`]); not a key of the file.
+    #[serde(skip)]
+    pub horizon_raised_from_s: Option<f64>,
 }
 
 /// Speed and separation monitoring after ISO/TS 15066 (`[separation]`): while an obstacle is
@@ -443,6 +474,9 @@ fn default_join_before_stopping() -> bool {
 fn default_continue_after_pause() -> bool {
     true
 }
+fn default_plan_in_moving_world() -> bool {
+    true
+}
 
 fn default_dwell_at_goal_s() -> f64 {
     1.0
@@ -466,8 +500,9 @@ impl RuntimeConfig {
     /// # Errors
     /// [`RuntimeConfigError`] when malformed or out of range.
     pub fn from_toml(text: &str) -> Result<Self, RuntimeConfigError> {
-        let cfg: Self = toml::from_str(text)?;
+        let mut cfg: Self = toml::from_str(text)?;
         cfg.validate()?;
+        cfg.raise_horizon_to_floor();
         Ok(cfg)
     }
 
@@ -486,6 +521,41 @@ impl RuntimeConfig {
     /// calibrated area, `[shield]`'s workspace.
     pub fn goal_bounds(&self) -> shm_schemas::GoalBounds {
         runtime_view::goal_bounds(&self.intake, &self.shield)
+    }
+
+    /// The shortest prediction horizon a moving obstacle may be predicted over, s (issue 42
+    /// item 5): from a frame's capture the arm must be able to react
+    /// (`separation.reaction_time_s`: the frame, perception, the hand-over to the cycle) and
+    /// then stop ([`MotionLimits::longest_stop_s`]), and the cycle acts on its next period.
+    /// A box predicted over less may reach the arm before the stop it caused has ended.
+    pub fn prediction_floor_s(&self) -> f64 {
+        self.separation.reaction_time_s + self.limits.longest_stop_s() + 1.0 / self.rate_hz
+    }
+
+    /// Raises `intake.prediction_horizon_s` to [`RuntimeConfig::prediction_floor_s`] when
+    /// configured below it (done at load: a moving box is never predicted over less than the
+    /// reaction plus the stop), keeping what was asked for in
+    /// [`RuntimeConfig::horizon_raised`].
+    pub fn raise_horizon_to_floor(&mut self) {
+        let floor_s = self.prediction_floor_s();
+        let value_s = self.intake.prediction_horizon_s;
+        if value_s < floor_s {
+            self.horizon_raised_from_s = Some(value_s);
+            self.intake.prediction_horizon_s = floor_s;
+        }
+    }
+
+    /// When the prediction horizon was raised at load: what is said about it (the field,
+    /// what was asked for and the floor it was raised to).
+    pub fn horizon_raised(&self) -> Option<String> {
+        self.horizon_raised_from_s.map(|asked_s| {
+            format!(
+                "intake.prediction_horizon_s = {asked_s} s is below its floor and was raised to \
+                 {:.3} s: the reaction (separation.reaction_time_s) plus the longest stop from \
+                 the velocity limits plus one period",
+                self.intake.prediction_horizon_s
+            )
+        })
     }
 
     /// The cycle period in nanoseconds.
@@ -712,7 +782,11 @@ impl RuntimeConfig {
                 "must exceed goal_min_radius_m and be at most the xArm5's reach, 0.7 m",
             );
         }
-        if !(i.prediction_horizon_s.is_finite() && (0.0..=1.0).contains(&i.prediction_horizon_s)) {
+        // Within 0..=1 s as configured; a horizon raised to its floor at load may lie above.
+        let max_horizon_s = self.prediction_floor_s().max(1.0);
+        if !(i.prediction_horizon_s.is_finite()
+            && (0.0..=max_horizon_s).contains(&i.prediction_horizon_s))
+        {
             return bad("intake.prediction_horizon_s", "must be within 0..=1 s");
         }
         if !(i.uncertainty_sigmas.is_finite() && (0.0..=5.0).contains(&i.uncertainty_sigmas)) {
@@ -962,6 +1036,7 @@ mod tests {
                 "intake.prediction_horizon_s",
             ),
             ("prediction_horizon_s", "nan", "intake.prediction_horizon_s"),
+            ("prediction_horizon_s", "2.0", "intake.prediction_horizon_s"),
             ("uncertainty_sigmas", "9.0", "intake.uncertainty_sigmas"),
             ("intruder_speed_m_s", "0.0", "intake.intruder_speed_m_s"),
             ("max_tcp_gap_m", "0.5", "shield.max_tcp_gap_m"),
@@ -972,6 +1047,36 @@ mod tests {
                 other => panic!("{key} = {value}: expected Invalid({field}), got {other:?}"),
             }
         }
+    }
+
+    /// Issue 42 item 5: the prediction horizon is never below the reaction time plus the
+    /// longest stop (plus a period): the old default 0.25 s, and 0 s, are raised to that
+    /// floor at load, and it is said (naming the field and the floor); the shipped horizon
+    /// covers it as it is.
+    #[test]
+    fn a_prediction_horizon_below_reaction_plus_stop_is_raised_to_its_floor_and_said() {
+        let shipped = RuntimeConfig::xarm5_default();
+        let floor_s = shipped.prediction_floor_s();
+        // 0.1 s reaction, the path stop 1.5·1/(0.8·4) = 0.469 s, one 4 ms period.
+        assert!((floor_s - 0.57275).abs() < 1e-9, "{floor_s}");
+        assert!(shipped.intake.prediction_horizon_s >= floor_s);
+        assert_eq!(shipped.horizon_raised(), None);
+        for value in ["0.0", "0.25", "0.5"] {
+            let cfg = RuntimeConfig::from_toml(&with_value("prediction_horizon_s", value)).unwrap();
+            assert_eq!(cfg.intake.prediction_horizon_s, floor_s, "{value}");
+            let said = cfg.horizon_raised().unwrap();
+            assert!(said.contains("intake.prediction_horizon_s"), "{said}");
+            assert!(said.contains("0.573"), "{said}");
+        }
+        // A slower reaction raises the floor with it.
+        let text = ASSET.replace("reaction_time_s = 0.1", "reaction_time_s = 0.2");
+        let cfg = RuntimeConfig::from_toml(&text).unwrap();
+        assert!((cfg.intake.prediction_horizon_s - (floor_s + 0.1)).abs() < 1e-9);
+        // Faster joints: a floor above the 1 s bound of the configured value, still loaded.
+        let fast = with_value("max_velocity_rad_s", "[3.1415, 1.0, 1.0, 1.0, 1.0]");
+        let cfg = RuntimeConfig::from_toml(&fast).unwrap();
+        assert!(cfg.intake.prediction_horizon_s > 1.0);
+        cfg.validate().unwrap();
     }
 
     #[test]

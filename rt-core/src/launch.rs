@@ -232,6 +232,10 @@ pub fn load_assets(
     if let Some(r) = rate_hz {
         cfg.rate_hz = r;
         cfg.validate().map_err(AssetsError::Rate)?;
+        cfg.raise_horizon_to_floor();
+    }
+    if let Some(said) = cfg.horizon_raised() {
+        tracing::warn!("{said}");
     }
     let model = RobotModel::load(&assets.join("xarm5.urdf")).map_err(AssetsError::Model)?;
     if let Err(source) = cfg.check_against_model(&model) {

@@ -212,8 +212,9 @@ impl DetectedObject {
 /// [`DetectionFrame::FRAME_SETTLED`]: the object set is complete and stable (perception's
 /// tracker: every object confirmed, nothing appeared, disappeared or moved for a while, and no
 /// object's estimated speed is beyond its noise: a moving object never settles). rt-core
-/// re-verifies the running plan against every frame, settled or not, but approves a new plan
-/// only on a settled one. Unknown bits are refused by [`DetectionFrame::validate`].
+/// re-verifies the running plan against every frame, settled or not, and approves a new plan
+/// on a settled one — or, from rest, on one that shows an obstacle moving, with each moving
+/// box as the volume it may sweep (`plan_in_moving_world`). Unknown bits are refused by [`DetectionFrame::validate`].
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
 #[type_name("foresight::DetectionFrame.v4")]
@@ -251,7 +252,8 @@ impl DetectionFrame {
     /// confirmed and nothing appear, disappear or move for a while (perception's tracker
     /// settings say how long), and sees no object moving now (no speed estimate beyond its
     /// noise). A frame without it is an intermediate view of a changing
-    /// world: rt-core re-verifies against it (and may stop) but approves no plan on it.
+    /// world: rt-core re-verifies against it (and may stop) and approves no plan on it, but
+    /// from rest when it shows an obstacle moving (`plan_in_moving_world`).
     /// Producers that are not a camera (a fixed scene, a test rig) set it.
     pub const FRAME_SETTLED: u32 = 1 << 0;
 

@@ -163,8 +163,9 @@ pub struct IntakeConfig {
     /// How far ahead of a frame's capture a moving obstacle's occupancy is predicted, s: a
     /// frame that is not settled has each obstacle swept along its velocity over this time
     /// and grown by its velocity's uncertainty (`twin_thread::intake::predicted_occupancy`).
-    /// It covers the frame's way to the cycle, the frames until the next one, and the arm's
-    /// stop (default 0.25 s: two 60 Hz frames, a cycle, and a stop from the plan's speed).
+    /// It covers the reaction (the frame's way to the cycle) and the arm's longest stop from
+    /// its velocity limits: rt-core refuses a horizon below that floor (default 0.6 s: 0.1 s
+    /// of reaction, the xArm5's 0.47 s stop along the plan, a cycle).
     #[serde(default = "default_prediction_horizon_s")]
     pub prediction_horizon_s: f64,
     /// Sigmas of a velocity's uncertainty the predicted occupancy is grown by.
@@ -192,7 +193,7 @@ impl Default for IntakeConfig {
 }
 
 fn default_prediction_horizon_s() -> f64 {
-    0.25
+    0.6
 }
 fn default_uncertainty_sigmas() -> f64 {
     2.0

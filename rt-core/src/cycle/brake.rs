@@ -16,7 +16,9 @@
 
 use twin::{DOF, Joints};
 
-use crate::config::MotionLimits;
+// The share of the acceleration limit the path stop's time scaling may use lives beside the
+// limits: the configuration derives the prediction horizon's floor from it.
+use crate::config::{MotionLimits, PATH_STOP_ACCEL_SHARE};
 // The state a brake works on lives beside `Plan` (whose samples are states).
 use crate::cycle::plan::MotionState;
 use crate::cycle::plan::Plan;
@@ -84,10 +86,6 @@ impl Brake {
         &self.state
     }
 }
-
-/// Share of the acceleration limit the time scaling itself may use: the plan's own
-/// acceleration (scaled by `s² ≤ 1`) takes the rest.
-const PATH_STOP_ACCEL_SHARE: f64 = 0.8;
 
 /// A stop along the running plan by time scaling (see the module docs).
 #[derive(Debug, Clone, Copy)]
@@ -223,6 +221,35 @@ impl PathStop {
 mod tests {
     use super::*;
     use crate::config::RuntimeConfig;
+
+    /// Issue 42 item 5: the configuration's longest stop (the prediction horizon's floor) is
+    /// at least the path stop's duration and the brake's own time to rest from the velocity
+    /// limits.
+    #[test]
+    fn the_configured_longest_stop_bounds_the_path_stop_and_the_brake() {
+        let lim = RuntimeConfig::xarm5_default().limits;
+        let dt = 0.004;
+        let longest_s = lim.longest_stop_s();
+        let path_s =
+            PathStop::duration_s(&lim.max_velocity_rad_s, &lim.max_acceleration_rad_s2, dt);
+        assert!(
+            longest_s >= path_s - 1e-12,
+            "{longest_s} < path stop {path_s}"
+        );
+        let mut brake = Brake::new(&lim);
+        brake.start(MotionState {
+            q_rad: [0.0; DOF],
+            dq_rad_s: lim.max_velocity_rad_s,
+            ddq_rad_s2: [0.0; DOF],
+        });
+        let mut steps = 0u32;
+        while !brake.is_stopped() && steps < 100_000 {
+            brake.step(dt);
+            steps += 1;
+        }
+        let brake_s = f64::from(steps) * dt;
+        assert!(longest_s + dt >= brake_s, "{longest_s} < brake {brake_s}");
+    }
 
     #[test]
     fn the_path_stop_stays_on_the_plan_and_slows_to_rest_within_the_step_limit() {

@@ -163,9 +163,9 @@ impl<M: ShieldModel> PlanGuard<M> {
     ///
     /// In a scene in which obstacles are seen moving (`moving`), no stop is scheduled: a
     /// failing plan is revoked at once. A moving obstacle is predicted only over the intake's
-    /// horizon (`prediction_horizon_s`, 0.25 s), shorter than any wait for a join plus the
-    /// stop: where it will be when the arm passes is not verified, so the arm does not go on
-    /// towards it.
+    /// horizon (`prediction_horizon_s`: the reaction plus the stop), shorter than any wait for
+    /// a join plus the stop: where it will be when the arm passes is not verified, so the arm
+    /// does not go on towards it.
     pub fn scene_captured_moving(&mut self, scene: M::Scene, capture_ns: u64, moving: bool) {
         self.scene_moving = moving;
         let accepted_ns = self.clock_origin_ns.map_or(0, |origin| {

@@ -8,7 +8,9 @@
 //! sampling before the planner (`sampling`), and the operator's acknowledgement channel
 //! (`operator_ack`), and a controller starved of CPU while the arm moves
 //! (`starved_controller`), and a plan unsafe far ahead joined by a safe one without
-//! stopping (`join_before_stop`).
+//! stopping (`join_before_stop`), and planning while a box moves (`moving_world`), and a
+//! planner-made plan that joins the running one in time despite its search
+//! (`planner_join`).
 
 #![allow(missing_docs, clippy::unwrap_used, clippy::expect_used)]
 // The tests drive the runtime from threads of their own and wait in wall time; the bans of
@@ -28,10 +30,12 @@ mod goal_cancel;
 mod goal_reach;
 mod join_before_stop;
 mod limits;
+mod moving_world;
 mod operator_ack;
 mod phase;
 mod plan_guard;
 mod planner_fallback;
+mod planner_join;
 mod policy_library;
 mod safety;
 mod sampling;

@@ -21,6 +21,8 @@
 //! - `planning`: where a plan starts, the candidates in order (policy, sampling, planner),
 //!   the hand-over to the cycle and the continuation after a pause;
 //! - [`approve`]: lookahead → smoothing → shield → goal check, or a [`PlanRejection`];
+//! - `moving`: planning from rest while the world still moves (`plan_in_moving_world`);
+//! - `join`: where a planner-made plan joins the running one (ahead of its search);
 //! - [`verdict`]: the [`Lookahead`] trait and its [`Verdict`]; [`event`]: [`TwinEvent`].
 //!
 //! A replacement plan joins the running one at a sample `join_ahead_s` ahead of the arm
@@ -35,6 +37,8 @@
 
 pub mod approve;
 pub mod event;
+mod join;
+mod moving;
 pub mod path_recorder;
 pub mod phase;
 mod planning;
@@ -84,6 +88,10 @@ struct Settings {
     /// After a pause, plan from where the arm stopped before going home
     /// (`continue_after_pause`).
     continue_after_pause: bool,
+    /// Plan from rest on a scene still changing (`plan_in_moving_world`: the `moving` module).
+    plan_in_moving_world: bool,
+    /// Samples a planner search may last (its budget): the lead of its join point (`join`).
+    search_lead: usize,
 }
 
 /// The worker's ends of the hand-overs with the cycle and the plan guard (the scene
@@ -187,6 +195,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 gate: true,
                 sampling_budget_s: cfg.sampling.enabled.then_some(cfg.sampling.budget_s),
                 continue_after_pause: cfg.continue_after_pause,
+                plan_in_moving_world: cfg.plan_in_moving_world,
+                search_lead: (cfg.planner_fallback.budget_s / period_s).ceil() as usize,
             },
             cycle: CycleView {
                 report: None,
@@ -233,6 +243,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         // goal count it was accepted under, and refused there once a later withdrawal (a
         // cancel or a pre-emption) is known (issue 41 item 1).
         self.scene.set_goal_epoch(frame.goal_epoch);
+        self.scene.set_moving_seen(frame.intruders.mask != 0);
         if frame.stop_requested {
             self.note_goal_cancelled(events);
         }
@@ -352,6 +363,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 }
                 return;
             }
+            // At rest in a moving world: planned on as it is now (the `moving` module).
+            Err(Hold::Unsettled) if self.plans_in_moving_world() => {}
             Err(Hold::Unsettled) => {
                 // No plan of any kind reaches the cycle from an unsettled scene; the running
                 // plan was re-verified against it on arrival.
@@ -521,7 +534,10 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         scene: L::Scene,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) -> bool {
-        if self.planning.backing_off(r.t_ns) || self.continue_from_rest(r, events) {
+        if self.planning.backing_off(r.t_ns)
+            || self.continue_from_rest(r, events)
+            || self.home_waits_for_the_world()
+        {
             return true;
         }
         if !self.path.cut_at(&r.cmd.q_rad) || self.path.len() < 2 {

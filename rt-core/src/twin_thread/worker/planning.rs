@@ -13,6 +13,11 @@ use std::sync::Arc;
 use shm_schemas::Executor;
 
 use super::approve::GoalCheck;
+// Whether a planning that finds no passing policy asks for retraining: not for a plan made
+// on a scene still changing (a moment of a moving world), nor for the continuation from
+// where a pause left the arm (the policy is judged from the start posture, where the way
+// home leads).
+use super::moving::RetrainOnFailure;
 use super::phase;
 use super::policy_library::{Candidate, PLANNER_POLICY_ID};
 use super::{
@@ -47,16 +52,6 @@ enum Tried {
     },
 }
 
-/// Whether a planning that finds no passing policy asks for retraining: not for a joining
-/// plan made on a scene still changing (a moment of a moving world), nor for the
-/// continuation from where a pause left the arm (the policy is judged from the start
-/// posture, where the way home leads).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum RetrainOnFailure {
-    Yes,
-    No,
-}
-
 impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// A plan is due and the gates are open: where it starts (at rest, or joining the
     /// running plan `join_ahead` samples ahead of the arm), then the library's candidates.
@@ -73,7 +68,10 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 self.scene.scene().ok_or(Hold::NoScene),
                 RetrainOnFailure::No,
             ),
-            other => (other, RetrainOnFailure::Yes),
+            _ => match self.scene_at_rest() {
+                Ok((scene, retrain)) => (Ok(scene), retrain),
+                Err(hold) => (Err(hold), RetrainOnFailure::Yes),
+            },
         };
         let scene = match ready {
             Ok(scene) => scene,
@@ -121,7 +119,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         if !self.settings.continue_after_pause || !self.settings.gate {
             return false;
         }
-        let Ok(scene) = self.scene.ready() else {
+        let Ok((scene, _)) = self.scene_at_rest() else {
             return false;
         };
         let sent_before = self.sent.newest_id;
@@ -269,6 +267,18 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             executor: Executor::Planner,
             sample: None,
         };
+        // A joining search starts where the arm will be after it (the `join` module).
+        let joined;
+        let (start, join) = match join {
+            None => (start, None),
+            Some(j) => match self.join_for_search(j) {
+                Some((s, j)) => {
+                    joined = s;
+                    (&joined, Some(j))
+                }
+                None => return false,
+            },
+        };
         let Some(planner) = self.library.planner_mut() else {
             return false;
         };
@@ -295,7 +305,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         );
         match checked {
             Ok(plan) => {
-                self.send_approved(plan, start, join, scene, events);
+                if self.join_in_time(join) {
+                    self.send_approved(plan, start, join, scene, events);
+                }
                 true
             }
             Err(why) => {

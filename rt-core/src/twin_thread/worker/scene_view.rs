@@ -4,9 +4,11 @@
 //! Plans are made only on a *settled* scene (perception's `FRAME_SETTLED`: every object
 //! confirmed, nothing appearing, disappearing or moving): an intermediate view of a
 //! changing world is re-verified against (and may revoke the running plan) but never gets a
-//! plan approved — but one: a plan joining the running one before the stop the plan guard
-//! scheduled on it (`TwinWorker`'s join before stopping). Scenes that do not come from a
-//! camera (a fixed scene, a bench) are settled.
+//! plan approved — but two: a plan joining the running one before the stop the plan guard
+//! scheduled on it (`TwinWorker`'s join before stopping), and, with `plan_in_moving_world`,
+//! a plan from rest on the scene as it is now ([`SceneView::ready_unsettled`]; see the
+//! worker's `moving` module). Scenes that do not come from a camera (a fixed scene, a bench)
+//! are settled.
 
 /// Why no plan can be made on the scene now.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -44,6 +46,9 @@ pub struct SceneView<S> {
     no_goal_reported: bool,
     /// [`Hold::Unsettled`] was reported for the current unsettled stretch.
     unsettled_reported: bool,
+    /// The latest frame shows an obstacle moving (its `intruders`): a world still changing
+    /// because something moves, not only because its object set is being confirmed.
+    moving_seen: bool,
     /// Action goals withdrawn when the latest frame was accepted (see
     /// [`crate::twin_thread::intake::AcceptedFrame::goal_epoch`]): plans made on this scene
     /// are registered with it.
@@ -60,6 +65,7 @@ impl<S: Copy + PartialEq> Default for SceneView<S> {
             settled: false,
             no_goal_reported: false,
             unsettled_reported: false,
+            moving_seen: false,
             goal_epoch: 0,
         }
     }
@@ -85,6 +91,20 @@ impl<S: Copy + PartialEq> SceneView<S> {
             return Err(Hold::NoGoal);
         }
         Ok(scene)
+    }
+
+    /// As [`SceneView::ready`] but for the world still changing: the scene with its
+    /// moving boxes as their predicted volumes, or why none can be planned on (refused, no
+    /// scene, no goal).
+    ///
+    /// # Errors
+    /// The [`Hold`] other than [`Hold::Unsettled`].
+    pub fn ready_unsettled(&self) -> Result<S, Hold> {
+        match self.ready() {
+            Err(Hold::Unsettled) if self.goal_seen => self.scene.ok_or(Hold::NoScene),
+            Err(Hold::Unsettled) => Err(Hold::NoGoal),
+            other => other,
+        }
     }
 
     /// The latest accepted scene, whatever its gates.
@@ -128,6 +148,16 @@ impl<S: Copy + PartialEq> SceneView<S> {
             change.scene_changed = true;
         }
         change
+    }
+
+    /// Whether the latest frame shows an obstacle moving.
+    pub fn moving_seen(&self) -> bool {
+        self.moving_seen
+    }
+
+    /// The latest frame shows an obstacle moving (`moving`) or none.
+    pub fn set_moving_seen(&mut self, moving: bool) {
+        self.moving_seen = moving;
     }
 
     /// The withdrawn-goal count the latest frame was accepted under.
