@@ -6,9 +6,10 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use twin::Joints;
-
 use shm_schemas::runtime_view;
+/// `[limits]` too: the learner's verification of a plan reads it with `[shield]` and
+/// `rate_hz` (`twin::approval::ApprovalSettings`), so it is defined once, in the view.
+pub use shm_schemas::runtime_view::MotionLimits;
 /// `[shield]`, `[intake]` and `[goal]` are defined once, with their defaults, in the view of
 /// this file that the bridge and the launcher read too ([`shm_schemas::runtime_view`]).
 pub use shm_schemas::runtime_view::{GoalConfig, GoalSource, IntakeConfig, ShieldConfig};
@@ -38,24 +39,6 @@ pub enum RuntimeConfigError {
         /// What is wrong with it.
         why: &'static str,
     },
-}
-
-/// Motion limits of the arm, per joint.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MotionLimits {
-    /// Maximum joint velocity, rad/s.
-    pub max_velocity_rad_s: Joints,
-    /// Maximum joint acceleration, rad/s².
-    pub max_acceleration_rad_s2: Joints,
-    /// Maximum joint jerk, rad/s³.
-    pub max_jerk_rad_s3: Joints,
-    /// Lower joint limits, rad.
-    pub joint_min_rad: Joints,
-    /// Upper joint limits, rad.
-    pub joint_max_rad: Joints,
-    /// Maximum TCP speed, m/s (the xArm controller faults at 1 m/s in servo mode).
-    pub max_tcp_speed_m_s: f64,
 }
 
 /// Ages beyond which an input counts as stale.
@@ -488,6 +471,16 @@ impl RuntimeConfig {
         runtime_view::goal_bounds(&self.intake, &self.shield)
     }
 
+    /// What plans are approved with (`twin::approval`): the cycle rate, `[limits]` and
+    /// `[shield]` — what the learner reads from the same file.
+    pub fn approval_settings(&self) -> twin::approval::ApprovalSettings {
+        twin::approval::ApprovalSettings {
+            rate_hz: self.rate_hz,
+            limits: self.limits,
+            shield: self.shield,
+        }
+    }
+
     /// The cycle period in nanoseconds.
     pub fn period_ns(&self) -> u64 {
         (1e9 / self.rate_hz).round() as u64
@@ -883,6 +876,23 @@ mod tests {
             RuntimeConfig::xarm5_default(),
             RuntimeConfig::from_toml(ASSET).unwrap()
         );
+    }
+
+    /// The learner reads the approval settings from the same file with the twin's reader:
+    /// both readings of a configuration agree (the shipped one, and one with other values).
+    #[test]
+    fn the_learner_reads_the_approval_settings_rt_core_uses() {
+        let cfg = RuntimeConfig::from_toml(ASSET).unwrap();
+        let twin_side = twin::approval::ApprovalSettings::from_runtime_toml(ASSET).unwrap();
+        assert_eq!(cfg.approval_settings(), twin_side);
+        let other = ASSET
+            .replace("rate_hz = 250.0", "rate_hz = 200.0")
+            .replace("min_distance_m = 0.01", "min_distance_m = 0.02");
+        let cfg = RuntimeConfig::from_toml(&other).unwrap();
+        assert_eq!(cfg.rate_hz, 200.0);
+        assert_eq!(cfg.shield.min_distance_m, 0.02);
+        let twin_side = twin::approval::ApprovalSettings::from_runtime_toml(&other).unwrap();
+        assert_eq!(cfg.approval_settings(), twin_side);
     }
 
     #[test]

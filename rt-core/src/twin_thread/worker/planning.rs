@@ -12,7 +12,7 @@ use std::sync::Arc;
 
 use shm_schemas::Executor;
 
-use super::approve::GoalCheck;
+use super::approve::{FailedVerdict, GoalCheck};
 use super::phase;
 use super::policy_library::{Candidate, PLANNER_POLICY_ID};
 use super::{
