@@ -10,12 +10,15 @@
 //! little ahead of it (pure pursuit), scaled into the action bounds; the last point is
 //! replaced by the goal target. The IK chooses its own arm posture for each TCP position,
 //! so the re-tracked episode is checked like any other — it counts only when it reaches the
-//! goal without contact ([`Demonstration::success`]). When a path does not re-track
+//! goal without contact ([`Demonstration::success`]) and, given rt-core's settings, when
+//! rt-core would approve its plan (`twin::approval::EpisodeApproval`, the one verification
+//! the learner's episodes pass too). When a path does not re-track
 //! cleanly, [`demonstrate`] plans again with other planner seeds.
 //!
 //! Planning code: it allocates and is not for the real-time cycle.
 
 use rand_chacha::ChaCha8Rng;
+use twin::approval::{ApprovalSettings, EpisodeApproval};
 use twin::{
     ACT_DIM, FeasibilityConfig, Joints, PlanOutcome, Scene, TwinEnv, check_goal_postures,
     densify_path, max_joint_gap_rad, plan_path,
@@ -49,6 +52,8 @@ pub struct Demonstration {
     pub reached: bool,
     /// No step was in contact.
     pub safe: bool,
+    /// The joints after the last step.
+    pub end_joints: Joints,
 }
 
 impl Demonstration {
@@ -60,6 +65,24 @@ impl Demonstration {
     /// Reached the goal without any contact: fit to imitate.
     pub fn success(&self) -> bool {
         self.reached && self.safe
+    }
+
+    /// The episode's waypoints as rt-core would plan them: the joints after each step.
+    pub fn waypoints(&self) -> Vec<Joints> {
+        let mut w: Vec<Joints> = self.joints.iter().skip(1).copied().collect();
+        w.push(self.end_joints);
+        w
+    }
+
+    /// [`Self::success`], and rt-core would approve the plan in `scene` (with `approval`;
+    /// `None`: no such check).
+    pub fn approved(
+        &self,
+        env: &TwinEnv,
+        scene: &Scene,
+        approval: Option<&mut EpisodeApproval>,
+    ) -> bool {
+        self.success() && approval.is_none_or(|a| a.approve(env, scene, &self.waypoints()).is_ok())
     }
 }
 
@@ -204,6 +227,7 @@ pub fn retrack_noisy(
         obs_dim,
         reached: false,
         safe: true,
+        end_joints: env.joints(),
     };
     for _ in 0..max_steps {
         let tcp = {
@@ -224,6 +248,7 @@ pub fn retrack_noisy(
         obs = out.obs;
         demo.safe &= out.safe;
         demo.reached = out.task_done;
+        demo.end_joints = env.joints();
         if out.terminated || out.truncated {
             break;
         }
@@ -318,9 +343,12 @@ pub struct DemoOutcome {
 /// `cfg.goal_seeds`; postures nearest the start posture first, since the task's IK keeps
 /// the arm near it; `plan_path` with `cfg.planner`) until one path re-tracks to the goal
 /// without contact or `tries` paths in all have been tried; then, when none did, the
-/// joints of a clean via-point route ([`via_point_route`]) re-tracked the same way.
+/// joints of a clean via-point route ([`via_point_route`]) re-tracked the same way. With
+/// rt-core's `approval` settings a demonstration counts only when rt-core would approve its
+/// plan ([`Demonstration::approved`]).
 pub fn demonstrate(
     env: &TwinEnv,
+    approval: Option<&ApprovalSettings>,
     scene: &Scene,
     first_path: Option<&[Joints]>,
     cfg: FeasibilityConfig,
@@ -328,6 +356,7 @@ pub fn demonstrate(
     obs_dim: usize,
 ) -> DemoOutcome {
     let mut tw = env.clone();
+    let mut verifier = approval.map(|a| EpisodeApproval::new(a, env));
     let start = env.config().start.joints_rad;
     let mut out = DemoOutcome {
         demonstration: None,
@@ -364,7 +393,7 @@ pub fn demonstrate(
         };
         out.paths_tried += 1;
         let demo = retrack(&mut tw, scene, &path, obs_dim);
-        if demo.success() {
+        if demo.approved(env, scene, verifier.as_mut()) {
             out.paths_succeeded += 1;
             out.demonstration = Some(demo);
             break;
@@ -386,7 +415,7 @@ pub fn demonstrate(
         if let Some(route) = via_point_route(env, scene, [t.x, t.y, t.z]) {
             out.paths_tried += 1;
             let demo = retrack(&mut tw, scene, &route.joints, obs_dim);
-            if demo.success() {
+            if demo.approved(env, scene, verifier.as_mut()) {
                 out.paths_succeeded += 1;
                 out.via_point = true;
                 out.demonstration = Some(demo);
@@ -435,7 +464,15 @@ mod tests {
             "{verdict:?}"
         );
         let obs_dim = task.env.config().obs_dim();
-        let out = demonstrate(&task.env, &scene, verdict.path(), cfg, 8, obs_dim);
+        let out = demonstrate(
+            &task.env,
+            task.approval(),
+            &scene,
+            verdict.path(),
+            cfg,
+            8,
+            obs_dim,
+        );
         let demo = out.demonstration.expect("a demonstration");
         assert!(demo.success());
         assert_eq!(demo.obs.len(), demo.steps() * obs_dim);
@@ -471,6 +508,7 @@ mod tests {
         // No planner path tried (0 tries): only the via-point route can demonstrate it.
         let out = demonstrate(
             &task.env,
+            task.approval(),
             &scene,
             None,
             FeasibilityConfig::default(),
@@ -519,7 +557,15 @@ mod tests {
                 continue;
             }
             feasible += 1;
-            let out = demonstrate(&task.env, &scene, verdict.path(), cfg, 6, obs_dim);
+            let out = demonstrate(
+                &task.env,
+                task.approval(),
+                &scene,
+                verdict.path(),
+                cfg,
+                6,
+                obs_dim,
+            );
             if out.demonstration.is_some() {
                 any += 1;
                 if out.paths_tried == 1 {

@@ -35,6 +35,15 @@ pub trait Env: Send {
     fn reset(&mut self, scene: &Self::Scene, obs: &mut [f32]);
     /// Applies `action` (already clipped to `[-1, 1]`), writing the next observation into `obs`.
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> StepInfo;
+
+    /// Whether the deployment would approve the plan of the episode that has just ended
+    /// with `success` and no contact (the twin: rt-core's verification of the smoothed path,
+    /// `twin::approval`). Evaluations ask it once per such episode; an episode it refuses
+    /// is no success. Training steps never ask (it costs a smoothing per episode). Default:
+    /// approved.
+    fn approve_episode(&mut self) -> bool {
+        true
+    }
 }
 
 /// Draws the scene of each new episode.

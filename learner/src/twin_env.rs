@@ -8,8 +8,10 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use twin::approval::{ApprovalSettings, ApprovalSettingsError, EpisodeApproval, PlanRejection};
 use twin::{
-    ACT_DIM, ObstacleClass, RobotModel, Scene, TaskConfig, TaskConfigError, TwinEnv, UrdfLoadError,
+    ACT_DIM, Joints, ObstacleClass, RobotModel, Scene, TaskConfig, TaskConfigError, TwinEnv,
+    UrdfLoadError,
 };
 
 use crate::env::{Env, SceneSampler, StepInfo};
@@ -35,13 +37,43 @@ pub enum TaskLoadError {
         #[source]
         source: UrdfLoadError,
     },
+    /// rt-core's runtime configuration (the approval settings).
+    #[error("runtime config {}: {source}", .path.display())]
+    Runtime {
+        /// File.
+        path: PathBuf,
+        /// What was wrong.
+        #[source]
+        source: ApprovalSettingsError,
+    },
 }
 
+/// The runtime configuration rt-core approves plans with, looked for beside the task file.
+pub const RUNTIME_TOML: &str = "runtime.toml";
+
 /// The twin environment behind the [`Env`] interface.
+///
+/// An episode that reaches the goal with no contact is a success of an evaluation only when
+/// rt-core would approve its plan: [`Env::approve_episode`] runs the twin's one verification
+/// ([`EpisodeApproval`]: the end settled onto the goal, Ruckig smoothing with rt-core's
+/// settings, the shield on every sample, the goal on the smoothed path) on the episode's
+/// waypoints. Evaluations call it, and with them convergence, the kept scenes, the publish
+/// gate and the benchmarks' zero-shot columns; training steps do not (verifying them slowed
+/// the tall-box retraining past its step budget).
 #[derive(Debug, Clone)]
 pub struct TwinTask {
     /// The wrapped twin.
     pub env: TwinEnv,
+    /// rt-core's approval settings; `None`: no verification beyond the episode.
+    approval: Option<ApprovalSettings>,
+    /// The verification, built on first use.
+    verifier: Option<Box<EpisodeApproval>>,
+    /// The current episode's scene.
+    scene: Option<Scene>,
+    /// The joints after each step of the current episode.
+    episode: Vec<Joints>,
+    /// Why the last verified episode was refused.
+    last_refusal: Option<PlanRejection>,
 }
 
 impl TwinTask {
@@ -62,9 +94,60 @@ impl TwinTask {
             path: urdf_path.clone(),
             source,
         })?;
-        Ok(Self {
-            env: TwinEnv::new(model, cfg),
-        })
+        let runtime = task.parent().unwrap_or(Path::new(".")).join(RUNTIME_TOML);
+        let approval = if runtime.is_file() {
+            ApprovalSettings::load(&runtime).map_err(|source| TaskLoadError::Runtime {
+                path: runtime.clone(),
+                source,
+            })?
+        } else {
+            ApprovalSettings::shipped().map_err(|source| TaskLoadError::Runtime {
+                path: PathBuf::from(RUNTIME_TOML),
+                source,
+            })?
+        };
+        Ok(Self::new(TwinEnv::new(model, cfg), Some(approval)))
+    }
+
+    /// Over `env`, verifying successful episodes with rt-core's `approval` settings (the
+    /// `runtime.toml` beside the task, or the shipped one: [`TwinTask::load`]) or, with
+    /// `None`, not at all (the episode's own success).
+    pub fn new(env: TwinEnv, approval: Option<ApprovalSettings>) -> Self {
+        Self {
+            env,
+            approval,
+            verifier: None,
+            scene: None,
+            episode: Vec::new(),
+            last_refusal: None,
+        }
+    }
+
+    /// The approval settings successful episodes are verified with.
+    pub fn approval(&self) -> Option<&ApprovalSettings> {
+        self.approval.as_ref()
+    }
+
+    /// Why the last episode that reached the goal with no contact was refused (which
+    /// sample, which check, against what), if it was.
+    pub fn last_refusal(&self) -> Option<PlanRejection> {
+        self.last_refusal
+    }
+
+    /// The twin's verification of `episode` (waypoints of a successful, contact-free
+    /// episode in `scene`): what rt-core's approval answers for that plan.
+    ///
+    /// # Errors
+    /// The [`PlanRejection`]; `Ok(f64::INFINITY)` without approval settings.
+    pub fn verify(&mut self, scene: &Scene, episode: &[Joints]) -> Result<f64, PlanRejection> {
+        let Some(settings) = self.approval else {
+            return Ok(f64::INFINITY);
+        };
+        let env = &self.env;
+        let verifier = self
+            .verifier
+            .get_or_insert_with(|| Box::new(EpisodeApproval::new(&settings, env)));
+        verifier.approve(env, scene, episode)
     }
 
     /// Hash of the task configuration.
@@ -84,12 +167,15 @@ impl Env for TwinTask {
     fn reset(&mut self, scene: &Scene, obs: &mut [f32]) {
         let full = self.env.reset(scene);
         obs.copy_from_slice(&full[..obs.len()]);
+        self.scene = Some(*scene);
+        self.episode.clear();
     }
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> StepInfo {
         let mut a = [0.0f32; ACT_DIM];
         a.copy_from_slice(&action[..ACT_DIM]);
         let out = self.env.step(&a);
         obs.copy_from_slice(&out.obs[..obs.len()]);
+        self.episode.push(out.joints);
         StepInfo {
             reward: out.reward,
             terminated: out.terminated,
@@ -97,6 +183,19 @@ impl Env for TwinTask {
             success: out.task_done,
             collision: !out.safe,
         }
+    }
+
+    /// The verification of the episode that has just reached the goal with no contact;
+    /// keeps the refusal ([`TwinTask::last_refusal`]).
+    fn approve_episode(&mut self) -> bool {
+        let Some(scene) = self.scene else {
+            return false;
+        };
+        let episode = std::mem::take(&mut self.episode);
+        let verdict = self.verify(&scene, &episode);
+        self.episode = episode;
+        self.last_refusal = verdict.err();
+        verdict.is_ok()
     }
 }
 

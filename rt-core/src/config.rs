@@ -6,9 +6,10 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use twin::Joints;
-
 use shm_schemas::runtime_view;
+/// `[limits]` too: the learner's verification of a plan reads it with `[shield]` and
+/// `rate_hz` (`twin::approval::ApprovalSettings`), so it is defined once, in the view.
+pub use shm_schemas::runtime_view::MotionLimits;
 /// `[shield]`, `[intake]` and `[goal]` are defined once, with their defaults, in the view of
 /// this file that the bridge and the launcher read too ([`shm_schemas::runtime_view`]).
 pub use shm_schemas::runtime_view::{GoalConfig, GoalSource, IntakeConfig, ShieldConfig};
@@ -40,43 +41,27 @@ pub enum RuntimeConfigError {
     },
 }
 
-/// Motion limits of the arm, per joint.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MotionLimits {
-    /// Maximum joint velocity, rad/s.
-    pub max_velocity_rad_s: Joints,
-    /// Maximum joint acceleration, rad/s².
-    pub max_acceleration_rad_s2: Joints,
-    /// Maximum joint jerk, rad/s³.
-    pub max_jerk_rad_s3: Joints,
-    /// Lower joint limits, rad.
-    pub joint_min_rad: Joints,
-    /// Upper joint limits, rad.
-    pub joint_max_rad: Joints,
-    /// Maximum TCP speed, m/s (the xArm controller faults at 1 m/s in servo mode).
-    pub max_tcp_speed_m_s: f64,
-}
-
 /// Share of the acceleration limit the stop along the plan's time scaling may use
 /// (`cycle::brake::PathStop`): the plan's own acceleration (scaled by `s² ≤ 1`) takes the
 /// rest.
 pub const PATH_STOP_ACCEL_SHARE: f64 = 0.8;
 
-impl MotionLimits {
-    /// The longest stop of the arm from its velocity limits, s: the longer of the
-    /// per-joint jerk-limited brake's bound (`v/a + a/j`) and the stop along the plan
-    /// (`1.5·v / (share·a)`, `cycle::brake::PathStop::duration_s`), over all joints.
-    pub fn longest_stop_s(&self) -> f64 {
-        (0..twin::DOF)
-            .map(|j| {
-                let (v, a) = (self.max_velocity_rad_s[j], self.max_acceleration_rad_s2[j]);
-                let brake_s = v / a + a / self.max_jerk_rad_s3[j];
-                let path_s = 1.5 * v / (PATH_STOP_ACCEL_SHARE * a);
-                brake_s.max(path_s)
-            })
-            .fold(0.0, f64::max)
-    }
+/// The longest stop of the arm from its velocity limits, s: the longer of the per-joint
+/// jerk-limited brake's bound (`v/a + a/j`) and the stop along the plan
+/// (`1.5·v / (share·a)`, `cycle::brake::PathStop::duration_s`), over all joints.
+/// (`MotionLimits` is defined once, in `shm_schemas::runtime_view`.)
+pub fn longest_stop_s(limits: &MotionLimits) -> f64 {
+    (0..twin::DOF)
+        .map(|j| {
+            let (v, a) = (
+                limits.max_velocity_rad_s[j],
+                limits.max_acceleration_rad_s2[j],
+            );
+            let brake_s = v / a + a / limits.max_jerk_rad_s3[j];
+            let path_s = 1.5 * v / (PATH_STOP_ACCEL_SHARE * a);
+            brake_s.max(path_s)
+        })
+        .fold(0.0, f64::max)
 }
 
 /// Ages beyond which an input counts as stale.
@@ -526,10 +511,10 @@ impl RuntimeConfig {
     /// The shortest prediction horizon a moving obstacle may be predicted over, s (issue 42
     /// item 5): from a frame's capture the arm must be able to react
     /// (`separation.reaction_time_s`: the frame, perception, the hand-over to the cycle) and
-    /// then stop ([`MotionLimits::longest_stop_s`]), and the cycle acts on its next period.
+    /// then stop ([`longest_stop_s`]), and the cycle acts on its next period.
     /// A box predicted over less may reach the arm before the stop it caused has ended.
     pub fn prediction_floor_s(&self) -> f64 {
-        self.separation.reaction_time_s + self.limits.longest_stop_s() + 1.0 / self.rate_hz
+        self.separation.reaction_time_s + longest_stop_s(&self.limits) + 1.0 / self.rate_hz
     }
 
     /// Raises `intake.prediction_horizon_s` to [`RuntimeConfig::prediction_floor_s`] when
@@ -556,6 +541,16 @@ impl RuntimeConfig {
                 self.intake.prediction_horizon_s
             )
         })
+    }
+
+    /// What plans are approved with (`twin::approval`): the cycle rate, `[limits]` and
+    /// `[shield]` — what the learner reads from the same file.
+    pub fn approval_settings(&self) -> twin::approval::ApprovalSettings {
+        twin::approval::ApprovalSettings {
+            rate_hz: self.rate_hz,
+            limits: self.limits,
+            shield: self.shield,
+        }
     }
 
     /// The cycle period in nanoseconds.
@@ -957,6 +952,23 @@ mod tests {
             RuntimeConfig::xarm5_default(),
             RuntimeConfig::from_toml(ASSET).unwrap()
         );
+    }
+
+    /// The learner reads the approval settings from the same file with the twin's reader:
+    /// both readings of a configuration agree (the shipped one, and one with other values).
+    #[test]
+    fn the_learner_reads_the_approval_settings_rt_core_uses() {
+        let cfg = RuntimeConfig::from_toml(ASSET).unwrap();
+        let twin_side = twin::approval::ApprovalSettings::from_runtime_toml(ASSET).unwrap();
+        assert_eq!(cfg.approval_settings(), twin_side);
+        let other = ASSET
+            .replace("rate_hz = 250.0", "rate_hz = 200.0")
+            .replace("min_distance_m = 0.01", "min_distance_m = 0.02");
+        let cfg = RuntimeConfig::from_toml(&other).unwrap();
+        assert_eq!(cfg.rate_hz, 200.0);
+        assert_eq!(cfg.shield.min_distance_m, 0.02);
+        let twin_side = twin::approval::ApprovalSettings::from_runtime_toml(&other).unwrap();
+        assert_eq!(cfg.approval_settings(), twin_side);
     }
 
     #[test]

@@ -1,7 +1,9 @@
 //! The one view of rt-core's runtime configuration (`assets/runtime.toml`) that other
 //! processes read too: `[intake]` (what is accepted from perception, and where a goal may
 //! lie), `[shield]` (the TCP's workspace and margins), `[goal]` (where the goal comes from) and
-//! `return_home`, each section with its defaults, defined here once. rt-core's
+//! `return_home`, each section with its defaults, defined here once; and `[limits]`
+//! ([`MotionLimits`]), which the learner's verification of a plan reads with `[shield]`
+//! (`twin::approval::ApprovalSettings`). rt-core's
 //! `config::RuntimeConfig` holds these sections as its own and validates their ranges at
 //! load; `ros-bridge` takes the `Reach` action's [`GoalBounds`] from them
 //! ([`RuntimeView::goal_bounds`]) and the launcher the goal source and `return_home`, so no
@@ -108,6 +110,24 @@ pub fn goal_bounds(intake: &IntakeConfig, shield: &ShieldConfig) -> GoalBounds {
         workspace_min_m: shield.workspace_min_m,
         workspace_max_m: shield.workspace_max_m,
     }
+}
+
+/// Motion limits of the arm, per joint (`[limits]`; 5 joints, the xArm5's).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotionLimits {
+    /// Maximum joint velocity, rad/s.
+    pub max_velocity_rad_s: [f64; 5],
+    /// Maximum joint acceleration, rad/s².
+    pub max_acceleration_rad_s2: [f64; 5],
+    /// Maximum joint jerk, rad/s³.
+    pub max_jerk_rad_s3: [f64; 5],
+    /// Lower joint limits, rad.
+    pub joint_min_rad: [f64; 5],
+    /// Upper joint limits, rad.
+    pub joint_max_rad: [f64; 5],
+    /// Maximum TCP speed, m/s (the xArm controller faults at 1 m/s in servo mode).
+    pub max_tcp_speed_m_s: f64,
 }
 
 /// Shield limits and margins.

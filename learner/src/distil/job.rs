@@ -206,6 +206,7 @@ impl DistilJob {
         });
         let (lessons, counts) = lessons(
             &env.env,
+            env.approval(),
             &worlds,
             FeasibilityConfig::default(),
             self.margin_m,

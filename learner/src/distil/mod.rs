@@ -49,6 +49,7 @@ use crate::normalize::ObsNormalizer;
 use crate::ppo::bc::{BcConfig, BcReport, BcSet, ClearanceHinge, behaviour_clone};
 use crate::random::randn;
 use crate::twin_env::{CurriculumSampler, TwinTask};
+use twin::approval::ApprovalSettings;
 
 /// Planner paths tried per world before it is skipped ([`demonstrate`]).
 const PATH_TRIES: usize = 6;
@@ -213,6 +214,7 @@ enum Untaught {
 /// has no teacher; whether the margin was kept.
 fn lesson(
     env: &TwinEnv,
+    approval: Option<&ApprovalSettings>,
     scene: &Scene,
     cfg: FeasibilityConfig,
     obs_dim: usize,
@@ -224,7 +226,7 @@ fn lesson(
         if !with_margin && margin_m == 0.0 {
             break;
         }
-        match teacher(env, plan_in, cfg, obs_dim) {
+        match teacher(env, approval, plan_in, cfg, obs_dim) {
             Ok(teacher) => {
                 return Ok((
                     Lesson {
@@ -247,6 +249,7 @@ fn lesson(
 /// of 75 % zero-shot, README).
 fn teacher(
     env: &TwinEnv,
+    approval: Option<&ApprovalSettings>,
     scene: &Scene,
     cfg: FeasibilityConfig,
     obs_dim: usize,
@@ -268,16 +271,26 @@ fn teacher(
     if !verdict.is_feasible() {
         return Err(Untaught::Infeasible);
     }
-    let out = demonstrate(env, scene, verdict.path(), cfg, PATH_TRIES, obs_dim);
+    let out = demonstrate(
+        env,
+        approval,
+        scene,
+        verdict.path(),
+        cfg,
+        PATH_TRIES,
+        obs_dim,
+    );
     let demo = out.demonstration.ok_or(Untaught::NoCleanPath)?;
     Ok(Teacher::Path(PathExpert::new(env, &demo.path, goal_m)))
 }
 
 /// A teacher for each of `scenes` that has one (see the module docs; planned with the boxes
 /// grown by `margin_m` where that is feasible), in order, worked out on `threads` threads,
-/// and how the worlds were taught.
+/// and how the worlds were taught. A planner path's demonstration counts only when rt-core
+/// would approve it (with `approval`, rt-core's settings: [`demonstrate`]).
 pub fn lessons(
     env: &TwinEnv,
+    approval: Option<&ApprovalSettings>,
     scenes: &[Scene],
     cfg: FeasibilityConfig,
     margin_m: f64,
@@ -292,7 +305,7 @@ pub fn lessons(
             .map(|part| {
                 s.spawn(move || {
                     part.iter()
-                        .map(|sc| lesson(env, sc, cfg, obs_dim, margin_m))
+                        .map(|sc| lesson(env, approval, sc, cfg, obs_dim, margin_m))
                         .collect()
                 })
             })
@@ -644,7 +657,14 @@ mod tests {
         let mut free = scene("tall_box.toml");
         free.obstacles.clear();
         let worlds = [scene("tall_box.toml"), free];
-        let (lessons, counts) = lessons(&t.env, &worlds, FeasibilityConfig::default(), 0.02, 2);
+        let (lessons, counts) = lessons(
+            &t.env,
+            t.approval(),
+            &worlds,
+            FeasibilityConfig::default(),
+            0.02,
+            2,
+        );
         assert_eq!(lessons.len(), 2, "{counts:?}");
         assert_eq!(counts.worlds, 2);
         assert_eq!(counts.line, 1, "{counts:?}");
@@ -674,6 +694,7 @@ mod tests {
         let norm = ObsNormalizer::from_stats(&ck.meta.obs_rms.to_rms(), ck.meta.ppo.clip_obs);
         let (lessons, _) = lessons(
             &t.env,
+            t.approval(),
             &[scene("tall_box.toml")],
             FeasibilityConfig::default(),
             0.02,
@@ -707,7 +728,14 @@ mod tests {
         let norm = ObsNormalizer::from_stats(&ck.meta.obs_rms.to_rms(), ck.meta.ppo.clip_obs);
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let worlds: Vec<Scene> = (0..12).map(|_| t.env.sample_world(&mut rng)).collect();
-        let (lessons, counts) = lessons(&t.env, &worlds, FeasibilityConfig::default(), 0.02, 2);
+        let (lessons, counts) = lessons(
+            &t.env,
+            t.approval(),
+            &worlds,
+            FeasibilityConfig::default(),
+            0.02,
+            2,
+        );
         assert_eq!(
             counts.line + counts.via + counts.planner + counts.infeasible + counts.no_clean_path,
             12

@@ -1,6 +1,8 @@
 //! Deterministic evaluation: one episode per scene with the clipped mean action, batched
 //! over the live episodes and split over worker threads; reports success and collision
-//! rates and the mean raw return ([`EvalResult`]).
+//! rates and the mean raw return ([`EvalResult`]). An episode succeeds when it reaches the
+//! goal with no contact and the environment approves it ([`Env::approve_episode`]: for the
+//! twin, rt-core's verification of the smoothed plan).
 
 use serde::{Deserialize, Serialize};
 
@@ -14,7 +16,7 @@ use crate::normalize::ObsNormalizer;
 pub struct EvalResult {
     /// Episodes run.
     pub episodes: usize,
-    /// Fraction that succeeded with no contact.
+    /// Fraction that succeeded with no contact and was approved ([`Env::approve_episode`]).
     pub success_rate: f64,
     /// Fraction with a contact.
     pub collision_rate: f64,
@@ -121,7 +123,9 @@ fn eval_chunk<E: Env + Clone>(
             st.len += 1;
             st.collision |= info.collision;
             if info.terminated || info.truncated {
-                st.success = info.success && !st.collision;
+                // A success is an episode rt-core would approve (the smoothed path checked
+                // by the shield on every sample), not only one that reached the goal.
+                st.success = info.success && !st.collision && envs[i].approve_episode();
             } else {
                 still.push(i);
             }

@@ -93,7 +93,15 @@ pub(super) fn warm_start(
         {
             continue;
         }
-        let d = demonstrate(&env.env, sc, first, s.feasibility, DEMO_TRIES, obs_dim);
+        let d = demonstrate(
+            &env.env,
+            env.approval(),
+            sc,
+            first,
+            s.feasibility,
+            DEMO_TRIES,
+            obs_dim,
+        );
         out.paths_tried += d.paths_tried;
         out.via_routes += usize::from(d.via_point);
         if let Some(demo) = d.demonstration {

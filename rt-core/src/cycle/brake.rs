@@ -229,7 +229,7 @@ mod tests {
     fn the_configured_longest_stop_bounds_the_path_stop_and_the_brake() {
         let lim = RuntimeConfig::xarm5_default().limits;
         let dt = 0.004;
-        let longest_s = lim.longest_stop_s();
+        let longest_s = crate::config::longest_stop_s(&lim);
         let path_s =
             PathStop::duration_s(&lim.max_velocity_rad_s, &lim.max_acceleration_rad_s2, dt);
         assert!(

@@ -3,27 +3,10 @@
 //! only reads and later returns for freeing.
 
 use twin::Joints;
+use twin::approval::PlanSamples;
 
-/// Position, velocity and acceleration of the arm.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct MotionState {
-    /// Positions, rad.
-    pub q_rad: Joints,
-    /// Velocities, rad/s.
-    pub dq_rad_s: Joints,
-    /// Accelerations, rad/s².
-    pub ddq_rad_s2: Joints,
-}
-
-impl MotionState {
-    /// At rest at `q_rad`.
-    pub fn at_rest(q_rad: Joints) -> Self {
-        Self {
-            q_rad,
-            ..Self::default()
-        }
-    }
-}
+/// Position, velocity and acceleration of the arm (the twin's: the smoother starts from it).
+pub use twin::approval::MotionState;
 
 /// Where a replacement plan joins the running one: its first sample equals sample
 /// `index` of plan `plan_id`.
@@ -101,5 +84,23 @@ impl Plan {
     /// Duration, s.
     pub fn duration_s(&self) -> f64 {
         self.len() as f64 * self.period_s
+    }
+}
+
+/// The smoother writes a plan's samples in place (`twin::approval::PlanSmoother`).
+impl PlanSamples for Plan {
+    fn restart(&mut self, period_s: f64) {
+        self.period_s = period_s;
+        self.q_rad.clear();
+        self.dq_rad_s.clear();
+        self.ddq_rad_s2.clear();
+    }
+
+    fn push_sample(&mut self, q_rad: Joints, dq_rad_s: Joints, ddq_rad_s2: Joints) {
+        self.push(q_rad, dq_rad_s, ddq_rad_s2);
+    }
+
+    fn positions(&self) -> &[Joints] {
+        &self.q_rad
     }
 }

@@ -22,9 +22,13 @@ use std::time::Instant;
 
 use policy::MlpPolicy;
 use twin::{
-    DOF, IkSolver, Joints, MAX_EPISODE_STEPS, RobotModel, Sampler, SamplingSettings, Scene,
-    TaskConfig, TwinEnv, is_safe_posture, max_joint_gap_rad, rollout_until,
+    DOF, Joints, MAX_EPISODE_STEPS, RobotModel, Sampler, SamplingSettings, Scene, TaskConfig,
+    TwinEnv, max_joint_gap_rad, rollout_until,
 };
+
+/// "Goal reached" on a path, and the settling of an episode's end onto the goal: the twin's
+/// verification's (`twin::approval`), which the learner runs too.
+pub use twin::approval::{SETTLE_DONE_M, SETTLE_STEPS, tcp_goal_approach};
 
 use crate::twin_thread::worker::{GoalApproach, Lookahead, Sampled, Verdict};
 
@@ -37,12 +41,6 @@ pub enum LookaheadActions {
     /// every step (the bench: random-weight policies, plans that always pass).
     ScriptedWithPolicyCost,
 }
-
-/// Most waypoints [`TwinLookahead`] appends to settle the TCP on the goal target.
-pub const SETTLE_STEPS: usize = 3;
-
-/// The settling stops once the TCP is this close to the goal target, m.
-pub const SETTLE_DONE_M: f64 = 0.001;
 
 /// The lookahead on the twin: `twin::rollout` with an [`MlpPolicy`].
 #[derive(Debug, Clone)]
@@ -109,43 +107,9 @@ impl TwinLookahead {
         self.start_q_rad
     }
 
-    /// Settles a successful episode's end on the goal target: the episode counts as done
-    /// once the TCP is within `success.tolerance_m`, so its last waypoint may lie anywhere
-    /// up to the tolerance from the target the *camera* saw, and a millimetre of perception
-    /// error then puts the real goal just outside it (issue 15: the twin declared 17 mm, the
-    /// referee measured 20.4 mm against 20). Up to [`SETTLE_STEPS`] IK waypoints bring the
-    /// TCP onto the target; each must be closer than the one before, within the joints'
-    /// velocity limits for one step and a safe posture by the episode's own contact rule
-    /// (the shield then checks every smoothed sample as for any plan). Where a step is not
-    /// possible, the plan ends where the episode did.
-    ///
-    /// # Performance
-    /// At most [`SETTLE_STEPS`] IK solves and distance queries.
+    /// Settles a successful episode's end on the goal target (`twin::approval::settle_on_goal`).
     fn settle_on_goal(&self, scene: &Scene, waypoints: &mut Vec<Joints>) {
-        let Some(mut q) = waypoints.last().copied() else {
-            return;
-        };
-        let cfg = self.env.config();
-        let model = self.env.model();
-        let target_m = scene.goal_target_m(cfg.success.goal_hover_m);
-        let mut dist_m = (model.tcp_m(&q) - target_m).norm();
-        let ik = IkSolver::new(model, cfg.ik);
-        let limits = model.limits();
-        for _ in 0..SETTLE_STEPS {
-            if dist_m <= SETTLE_DONE_M {
-                return;
-            }
-            let next = ik.solve(model, &target_m, &q).joints;
-            let within_speed =
-                (0..DOF).all(|j| (next[j] - q[j]).abs() <= limits.velocity_rad_s[j] * self.step_s);
-            let next_dist_m = (model.tcp_m(&next) - target_m).norm();
-            if !(within_speed && next_dist_m < dist_m && is_safe_posture(&self.env, scene, &next)) {
-                return;
-            }
-            waypoints.push(next);
-            q = next;
-            dist_m = next_dist_m;
-        }
+        twin::approval::settle_on_goal(&self.env, self.step_s, scene, waypoints);
     }
 }
 
@@ -263,27 +227,6 @@ impl Lookahead for TwinLookahead {
         path_q_rad: &[Joints],
     ) -> GoalApproach {
         tcp_goal_approach(&self.env, scene, path_q_rad)
-    }
-}
-
-/// The TCP's closest approach to `scene.goal_target_m(success.goal_hover_m)` along
-/// `path_q_rad`, against `success.tolerance_m`, on `env`'s model: "goal reached" as
-/// `twin::TwinEnv::step`'s `task_done` means it (the lookahead's and the planner
-/// fallback's goal check).
-///
-/// # Performance
-/// One forward kinematics per sample; no allocation.
-pub fn tcp_goal_approach(env: &TwinEnv, scene: &Scene, path_q_rad: &[Joints]) -> GoalApproach {
-    let success = env.config().success;
-    let target_m = scene.goal_target_m(success.goal_hover_m);
-    let model = env.model();
-    let closest_m = path_q_rad
-        .iter()
-        .map(|q| (model.fk(q).tcp_m() - target_m).norm())
-        .fold(f64::INFINITY, f64::min);
-    GoalApproach {
-        closest_m,
-        tolerance_m: success.tolerance_m,
     }
 }
 

@@ -31,6 +31,10 @@
 //!   the goal target from deterministic seeds), [`plan_path`] (RRT-Connect in joint space
 //!   under the task's contact rule, [`is_safe_posture`]) and [`check_feasibility`] (both;
 //!   [`Feasibility`] or an [`InfeasibleReason`] in words and as `RetrainProgress` bytes).
+//! - One verification ([`approval`]): "would rt-core approve this plan in this scene" —
+//!   Ruckig smoothing with rt-core's settings, the shield on every sample, the goal on the
+//!   smoothed path ([`approval::smooth_and_check`], [`approval::EpisodeApproval`]); rt-core's
+//!   approver and the learner's evaluation both run it.
 //! - Verified sampling ([`Sampler`], [`SamplingSettings`]): K perturbed rollouts of a
 //!   policy on a few threads, each verified as the lookahead verifies the deterministic
 //!   one, the best that passes kept (rt-core's twin worker before its planner fallback;
@@ -106,6 +110,7 @@
 
 #![forbid(unsafe_code)]
 
+pub mod approval;
 mod env;
 mod feasibility;
 mod geometry;

@@ -1,6 +1,8 @@
 //! [`Approver`]: from waypoints to a plan the cycle may follow — the lookahead of a policy,
 //! Ruckig smoothing, the shield on every sample in the scene in force and, for an episode,
-//! the smoothed path reaching the goal. Whatever fails is a [`PlanRejection`].
+//! the smoothed path reaching the goal. Whatever fails is a [`PlanRejection`]. The smoothing
+//! and the per-sample check are the twin's (`twin::approval::smooth_and_check`), the one
+//! verification the learner runs too.
 //!
 //! "Goal reached" is checked on the smoothed path the arm will follow
 //! ([`Lookahead::goal_approach`]), not only on the lookahead's waypoints.
@@ -11,32 +13,24 @@ use crate::config::RuntimeConfig;
 use crate::cycle::plan::MotionState;
 use crate::cycle::plan::{JoinPoint, Plan};
 use crate::cycle::shield::{Shield, ShieldModel, ShieldViolation};
-use crate::twin_thread::smoother::{PlanSmoother, SmoothError};
+use crate::twin_thread::smoother::PlanSmoother;
 
 use super::policy_library::FallbackPlanner;
-use super::{GoalApproach, Lookahead, Verdict};
+use super::{Lookahead, Verdict};
 
-/// Why a smoothed plan was not approved.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum PlanRejection {
-    /// Ruckig could not smooth the waypoints.
-    Smoothing(SmoothError),
-    /// A sample fails the shield in the scene in force.
-    Shield {
-        /// The first failing sample.
-        index: usize,
-        /// Why.
-        violation: ShieldViolation,
-    },
-    /// The smoothed path's TCP does not come within the goal tolerance of the goal target.
-    MissesGoal(GoalApproach),
-}
+/// Why a smoothed plan was not approved (the twin's verification's reasons).
+pub use twin::approval::PlanRejection;
 
-impl PlanRejection {
+/// The verdict a passed lookahead becomes once its plan is rejected.
+pub trait FailedVerdict {
     /// The verdict `verdict` (a passed lookahead) becomes once its plan is rejected: a path
     /// that misses the goal fails the task; a smoothing or shield failure fails safety
     /// (with the shield's clearance when smaller).
-    pub fn failed_verdict(&self, verdict: Verdict) -> Verdict {
+    fn failed_verdict(&self, verdict: Verdict) -> Verdict;
+}
+
+impl FailedVerdict for PlanRejection {
+    fn failed_verdict(&self, verdict: Verdict) -> Verdict {
         match *self {
             Self::MissesGoal(_) => Verdict {
                 task_ok: false,
@@ -153,18 +147,16 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> Approver<L, M> {
         self.next_plan_id += 1;
         let mut plan = Plan::with_capacity(id, policy_id, self.period_s, 0);
         plan.join = join;
-        self.smoother
-            .smooth(
-                start,
-                &self.waypoints,
-                self.la.step_s(),
-                self.shield.model_mut(),
-                &mut plan,
-            )
-            .map_err(PlanRejection::Smoothing)?;
-        self.shield
-            .check_path(&start.q_rad, &plan.q_rad, self.period_s, scene)
-            .map_err(|(index, violation)| PlanRejection::Shield { index, violation })?;
+        // The twin's one verification: smoothing and the shield on every sample.
+        twin::approval::smooth_and_check(
+            &mut self.smoother,
+            &mut self.shield,
+            start,
+            &self.waypoints,
+            self.la.step_s(),
+            scene,
+            &mut plan,
+        )?;
         let approach = match goal {
             GoalCheck::Policy(policy) => self.la.goal_approach(policy, scene, &plan.q_rad),
             GoalCheck::Planner(planner) => planner.goal_approach(scene, &plan.q_rad),

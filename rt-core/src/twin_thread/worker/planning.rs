@@ -12,7 +12,7 @@ use std::sync::Arc;
 
 use shm_schemas::Executor;
 
-use super::approve::GoalCheck;
+use super::approve::{FailedVerdict, GoalCheck};
 // Whether a planning that finds no passing policy asks for retraining: not for a plan made
 // on a scene still changing (a moment of a moving world), nor for the continuation from
 // where a pause left the arm (the policy is judged from the start posture, where the way

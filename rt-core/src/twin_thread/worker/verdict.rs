@@ -84,23 +84,8 @@ pub trait Lookahead: Send + 'static {
     ) -> GoalApproach;
 }
 
-/// The closest approach of a path's TCP to the goal target point, and the tolerance that
-/// counts as reaching it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GoalApproach {
-    /// Smallest TCP distance to the goal target point along the path, m (infinite for an
-    /// empty path).
-    pub closest_m: f64,
-    /// Distance that counts as reached (the task's `success.tolerance_m`), m.
-    pub tolerance_m: f64,
-}
-
-impl GoalApproach {
-    /// The path reaches the goal: `closest_m <= tolerance_m`.
-    pub fn reached(&self) -> bool {
-        self.closest_m <= self.tolerance_m
-    }
-}
+/// The closest approach of a path's TCP to the goal target point (the twin's verification's).
+pub use twin::approval::GoalApproach;
 
 /// What one verified sampling did ([`Lookahead::sample`]).
 #[derive(Debug, Clone, PartialEq, Default)]
