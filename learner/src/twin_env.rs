@@ -38,7 +38,7 @@ pub enum TaskLoadError {
         source: UrdfLoadError,
     },
     /// rt-core's runtime configuration (the approval settings).
-    #[error("runtime config {}: {source}", .path.display())]
+    #[error("runtime config {}", .path.display())]
     Runtime {
         /// File.
         path: PathBuf,

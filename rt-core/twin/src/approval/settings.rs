@@ -25,7 +25,7 @@ pub use shm_schemas::runtime_view::{DEFAULT_MAX_TCP_GAP_M, MotionLimits, ShieldC
 #[derive(Debug, thiserror::Error)]
 pub enum ApprovalSettingsError {
     /// The file could not be read.
-    #[error("cannot read {path}: {source}")]
+    #[error("cannot read {path}")]
     Read {
         /// The file.
         path: String,
@@ -33,7 +33,7 @@ pub enum ApprovalSettingsError {
         source: std::io::Error,
     },
     /// The TOML did not parse into the expected shape.
-    #[error("invalid runtime config: {0}")]
+    #[error("invalid runtime config (TOML)")]
     Parse(#[from] toml::de::Error),
     /// The cycle rate is not a positive finite number.
     #[error("invalid runtime config: rate_hz must be positive and finite")]
