@@ -50,6 +50,9 @@ pub struct ServiceConfig {
     pub retrain: RetrainSettings,
     /// The feasibility check run before each retraining.
     pub feasibility: FeasibilityConfig,
+    /// Hold each retrained policy this long before publishing it (a test aid: a slow
+    /// learner, as on a slower machine), s; 0 = none.
+    pub publish_delay_s: f64,
 }
 
 /// Why the service could not be set up or publish (per-request retraining failures are
@@ -288,6 +291,21 @@ impl<'a> Server<'a> {
         if sum.stop == StopReason::Cancelled {
             tracing::info!(request = req.request_id, "superseded by a newer request");
             return Ok(Handled::Superseded(newer));
+        }
+        if self.cfg.publish_delay_s > 0.0 {
+            tracing::info!(
+                request = req.request_id,
+                delay_s = self.cfg.publish_delay_s,
+                "holding the retrained policy before publishing it (--publish-delay-s)"
+            );
+            // The node's wait returns early with an error on SIGINT/SIGTERM.
+            if self
+                .node
+                .wait(Duration::from_secs_f64(self.cfg.publish_delay_s))
+                .is_err()
+            {
+                return Ok(Handled::Stop);
+            }
         }
         self.publish(req, &sum, &before, &out_dir, t0)?;
         // The next request resumes from here: the best checkpoint once converged; after an

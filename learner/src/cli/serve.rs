@@ -14,6 +14,10 @@ pub struct ServeArgs {
     /// Exit after answering this many requests (0: serve forever).
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub max_requests: u64,
+    /// Hold each retrained policy this long before publishing it, s: a test aid that makes
+    /// the learner as slow as on a slower machine (`foresight --learner-delay-s`).
+    #[arg(long, default_value_t = 0.0, value_parser = shm_schemas::cli_bounds::f64_within(0.0, 600.0), allow_negative_numbers = true)]
+    pub publish_delay_s: f64,
     /// The checkpoint, task, output folder and each retraining's settings.
     #[command(flatten)]
     pub retrain: RetrainFlags,
@@ -31,6 +35,7 @@ impl ServeArgs {
             max_requests: self.max_requests,
             retrain: r.settings(),
             feasibility: r.feasibility(),
+            publish_delay_s: self.publish_delay_s,
         }
     }
 }

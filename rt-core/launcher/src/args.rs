@@ -107,6 +107,11 @@ pub struct LaunchArgs {
     /// best policy so far; the next request resumes where it stopped).
     #[arg(long, default_value_t = 400_000, value_parser = int_within(1u64, 10_000_000_000), allow_negative_numbers = true)]
     pub retrain_steps: u64,
+    /// Hold each retrained policy this long before the learner publishes it (s, 0..=600): a
+    /// test aid that makes the learner as slow as on a slower machine (issue 40: a slow
+    /// learner must not change the outcome).
+    #[arg(long, default_value_t = 0.0, value_parser = f64_within(0.0, 600.0), allow_negative_numbers = true)]
+    pub learner_delay_s: f64,
     /// Longest one scene may take (s, 0.1..=86400).
     #[arg(long, default_value_t = 90.0, value_parser = f64_within(0.1, 86_400.0), allow_negative_numbers = true)]
     pub phase_timeout_s: f64,

@@ -315,6 +315,8 @@ fn start_learner(
             args.retrain_budget_s.to_string(),
             "--max-steps".into(),
             args.retrain_steps.to_string(),
+            "--publish-delay-s".into(),
+            args.learner_delay_s.to_string(),
         ],
         env: vec![],
         restart: true,
