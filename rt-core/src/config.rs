@@ -203,6 +203,11 @@ pub struct RuntimeConfig {
     /// Rest at the goal before returning home, s.
     #[serde(default = "default_dwell_at_goal_s")]
     pub dwell_at_goal_s: f64,
+    /// Retrained policies rt-core may refuse for one scene (each judged from the task's
+    /// start posture, as the learner trains) before the scene is "not learned" and no more
+    /// retraining is asked for it (issue 40 item 2). Allowed: 1..=20.
+    #[serde(default = "default_max_refused_retrainings")]
+    pub max_refused_retrainings: u32,
     /// Motion limits.
     pub limits: MotionLimits,
     /// Shield.
@@ -467,6 +472,10 @@ fn default_dwell_at_goal_s() -> f64 {
     1.0
 }
 
+fn default_max_refused_retrainings() -> u32 {
+    2
+}
+
 impl RuntimeConfig {
     /// Reads and validates a TOML file.
     ///
@@ -580,6 +589,9 @@ impl RuntimeConfig {
         }
         if !(self.dwell_at_goal_s.is_finite() && (0.0..=60.0).contains(&self.dwell_at_goal_s)) {
             return bad("dwell_at_goal_s", "must be within 0..=60 s");
+        }
+        if !(1..=20).contains(&self.max_refused_retrainings) {
+            return bad("max_refused_retrainings", "must be within 1..=20");
         }
         let budget_s = self.planner_fallback.budget_s;
         if !(budget_s.is_finite() && (0.05..=10.0).contains(&budget_s)) {

@@ -22,6 +22,11 @@ pub enum EpisodeEnd {
     /// No lookahead ran: the latest detection frame has no goal (none seen, or below the
     /// confidence floor), so there is nothing to plan toward and the arm holds.
     NoGoal = 6,
+    /// No lookahead ran: the scene is "not learned". Retrained policies for it were refused
+    /// by rt-core `runtime.toml`'s `[twin] max_refused_retrainings` times; no more retraining
+    /// is asked for it. `policy_id` and `min_distance_m` are the last refused policy's, and
+    /// the reason is its refusal's (logged by rt-core, listed in the run's report).
+    NotLearned = 7,
 }
 
 impl TryFrom<u8> for EpisodeEnd {
@@ -34,6 +39,7 @@ impl TryFrom<u8> for EpisodeEnd {
             4 => Ok(Self::LimitViolation),
             5 => Ok(Self::Other),
             6 => Ok(Self::NoGoal),
+            7 => Ok(Self::NotLearned),
             _ => Err(SchemaError::BadEnum {
                 field: "episode_end",
                 value: u32::from(value),
@@ -61,6 +67,10 @@ pub enum PhaseCode {
     ReturningHome = 4,
     /// The way home was unsafe in the scene then in force; the arm holds.
     HoldingAfterRefusedReturn = 5,
+    /// The scene's goal was reached already: a newly received policy is judged from the
+    /// task's start posture (its verdict is rt-core's acceptance or refusal of it) and its
+    /// plan is not sent — the arm rests until the goal or the scene changes.
+    Verification = 6,
 }
 
 impl PhaseCode {
@@ -73,6 +83,7 @@ impl PhaseCode {
             Self::DwellAtGoal => "dwell-at-goal",
             Self::ReturningHome => "returning-home",
             Self::HoldingAfterRefusedReturn => "holding-after-refused-return",
+            Self::Verification => "verification",
         }
     }
 }
@@ -87,6 +98,7 @@ impl TryFrom<u8> for PhaseCode {
             3 => Ok(Self::DwellAtGoal),
             4 => Ok(Self::ReturningHome),
             5 => Ok(Self::HoldingAfterRefusedReturn),
+            6 => Ok(Self::Verification),
             _ => Err(SchemaError::BadEnum {
                 field: "phase",
                 value: u32::from(value),
@@ -178,8 +190,10 @@ const _: () = assert!(size_of::<TwinVerdict>() == 64);
 
 impl TwinVerdict {
     /// Schema version carried as a service attribute (3: `phase` and `executor` took two
-    /// reserved bytes).
-    pub const SCHEMA_VERSION: u32 = 3;
+    /// reserved bytes; 4: `episode_end` `NotLearned`, `phase` `Verification`, and one
+    /// verdict per plan tried, published after its smoothed plan was checked, so that
+    /// `plan_approved` is rt-core's final word on it).
+    pub const SCHEMA_VERSION: u32 = 4;
 
     /// Sets the three flags from bools.
     pub fn set_flags(&mut self, task_ok: bool, safe: bool, plan_approved: bool) {

@@ -283,6 +283,9 @@ impl TwinNode {
                     scene,
                 } => self.publish_retrain(request_id, &verdict, &scene, now_ns)?,
                 TwinEvent::NoGoal { policy_id } => self.publish_no_goal(policy_id, now_ns)?,
+                TwinEvent::NotLearned {
+                    verdict, refusals, ..
+                } => self.publish_not_learned(&verdict, refusals, now_ns)?,
                 other => log_event(&other, rate_hz),
             }
         }
@@ -349,6 +352,42 @@ impl TwinNode {
             "no goal in the latest detection frame (none, or below the confidence floor): \
              nothing is planned, the arm holds"
         );
+        self.send_verdict(v)
+    }
+
+    /// A verdict saying the scene is not learned: `refusals` retrained policies were
+    /// refused in it; the last one's figures.
+    fn publish_not_learned(
+        &mut self,
+        verdict: &Verdict,
+        refusals: u32,
+        now_ns: u64,
+    ) -> Result<(), TwinNodeError> {
+        self.verdict_id += 1;
+        let mut v = twin_verdict(
+            verdict,
+            self.verdict_id,
+            self.scene_seq,
+            now_ns,
+            0.0,
+            self.gate,
+        );
+        v.episode_end = EpisodeEnd::NotLearned as u8;
+        v.set_flags(false, verdict.safe, false);
+        tracing::warn!(
+            policy_id = verdict.policy_id,
+            refusals,
+            min_distance_m = verdict.min_distance_m,
+            goal_reached = verdict.task_ok,
+            "not learned: every retrained policy for this scene was refused (the last one: \
+             {}); no more retraining is asked for it",
+            refusal_reason(verdict)
+        );
+        self.send_verdict(v)
+    }
+
+    /// Publishes `v` (and keeps it as the last verdict).
+    fn send_verdict(&mut self, v: TwinVerdict) -> Result<(), TwinNodeError> {
         self.last_verdict = Some(v);
         let mut s = loan_zeroed(&self.verdict_pub).map_err(|cause| TwinNodeError::Loan {
             service: "verdicts",
@@ -516,7 +555,28 @@ fn log_event(e: &TwinEvent<Scene>, rate_hz: f64) {
             ?why,
             "the way home is unsafe in the current scene: holding; the lookahead takes over"
         ),
-        TwinEvent::Verdict { .. } | TwinEvent::Retrain { .. } | TwinEvent::NoGoal { .. } => {}
+        TwinEvent::RetrainingRefused { verdict, refusals } => tracing::warn!(
+            policy_id = verdict.policy_id,
+            refusals,
+            min_distance_m = verdict.min_distance_m,
+            "retraining refused: the retrained policy fails in the scene it was trained for ({}); \
+             retraining is asked for again with this verdict",
+            refusal_reason(verdict)
+        ),
+        TwinEvent::Verdict { .. }
+        | TwinEvent::Retrain { .. }
+        | TwinEvent::NoGoal { .. }
+        | TwinEvent::NotLearned { .. } => {}
+    }
+}
+
+/// Why a verdict failed, in words (the refused retraining's reason; the smoothed plan's
+/// own rejection, which sample and check, is logged just before it).
+fn refusal_reason(v: &Verdict) -> &'static str {
+    match (v.task_ok, v.safe) {
+        (_, false) => "its plan comes closer to an obstacle than the clearance",
+        (false, true) => "its plan does not reach the goal",
+        (true, true) => "its plan passes",
     }
 }
 

@@ -1428,6 +1428,8 @@ impl<'a> Episode<'a> {
                 TwinEvent::PolicySwapped { .. } => "twin_policy_swaps",
                 TwinEvent::NoGoal { .. } => "twin_no_goal",
                 TwinEvent::AwaitingSettledScene { .. } => "twin_awaiting_settled_scene",
+                TwinEvent::RetrainingRefused { .. } => "twin_retrainings_refused",
+                TwinEvent::NotLearned { .. } => "twin_not_learned",
             };
             self.report.bump(key);
         }

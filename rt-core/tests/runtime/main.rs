@@ -37,6 +37,7 @@ mod plan_guard;
 mod planner_fallback;
 mod planner_join;
 mod policy_library;
+mod retraining_loop;
 mod safety;
 mod sampling;
 mod settled_scene;

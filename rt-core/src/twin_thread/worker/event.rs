@@ -77,6 +77,25 @@ pub enum TwinEvent<S> {
         /// The scene.
         scene: S,
     },
+    /// A retrained policy failed in the scene it was retrained for, judged from the task's
+    /// start posture (its verdict says why; the smoothed plan's `PlanRejected` before it,
+    /// which sample and check): a failed retraining (issue 40 item 2).
+    RetrainingRefused {
+        /// The refused verdict.
+        verdict: Verdict,
+        /// Retrained policies refused for this scene so far.
+        refusals: u32,
+    },
+    /// The scene is "not learned": its retrained policies were refused `refusals` times
+    /// (`max_refused_retrainings`); no more retraining is asked for it.
+    NotLearned {
+        /// The last refused verdict.
+        verdict: Verdict,
+        /// The scene.
+        scene: S,
+        /// Retrained policies refused for this scene.
+        refusals: u32,
+    },
     /// The arm returns to where its episode began along its executed path.
     ReturningHome {
         /// Plan id.

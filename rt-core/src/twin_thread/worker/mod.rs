@@ -35,6 +35,7 @@
 //! [`TwinWorker::step`] is one iteration; the `run` binary calls it in a loop between polls
 //! of its iceoryx2 subscribers, the tests call it directly.
 
+mod acceptance;
 pub mod approve;
 pub mod event;
 mod join;
@@ -92,6 +93,11 @@ struct Settings {
     plan_in_moving_world: bool,
     /// Samples a planner search may last (its budget): the lead of its join point (`join`).
     search_lead: usize,
+    /// Refused retrainings for one scene before it is "not learned" (`acceptance`).
+    max_refused_retrainings: u32,
+    /// A goal reached is not driven again until the goal or the scene changes (camera
+    /// goals; `acceptance`).
+    rest_after_goal: bool,
 }
 
 /// The worker's ends of the hand-overs with the cycle and the plan guard (the scene
@@ -197,6 +203,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 continue_after_pause: cfg.continue_after_pause,
                 plan_in_moving_world: cfg.plan_in_moving_world,
                 search_lead: (cfg.planner_fallback.budget_s / period_s).ceil() as usize,
+                max_refused_retrainings: cfg.max_refused_retrainings,
+                rest_after_goal: cfg.goal.source == shm_schemas::runtime_view::GoalSource::Camera,
             },
             cycle: CycleView {
                 report: None,
@@ -476,7 +484,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 // Home: the next excursion starts here (after a stop on the way, with the
                 // episode again).
                 self.path.arrive_home();
-                if self.excursion.arrive_home() {
+                // The episode is owed again, or (the goal reached) a policy received on the
+                // way is judged from here (`acceptance`).
+                if self.excursion.arrive_home() || self.rests_after_goal() {
                     self.planning.request();
                 }
                 false
@@ -495,6 +505,13 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                     plan_id: sent_id,
                     now_ns: r.t_ns,
                 });
+                if matches!(self.excursion.phase(), Phase::DwellAtGoal { .. })
+                    && let Some(&(_, approved_in)) = self.live_plan(sent_id)
+                {
+                    // The policy whose plan got there needs no verification in the scene.
+                    self.scene.mark_goal_reached(approved_in);
+                    self.library.note_judged(policy_id, approved_in);
+                }
                 if let Phase::DwellAtGoal { since_ns, .. } = self.excursion.phase()
                     && r.t_ns.saturating_sub(since_ns) < self.settings.dwell_ns
                 {

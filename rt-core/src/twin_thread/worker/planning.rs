@@ -32,12 +32,22 @@ use crate::twin_thread::scene_path::lock_guard;
 /// queued plans).
 const MAX_LIVE_PLANS: usize = 16;
 
+/// What becomes of a plan that passes: sent to the cycle, or only judged (the goal was
+/// reached already: the `acceptance` module).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Dispatch {
+    /// Sent to the cycle.
+    Send,
+    /// Judged and published, not sent.
+    VerifyOnly,
+}
+
 /// Sampled candidates that passed the twin whose smoothed plans are checked at most per
 /// policy (best first), before the next policy or the planner fallback.
 const MAX_SAMPLED_PLANS_CHECKED: usize = 4;
 
 /// What one candidate of the library did in `plan_from`.
-enum Tried {
+pub(super) enum Tried {
     /// The slot is empty.
     NoPolicy,
     /// A plan was approved and sent (or the arm is already at the goal, or the hand-over
@@ -87,6 +97,18 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         };
         let (start, join) = match r.mode {
             Mode::Stopping => return,
+            // The goal was reached: no episode plan joins the way home either; a policy
+            // received meanwhile is judged once the arm is home (`acceptance`).
+            Mode::Following if self.rests_after_goal() => {
+                self.planning.taken();
+                return;
+            }
+            Mode::Idle | Mode::Stopped if self.rests_after_goal() => {
+                // The goal was reached: a policy received since is judged, nothing driven.
+                self.planning.taken();
+                self.verify_current(&MotionState::at_rest(r.cmd.q_rad), scene, events);
+                return;
+            }
             Mode::Idle | Mode::Stopped => (MotionState::at_rest(r.cmd.q_rad), None),
             Mode::Following => match self.live_plan(r.plan_id) {
                 Some((s, _)) if r.next_index + self.settings.join_ahead < s.len() => {
@@ -102,6 +124,12 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             },
         };
         self.planning.taken();
+        // A plan joining a moving arm is judged from a state the learner never trains from:
+        // once a retraining was asked for the scene, its failure asks for no other.
+        let retrain = match join {
+            Some(_) if self.library.asked_for(scene) => RetrainOnFailure::No,
+            _ => retrain,
+        };
         self.plan_from(start, join, scene, retrain, events);
     }
 
@@ -186,7 +214,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 // Without the lookahead gate the current policy's plan is taken as it is.
                 break;
             }
-            match self.try_policy(candidate, &start, join, scene, events) {
+            match self.try_policy(candidate, &start, join, scene, Dispatch::Send, events) {
                 Tried::NoPolicy => {}
                 Tried::Done => return,
                 Tried::Failed {
@@ -233,23 +261,6 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         }
     }
 
-    /// Asks for retraining after `verdict` failed in `scene` (once per policy and scene).
-    fn ask_retrain(
-        &mut self,
-        verdict: Verdict,
-        scene: L::Scene,
-        events: &mut Vec<TwinEvent<L::Scene>>,
-    ) {
-        if self.library.should_ask_retrain(verdict.policy_id, scene) {
-            events.push(TwinEvent::Retrain {
-                request_id: self.next_request_id,
-                verdict,
-                scene,
-            });
-            self.next_request_id += 1;
-        }
-    }
-
     /// The planner fallback: its path from `start`, smoothed and checked like a policy's
     /// plan (the shield on every sample, the smoothed path reaching the goal) and sent;
     /// true when a plan was sent (or the arm is at the goal already).
@@ -284,16 +295,21 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         };
         let t0 = std::time::Instant::now();
         let verdict = planner.plan(&scene, &start.q_rad, &mut self.approver.waypoints);
-        events.push(TwinEvent::Verdict {
-            verdict,
-            scene,
-            elapsed_s: t0.elapsed().as_secs_f64(),
-            source,
-        });
+        // One verdict per try, published once the smoothed plan was checked.
+        let publish = |verdict, events: &mut Vec<TwinEvent<L::Scene>>| {
+            events.push(TwinEvent::Verdict {
+                verdict,
+                scene,
+                elapsed_s: t0.elapsed().as_secs_f64(),
+                source,
+            });
+        };
         if !(verdict.task_ok && verdict.safe) {
+            publish(verdict, events);
             return false;
         }
         if self.approver.waypoints.is_empty() {
+            publish(verdict, events);
             return true;
         }
         let checked = self.approver.smoothed_checked_plan(
@@ -305,6 +321,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         );
         match checked {
             Ok(plan) => {
+                publish(verdict, events);
                 if self.join_in_time(join) {
                     self.send_approved(plan, start, join, scene, events);
                 }
@@ -315,46 +332,47 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                     policy_id: PLANNER_POLICY_ID,
                     why,
                 });
-                events.push(TwinEvent::Verdict {
-                    verdict: why.failed_verdict(verdict),
-                    scene,
-                    elapsed_s: t0.elapsed().as_secs_f64(),
-                    source,
-                });
+                publish(why.failed_verdict(verdict), events);
                 false
             }
         }
     }
 
     /// One policy of the library: its lookahead, then (when it passes) its smoothed,
-    /// shield-checked plan, sent to the cycle.
+    /// shield-checked plan, sent to the cycle (or, `VerifyOnly`, only judged). One verdict
+    /// is published per try, after the smoothed plan was checked: its `plan_approved` is
+    /// rt-core's final word on the plan.
     // The lookahead's own compute time for its verdict (the twin thread is not real-time).
     #[allow(clippy::disallowed_methods)]
-    fn try_policy(
+    pub(super) fn try_policy(
         &mut self,
         candidate: Candidate,
         start: &MotionState,
         join: Option<JoinPoint>,
         scene: L::Scene,
+        dispatch: Dispatch,
         events: &mut Vec<TwinEvent<L::Scene>>,
     ) -> Tried {
         let Some(policy) = self.library.get(candidate) else {
             return Tried::NoPolicy;
         };
         let source = VerdictSource {
-            phase: self.phase_code(),
+            phase: self.verdict_phase(dispatch),
             executor: Executor::Policy,
             sample: None,
         };
         let t0 = std::time::Instant::now();
         let verdict = self.approver.lookahead(policy, &scene, &start.q_rad);
-        events.push(TwinEvent::Verdict {
-            verdict,
-            scene,
-            elapsed_s: t0.elapsed().as_secs_f64(),
-            source,
-        });
+        let publish = |verdict, events: &mut Vec<TwinEvent<L::Scene>>| {
+            events.push(TwinEvent::Verdict {
+                verdict,
+                scene,
+                elapsed_s: t0.elapsed().as_secs_f64(),
+                source,
+            });
+        };
         if self.settings.gate && !(verdict.task_ok && verdict.safe) {
+            publish(verdict, events);
             return Tried::Failed {
                 verdict,
                 lookahead_unsafe: !verdict.safe,
@@ -362,6 +380,7 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         }
         if self.approver.waypoints.is_empty() {
             // Already at the goal: nothing to do.
+            publish(verdict, events);
             return Tried::Done;
         }
         let goal_check = match self.library.get(candidate) {
@@ -381,23 +400,21 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                     policy_id: verdict.policy_id,
                     why,
                 });
-                // The lookahead passed but the plan the arm would follow does not: publish
-                // the verdict as failed (and, when no policy passes, ask for retraining)
-                // instead of waiting for a plan that will not come.
+                // The lookahead passed but the plan the arm would follow does not: the
+                // verdict is published as failed (and, when no policy passes, retraining
+                // is asked for) instead of waiting for a plan that will not come.
                 let failed = why.failed_verdict(verdict);
-                events.push(TwinEvent::Verdict {
-                    verdict: failed,
-                    scene,
-                    elapsed_s: t0.elapsed().as_secs_f64(),
-                    source,
-                });
+                publish(failed, events);
                 return Tried::Failed {
                     verdict: failed,
                     lookahead_unsafe: false,
                 };
             }
         };
-        self.send_approved(plan, start, join, scene, events);
+        publish(verdict, events);
+        if dispatch == Dispatch::Send {
+            self.send_approved(plan, start, join, scene, events);
+        }
         Tried::Done
     }
 

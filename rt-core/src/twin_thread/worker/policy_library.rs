@@ -51,6 +51,35 @@ pub struct PolicyLibrary<P, S> {
     planner: Option<Box<dyn FallbackPlanner<S>>>,
     /// The policy and scene of the last retrain request.
     last_retrain: Option<(u64, S)>,
+    /// The scene the current policy answers: the last retrain request's when it arrived.
+    answers: Option<S>,
+    /// Retrained policies refused in a scene (judged from the task's start posture).
+    refused: Option<(S, u32)>,
+    /// The last scene declared "not learned": no more retraining is asked for it.
+    not_learned: Option<S>,
+    /// The policy and scene last judged by a verification (the goal reached already).
+    verified: Option<(u64, S)>,
+}
+
+/// What a policy failing in a scene asks for ([`PolicyLibrary::on_failure`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OnFailure {
+    /// Retraining, for the first time for this policy and scene; `refusals` of the
+    /// retrained policies that answered this scene were refused so far (this one included).
+    Retrain {
+        /// Refused retrained policies for the scene.
+        refusals: u32,
+        /// This failure is one of them: the current policy, retrained for this scene.
+        refused: bool,
+    },
+    /// Nothing new: asked already for this policy and scene, or the scene is not learned.
+    Nothing,
+    /// The scene is "not learned" now: its `refusals`-th retrained policy was refused,
+    /// the bound.
+    NotLearned {
+        /// Refused retrained policies for the scene.
+        refusals: u32,
+    },
 }
 
 impl<P, S: Copy + PartialEq> Default for PolicyLibrary<P, S> {
@@ -60,6 +89,10 @@ impl<P, S: Copy + PartialEq> Default for PolicyLibrary<P, S> {
             base: None,
             planner: None,
             last_retrain: None,
+            answers: None,
+            refused: None,
+            not_learned: None,
+            verified: None,
         }
     }
 }
@@ -68,6 +101,7 @@ impl<P, S: Copy + PartialEq> PolicyLibrary<P, S> {
     /// A new policy becomes the current one. The first one ever received is kept as the
     /// base; any other replaced one is returned (to be dropped off the cycle).
     pub fn receive(&mut self, policy: Box<P>) -> Option<Box<P>> {
+        self.answers = self.last_retrain.map(|(_, scene)| scene);
         let old = self.current.replace(policy);
         if self.base.is_none() {
             self.base = old;
@@ -100,13 +134,55 @@ impl<P, S: Copy + PartialEq> PolicyLibrary<P, S> {
         self.planner.as_deref_mut()
     }
 
-    /// Whether retraining should be asked for `policy_id` failing in `scene`: true once per
-    /// pair (and remembered).
-    pub fn should_ask_retrain(&mut self, policy_id: u64, scene: S) -> bool {
-        if self.last_retrain == Some((policy_id, scene)) {
-            return false;
+    /// What `policy_id` failing in `scene` asks for (`current_id`: the current policy's
+    /// id). Retraining once per failing policy and scene. A failure of the current policy in
+    /// the scene it was retrained for is a refused retraining: after `max_refused` of them
+    /// the scene is "not learned", and nothing more is asked for it (until another scene).
+    pub fn on_failure(
+        &mut self,
+        policy_id: u64,
+        current_id: Option<u64>,
+        scene: S,
+        max_refused: u32,
+    ) -> OnFailure {
+        if self.not_learned == Some(scene) || self.last_retrain == Some((policy_id, scene)) {
+            return OnFailure::Nothing;
+        }
+        let mut refusals = match self.refused {
+            Some((s, n)) if s == scene => n,
+            _ => 0,
+        };
+        let refused = self.answers == Some(scene) && current_id == Some(policy_id);
+        if refused {
+            refusals += 1;
+        }
+        self.refused = Some((scene, refusals));
+        if refusals >= max_refused {
+            self.not_learned = Some(scene);
+            return OnFailure::NotLearned { refusals };
         }
         self.last_retrain = Some((policy_id, scene));
+        OnFailure::Retrain { refusals, refused }
+    }
+
+    /// Whether a retraining was asked for `scene` last (a plan joining a moving arm then
+    /// asks for none: the learner judges its policies from the task's start posture).
+    pub fn asked_for(&self, scene: S) -> bool {
+        self.last_retrain.is_some_and(|(_, s)| s == scene) || self.not_learned == Some(scene)
+    }
+
+    /// `policy_id` was judged in `scene` (its plan reached the goal there): no verification.
+    pub fn note_judged(&mut self, policy_id: u64, scene: S) {
+        self.verified = Some((policy_id, scene));
+    }
+
+    /// Whether `policy_id` is still to be judged in `scene` by a verification; true once
+    /// per pair (and remembered).
+    pub fn should_verify(&mut self, policy_id: u64, scene: S) -> bool {
+        if self.verified == Some((policy_id, scene)) {
+            return false;
+        }
+        self.verified = Some((policy_id, scene));
         true
     }
 }

@@ -53,6 +53,12 @@ pub struct SceneView<S> {
     /// [`crate::twin_thread::intake::AcceptedFrame::goal_epoch`]): plans made on this scene
     /// are registered with it.
     goal_epoch: u64,
+    /// The scene an episode plan that ended at its goal was approved in (camera goals: the
+    /// arm then rests at home until the goal or the scene changes, the `acceptance`
+    /// module). Compared with the scene in force, not cleared by it: while the arm hovers
+    /// over the goal it may hide the cube from the camera, and the scene seen from home
+    /// again is the one the plan was made in. Cleared by a withdrawn action goal.
+    goal_reached_in: Option<S>,
 }
 
 impl<S: Copy + PartialEq> Default for SceneView<S> {
@@ -67,6 +73,7 @@ impl<S: Copy + PartialEq> Default for SceneView<S> {
             unsettled_reported: false,
             moving_seen: false,
             goal_epoch: 0,
+            goal_reached_in: None,
         }
     }
 }
@@ -167,7 +174,20 @@ impl<S: Copy + PartialEq> SceneView<S> {
 
     /// The latest frame was accepted under `goal_epoch` withdrawn goals.
     pub fn set_goal_epoch(&mut self, goal_epoch: u64) {
+        if goal_epoch != self.goal_epoch {
+            self.goal_reached_in = None;
+        }
         self.goal_epoch = goal_epoch;
+    }
+
+    /// An episode plan approved in `scene` ended at its goal.
+    pub fn mark_goal_reached(&mut self, scene: S) {
+        self.goal_reached_in = Some(scene);
+    }
+
+    /// Whether the scene in force is one whose goal an episode plan reached last.
+    pub fn goal_reached(&self) -> bool {
+        self.goal_reached_in.is_some() && self.goal_reached_in == self.scene
     }
 
     /// A frame was refused.
