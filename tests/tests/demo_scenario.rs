@@ -158,7 +158,15 @@ fn run_the_loop(out: &Path, extra: &[&str]) -> (serde_json::Value, Vec<String>) 
     assert_eq!(s["collisions"], 0, "{s}");
     assert_eq!(s["arm_rejected_commands"], 0, "{s}");
     assert_eq!(s["collision_predicted_before_motion"], true, "{s}");
-    assert!(s["policy_swaps"].as_u64().unwrap_or(0) >= 1, "{s}");
+    // Every act is reported; the last one's loop closed on a retrained policy rt-core
+    // accepted in its scene (issue 40 item 2: the act ends only then).
+    let acts = s["acts"].as_array().expect("acts in summary.json");
+    assert_eq!(acts.len(), 2, "{s}");
+    let act = &acts[1];
+    assert_eq!(act["goal_reached"], true, "{s}");
+    assert!(act["retrain_requests"].as_u64().unwrap_or(0) >= 1, "{s}");
+    assert!(act["policies_accepted"].as_u64().unwrap_or(0) >= 1, "{s}");
+    assert!(act["not_learned"].is_null(), "{s}");
     for key in [
         "world_change_to_detection_s",
         "world_change_to_settled_s",
@@ -208,23 +216,65 @@ fn first(kinds: &[String], kind: &str) -> usize {
 }
 
 #[test]
-fn the_self_improving_loop_moves_on_the_planners_path_while_it_retrains_and_swaps() {
+fn the_self_improving_loop_moves_on_the_planners_path_while_it_retrains_and_its_policy_is_accepted()
+{
     let _one = one_at_a_time();
     let out = scratch("loop");
     let _logs = logs_on_failure(&out);
     // The defaults: the planner fallback on.
     let (s, kinds) = run_the_loop(&out, &[]);
     assert_eq!(s["planner_fallback"], true, "{s}");
-    assert_eq!(s["executor"], "planner, then policy", "{s}");
-    let (pred, req, swap, motion) = (
+    // The planner's path moves the arm first; whether the retrained policy then joins it
+    // ("planner, then policy") or arrives after the goal (judged from home, not driven again)
+    // depends on how fast the learner is: the outcome is the same.
+    let executor = s["executor"].as_str().unwrap_or_default();
+    assert!(executor.starts_with("planner"), "{s}");
+    let (pred, req, accepted, motion) = (
         first(&kinds, "collision_predicted"),
         first(&kinds, "retrain_request"),
-        first(&kinds, "policy_swap"),
+        first(&kinds, "policy_accepted"),
         first(&kinds, "motion"),
     );
     // Predicted before anything moved; the planner's path moves the arm while the learner
-    // retrains; the retrained policy takes over after the request.
-    assert!(pred <= req && req < swap && pred < motion, "{kinds:?}");
+    // retrains; the retrained policy is accepted after the request.
+    assert!(pred <= req && req < accepted && pred < motion, "{kinds:?}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Issue 40 item 2: a slow learner (each retrained policy held 4 s before it is published, as
+/// on a slower machine) must not change act 2's outcome: the planner carries the arm to the
+/// goal meanwhile, the retrained policy that comes after is judged from home and accepted,
+/// with at most 2 retraining requests, and the act ends then (not on its timeout).
+#[test]
+fn a_slow_learner_does_not_change_how_act_2_ends() {
+    let _one = one_at_a_time();
+    let out = scratch("slow-learner");
+    let _logs = logs_on_failure(&out);
+    let (s, kinds) = run_the_loop(&out, &["--learner-delay-s", "4"]);
+    let act = &s["acts"][1];
+    let requests = act["retrain_requests"].as_u64().unwrap_or(u64::MAX);
+    assert!((1..=2).contains(&requests), "{s}");
+    assert!(
+        act["retrainings_refused"]
+            .as_array()
+            .is_some_and(Vec::is_empty),
+        "{s}"
+    );
+    assert!(
+        !kinds
+            .iter()
+            .any(|k| k == "retraining_refused" || k == "not_learned"),
+        "{kinds:?}"
+    );
+    assert!(
+        first(&kinds, "retrain_request") < first(&kinds, "policy_accepted"),
+        "{kinds:?}"
+    );
+    // The figure for the closing note (not asserted: tests assert outcomes, not times).
+    println!(
+        "slow learner: act 2 world change → goal {} s, requests {requests}",
+        act["change_to_goal_s"]
+    );
     let _ = std::fs::remove_dir_all(&out);
 }
 
@@ -236,6 +286,8 @@ fn with_the_planner_fallback_off_the_arm_waits_for_the_retrained_policy() {
     let (s, kinds) = run_the_loop(&out, &["--planner-fallback", "off"]);
     assert_eq!(s["planner_fallback"], false, "{s}");
     assert_eq!(s["executor"], "policy", "{s}");
+    // Nothing else moves the arm: the retrained policy is swapped into the running loop.
+    assert!(s["policy_swaps"].as_u64().unwrap_or(0) >= 1, "{s}");
     let motion = kinds
         .iter()
         .rposition(|x| x == "motion")

@@ -14,6 +14,7 @@
 
 #![forbid(unsafe_code)]
 
+pub mod acts;
 pub mod args;
 pub mod launch;
 pub mod observer;

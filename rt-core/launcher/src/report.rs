@@ -109,6 +109,9 @@ pub struct Summary {
     /// With `--learner-host`: where and how the remote retraining went.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub remote_learner: Option<RemoteLearner>,
+    /// Every act of the run (scene by scene): goals, retraining, acceptance, executor.
+    #[serde(default)]
+    pub acts: Vec<crate::acts::ActSummary>,
     /// Free-form notes (e.g. what timed out).
     pub notes: Vec<String>,
 }
@@ -712,6 +715,16 @@ pub fn write_markdown(
     for note in &summary.notes {
         let _ = writeln!(md, "\n> {note}");
     }
+    if !summary.acts.is_empty() {
+        let _ = writeln!(
+            md,
+            "\n## Acts\n\n{}",
+            crate::acts::ActSummary::MARKDOWN_HEADER
+        );
+        for act in &summary.acts {
+            let _ = writeln!(md, "{}", act.markdown_row());
+        }
+    }
     let _ = writeln!(md, "\n## Pictures\n");
     for (title, file) in images {
         let _ = writeln!(md, "### {title}\n\n![{title}]({file})\n");
@@ -784,6 +797,7 @@ mod tests {
             assert!(bytes.len() > 5_000, "{f} has content");
         }
         let summary = Summary {
+            acts: Vec::new(),
             goal_reached: true,
             world_change_to_detection_s: Some(0.05),
             detector: "yolo".into(),
@@ -858,6 +872,7 @@ mod tests {
         );
 
         let summary = Summary {
+            acts: Vec::new(),
             goal_reached: true,
             ..Summary::default()
         };

@@ -23,6 +23,7 @@ use shm_schemas::{
     TwinVerdict,
 };
 
+use super::acts::{ActMark, ActRecord, ActSummary};
 use super::observer::{Observations, SeenScene};
 use super::report::{Outcome, PathSample, Summary};
 use super::separation::{SeparationSample, SeparationTrace, separation_m};
@@ -148,6 +149,8 @@ pub struct Director {
     scene_since_s: f64,
     /// The arm's separation from the world's true boxes over the run.
     separation: SeparationTrace,
+    /// Per scene: the act's loop (requests, published, accepted, refused policies).
+    acts: Vec<ActRecord>,
 }
 
 /// A box motion's timeline mark: box `i` at keyframe `k` of a scene put in force at `t_s`.
@@ -212,6 +215,7 @@ impl Director {
             stale_progress: vec![0; n],
             scene_since_s: 0.0,
             separation: SeparationTrace::default(),
+            acts: vec![ActRecord::default(); n],
         }
     }
 
@@ -358,6 +362,16 @@ impl Director {
             v.lookahead_compute_us
         );
         self.log(t_s, "verdict", text);
+        if let Some(mark) = self.acts[scene].on_verdict(t_s, v) {
+            self.log_act(t_s, mark);
+        }
+        // A verification (the goal reached already: the plan is judged, not sent) and a
+        // "not learned" verdict move nothing and predict nothing.
+        if v.phase() == Ok(PhaseCode::Verification)
+            || v.episode_end == shm_schemas::EpisodeEnd::NotLearned as u8
+        {
+            return;
+        }
         if self.change_s.is_some() && v.is_plan_approved() {
             self.approved_after_change = true;
             if self.settled_s.is_some() && self.approved_s.is_none() {
@@ -406,6 +420,9 @@ impl Director {
     fn on_retrain_request(&mut self, t_s: f64, r: &RetrainRequest, scene: usize) {
         if !self.requests[scene].contains(&r.request_id) {
             self.requests[scene].push(r.request_id);
+        }
+        if let Some(mark) = self.acts[scene].on_request(t_s, r) {
+            self.log_act(t_s, mark);
         }
         if self.request_s.is_none() && self.change_s.is_some() {
             self.request_s = Some(t_s);
@@ -490,6 +507,14 @@ impl Director {
             self.infeasible[scene] = Some(words);
             return;
         }
+        if matches!(
+            phase,
+            Some(RetrainPhase::Published | RetrainPhase::BudgetExhausted)
+        ) {
+            if let Some(mark) = self.acts[scene].on_published(p.published_policy_id) {
+                self.log_act(t_s, mark);
+            }
+        }
         let published = phase == Some(RetrainPhase::Published);
         if published && self.published_s.is_none() && self.request_s.is_some() {
             self.published_s = Some(t_s);
@@ -530,8 +555,14 @@ impl Director {
                 let last = scene + 1 == self.cfg.world.len();
                 // A scene the learner proved infeasible is over: the arm is held, nothing
                 // more will come for it.
+                // … and the act's loop is closed: a retraining asked for is answered by a
+                // policy rt-core accepted, or the scene is not learned (a slow learner
+                // cannot end the act on the planner's path).
+                let infeasible = self.infeasible[scene].is_some();
+                let act = &self.acts[scene];
                 let reached = !self.cfg.goals_from_action
-                    && (self.goals_reached[scene] || self.infeasible[scene].is_some());
+                    && (self.goals_reached[scene] || infeasible || act.not_learned.is_some())
+                    && act.loop_closed(infeasible);
                 let timed_out = t_s - since_s > self.cfg.phase_timeout_s;
                 if timed_out && !reached && !self.cfg.goals_from_action {
                     self.log(
@@ -669,6 +700,7 @@ impl Director {
         self.closest_m[scene] = self.closest_m[scene].min(to_goal_m);
         if !self.goals_reached[scene] && to_goal_m <= self.cfg.goal_tolerance_m {
             self.goals_reached[scene] = true;
+            self.acts[scene].change_to_goal_s = Some(t_s - self.scene_since_s);
             self.log(
                 t_s,
                 "goal_reached",
@@ -786,6 +818,44 @@ impl Director {
         }
     }
 
+    /// A timeline line for what a verdict or request meant for the act.
+    fn log_act(&mut self, t_s: f64, mark: ActMark) {
+        let (kind, detail) = match mark {
+            ActMark::Accepted(id) => (
+                "policy_accepted",
+                format!("rt-core accepts retrained policy {id} in this scene"),
+            ),
+            ActMark::Refused(words) => (
+                "retraining_refused",
+                format!("rt-core refuses the retrained {words}"),
+            ),
+            ActMark::NotLearned(words) => ("not_learned", format!("scene not learned: {words}")),
+        };
+        self.log(t_s, kind, detail);
+    }
+
+    /// Every act so far, scene by scene.
+    fn act_summaries(&self) -> Vec<ActSummary> {
+        self.acts
+            .iter()
+            .enumerate()
+            .take(self.scene_index() + 1)
+            .map(|(i, a)| ActSummary {
+                scene: i,
+                name: self.cfg.world[i].1.name.clone(),
+                goal_reached: self.goals_reached[i],
+                change_to_goal_s: a.change_to_goal_s,
+                retrain_requests: a.requests.len(),
+                policies_published: a.published.len(),
+                policies_accepted: a.accepted.len(),
+                retrainings_refused: a.refused.clone(),
+                executor: executor_words(&self.moved_by[i]),
+                not_learned: a.not_learned.clone(),
+                infeasible: self.infeasible[i].clone(),
+            })
+            .collect()
+    }
+
     /// The summary of the run so far (collisions and p99.9 come from outside).
     pub fn summary(
         &self,
@@ -799,6 +869,13 @@ impl Director {
         let mut outcome = Outcome::Reached;
         let mut outcome_reason = String::new();
         for (i, r) in self.goals_reached.iter().enumerate() {
+            if let Some(words) = &self.acts[i].not_learned {
+                notes.push(format!("scene {i}: not learned: {words}"));
+                if !*r && outcome == Outcome::Reached {
+                    outcome = Outcome::NotLearned;
+                    outcome_reason = format!("scene {i}: not learned: {words}");
+                }
+            }
             if *r {
                 continue;
             }
@@ -831,15 +908,11 @@ impl Director {
             outcome,
             outcome_reason,
             zero_shot: self.zero_shot.last().copied().flatten(),
-            executor: self.moved_by.last().map_or(String::new(), |m| {
-                m.iter()
-                    .map(|e| match e {
-                        Executor::Planner => "planner",
-                        _ => "policy",
-                    })
-                    .collect::<Vec<_>>()
-                    .join(", then ")
-            }),
+            executor: self
+                .moved_by
+                .last()
+                .map_or(String::new(), |m| executor_words(m)),
+            acts: self.act_summaries(),
             planner_fallback: false,
             collisions,
             collision_predicted_before_motion: self.predicted_before_motion,
@@ -868,6 +941,18 @@ impl Director {
             notes,
         }
     }
+}
+
+/// What moved the arm, in order ("planner, then policy").
+fn executor_words(moved_by: &[Executor]) -> String {
+    moved_by
+        .iter()
+        .map(|e| match e {
+            Executor::Planner => "planner",
+            _ => "policy",
+        })
+        .collect::<Vec<_>>()
+        .join(", then ")
 }
 
 #[cfg(test)]
@@ -1006,14 +1091,30 @@ mod tests {
                 ..Observations::default()
             },
         );
+        // The learner publishes policy 2 and rt-core approves a plan of it: the act's loop
+        // is closed (issue 40 item 2: the act ends only then).
+        let mut approved = TwinVerdict {
+            policy_id: 2,
+            episode_end: EpisodeEnd::Success as u8,
+            ..TwinVerdict::default()
+        };
+        approved.set_flags(true, true, true);
         d.step(
             7.0,
             &Observations {
                 progress: vec![RetrainProgress {
                     phase: RetrainPhase::Published as u8,
+                    published_policy_id: 2,
                     ..RetrainProgress::default()
                 }],
                 states: vec![state(g0, 0.2, 2)],
+                ..Observations::default()
+            },
+        );
+        d.step(
+            7.1,
+            &Observations {
+                verdicts: vec![approved],
                 ..Observations::default()
             },
         );
@@ -1135,7 +1236,8 @@ mod tests {
             goals_from_action: false,
         };
         let mut d = Director::new(cfg);
-        // Scene 0 asked for retraining (request 7) before its goal was reached.
+        // Scene 0 asked for retraining (request 7) before its goal was reached; its answer,
+        // policy 5, is published and accepted (the act's loop closed).
         d.step(
             0.0,
             &Observations {
@@ -1143,11 +1245,28 @@ mod tests {
                     request_id: 7,
                     ..RetrainRequest::default()
                 }],
+                progress: vec![RetrainProgress {
+                    request_id: 7,
+                    phase: RetrainPhase::Published as u8,
+                    published_policy_id: 5,
+                    ..RetrainProgress::default()
+                }],
                 ..obs_state(state([0.4, 0.2, 0.1], 0.0, 1))
             },
         );
+        let mut accepted = TwinVerdict {
+            policy_id: 5,
+            ..TwinVerdict::default()
+        };
+        accepted.set_flags(true, true, true);
         assert_eq!(
-            d.step(0.1, &obs_state(state([0.4, 0.2, 0.1], 0.0, 1))),
+            d.step(
+                0.1,
+                &Observations {
+                    verdicts: vec![accepted],
+                    ..obs_state(state([0.4, 0.2, 0.1], 0.0, 1))
+                }
+            ),
             vec![Action::SwitchScene(1)]
         );
         // Scene 1 asks (request 8); request 7's late answers arrive.
