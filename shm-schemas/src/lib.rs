@@ -17,6 +17,7 @@
 //! | [`RobotState`] | rt-core → anyone | [`services::ROBOT_STATE`] |
 //! | [`TwinVerdict`] | rt-core → anyone | [`services::TWIN_VERDICTS`] |
 //! | [`GoalRequest`] | ros-bridge → rt-core | [`services::GOAL_REQUESTS`] |
+//! | [`GoalRefusal`] | rt-core → ros-bridge | [`services::GOAL_REFUSALS`] |
 //!
 //! Beside the payloads: the scene-file format ([`scene_file`]), the one view of rt-core's
 //! `runtime.toml` that other processes read too ([`runtime_view`]: `[intake]`, `[shield]`,
@@ -41,6 +42,7 @@ pub mod clock;
 pub mod detection;
 pub mod error;
 pub mod error_chain;
+pub mod goal_refusal;
 pub mod goal_request;
 pub mod policy_blob;
 pub mod policy_builder;
@@ -54,6 +56,7 @@ pub mod verdict;
 
 pub use detection::{DetectedObject, DetectionFrame, MAX_DETECTIONS, ObjectClass};
 pub use error::{SchemaError, flag_byte};
+pub use goal_refusal::{GoalRefusal, GoalRefusalKind};
 pub use goal_request::{GoalBoundError, GoalBounds, GoalCommand, GoalRequest, GoalRequestAgeError};
 pub use policy_blob::{
     ACT_DIM, ActionSpace, Activation, LayerView, MAX_ACT, MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH,

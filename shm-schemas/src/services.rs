@@ -35,8 +35,8 @@ use iceoryx2::service::builder::publish_subscribe::{
 
 use crate::error::SchemaError;
 use crate::{
-    DetectionFrame, GoalRequest, PolicyBlob, RetrainProgress, RetrainRequest, RobotState,
-    TwinVerdict,
+    DetectionFrame, GoalRefusal, GoalRequest, PolicyBlob, RetrainProgress, RetrainRequest,
+    RobotState, TwinVerdict,
 };
 
 /// Detections, perception → rt-core ([`DetectionFrame`]).
@@ -53,6 +53,9 @@ pub const ROBOT_STATE: &str = "foresight/robot_state";
 pub const TWIN_VERDICTS: &str = "foresight/twin_verdicts";
 /// Goal requests (the ROS 2 `Reach` action), ros-bridge → rt-core ([`GoalRequest`]).
 pub const GOAL_REQUESTS: &str = "foresight/goal_requests";
+/// Goal requests rt-core refused (by age, bounds, id), rt-core → ros-bridge
+/// ([`GoalRefusal`]): the action goal behind one ends at once.
+pub const GOAL_REFUSALS: &str = "foresight/goal_refusals";
 
 /// The attribute key that carries the schema version.
 pub const SCHEMA_VERSION_KEY: &str = "foresight.schema_version";
@@ -149,6 +152,7 @@ message!(RetrainProgress, RETRAIN_PROGRESS, EVENTS);
 message!(RobotState, ROBOT_STATE, LATEST);
 message!(TwinVerdict, TWIN_VERDICTS, EVENTS);
 message!(GoalRequest, GOAL_REQUESTS, EVENTS);
+message!(GoalRefusal, GOAL_REFUSALS, EVENTS);
 
 /// Why a port could not be opened.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]

@@ -9,6 +9,7 @@
 use std::time::Duration;
 
 use foresight_tests::rt_rig::{Rig, Seen, first_state_with_policy, straight_line_blob, task};
+use foresight_tests::wait_for;
 use iceoryx2::prelude::*;
 use shm_schemas::services::{create_node, loan_zeroed, open_publisher};
 use shm_schemas::{DetectedObject, DetectionFrame, ObjectClass};
@@ -17,7 +18,7 @@ use shm_schemas::{DetectedObject, DetectionFrame, ObjectClass};
 fn a_second_detection_publisher_is_refused_until_it_is_gone() {
     let task = task();
     let mut rig = Rig::start("rt_second_pub");
-    rig.wait("the first robot state", Duration::from_secs(20), |s| {
+    rig.wait("the first robot state", Duration::from_secs(60), |s| {
         s.iter()
             .any(|(_, x)| matches!(x, Seen::State(_)))
             .then_some(())
@@ -44,10 +45,23 @@ fn a_second_detection_publisher_is_refused_until_it_is_gone() {
     let mut sample = loan_zeroed(&intruder).expect("loan");
     *sample.payload_mut() = frame;
     sample.send().expect("send");
+    // rt-core has seen the second publisher: it refused a frame for it (waited for, not
+    // slept on: a loaded machine may take seconds to get there).
+    wait_for_log(
+        &mut rig,
+        "rt-core refusing frames for the second publisher",
+        |log| log.contains("publishers on the detection service"),
+    );
 
     // With two publishers connected, a policy that passes in a free scene gets no plan.
     rig.publish_policy(&straight_line_blob(1, &task, 0.0), false);
-    std::thread::sleep(Duration::from_secs(3));
+    wait_for_log(&mut rig, "rt-core taking policy 1", |log| {
+        log.lines()
+            .any(|l| l.contains("policy accepted") && l.contains("policy_id=1"))
+    });
+    // The policy is in: a lookahead on it would come now. A short window to see none come
+    // (an absence cannot be waited for).
+    std::thread::sleep(Duration::from_secs(1));
     rig.pump();
     assert!(
         first_state_with_policy(&rig.seen, 1).is_none(),
@@ -63,7 +77,7 @@ fn a_second_detection_publisher_is_refused_until_it_is_gone() {
     // The intruder leaves: the next frames are accepted and the policy drives the arm.
     drop(intruder);
     drop(intruder_node);
-    rig.wait("policy 1 driving the arm", Duration::from_secs(20), |s| {
+    rig.wait("policy 1 driving the arm", Duration::from_secs(60), |s| {
         first_state_with_policy(s, 1)
     });
     let log = rig.finish();
@@ -71,4 +85,17 @@ fn a_second_detection_publisher_is_refused_until_it_is_gone() {
         log.contains("publishers on the detection service"),
         "the refusal names its reason:\n{log}"
     );
+}
+
+/// Waits (generously: a loaded machine is slow) until rt-core's log so far satisfies `done`,
+/// keeping what rt-core publishes meanwhile (`Rig::pump`); panics naming `what`, with the
+/// log, when it never does.
+fn wait_for_log(rig: &mut Rig, what: &str, done: impl Fn(&str) -> bool) {
+    let mut log = String::new();
+    let seen = wait_for(Duration::from_secs(60), || {
+        rig.pump();
+        log = std::fs::read_to_string(&rig.log).unwrap_or_default();
+        done(&log).then_some(())
+    });
+    assert!(seen.is_some(), "timed out waiting for {what}:\n{log}");
 }

@@ -15,6 +15,10 @@
 //! whose result says so, and rt-core is sent a cancel of it; each accepted goal reaches
 //! rt-core as an iceoryx2 `GoalRequest` (a reach, then a cancel, or a release once reached).
 //!
+//! A third drives the real `ros-bridge` the same way and answers its reach request as
+//! rt-core answers one that reached it too old (a `GoalRefusal`): the goal, which has no
+//! deadline, ends at once, refused (aborted), naming the age and the bound.
+//!
 //! Everything runs inside a private network namespace (DDS stays there). The test asserts
 //! outcomes, never times (the limits only stop a hung run). Needs the binaries built
 //! (`cargo build --release -p launcher -p rt-core -p ros-bridge -p perception -p learner
@@ -37,7 +41,9 @@ use foresight_tests::{
 use iceoryx2::prelude::*;
 use ros_bridge::reach_client::{ReachClientOptions, ReachEnd, ReachEvent};
 use ros_bridge::reach_msgs::{ReachGoal, ReachOutcome};
-use shm_schemas::{GoalCommand, GoalRequest, RobotState, services};
+use shm_schemas::{
+    GoalCommand, GoalRefusal, GoalRequest, GoalRequestAgeError, RobotState, services,
+};
 
 /// Runs `foresight reach <args>` to its end; returns its exit code and stdout.
 fn reach(args: &[&str]) -> (i32, String) {
@@ -479,6 +485,92 @@ fn the_bridge_preempts_cancels_and_releases_goals_and_tells_rt_core() {
     assert_eq!(seen[3].goal_id, seen[2].goal_id, "the cancel names goal B");
     assert_eq!(seen[5].goal_id, seen[4].goal_id, "the release names goal C");
     assert_eq!(seen[0].target_m, [0.35, 0.15]);
+    arm.stop.store(true, Ordering::Relaxed);
+    states.join().unwrap();
+}
+
+/// Issue 41 item 5 (leftover): rt-core refuses a reach request that reaches it too old (or
+/// made before it started), and the bridge was not told: a goal without a deadline waited
+/// forever. Now rt-core answers with a `GoalRefusal` and the goal ends at once, refused
+/// (status aborted), naming the refusal.
+#[test]
+fn a_goal_whose_reach_rt_core_refused_by_age_ends_aborted_naming_it() {
+    if run_in_private_netns("a_goal_whose_reach_rt_core_refused_by_age_ends_aborted_naming_it")
+        == NetnsOutcome::RanInChild
+    {
+        return;
+    }
+    let prefix = unique_prefix("reach_refused");
+    let (node, _cleanup) = services::create_node::<ipc::Service>("reach-test").unwrap();
+    let requests = services::open_subscriber::<GoalRequest, _>(&node, &prefix).unwrap();
+    let refusals = services::open_publisher::<GoalRefusal, _>(&node, &prefix).unwrap();
+    let arm = Arc::new(FakeArm {
+        tcp_m: Mutex::new([0.3, 0.0, 0.3]),
+        moving: AtomicBool::new(false),
+        stop: AtomicBool::new(false),
+    });
+    let states = publish_states(prefix.clone(), arm.clone());
+    let _bridge = ChildGuard::spawn(
+        "ros-bridge",
+        Command::new(bin_path("ros-bridge"))
+            .current_dir(repo_root())
+            .args([
+                "--prefix",
+                &prefix,
+                "--goal-source",
+                "action",
+                "--seconds",
+                "200",
+            ])
+            .args(["--urdf", asset("xarm5.urdf").to_str().unwrap()])
+            .stdout(Stdio::null()),
+    );
+    // A goal without a deadline: before, nothing but a cancel ended it.
+    let (events, goal) = client(
+        ReachGoal {
+            x_m: 0.35,
+            y_m: 0.15,
+            ..ReachGoal::default()
+        },
+        Arc::new(AtomicBool::new(false)),
+    );
+    wait_accepted(&events);
+    let request = foresight_tests::wait_for(Duration::from_secs(30), || {
+        requests.receive().ok().flatten().map(|r| *r)
+    })
+    .expect("the bridge sent the reach to rt-core");
+    assert_eq!(request.command(), Ok(GoalCommand::Reach));
+    // rt-core's answer to a request that reached it 2.5 s old.
+    let too_old = GoalRefusal::by_age(
+        request.goal_id,
+        request.command,
+        &GoalRequestAgeError::TooOld {
+            age_ns: 2_500_000_000,
+        },
+        shm_schemas::clock::monotonic_now_ns(),
+    );
+    refusals.send_copy(too_old).unwrap();
+    // Generous: the goal ends on the bridge's next iteration.
+    let ended =
+        foresight_tests::wait_for(Duration::from_secs(60), || goal.is_finished().then_some(()));
+    assert!(
+        ended.is_some(),
+        "the goal never ended: the bridge did not take rt-core's refusal"
+    );
+    let end = goal.join().unwrap();
+    assert!(end.accepted);
+    assert_eq!(end.result.outcome(), Some(ReachOutcome::Refused), "{end:?}");
+    assert_eq!(
+        end.status,
+        ros2_client::action_msgs::GoalStatusEnum::Aborted,
+        "{end:?}"
+    );
+    assert!(
+        end.result
+            .reason
+            .contains("refused by rt-core: the request is 2.500 s old, over the 2.000 s bound"),
+        "{end:?}"
+    );
     arm.stop.store(true, Ordering::Relaxed);
     states.join().unwrap();
 }

@@ -46,7 +46,7 @@ use ros2_client::{
 };
 use serde::{Deserialize, Serialize};
 use shm_schemas::{
-    DetectionFrame, RetrainProgress, RetrainRequest, RobotState, TwinVerdict, services,
+    DetectionFrame, GoalRefusal, RetrainProgress, RetrainRequest, RobotState, TwinVerdict, services,
 };
 
 use msgs::{
@@ -374,9 +374,12 @@ pub fn run(
         services::open_subscriber::<RetrainRequest, _>(&shm_node, &cfg.prefix).map_err(shm)?;
     let retrain_prog_sub =
         services::open_subscriber::<RetrainProgress, _>(&shm_node, &cfg.prefix).map_err(shm)?;
+    let refusal_sub =
+        services::open_subscriber::<GoalRefusal, _>(&shm_node, &cfg.prefix).map_err(shm)?;
     let mut reach = reach::ReachServer::new(&mut node, &shm_node, &cfg.prefix, cfg.reach)?;
     let mut retrain_requests: Vec<RetrainRequest> = Vec::new();
     let mut retrain_progress: Vec<RetrainProgress> = Vec::new();
+    let mut goal_refusals: Vec<GoalRefusal> = Vec::new();
 
     let mut stats = RosBridgeStats::default();
     let mut latest_state: Option<RobotState> = None;
@@ -412,6 +415,14 @@ pub fn run(
         while let Ok(Some(s)) = retrain_prog_sub.receive() {
             if s.validate().is_ok() {
                 retrain_progress.push(*s);
+            } else {
+                stats.rejected_samples += 1;
+            }
+        }
+        goal_refusals.clear();
+        while let Ok(Some(s)) = refusal_sub.receive() {
+            if s.validate().is_ok() {
+                goal_refusals.push(*s);
             } else {
                 stats.rejected_samples += 1;
             }
@@ -462,6 +473,7 @@ pub fn run(
             verdict: latest_verdict.as_ref(),
             retrain_requests: &retrain_requests,
             retrain_progress: &retrain_progress,
+            goal_refusals: &goal_refusals,
         });
         let now = Instant::now();
         if now >= next_markers {

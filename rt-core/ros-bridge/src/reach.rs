@@ -8,7 +8,10 @@
 //! - An accepted goal goes to rt-core as an iceoryx2 [`GoalRequest`]; rt-core's intake makes
 //!   it the scene's goal (the camera's obstacles still count) if the request is young and was
 //!   made since rt-core started ([`GoalRequest::check_age`]: the service replays its last
-//!   sample to a restarted rt-core). A newer goal pre-empts it explicitly: the old goal ends
+//!   sample to a restarted rt-core). A request rt-core refuses (by age, or any other check)
+//!   comes back as a [`GoalRefusal`], and the goal ends at once [`ReachOutcome::Refused`]
+//!   (status aborted) naming why, e.g. "refused by rt-core: the request is 2.500 s old, over
+//!   the 2.000 s bound" (before, a goal without a deadline waited forever). A newer goal pre-empts it explicitly: the old goal ends
 //!   [`ReachOutcome::Preempted`], naming the new one, and rt-core is sent a cancel of the old
 //!   goal before the new reach (the plan toward the old target is revoked, as for a cancel).
 //! - Who may send goals: DDS (rustdds, without DDS Security) carries no user identity or key
@@ -53,8 +56,8 @@ use serde::{Deserialize, Serialize};
 use shm_schemas::goal_request::{REQUESTED_GOAL_SIZE_M, requested_tcp_target_m};
 use shm_schemas::runtime_view::{GoalSource, RuntimeView};
 use shm_schemas::{
-    GoalBounds, GoalCommand, GoalRequest, RetrainPhase, RetrainProgress, RetrainRequest,
-    RobotState, StopReason, TwinVerdict,
+    GoalBounds, GoalCommand, GoalRefusal, GoalRequest, RetrainPhase, RetrainProgress,
+    RetrainRequest, RobotState, StopReason, TwinVerdict,
 };
 use twin::{BoxObstacle, InfeasibleReason};
 
@@ -199,7 +202,7 @@ pub fn runtime_goal_settings(text: &str) -> Result<(GoalBounds, bool), String> {
 pub struct ReachStats {
     /// Goals accepted.
     pub goals_accepted: u64,
-    /// Goals refused.
+    /// Goals refused: at acceptance, or afterwards by rt-core ([`GoalRefusal`]).
     pub goals_refused: u64,
     /// Ended reached.
     pub reached: u64,
@@ -224,6 +227,8 @@ pub struct ReachInputs<'a> {
     pub retrain_requests: &'a [RetrainRequest],
     /// Retrain progress received this iteration.
     pub retrain_progress: &'a [RetrainProgress],
+    /// Goal requests rt-core refused, received this iteration.
+    pub goal_refusals: &'a [GoalRefusal],
 }
 
 struct Active {
@@ -366,6 +371,179 @@ fn is_fault(reason: StopReason) -> bool {
             | StopReason::ModelMismatch
             | StopReason::Requested
     )
+}
+
+/// Takes this iteration's `inputs` into the active goal `a` (retrain requests for its
+/// scene, the arm's distance, rest and faults) and says how it ends, if it does now: a
+/// refusal by rt-core, infeasible, cancelled at rest, reached, stopped for a fault or the
+/// deadline.
+fn ending(
+    a: &mut Active,
+    inputs: &ReachInputs<'_>,
+    settings: &ReachSettings,
+    now: Instant,
+) -> Option<(ReachOutcome, String)> {
+    // Retrain requests for this goal's scene (received while it is active, goal at its
+    // target), and their answers.
+    for r in inputs.retrain_requests {
+        let goal_top = r.goal_center_m[2] + r.goal_size_m / 2.0 + settings.goal_hover_m;
+        let at_target = (r.goal_center_m[0] - a.target_m[0]).abs() < 1e-6
+            && (r.goal_center_m[1] - a.target_m[1]).abs() < 1e-6
+            && (goal_top - a.target_m[2]).abs() < 1e-6;
+        // Received while this goal is active (the request's own stamp is on rt-core's
+        // cycle clock, not comparable here).
+        if at_target {
+            let obstacles = r
+                .obstacles()
+                .iter()
+                .map(|o| BoxObstacle {
+                    center_m: o.center_m,
+                    size_m: o.size_m,
+                })
+                .collect();
+            a.retrains.push((r.request_id, obstacles));
+        }
+    }
+    if let Some((state, fresh)) = inputs.state {
+        observe_state(a, state, fresh, now);
+    }
+    refused_by_rt_core(a, inputs.goal_refusals)
+        .or_else(|| infeasible(a, inputs.retrain_progress))
+        .or_else(|| ended_by_the_arm(a, settings, now))
+}
+
+/// The goal's end when rt-core refused its reach request (by age, above all: a request
+/// that reached it too late, or an earlier run's replayed to a restarted rt-core): it will
+/// never drive toward the target, so the goal ends refused (aborted), naming why.
+fn refused_by_rt_core(a: &Active, refusals: &[GoalRefusal]) -> Option<(ReachOutcome, String)> {
+    refusals
+        .iter()
+        .find(|r| r.goal_id == a.seq && r.command == GoalCommand::Reach as u8)
+        .map(|r| {
+            (
+                ReachOutcome::Refused,
+                format!("refused by rt-core: {}", r.words()),
+            )
+        })
+}
+
+/// The goal's end when the retrain request for its scene was answered infeasible.
+fn infeasible(a: &Active, progress: &[RetrainProgress]) -> Option<(ReachOutcome, String)> {
+    let mut end = None;
+    for p in progress {
+        if p.phase() != Ok(RetrainPhase::Infeasible) {
+            continue;
+        }
+        if let Some((_, obstacles)) = a.retrains.iter().find(|(id, _)| *id == p.request_id) {
+            let reason = InfeasibleReason::from_wire(
+                p.infeasible_kind,
+                p.infeasible_blocker,
+                p.infeasible_link,
+                p.infeasible_by_m,
+            )
+            .map_or_else(
+                || "no safe way to the goal (no reason given)".to_owned(),
+                |r| r.display_with(obstacles).to_string(),
+            );
+            end = Some((ReachOutcome::Infeasible, reason));
+        }
+    }
+    end
+}
+
+/// The arm's state into the goal: its distance to the target, where a cancel took effect,
+/// since when it rests, since when it is stopped for a fault.
+fn observe_state(a: &mut Active, state: &RobotState, fresh: bool, now: Instant) {
+    a.distance_m = distance_m(&state.tcp_m, &a.target_m);
+    if a.cancelling && fresh {
+        a.cancelled_at_tcp_m.get_or_insert(state.tcp_m);
+        a.closest_after_cancel_m = a.closest_after_cancel_m.min(a.distance_m);
+    }
+    if fresh {
+        let moving = state
+            .joint_velocities_rad_s
+            .iter()
+            .any(|v| v.abs() > AT_REST_RAD_S);
+        a.at_rest_since = match (moving, a.at_rest_since) {
+            (true, _) => None,
+            (false, Some(since)) => Some(since),
+            (false, None) => Some(now),
+        };
+    }
+    let stop = state
+        .stop_reason()
+        .ok()
+        .filter(|r| state.is_stopped() && is_fault(*r));
+    a.fault_since = match (stop, a.fault_since) {
+        (Some(r), Some((since, _))) => Some((since, r)),
+        (Some(r), None) => Some((now, r)),
+        (None, _) => None,
+    };
+}
+
+/// The goal's end from the arm and the clock: cancelled and at rest for good, reached,
+/// stopped for a fault that lasts, or past its deadline.
+fn ended_by_the_arm(
+    a: &Active,
+    settings: &ReachSettings,
+    now: Instant,
+) -> Option<(ReachOutcome, String)> {
+    if a.cancelling {
+        a.at_rest_since
+            .is_some_and(|since| now - since >= AT_REST_FOR)
+            .then(|| (ReachOutcome::Cancelled, cancelled_words(a)))
+    } else if a.distance_m <= settings.tolerance_m {
+        Some((
+            ReachOutcome::Reached,
+            format!(
+                "the TCP is {:.4} m from the target (tolerance {} m)",
+                a.distance_m, settings.tolerance_m
+            ),
+        ))
+    } else if let Some((_, reason)) = a
+        .fault_since
+        .filter(|(since, _)| now - *since >= STOP_GRACE)
+    {
+        Some((
+            ReachOutcome::Stopped,
+            format!("the arm stopped: {reason:?}"),
+        ))
+    } else if a.goal.deadline_s > 0.0
+        && now - a.accepted_at >= Duration::from_secs_f64(a.goal.deadline_s)
+    {
+        Some((
+            ReachOutcome::Stopped,
+            format!("the deadline of {} s passed", a.goal.deadline_s),
+        ))
+    } else {
+        None
+    }
+}
+
+/// The active goal's feedback: the worker's phase and executor from the first verdict
+/// since the goal was accepted, the TCP's distance, the verdict in words.
+fn feedback(a: &Active, inputs: &ReachInputs<'_>) -> ReachFeedback {
+    let new_verdict = inputs
+        .verdict
+        .filter(|v| Some(v.verdict_id) != a.verdict_at_accept);
+    let (phase, executor, verdict) = match new_verdict {
+        Some(v) => (
+            v.phase().map_or("unknown", |p| p.name()).to_owned(),
+            v.executor().map_or("unknown", |e| e.name()).to_owned(),
+            verdict_words(v),
+        ),
+        None => ("waiting".into(), "unknown".into(), String::new()),
+    };
+    ReachFeedback {
+        phase: if a.cancelling {
+            "cancelling".into()
+        } else {
+            phase
+        },
+        executor,
+        distance_m: a.distance_m,
+        verdict,
+    }
 }
 
 impl ReachServer {
@@ -595,137 +773,16 @@ impl ReachServer {
         let Some(a) = self.active.as_mut() else {
             return;
         };
-        // Retrain requests for this goal's scene (received while it is active, goal at its
-        // target), and their answers.
-        for r in inputs.retrain_requests {
-            let goal_top = r.goal_center_m[2] + r.goal_size_m / 2.0 + settings.goal_hover_m;
-            let at_target = (r.goal_center_m[0] - a.target_m[0]).abs() < 1e-6
-                && (r.goal_center_m[1] - a.target_m[1]).abs() < 1e-6
-                && (goal_top - a.target_m[2]).abs() < 1e-6;
-            // Received while this goal is active (the request's own stamp is on rt-core's
-            // cycle clock, not comparable here).
-            if at_target {
-                let obstacles = r
-                    .obstacles()
-                    .iter()
-                    .map(|o| BoxObstacle {
-                        center_m: o.center_m,
-                        size_m: o.size_m,
-                    })
-                    .collect();
-                a.retrains.push((r.request_id, obstacles));
-            }
-        }
-        let mut end: Option<(ReachOutcome, String)> = None;
-        for p in inputs.retrain_progress {
-            if p.phase() != Ok(RetrainPhase::Infeasible) {
-                continue;
-            }
-            if let Some((_, obstacles)) = a.retrains.iter().find(|(id, _)| *id == p.request_id) {
-                let reason = InfeasibleReason::from_wire(
-                    p.infeasible_kind,
-                    p.infeasible_blocker,
-                    p.infeasible_link,
-                    p.infeasible_by_m,
-                )
-                .map_or_else(
-                    || "no safe way to the goal (no reason given)".to_owned(),
-                    |r| r.display_with(obstacles).to_string(),
-                );
-                end = Some((ReachOutcome::Infeasible, reason));
-            }
-        }
-        if let Some((state, fresh)) = inputs.state {
-            a.distance_m = distance_m(&state.tcp_m, &a.target_m);
-            if a.cancelling && fresh {
-                a.cancelled_at_tcp_m.get_or_insert(state.tcp_m);
-                a.closest_after_cancel_m = a.closest_after_cancel_m.min(a.distance_m);
-            }
-            if fresh {
-                let moving = state
-                    .joint_velocities_rad_s
-                    .iter()
-                    .any(|v| v.abs() > AT_REST_RAD_S);
-                a.at_rest_since = match (moving, a.at_rest_since) {
-                    (true, _) => None,
-                    (false, Some(since)) => Some(since),
-                    (false, None) => Some(Instant::now()),
-                };
-            }
-            let stop = state
-                .stop_reason()
-                .ok()
-                .filter(|r| state.is_stopped() && is_fault(*r));
-            a.fault_since = match (stop, a.fault_since) {
-                (Some(r), Some((since, _))) => Some((since, r)),
-                (Some(r), None) => Some((Instant::now(), r)),
-                (None, _) => None,
-            };
-        }
         let now = Instant::now();
-        if end.is_none() {
-            end = if a.cancelling {
-                a.at_rest_since
-                    .is_some_and(|since| now - since >= AT_REST_FOR)
-                    .then(|| (ReachOutcome::Cancelled, cancelled_words(a)))
-            } else if a.distance_m <= settings.tolerance_m {
-                Some((
-                    ReachOutcome::Reached,
-                    format!(
-                        "the TCP is {:.4} m from the target (tolerance {} m)",
-                        a.distance_m, settings.tolerance_m
-                    ),
-                ))
-            } else if let Some((_, reason)) = a
-                .fault_since
-                .filter(|(since, _)| now - *since >= STOP_GRACE)
-            {
-                Some((
-                    ReachOutcome::Stopped,
-                    format!("the arm stopped: {reason:?}"),
-                ))
-            } else if a.goal.deadline_s > 0.0
-                && now - a.accepted_at >= Duration::from_secs_f64(a.goal.deadline_s)
-            {
-                Some((
-                    ReachOutcome::Stopped,
-                    format!("the deadline of {} s passed", a.goal.deadline_s),
-                ))
-            } else {
-                None
-            };
-        }
-        if let Some((outcome, reason)) = end {
+        if let Some((outcome, reason)) = ending(a, inputs, &settings, now) {
             self.finish(outcome, reason);
             return;
         }
         if now >= self.next_feedback {
             self.next_feedback = now + FEEDBACK_PERIOD;
-            let new_verdict = inputs
-                .verdict
-                .filter(|v| Some(v.verdict_id) != a.verdict_at_accept);
-            let (phase, executor, verdict) = match new_verdict {
-                Some(v) => (
-                    v.phase().map_or("unknown", |p| p.name()).to_owned(),
-                    v.executor().map_or("unknown", |e| e.name()).to_owned(),
-                    verdict_words(v),
-                ),
-                None => ("waiting".into(), "unknown".into(), String::new()),
-            };
-            let feedback = ReachFeedback {
-                phase: if a.cancelling {
-                    "cancelling".into()
-                } else {
-                    phase
-                },
-                executor,
-                distance_m: a.distance_m,
-                verdict,
-            };
-            let _ = self.server.send_feedback(a.id, feedback);
+            let _ = self.server.send_feedback(a.id, feedback(a, inputs));
         }
     }
-
     /// Ends the active goal with `outcome`: rt-core is told (a release after reaching, a
     /// cancel otherwise — a pre-emption too, sent before the newer goal's reach so that the
     /// plan toward the old target is revoked; nothing for a cancel, already sent when it
@@ -841,6 +898,82 @@ mod tests {
             tolerance_m: 0.02,
             dds_loopback_only: true,
         }
+    }
+
+    /// An accepted goal, as `take_goals` makes it: rt-core was sent reach `seq`.
+    fn active(seq: u64, deadline_s: f64) -> Active {
+        let goal = ReachGoal {
+            x_m: 0.4,
+            y_m: 0.1,
+            deadline_s,
+            ..ReachGoal::default()
+        };
+        Active {
+            id: GoalId::new_random(),
+            stamp: builtin_interfaces::Time::now(),
+            seq,
+            goal,
+            target_m: settings().target_m(&goal),
+            accepted_at: Instant::now(),
+            cancelling: false,
+            cancelled_at_tcp_m: None,
+            closest_after_cancel_m: f64::INFINITY,
+            at_rest_since: None,
+            fault_since: None,
+            result_requests: Bounded::new(),
+            retrains: Vec::new(),
+            distance_m: f64::NAN,
+            verdict_at_accept: None,
+        }
+    }
+
+    /// Issue 41 item 5 (leftover): rt-core refuses a reach request that reaches it too old
+    /// (or made before it started), and the bridge was never told: a goal without a
+    /// deadline waited forever, the arm at rest away from the target. Now rt-core's
+    /// refusal ends the goal at once, refused (status aborted), naming the age and the
+    /// bound; a refusal of another goal's request, or of a cancel, changes nothing.
+    #[test]
+    fn a_goal_whose_reach_rt_core_refused_by_age_ends_aborted_naming_the_refusal() {
+        let s = settings();
+        let mut a = active(41, 0.0);
+        let resting = RobotState {
+            tcp_m: [0.2, -0.2, 0.3],
+            link_ok: 1,
+            ..RobotState::default()
+        };
+        let too_old = GoalRefusal::by_age(
+            41,
+            GoalCommand::Reach as u8,
+            &shm_schemas::GoalRequestAgeError::TooOld {
+                age_ns: 2_500_000_000,
+            },
+            1,
+        );
+        let others = [
+            GoalRefusal {
+                goal_id: 40,
+                ..too_old
+            },
+            GoalRefusal {
+                command: GoalCommand::Cancel as u8,
+                ..too_old
+            },
+        ];
+        let inputs = |refusals| ReachInputs {
+            state: Some((&resting, true)),
+            goal_refusals: refusals,
+            ..ReachInputs::default()
+        };
+        let later = Instant::now() + Duration::from_secs(3600);
+        assert_eq!(ending(&mut a, &inputs(&others), &s, later), None);
+        let (outcome, reason) =
+            ending(&mut a, &inputs(&[too_old]), &s, later).expect("the refused goal ends");
+        assert_eq!(outcome, ReachOutcome::Refused);
+        assert_eq!(status_of(outcome), GoalStatusEnum::Aborted);
+        assert_eq!(
+            reason,
+            "refused by rt-core: the request is 2.500 s old, over the 2.000 s bound"
+        );
     }
 
     /// Issue 41 item 5: the action had no access control. DDS gives no identity to check,

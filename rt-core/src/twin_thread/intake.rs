@@ -29,8 +29,8 @@
 
 use shm_schemas::goal_request::{REQUESTED_GOAL_SIZE_M, requested_goal_center_m};
 use shm_schemas::{
-    DetectedObject, DetectionFrame, GoalBoundError, GoalBounds, GoalCommand, GoalRequest,
-    GoalRequestAgeError, ObjectClass, SchemaError,
+    DetectedObject, DetectionFrame, GoalBoundError, GoalBounds, GoalCommand, GoalRefusal,
+    GoalRefusalKind, GoalRequest, GoalRequestAgeError, ObjectClass, SchemaError,
 };
 use twin::{BoxObstacle, Goal, Scene};
 
@@ -278,6 +278,21 @@ pub enum GoalRequestRefusal {
         /// This request's.
         found: u64,
     },
+}
+
+impl GoalRequestRefusal {
+    /// This refusal of `req` at `now_ns` as the bridge is told it ([`GoalRefusal`]): the
+    /// action goal behind a refused reach ends at once, naming why.
+    pub fn wire(&self, req: &GoalRequest, now_ns: u64) -> GoalRefusal {
+        let kind = match self {
+            Self::TooOld(e) => return GoalRefusal::by_age(req.goal_id, req.command, e, now_ns),
+            Self::SourceIsCamera => GoalRefusalKind::SourceIsCamera,
+            Self::Invalid(_) => GoalRefusalKind::Invalid,
+            Self::OutOfBounds(_) => GoalRefusalKind::OutOfBounds,
+            Self::StaleId { .. } => GoalRefusalKind::StaleId,
+        };
+        GoalRefusal::new(req.goal_id, req.command, kind, now_ns)
+    }
 }
 
 /// The goals the `Reach` action asks for (goal source `action`).
@@ -1187,6 +1202,36 @@ mod tests {
         };
         k.request(&old_cancel, REQUEST_NS + 9_000_000_000).unwrap();
         assert_eq!(k.requested_goal_id(), 0);
+    }
+
+    /// The bridge is told of a refusal by age with its measure and bound (the action goal
+    /// behind it then ends at once instead of waiting forever), and of the others by kind.
+    #[test]
+    fn a_refusal_goes_to_the_bridge_with_its_age_and_bound() {
+        let mut k = intake().with_requested_goals(bounds(), 0.05);
+        let late = fresh(GoalRequest::reach(8, [0.4, 0.0], 0.0));
+        let now = REQUEST_NS + 2_500_000_000;
+        let refusal = k.request(&late, now).unwrap_err();
+        let wire = refusal.wire(&late, now);
+        wire.validate().unwrap();
+        assert_eq!(wire.kind(), Ok(GoalRefusalKind::TooOld));
+        assert_eq!((wire.goal_id, wire.command), (8, GoalCommand::Reach as u8));
+        assert_eq!(
+            (wire.value_ns, wire.bound_ns),
+            (2_500_000_000, shm_schemas::goal_request::MAX_REACH_AGE_NS)
+        );
+        assert_eq!(
+            wire.words(),
+            "the request is 2.500 s old, over the 2.000 s bound"
+        );
+        k.request(&fresh(GoalRequest::reach(9, [0.4, 0.0], 0.0)), REQUEST_NS)
+            .unwrap();
+        let stale = fresh(GoalRequest::reach(9, [0.4, 0.0], 0.0));
+        let refusal = k.request(&stale, REQUEST_NS).unwrap_err();
+        assert_eq!(
+            refusal.wire(&stale, REQUEST_NS).kind(),
+            Ok(GoalRefusalKind::StaleId)
+        );
     }
 
     /// Issue 14, item 7: a second publisher on the detection service went unnoticed.

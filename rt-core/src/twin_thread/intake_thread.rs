@@ -11,7 +11,9 @@
 //! With the goal source `action` it also takes the bridge's [`GoalRequest`]s (the ROS 2
 //! `Reach` action) into the intake before each poll's frames, so the next accepted frame
 //! carries the requested goal; a cancel or a pre-emption is handed to the plan guard here at
-//! once ([`ScenePath::goal_withdrawn`]), not through the twin thread.
+//! once ([`ScenePath::goal_withdrawn`]), not through the twin thread. A request refused (by
+//! age: a replay to a restarted rt-core, or one that waited too long) is answered to the
+//! bridge as a [`GoalRefusal`], so that the action goal behind it ends at once, naming why.
 
 // A non-real-time thread: it polls its subscriber with a relative sleep and reads wall time
 // for the logs' throttling only.
@@ -23,11 +25,14 @@ use std::sync::mpsc;
 use std::thread::JoinHandle;
 use std::time::Duration;
 
+use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
-use shm_schemas::services::{ShmOpenError, create_node, open_service, open_subscriber};
-use shm_schemas::{DetectionFrame, GoalRequest};
+use shm_schemas::services::{
+    ShmOpenError, create_node, open_publisher, open_service, open_subscriber,
+};
+use shm_schemas::{DetectionFrame, GoalRefusal, GoalRequest};
 
 use crate::cycle::twin_model::TwinModel;
 use crate::rt::histogram::{Histogram, Summary};
@@ -287,12 +292,19 @@ struct IntakeEnds {
     _node: Node<ipc::Service>,
     service: PubSubFactory<ipc::Service, DetectionFrame, ()>,
     sub: Subscriber<ipc::Service, DetectionFrame, ()>,
-    /// The bridge's goal requests (goal source `action` only).
-    goals: Option<Subscriber<ipc::Service, GoalRequest, ()>>,
+    /// The bridge's goal requests, and the answer to those refused (goal source `action`
+    /// only).
+    goals: Option<GoalEnds>,
+}
+
+/// The goal requests' subscriber and the refusals' publisher.
+struct GoalEnds {
+    requests: Subscriber<ipc::Service, GoalRequest, ()>,
+    refusals: Publisher<ipc::Service, GoalRefusal, ()>,
 }
 
 /// Opens the node, the detection service and its subscriber under `prefix`, and the goal
-/// requests' subscriber when the intake `takes_requests`.
+/// requests' subscriber and the refusals' publisher when the intake `takes_requests`.
 fn open_ends(prefix: &str, takes_requests: bool) -> Result<IntakeEnds, TwinNodeError> {
     let (node, _) = create_node::<ipc::Service>("rt-core-intake")?;
     let service =
@@ -311,14 +323,20 @@ fn open_ends(prefix: &str, takes_requests: bool) -> Result<IntakeEnds, TwinNodeE
             },
         })?;
     let goals = if takes_requests {
-        Some(
-            open_subscriber::<GoalRequest, _>(&node, prefix).map_err(|cause| {
+        Some(GoalEnds {
+            requests: open_subscriber::<GoalRequest, _>(&node, prefix).map_err(|cause| {
                 TwinNodeError::Open {
                     service: "goal requests",
                     cause,
                 }
             })?,
-        )
+            refusals: open_publisher::<GoalRefusal, _>(&node, prefix).map_err(|cause| {
+                TwinNodeError::Open {
+                    service: "goal refusals",
+                    cause,
+                }
+            })?,
+        })
     } else {
         None
     };
@@ -334,21 +352,27 @@ fn open_ends(prefix: &str, takes_requests: bool) -> Result<IntakeEnds, TwinNodeE
 /// it is checked), logging what was taken or refused. A cancel or a pre-emption among them
 /// revokes every plan toward the withdrawn goal through `path`, here on the intake thread,
 /// before the next frame and whatever the twin thread is doing (a planner search may be
-/// about to hand over a plan toward it: the plan guard refuses it).
+/// about to hand over a plan toward it: the plan guard refuses it). A refused request is
+/// answered on the refusals' service.
 fn take_goal_requests(
-    goals: &Subscriber<ipc::Service, GoalRequest, ()>,
+    goals: &GoalEnds,
     intake: &mut SceneIntake,
     path: &mut ScenePath<TwinModel>,
 ) -> Result<(), TwinNodeError> {
     let goal_epoch = intake.goal_epoch();
-    while let Some(sample) = goals.receive().map_err(|cause| TwinNodeError::Receive {
-        service: "goal requests",
-        cause,
-    })? {
+    while let Some(sample) = goals
+        .requests
+        .receive()
+        .map_err(|cause| TwinNodeError::Receive {
+            service: "goal requests",
+            cause,
+        })?
+    {
         // Copied out of shared memory before it is checked.
         let request = *sample.payload();
         drop(sample);
-        match intake.request(&request, shm_schemas::clock::monotonic_now_ns()) {
+        let now_ns = shm_schemas::clock::monotonic_now_ns();
+        match intake.request(&request, now_ns) {
             Ok(()) => tracing::info!(
                 goal_id = request.goal_id,
                 command = request.command,
@@ -356,11 +380,19 @@ fn take_goal_requests(
                 approach_height_m = request.approach_height_m,
                 "goal request taken"
             ),
-            Err(refusal) => tracing::warn!(
-                goal_id = request.goal_id,
-                refused_total = intake.counters().goal_requests_refused,
-                "goal request refused: {refusal}"
-            ),
+            Err(refusal) => {
+                tracing::warn!(
+                    goal_id = request.goal_id,
+                    refused_total = intake.counters().goal_requests_refused,
+                    "goal request refused: {refusal}"
+                );
+                if let Err(e) = goals.refusals.send_copy(refusal.wire(&request, now_ns)) {
+                    tracing::warn!(
+                        goal_id = request.goal_id,
+                        "the bridge could not be told of the refusal: {e:?}"
+                    );
+                }
+            }
         }
     }
     if intake.goal_epoch() != goal_epoch {

@@ -32,7 +32,9 @@
 //! Hard counts (must be zero): commanded poses that penetrate (nominal geometry, see the
 //! oracle) a box the runtime has known for at least one braking horizon, or the table;
 //! joint steps over one period at the velocity limit (+ [`STEP_TOLERANCE`]); TCP speeds over
-//! `max_tcp_speed_m_s`; commands outside the joint limits; non-finite commands.
+//! `max_tcp_speed_m_s`; TCP steps over the controller's 5 mm per target
+//! ([`oracle::CONTROLLER_TCP_STEP_M`]); commands outside the joint limits; non-finite
+//! commands.
 //!
 //! A box is *known* from the delivery of the first detection frame that carries it (accepted
 //! or refused: a refused frame stops the arm). The *braking horizon* ([`BrakingHorizon`]) is

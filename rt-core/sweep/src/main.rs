@@ -152,6 +152,10 @@ fn print_table(s: &SweepSummary) {
         ("table penetrations", h.table_penetrations),
         ("joint-step violations", h.joint_step_violations),
         ("TCP-speed violations", h.tcp_speed_violations),
+        (
+            "TCP-step violations (> 5 mm per target)",
+            h.tcp_step_violations,
+        ),
         ("joint-limit violations", h.joint_limit_violations),
         ("non-finite commands", h.non_finite_commands),
     ] {

@@ -1,7 +1,8 @@
 //! An independent check of every command the sweep sees sent ([`crate::run_sweep`]): its own
 //! signed distances in `f64` — segment to axis-aligned box, segment to the table plane —
 //! between the arm's *nominal* collision capsules and the *ground-truth* boxes, and the
-//! motion limits (joint range, joint step per period, TCP speed, finiteness).
+//! motion limits (joint range, joint step per period, TCP speed, the controller's TCP step
+//! per target [`CONTROLLER_TCP_STEP_M`], finiteness).
 //!
 //! Independent of what it checks: no parry3d, no `twin::RobotGeometry`, no shield code, and
 //! not the twin's kinematics either (issue 30 item 7). The arm's pose comes from UFactory's
@@ -338,6 +339,17 @@ pub struct CommandLimits {
     pub period_s: f64,
 }
 
+/// The xArm controller's largest TCP step from one servo target to the next, m (5 mm,
+/// whatever the servo period): stated here, apart from the shield's own bound
+/// (`twin::approval::shield::MAX_TCP_STEP_M`, asserted equal in this module's tests).
+pub const CONTROLLER_TCP_STEP_M: f64 = 0.005;
+
+/// What the oracle allows over [`CONTROLLER_TCP_STEP_M`], m: the shield measures the step on
+/// the twin's URDF, the oracle on the datasheet arm; the two TCPs agree within 10 µm
+/// anywhere, and their difference varies far less over one step (< 0.1 µm for a 5 mm
+/// step), so 1 µm absorbs the models' difference and no real excess.
+pub const TCP_STEP_TOLERANCE_M: f64 = 1e-6;
+
 /// What the motion checks found for one command.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct MotionFindings {
@@ -350,6 +362,9 @@ pub struct MotionFindings {
     pub joint_step: Option<(usize, f64)>,
     /// The TCP speed over the limit, m/s.
     pub tcp_speed_m_s: Option<f64>,
+    /// The TCP step over the controller's [`CONTROLLER_TCP_STEP_M`] (+
+    /// [`TCP_STEP_TOLERANCE_M`]), m.
+    pub tcp_step_m: Option<f64>,
 }
 
 impl MotionFindings {
@@ -359,6 +374,7 @@ impl MotionFindings {
             || self.joint_limit.is_some()
             || self.joint_step.is_some()
             || self.tcp_speed_m_s.is_some()
+            || self.tcp_step_m.is_some()
     }
 }
 
@@ -366,7 +382,9 @@ impl CommandLimits {
     /// Checks command `q_rad` sent one period after `prev_q_rad` (the previous command
     /// sent, or the arm's start pose), with TCPs `tcp_prev_m` and `tcp_m`. The step is
     /// measured against one period whatever time passed between the two (as the shield
-    /// does: after a gap the controller still sees one jump).
+    /// does: after a gap the controller still sees one jump), and the TCP's step against
+    /// the controller's [`CONTROLLER_TCP_STEP_M`] (a bound of its own: at 100 Hz the speed
+    /// limit of 0.8 m/s would allow 8 mm).
     pub fn check(
         &self,
         prev_q_rad: &Joints,
@@ -395,6 +413,9 @@ impl CommandLimits {
         // The shield measures the same FK with no tolerance; 1e-9 absorbs rounding only.
         if speed > self.max_tcp_speed_m_s * (1.0 + 1e-9) {
             f.tcp_speed_m_s = Some(speed);
+        }
+        if d > CONTROLLER_TCP_STEP_M + TCP_STEP_TOLERANCE_M {
+            f.tcp_step_m = Some(d);
         }
         f
     }
@@ -468,6 +489,36 @@ mod tests {
         }
         // Six datasheet link bodies and the tool.
         assert_eq!(oracle.world_capsules(&[0.0; DOF]).len(), N_LINKS + 1);
+    }
+
+    /// Issue 41 item 5: the controller takes at most 5 mm of TCP step per target, and the
+    /// oracle did not check it (an 8 mm step at 100 Hz, 0.8 m/s, passed every check). Now
+    /// such a step is found, on its own, at a speed the limit allows.
+    #[test]
+    fn a_tcp_step_over_the_controllers_5_mm_is_found_even_within_the_speed_limit() {
+        assert_eq!(
+            CONTROLLER_TCP_STEP_M,
+            twin::approval::shield::MAX_TCP_STEP_M,
+            "the oracle and the shield name the same controller bound"
+        );
+        let limits = CommandLimits {
+            joint_min_rad: [-6.0; DOF],
+            joint_max_rad: [6.0; DOF],
+            max_velocity_rad_s: [3.0; DOF],
+            max_tcp_speed_m_s: 0.8,
+            period_s: 0.01,
+        };
+        let q = [0.0; DOF];
+        let from = [0.30, 0.0, 0.20];
+        // 8 mm in one 10 ms period: 0.8 m/s, within the speed limit.
+        let eight_mm = limits.check(&q, &q, &from, &[0.308, 0.0, 0.20]);
+        assert_eq!(eight_mm.tcp_speed_m_s, None, "{eight_mm:?}");
+        let step = eight_mm.tcp_step_m.expect("an 8 mm TCP step is found");
+        assert!((step - 0.008).abs() < 1e-12, "{step}");
+        assert!(eight_mm.any());
+        // 5 mm, the controller's bound, passes.
+        let five_mm = limits.check(&q, &q, &from, &[0.305, 0.0, 0.20]);
+        assert_eq!(five_mm, MotionFindings::default(), "{five_mm:?}");
     }
 
     #[test]

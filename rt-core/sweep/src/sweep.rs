@@ -304,9 +304,9 @@ pub struct HardFailure {
     /// Its cycle (time = cycle / rate).
     pub cycle: u64,
     /// What: `box_penetration`, `table_penetration`, `joint_step`, `tcp_speed`,
-    /// `joint_limit`, `non_finite`.
+    /// `tcp_step`, `joint_limit`, `non_finite`.
     pub kind: &'static str,
-    /// The measure: depth (m), step (rad), speed (m/s), or the joint.
+    /// The measure: depth (m), step (rad; m for the TCP's), speed (m/s), or the joint.
     pub value: f64,
     /// The box (penetration), or the joint.
     pub index: Option<usize>,
@@ -327,6 +327,9 @@ pub struct HardCounts {
     pub joint_step_violations: u64,
     /// TCP speeds over the limit.
     pub tcp_speed_violations: u64,
+    /// TCP steps over the controller's 5 mm per target
+    /// ([`crate::oracle::CONTROLLER_TCP_STEP_M`]).
+    pub tcp_step_violations: u64,
     /// Commands outside the joint limits.
     pub joint_limit_violations: u64,
     /// Non-finite commands.
@@ -340,6 +343,7 @@ impl HardCounts {
             + self.table_penetrations
             + self.joint_step_violations
             + self.tcp_speed_violations
+            + self.tcp_step_violations
             + self.joint_limit_violations
             + self.non_finite_commands
     }
@@ -349,6 +353,7 @@ impl HardCounts {
         self.table_penetrations += o.table_penetrations;
         self.joint_step_violations += o.joint_step_violations;
         self.tcp_speed_violations += o.tcp_speed_violations;
+        self.tcp_step_violations += o.tcp_step_violations;
         self.joint_limit_violations += o.joint_limit_violations;
         self.non_finite_commands += o.non_finite_commands;
     }
@@ -1500,6 +1505,10 @@ impl<'a> Episode<'a> {
             if let Some(v) = m.tcp_speed_m_s {
                 self.report.hard.tcp_speed_violations += 1;
                 fail("tcp_speed", v, None, None, &mut self.report);
+            }
+            if let Some(step) = m.tcp_step_m {
+                self.report.hard.tcp_step_violations += 1;
+                fail("tcp_step", step, None, None, &mut self.report);
             }
             let world = oracle.world_capsules(&q);
             let mut table_m = f64::INFINITY;

@@ -132,6 +132,18 @@ fn detection_frame_round_trips() {
 }
 
 #[test]
+fn goal_refusal_round_trips() {
+    round_trip(GoalRefusal::by_age(
+        41,
+        GoalCommand::Reach as u8,
+        &GoalRequestAgeError::TooOld {
+            age_ns: 2_500_000_000,
+        },
+        7,
+    ));
+}
+
+#[test]
 fn twin_verdict_round_trips() {
     round_trip(verdict());
 }

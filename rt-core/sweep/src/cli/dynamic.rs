@@ -130,11 +130,12 @@ fn print_tables(s: &DynamicSummary) {
     print_header(s);
     let h = &s.hard;
     println!(
-        "HARD COUNTS (must be 0): still boxes {}, table {}, joint steps {}, TCP speed {}, joint limits {}, non-finite {}",
+        "HARD COUNTS (must be 0): still boxes {}, table {}, joint steps {}, TCP speed {}, TCP step {}, joint limits {}, non-finite {}",
         h.box_penetrations,
         h.table_penetrations,
         h.joint_step_violations,
         h.tcp_speed_violations,
+        h.tcp_step_violations,
         h.joint_limit_violations,
         h.non_finite_commands
     );

@@ -677,6 +677,10 @@ impl<'a> Run<'a> {
                     ck.hard.tcp_speed_violations += 1;
                     fail("tcp_speed", v, None);
                 }
+                if let Some(step) = m.tcp_step_m {
+                    ck.hard.tcp_step_violations += 1;
+                    fail("tcp_step", step, None);
+                }
                 let mut table_m = f64::INFINITY;
                 for (cap, a, b) in &caps {
                     if cap.meets_table() {
