@@ -20,6 +20,7 @@ use rt_core::twin_thread::intake::FrameRefusal;
 
 use super::DynamicSettings;
 use super::intruder::{ArmMotion, Intruder, IntruderDraw};
+use super::kinds::{GROWN_SEED_SALT, KindChoice, choose};
 use super::report::{Contact, DynamicEpisodeReport, Onset, Reaction};
 use crate::oracle::{CommandLimits, NominalCapsule, OracleBox, Point, segment_box_distance_m};
 use crate::sweep::{
@@ -115,6 +116,8 @@ struct Rehearsal {
     reach_cycle: Option<u64>,
     /// The arm's capsules every other cycle from the start of motion to the goal.
     path: Vec<(u64, Capsules)>,
+    /// Stops the cycle began.
+    stops: u64,
 }
 
 impl Rehearsal {
@@ -202,6 +205,18 @@ struct Run<'a> {
     start_cycle: Option<u64>,
     reach_cycle: Option<u64>,
     goal_target: Point,
+    /// Stops the cycle began.
+    stops: u64,
+}
+
+/// The goal's target point: the TCP's, above the goal cube, m.
+fn goal_target(assets: &SweepAssets, world: &StillWorld) -> Point {
+    let gc = world.goal_center.map(f64::from);
+    [
+        gc[0],
+        gc[1],
+        gc[2] + f64::from(world.goal_size) / 2.0 + assets.task.success.goal_hover_m,
+    ]
 }
 
 fn bump(counts: &mut BTreeMap<String, u64>, key: &str) {
@@ -229,7 +244,6 @@ impl<'a> Run<'a> {
         if let Some(p) = policy {
             rig.worker.on_policy(p, &mut Vec::new());
         }
-        let gc = world.goal_center.map(f64::from);
         Self {
             assets,
             settings,
@@ -253,11 +267,8 @@ impl<'a> Run<'a> {
             sent_seen: 0,
             start_cycle: None,
             reach_cycle: None,
-            goal_target: [
-                gc[0],
-                gc[1],
-                gc[2] + f64::from(world.goal_size) / 2.0 + assets.task.success.goal_hover_m,
-            ],
+            goal_target: goal_target(assets, world),
+            stops: 0,
         }
     }
 
@@ -392,9 +403,11 @@ impl<'a> Run<'a> {
             bump(&mut self.counts, key);
         }
         let counts = &mut self.counts;
+        let stops = &mut self.stops;
         self.rig.log.drain(|r| {
             let key = match r.event {
                 CycleEvent::StopBegun { reason } => {
+                    *stops += 1;
                     bump(counts, &format!("cycle_stops_{}", stop_reason_name(reason)));
                     return;
                 }
@@ -480,6 +493,7 @@ impl<'a> Run<'a> {
             start_cycle: self.start_cycle,
             reach_cycle: self.reach_cycle,
             path,
+            stops: self.stops,
         }
     }
 
@@ -828,6 +842,10 @@ impl<'a> Run<'a> {
         report.changed_cycle = ck.changed_cycle;
         report.reach_s = self.reach_cycle.map(|r| r as f64 * p);
         report.rehearsal_reach_s = rehearsal.reach_cycle.map(|r| r as f64 * p);
+        report.start_s = self.start_cycle.map(|c| c as f64 * p);
+        report.rehearsal_start_s = rehearsal.start_cycle.map(|c| c as f64 * p);
+        report.stops = self.stops;
+        report.rehearsal_stops = rehearsal.stops;
         let i = &ck.intruder;
         report.cleared_s = match (i.vanish_s, i.stop_s) {
             (Some(v), _) => Some(v),
@@ -853,8 +871,22 @@ pub fn run_dynamic_episode(
     settings: &DynamicSettings,
     index: u64,
 ) -> DynamicEpisodeReport {
-    let mut rng = episode_rng(settings.seed ^ super::DYNAMIC_SEED_SALT, index);
-    let draw = IntruderDraw::draw(&mut rng, (settings.min_speed_m_s, settings.max_speed_m_s));
+    let speeds = (settings.min_speed_m_s, settings.max_speed_m_s);
+    let (mut rng, draw) = match choose(settings.kinds, settings.seed, index) {
+        KindChoice::Classic(kind) => {
+            let mut rng = episode_rng(settings.seed ^ super::DYNAMIC_SEED_SALT, index);
+            let mut draw = IntruderDraw::draw(&mut rng, speeds);
+            if let Some(k) = kind {
+                draw.kind = k;
+            }
+            (rng, draw)
+        }
+        KindChoice::Grown(kind) => {
+            let mut rng = episode_rng(settings.seed ^ GROWN_SEED_SALT, index);
+            let draw = IntruderDraw::draw_grown(&mut rng, kind, speeds);
+            (rng, draw)
+        }
+    };
     let seeds = (rng.random::<u64>(), rng.random::<u64>());
     let mut report = DynamicEpisodeReport {
         episode: index,
@@ -883,6 +915,11 @@ pub fn run_dynamic_episode(
         rehearsal_reach_s: None,
         reach_s: None,
         cleared_s: None,
+        rehearsal_start_s: None,
+        start_s: None,
+        rehearsal_stops: 0,
+        stops: 0,
+        infeasible_reported: false,
         counts: BTreeMap::new(),
     };
     let cal = &assets.cfg.intake;
@@ -895,11 +932,15 @@ pub fn run_dynamic_episode(
         else {
             continue;
         };
+        let goal_size = f64::from(world.goal_size);
+        let goal_center = world.goal_center.map(f64::from);
         let motion = ArmMotion {
             pose: &rehearsal.pose,
             start_cycle,
             reach_cycle,
             period_s: 1.0 / assets.cfg.rate_hz,
+            goal_cube: OracleBox::new(goal_center, [goal_size; 3]),
+            goal_target_m: goal_target(assets, &world),
         };
         let Some((intruder, clear)) =
             Intruder::place(&draw, assets.oracle(), &motion, calibrated, table)
@@ -909,6 +950,7 @@ pub fn run_dynamic_episode(
         report.world_attempts = attempt;
         report.policy = world.policy;
         report.intruder = Some(intruder);
+        report.size_m = intruder.spec.size_m;
         Run::new(assets, settings, index, &world, seeds).with_intruder(
             &intruder,
             &rehearsal,

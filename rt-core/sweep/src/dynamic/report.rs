@@ -144,6 +144,18 @@ pub struct DynamicEpisodeReport {
     pub reach_s: Option<f64>,
     /// The intruder left, or came to rest out of the way, s (none: it stays on the path).
     pub cleared_s: Option<f64>,
+    /// The rehearsal's arm started to move, s.
+    pub rehearsal_start_s: Option<f64>,
+    /// This run's arm started to move, s.
+    pub start_s: Option<f64>,
+    /// Stops the cycle began in the rehearsal (protective stops of any reason).
+    pub rehearsal_stops: u64,
+    /// Stops the cycle began in this run.
+    pub stops: u64,
+    /// rt-core said the goal is infeasible (taken). This rt-core has no such report (issue
+    /// 42 item 4 adds it), so it stays false here: a goal it cannot reach shows as not
+    /// reached.
+    pub infeasible_reported: bool,
     /// Counters (frames, events, stops).
     pub counts: BTreeMap<String, u64>,
 }
@@ -178,5 +190,17 @@ impl DynamicEpisodeReport {
     /// Reach time lost against the rehearsal, s.
     pub fn time_lost_s(&self) -> Option<f64> {
         Some(self.reach_s? - self.rehearsal_reach_s?)
+    }
+
+    /// The intrusion cost no protective stop: the cycle began no more stops than in the
+    /// rehearsal.
+    pub fn handled_without_stop(&self) -> bool {
+        self.stops <= self.rehearsal_stops
+    }
+
+    /// The start of motion later than the rehearsal's, s (negative: earlier; none: either
+    /// did not start).
+    pub fn start_delay_s(&self) -> Option<f64> {
+        Some(self.start_s? - self.rehearsal_start_s?)
     }
 }
