@@ -583,3 +583,239 @@ fn appears_next_to_arm(
     }
     None
 }
+
+#[cfg(test)]
+mod tests {
+    use rand::SeedableRng;
+
+    use super::*;
+    use crate::sweep::SweepAssets;
+
+    const PERIOD_S: f64 = 0.004;
+    const REST_CYCLES: usize = 200;
+    const MOTION_CYCLES: usize = 600;
+
+    /// A rehearsal-like motion: at rest 0.8 s, a smooth 2.4 s joint move, at rest again.
+    struct Rig {
+        assets: SweepAssets,
+        pose: Vec<Joints>,
+        goal_cube: OracleBox,
+        goal_target_m: Point,
+    }
+
+    impl Rig {
+        fn new() -> Self {
+            let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets");
+            let assets = SweepAssets::load(&dir).expect("assets");
+            let q0 = assets.task.start.joints_rad;
+            let q1: Joints = [0.7, -0.1, -0.6, 0.7, 0.7];
+            let mut pose = vec![q0; REST_CYCLES];
+            for k in 1..=MOTION_CYCLES {
+                let s = 0.5 - 0.5 * (std::f64::consts::PI * k as f64 / MOTION_CYCLES as f64).cos();
+                pose.push(std::array::from_fn(|j| q0[j] + (q1[j] - q0[j]) * s));
+            }
+            pose.extend(std::iter::repeat_n(q1, 50));
+            let tcp = assets.oracle().tcp_m(&q1);
+            assert!(
+                tcp[2] > 0.05,
+                "the made-up motion ends above the table: {tcp:?}"
+            );
+            Self {
+                goal_cube: OracleBox::new([tcp[0], tcp[1], 0.025], [0.05; 3]),
+                goal_target_m: [tcp[0], tcp[1], 0.10],
+                assets,
+                pose,
+            }
+        }
+
+        fn arm(&self) -> ArmMotion<'_> {
+            ArmMotion {
+                pose: &self.pose,
+                start_cycle: REST_CYCLES as u64,
+                reach_cycle: (REST_CYCLES + MOTION_CYCLES) as u64,
+                period_s: PERIOD_S,
+                goal_cube: self.goal_cube,
+                goal_target_m: self.goal_target_m,
+            }
+        }
+
+        fn calibrated(&self) -> (Point, Point) {
+            let i = &self.assets.cfg.intake;
+            (i.calibrated_min_m, i.calibrated_max_m)
+        }
+
+        /// Up to `n` placed intruders of `kind` (seeds 0..n); at least half must place.
+        fn placed(&self, kind: IntruderKind, n: u64) -> Vec<Intruder> {
+            let out: Vec<Intruder> = (0..n)
+                .filter_map(|seed| {
+                    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+                    let d = IntruderDraw::draw_grown(&mut rng, kind, (0.1, 1.6));
+                    Intruder::place(
+                        &d,
+                        self.assets.oracle(),
+                        &self.arm(),
+                        self.calibrated(),
+                        0.0,
+                    )
+                    .map(|(i, _)| i)
+                })
+                .collect();
+            assert!(
+                out.len() as u64 * 2 >= n,
+                "{kind:?}: {} of {n} placed",
+                out.len()
+            );
+            assert!(out.iter().all(|i| i.kind == kind));
+            out
+        }
+
+        fn clearance_m(&self, q: &Joints, bx: &OracleBox) -> f64 {
+            self.assets
+                .oracle()
+                .clearance(q, [bx], f64::NEG_INFINITY)
+                .box_m
+        }
+    }
+
+    fn times(from_s: f64, to_s: f64, step_s: f64) -> impl Iterator<Item = f64> {
+        let n = ((to_s - from_s) / step_s).ceil().max(0.0) as usize;
+        (0..=n).map(move |k| (from_s + k as f64 * step_s).min(to_s))
+    }
+
+    #[test]
+    fn a_box_moving_at_the_start_moves_from_the_first_frame_through_the_arms_start() {
+        let rig = Rig::new();
+        let arm = rig.arm();
+        let view = View::new(rig.calibrated(), 0.0, 0.15);
+        for i in rig.placed(IntruderKind::MovingAtStart, 16) {
+            assert_eq!(i.appear_s, 0.0);
+            assert!(i.present_at(0.0) && i.speed_at(0.0) > 0.0, "{i:?}");
+            let start = arm.start_s();
+            assert!(
+                i.present_at(start) && i.speed_at(start) > 0.0,
+                "still at the start: {i:?}"
+            );
+            let v = i.vanish_s.expect("it leaves");
+            for t in times(0.0, v - 1e-6, 0.02) {
+                assert!(
+                    (i.speed_at(t) - i.speed_m_s).abs() < 1e-9,
+                    "moving at {t}: {i:?}"
+                );
+                let c = i.spec.center_at(t);
+                assert!((0..2).all(|k| c[k] >= view.lo_m[k] - 1e-6 && c[k] <= view.hi_m[k] + 1e-6));
+            }
+            for t in times(0.0, start, 0.01) {
+                let clear = rig.clearance_m(&arm.pose_at(t), &i.box_at(t));
+                assert!(
+                    clear >= AT_REST_CLEAR_M - 1e-9,
+                    "on the arm at rest at {t}: {clear}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_near_miss_never_overlaps_the_swept_arm_and_passes_close() {
+        let rig = Rig::new();
+        let arm = rig.arm();
+        let poses: Vec<Joints> = rig.pose.iter().step_by(4).copied().collect();
+        for i in rig.placed(IntruderKind::NearMiss, 8) {
+            let v = i.vanish_s.expect("it crosses and leaves");
+            let mut closest = f64::INFINITY;
+            for t in times(i.appear_s, v, 0.02 / i.speed_m_s) {
+                let bx = i.box_at(t);
+                for q in &poses {
+                    closest = closest.min(rig.clearance_m(q, &bx));
+                }
+            }
+            assert!(
+                closest > 0.0,
+                "the near miss overlaps the swept arm: {closest} {i:?}"
+            );
+            assert!(closest < 0.3, "not near: {closest} m");
+            assert!(i.speed_at((i.appear_s + v) / 2.0) > 0.0 && arm.reach_s() > i.appear_s);
+        }
+    }
+
+    #[test]
+    fn a_parked_box_stays_on_the_path_the_arm_still_takes_and_off_the_goal() {
+        let rig = Rig::new();
+        let arm = rig.arm();
+        for i in rig.placed(IntruderKind::ParksOnPath, 16) {
+            let stop = i.stop_s.expect("it parks");
+            assert_eq!(i.vanish_s, None, "it stays");
+            assert!(i.speed_at(stop + 0.01) == 0.0 && i.box_at(stop) == i.box_at(stop + 30.0));
+            let parked = i.box_at(stop);
+            let on_path = rig.pose[(stop / PERIOD_S) as usize..]
+                .iter()
+                .map(|q| rig.clearance_m(q, &parked))
+                .fold(f64::INFINITY, f64::min);
+            assert!(on_path < 0.0, "the parked box is off the path: {on_path}");
+            assert!(parked.signed_distance_m(&rig.goal_target_m) >= PARK_GOAL_CLEAR_M);
+            assert!(!boxes_overlap(&parked, &rig.goal_cube));
+            assert!(stop < arm.reach_s(), "parks before the arm is at the goal");
+        }
+    }
+
+    #[test]
+    fn a_box_taking_the_goal_slides_level_onto_it_and_stays() {
+        let rig = Rig::new();
+        let arm = rig.arm();
+        for i in rig.placed(IntruderKind::TakesGoal, 16) {
+            let stop = i.stop_s.expect("it stops on the goal");
+            assert_eq!(i.vanish_s, None, "it stays");
+            assert!(stop < arm.reach_s(), "before the arm gets there");
+            let taken = i.box_at(stop + 30.0);
+            assert!(
+                taken.signed_distance_m(&rig.goal_target_m) < 0.0,
+                "covers the target"
+            );
+            assert!(boxes_overlap(&taken, &rig.goal_cube));
+            for k in 0..2 {
+                let (g, b) = (&rig.goal_cube, &taken);
+                assert!(b.center_m[k] - b.half_m[k] <= g.center_m[k] - g.half_m[k]);
+                assert!(b.center_m[k] + b.half_m[k] >= g.center_m[k] + g.half_m[k]);
+            }
+            let first = i.spec.center_at(i.appear_s);
+            assert!(i.speed_at(i.appear_s + 1e-3) > 0.0, "it slides in");
+            assert!(max_gap(&first, &taken.center_m) >= MIN_SLIDE_M - 1e-9);
+            assert!(
+                (first[2] - taken.center_m[2]).abs() < 1e-12,
+                "level, along the table"
+            );
+            assert!(
+                (taken.center_m[2] - taken.half_m[2]).abs() < 1e-12,
+                "on the table"
+            );
+        }
+    }
+
+    fn max_gap(a: &Point, b: &Point) -> f64 {
+        let d = sub(a, b);
+        dot(&d, &d).sqrt()
+    }
+
+    #[test]
+    fn a_box_appearing_next_to_the_arm_appears_still_beside_it() {
+        let rig = Rig::new();
+        let arm = rig.arm();
+        let mut stays = 0;
+        for i in rig.placed(IntruderKind::AppearsNextToArm, 16) {
+            let t = i.appear_s;
+            assert!(!i.present_at(t - 1e-3) && i.present_at(t));
+            let until = i.depart_s.unwrap_or(t + 30.0);
+            assert!(
+                i.speed_at(t) == 0.0 && i.speed_at(until - 1e-3) == 0.0,
+                "{i:?}"
+            );
+            assert!(
+                i.box_at(t) == i.box_at(until - 1e-3),
+                "appears, does not slide in"
+            );
+            let gap = rig.clearance_m(&arm.pose_at(t), &i.box_at(t));
+            assert!(gap > 0.0 && gap <= 0.045, "next to the arm: {gap} m");
+            stays += usize::from(i.vanish_s.is_none());
+        }
+        assert!(stays > 0, "some stay");
+    }
+}
