@@ -8,8 +8,9 @@
 //!   arm at rest;
 //! - [`IntruderKind::NearMiss`]: a line across the view whose every box along it keeps the
 //!   drawn clearance (2–15 cm) from the swept arm (every pose of the rehearsal), never on it;
-//! - [`IntruderKind::ParksOnPath`]: parks 0.6–2 s before the arm gets there on a point of
-//!   the path the arm still takes (its final box overlaps that path), off the goal;
+//! - [`IntruderKind::ParksOnPath`]: parks while the arm moves, 0.3–2 s before the arm gets
+//!   there, on a point of the path the arm still takes (its final box overlaps that path),
+//!   off the goal;
 //! - [`IntruderKind::TakesGoal`]: slides along the table onto the goal cube (covering its
 //!   footprint) with its top above the goal's target point, before the arm gets there;
 //! - [`IntruderKind::AppearsNextToArm`]: appears still, 5–40 mm from the arm where it is,
@@ -48,6 +49,12 @@ const AT_REST_CLEAR_M: f64 = 0.02;
 
 /// A parked box stays this far from the goal's target point, m.
 const PARK_GOAL_CLEAR_M: f64 = 0.05;
+
+/// A box parks at least this long after the arm started, s.
+const PARK_AFTER_START_S: f64 = 0.1;
+
+/// ... and at least this long before the arm gets there, s.
+const PARK_MIN_LEAD_S: f64 = 0.3;
 
 /// The box taking the goal: its footprint covers the goal cube's by this much, and its top
 /// stands this far above the goal's target point, m.
@@ -450,8 +457,11 @@ fn parks_on_path(
     let point = arm_point(d, oracle, &arm.pose_at(target_arm_s));
     let target = view.clamp(add(&point, &d.offset_m, 1.0));
     let parked = OracleBox::new(target, d.size_m);
-    let arrive = (target_arm_s - d.lead_s).max(0.2);
-    if parked.signed_distance_m(&arm.goal_target_m) < PARK_GOAL_CLEAR_M
+    // It parks while the arm moves (after its start), ahead of it.
+    let lead_s = d.lead_s.min(target_arm_s - start - PARK_AFTER_START_S);
+    let arrive = target_arm_s - lead_s;
+    if lead_s < PARK_MIN_LEAD_S
+        || parked.signed_distance_m(&arm.goal_target_m) < PARK_GOAL_CLEAR_M
         || boxes_overlap(&parked, &arm.goal_cube)
         || path_clearance_m(oracle, arm, arrive, &parked) >= 0.0
     {
@@ -754,6 +764,11 @@ mod tests {
             assert!(parked.signed_distance_m(&rig.goal_target_m) >= PARK_GOAL_CLEAR_M);
             assert!(!boxes_overlap(&parked, &rig.goal_cube));
             assert!(stop < arm.reach_s(), "parks before the arm is at the goal");
+            assert!(stop > arm.start_s(), "parks while the arm moves");
+            assert!(
+                stop + PARK_MIN_LEAD_S <= i.target_arm_s + 1e-9,
+                "ahead of the arm"
+            );
         }
     }
 
