@@ -569,6 +569,11 @@ impl<'a> Run<'a> {
                 .or_insert(0) += r.envelope_breaches;
         }
         report.cycles = c;
+        let p = self.period_s;
+        report.start_s = self.start_cycle.map(|c| c as f64 * p);
+        report.rehearsal_start_s = rehearsal.start_cycle.map(|c| c as f64 * p);
+        report.stops = self.stops;
+        report.rehearsal_stops = rehearsal.stops;
         self.finish(ck, rehearsal, report);
     }
 
@@ -842,10 +847,6 @@ impl<'a> Run<'a> {
         report.changed_cycle = ck.changed_cycle;
         report.reach_s = self.reach_cycle.map(|r| r as f64 * p);
         report.rehearsal_reach_s = rehearsal.reach_cycle.map(|r| r as f64 * p);
-        report.start_s = self.start_cycle.map(|c| c as f64 * p);
-        report.rehearsal_start_s = rehearsal.start_cycle.map(|c| c as f64 * p);
-        report.stops = self.stops;
-        report.rehearsal_stops = rehearsal.stops;
         let i = &ck.intruder;
         report.cleared_s = match (i.vanish_s, i.stop_s) {
             (Some(v), _) => Some(v),
@@ -865,14 +866,11 @@ impl<'a> Run<'a> {
     }
 }
 
-/// Runs dynamic episode `index` (deterministic in `settings.seed` and `index`).
-pub fn run_dynamic_episode(
-    assets: &SweepAssets,
-    settings: &DynamicSettings,
-    index: u64,
-) -> DynamicEpisodeReport {
+/// Episode `index`'s intruder, and the generator its world is drawn from next: a classic
+/// kind from the classic stream (as before issue 42), a grown one from its own.
+fn draw_intruder(settings: &DynamicSettings, index: u64) -> (ChaCha8Rng, IntruderDraw) {
     let speeds = (settings.min_speed_m_s, settings.max_speed_m_s);
-    let (mut rng, draw) = match choose(settings.kinds, settings.seed, index) {
+    match choose(settings.kinds, settings.seed, index) {
         KindChoice::Classic(kind) => {
             let mut rng = episode_rng(settings.seed ^ super::DYNAMIC_SEED_SALT, index);
             let mut draw = IntruderDraw::draw(&mut rng, speeds);
@@ -886,42 +884,18 @@ pub fn run_dynamic_episode(
             let draw = IntruderDraw::draw_grown(&mut rng, kind, speeds);
             (rng, draw)
         }
-    };
+    }
+}
+
+/// Runs dynamic episode `index` (deterministic in `settings.seed` and `index`).
+pub fn run_dynamic_episode(
+    assets: &SweepAssets,
+    settings: &DynamicSettings,
+    index: u64,
+) -> DynamicEpisodeReport {
+    let (mut rng, draw) = draw_intruder(settings, index);
     let seeds = (rng.random::<u64>(), rng.random::<u64>());
-    let mut report = DynamicEpisodeReport {
-        episode: index,
-        world_attempts: 0,
-        policy: PolicyKind::GoalSeeking,
-        kind: draw.kind,
-        speed_m_s: draw.speed_m_s,
-        size_m: draw.size_m,
-        intruder: None,
-        cycles: 0,
-        commands: 0,
-        hard: HardCounts::default(),
-        failures: Vec::new(),
-        onsets: Vec::new(),
-        contacts: Vec::new(),
-        moving_contact_poses_avoidable: 0,
-        moving_contact_poses_unavoidable: 0,
-        moving_contact_poses_avoidable_reaction_only_rule: 0,
-        rest_contact_poses: 0,
-        max_moving_depth_m: 0.0,
-        min_separation_m: f64::INFINITY,
-        min_separation_avoidable_m: f64::INFINITY,
-        reaction: None,
-        first_intruder_frame_cycle: None,
-        changed_cycle: None,
-        rehearsal_reach_s: None,
-        reach_s: None,
-        cleared_s: None,
-        rehearsal_start_s: None,
-        start_s: None,
-        rehearsal_stops: 0,
-        stops: 0,
-        infeasible_reported: false,
-        counts: BTreeMap::new(),
-    };
+    let mut report = DynamicEpisodeReport::new(index, draw.kind, draw.speed_m_s, draw.size_m);
     let cal = &assets.cfg.intake;
     let calibrated = (cal.calibrated_min_m, cal.calibrated_max_m);
     let table = assets.task.sampling.table_height_m;

@@ -161,6 +161,44 @@ pub struct DynamicEpisodeReport {
 }
 
 impl DynamicEpisodeReport {
+    /// The report of episode `episode` before it ran: its intruder drawn, nothing else.
+    pub fn new(episode: u64, kind: IntruderKind, speed_m_s: f64, size_m: Point) -> Self {
+        Self {
+            episode,
+            world_attempts: 0,
+            policy: PolicyKind::GoalSeeking,
+            kind,
+            speed_m_s,
+            size_m,
+            intruder: None,
+            cycles: 0,
+            commands: 0,
+            hard: HardCounts::default(),
+            failures: Vec::new(),
+            onsets: Vec::new(),
+            contacts: Vec::new(),
+            moving_contact_poses_avoidable: 0,
+            moving_contact_poses_unavoidable: 0,
+            moving_contact_poses_avoidable_reaction_only_rule: 0,
+            rest_contact_poses: 0,
+            max_moving_depth_m: 0.0,
+            min_separation_m: f64::INFINITY,
+            min_separation_avoidable_m: f64::INFINITY,
+            reaction: None,
+            first_intruder_frame_cycle: None,
+            changed_cycle: None,
+            rehearsal_reach_s: None,
+            reach_s: None,
+            cleared_s: None,
+            rehearsal_start_s: None,
+            start_s: None,
+            rehearsal_stops: 0,
+            stops: 0,
+            infeasible_reported: false,
+            counts: BTreeMap::new(),
+        }
+    }
+
     /// A contact while moving outside every unavoidable window.
     pub fn avoidable_moving_contact(&self) -> bool {
         self.moving_contact_poses_avoidable > 0

@@ -496,8 +496,8 @@ fn takes_goal(
     let g = arm.goal_cube;
     let goal = arm.goal_target_m;
     let mut size = d.size_m;
-    for i in 0..2 {
-        size[i] = size[i].max(2.0 * (g.half_m[i] + TAKE_MARGIN_M) + 0.01);
+    for (s, h) in size.iter_mut().zip(&g.half_m).take(2) {
+        *s = s.max(2.0 * (h + TAKE_MARGIN_M) + 0.01);
     }
     size[2] = size[2].max(goal[2] - table_z_m + 2.0 * TAKE_MARGIN_M);
     let view = View::new(calibrated, table_z_m, size[2]);
