@@ -32,7 +32,8 @@ impl OutcomeLine {
 /// How a group's intrusions ended.
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct OutcomeFigures {
-    /// Intrusions after which the cycle began no more stops than without the intruder.
+    /// Intrusions during which the arm moved and the cycle began no more stops than without
+    /// the intruder.
     pub handled_without_stop: u64,
     /// `handled_without_stop / episodes` (1 when none).
     pub handled_without_stop_fraction: f64,

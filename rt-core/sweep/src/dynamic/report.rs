@@ -230,10 +230,10 @@ impl DynamicEpisodeReport {
         Some(self.reach_s? - self.rehearsal_reach_s?)
     }
 
-    /// The intrusion cost no protective stop: the cycle began no more stops than in the
-    /// rehearsal.
+    /// The intrusion cost no protective stop: the arm moved and the cycle began no more
+    /// stops than in the rehearsal.
     pub fn handled_without_stop(&self) -> bool {
-        self.stops <= self.rehearsal_stops
+        self.start_s.is_some() && self.stops <= self.rehearsal_stops
     }
 
     /// The start of motion later than the rehearsal's, s (negative: earlier; none: either

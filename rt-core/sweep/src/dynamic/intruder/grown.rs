@@ -8,11 +8,12 @@
 //!   arm at rest;
 //! - [`IntruderKind::NearMiss`]: a line across the view whose every box along it keeps the
 //!   drawn clearance (2–15 cm) from the swept arm (every pose of the rehearsal), never on it;
-//! - [`IntruderKind::ParksOnPath`]: parks while the arm moves, 0.3–2 s before the arm gets
+//! - [`IntruderKind::ParksOnPath`]: comes and parks while the arm moves, 0.3–2 s before it gets
 //!   there, on a point of the path the arm still takes (its final box overlaps that path),
 //!   off the goal;
 //! - [`IntruderKind::TakesGoal`]: slides along the table onto the goal cube (covering its
-//!   footprint) with its top above the goal's target point, before the arm gets there;
+//!   footprint) with its top above the goal's target point, seen first while the arm moves,
+//!   before the arm gets there;
 //! - [`IntruderKind::AppearsNextToArm`]: appears still, 5–40 mm from the arm where it is,
 //!   and stays, or leaves after 0.5–3 s.
 
@@ -60,8 +61,12 @@ const PARK_MIN_LEAD_S: f64 = 0.3;
 /// stands this far above the goal's target point, m.
 const TAKE_MARGIN_M: f64 = 0.01;
 
-/// Shortest slide onto the goal, m.
+/// Shortest way in of a box parking on the path or taking the goal, m.
 const MIN_SLIDE_M: f64 = 0.05;
+
+/// A box parking on the path or taking the goal is first seen at least this long after the
+/// arm started (a box seen before the start is a world the arm plans in), s.
+const SEEN_AFTER_START_S: f64 = 0.05;
 
 impl IntruderDraw {
     /// Draws an intruder of a grown `kind` with speeds in `speed_m_s` (min, max).
@@ -470,7 +475,12 @@ fn parks_on_path(
     let v = d.speed_m_s;
     let dir = unit(d.azimuth_rad, d.elevation_rad);
     let (room, _) = view.exit(&target, &neg(&dir));
-    let approach = (v * d.travel_s).min(room).min(v * arrive);
+    let approach = (v * d.travel_s)
+        .min(room)
+        .min(v * (arrive - start - SEEN_AFTER_START_S));
+    if approach < MIN_SLIDE_M {
+        return None;
+    }
     let appear = arrive - approach / v;
     let keys = vec![
         key(appear, add(&target, &dir, -approach)),
@@ -518,7 +528,9 @@ fn takes_goal(
     for k in 0..LINE_CANDIDATES {
         let u = unit(d.azimuth_rad + k as f64 * GOLDEN_ANGLE_RAD, 0.0);
         let (room, _) = view.exit(&center, &neg(&u));
-        let approach = (v * d.travel_s).min(room).min(v * arrive);
+        let approach = (v * d.travel_s)
+            .min(room)
+            .min(v * (arrive - start - SEEN_AFTER_START_S));
         if approach < MIN_SLIDE_M {
             continue;
         }
@@ -764,7 +776,7 @@ mod tests {
             assert!(parked.signed_distance_m(&rig.goal_target_m) >= PARK_GOAL_CLEAR_M);
             assert!(!boxes_overlap(&parked, &rig.goal_cube));
             assert!(stop < arm.reach_s(), "parks before the arm is at the goal");
-            assert!(stop > arm.start_s(), "parks while the arm moves");
+            assert!(i.appear_s > arm.start_s(), "comes while the arm moves");
             assert!(
                 stop + PARK_MIN_LEAD_S <= i.target_arm_s + 1e-9,
                 "ahead of the arm"
@@ -780,6 +792,7 @@ mod tests {
             let stop = i.stop_s.expect("it stops on the goal");
             assert_eq!(i.vanish_s, None, "it stays");
             assert!(stop < arm.reach_s(), "before the arm gets there");
+            assert!(i.appear_s > arm.start_s(), "comes while the arm moves");
             let taken = i.box_at(stop + 30.0);
             assert!(
                 taken.signed_distance_m(&rig.goal_target_m) < 0.0,
