@@ -92,14 +92,6 @@ impl IntruderKind {
     pub fn is_classic(self) -> bool {
         Self::CLASSIC.contains(&self)
     }
-
-    /// Whether it stays where it stops for good (its goal may then never be reached).
-    pub fn parks(self) -> bool {
-        matches!(
-            self,
-            IntruderKind::EnterAndStop | IntruderKind::ParksOnPath | IntruderKind::TakesGoal
-        )
-    }
 }
 
 /// Where on the arm the intruder's target point is taken.
