@@ -32,7 +32,7 @@ help:
 	@echo "make bench-link - policy/request latency across two network namespaces (root)"
 	@echo "make test-deploy - the deploy build (panic = abort) brakes after a panic"
 	@echo "make sweep  - the adversarial safety sweep, 10 000 episodes (ARGS to override)"
-	@echo "make sweep-dynamic - the sweep with intruders during a motion, 1 000 episodes (ARGS)"
+	@echo "make sweep-dynamic - the sweep with intruders during a motion, 3 000 episodes, every kind (ARGS)"
 	@echo "make docs-check - README's figures re-run where deterministic (about 2 min)"
 	@echo "make setup-fresh-check - set-up as a new user meets it: empty cache, fresh HOME, output must hold no ERROR/WARNING"
 
@@ -117,9 +117,11 @@ sweep: setup
 
 # The dynamic sweep (issue 33): an intruder during each motion (enters and stops on the path,
 # crosses it, stops then leaves, appears at once; 0.1-1.6 m/s), 60 Hz frames with tracked
-# velocities; exits non-zero on any avoidable contact while the arm moves.
+# velocities; exits non-zero on any avoidable contact while the arm moves. Grown by issue 42
+# (moving when the arm starts, near misses, parking on the path, taking the goal, appearing
+# next to the arm; `--kinds classic` is the sweep before it): 3 000 intrusions, a table per kind.
 # The planner fallback on, as the product runs (README, "What runs by default").
-SWEEP_DYNAMIC_ARGS ?= --dynamic --episodes 1000 --seed 1 --planner-fallback --out runs/sweep-dynamic
+SWEEP_DYNAMIC_ARGS ?= --dynamic --episodes 3000 --seed 1 --planner-fallback --out runs/sweep-dynamic
 sweep-dynamic: setup
 	$(CARGO) run --release -p sweep -- $(or $(ARGS),$(SWEEP_DYNAMIC_ARGS))
 

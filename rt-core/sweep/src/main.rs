@@ -8,6 +8,7 @@
 //! ```text
 //! cargo run --release -p sweep -- --episodes 10000 --seed 1 --out runs/sweep
 //! cargo run --release -p sweep -- --dynamic --episodes 1000 --seed 1 --out runs/sweep-dynamic
+//! cargo run --release -p sweep -- --dynamic --kinds classic --episodes 1000 --seed 1
 //! ```
 
 #![forbid(unsafe_code)]
@@ -21,7 +22,7 @@ use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use shm_schemas::cli_bounds::{f64_within, int_within};
-use sweep::dynamic::DynamicSettings;
+use sweep::dynamic::{DynamicSettings, KindSet};
 use sweep::{SweepAssets, SweepSettings, SweepSummary, run_sweep};
 
 mod cli;
@@ -61,6 +62,16 @@ struct SweepArgs {
     /// counts other than the hard ones may vary with the machine's load).
     #[arg(long)]
     planner_fallback: bool,
+    /// With --dynamic, the intruder kinds drawn: `all`, `classic` (the four of the sweep
+    /// before issue 42, episode for episode), `grown` (issue 42's five), or a comma-separated
+    /// list of letters a-e (moving at the start, near miss, parks on the path, takes the
+    /// goal, appears next to the arm) and kinds' names.
+    #[arg(long, default_value = "all", value_parser = parse_kinds)]
+    kinds: KindSet,
+}
+
+fn parse_kinds(text: &str) -> Result<KindSet, String> {
+    KindSet::parse(text).map_err(|e| e.to_string())
 }
 
 fn main() -> ExitCode {
@@ -89,6 +100,7 @@ fn run(args: &SweepArgs) -> anyhow::Result<ExitCode> {
             max_episode_s: args.max_episode_s.unwrap_or(defaults.max_episode_s),
             jobs,
             planner_fallback: args.planner_fallback,
+            kinds: args.kinds,
             ..defaults
         };
         return cli::dynamic::run(&assets, &settings, &args.out);

@@ -180,6 +180,8 @@ fn print_tables(s: &DynamicSummary) {
         yes(t.reaction_p99_at_most_1_cycle),
         s.all.reaction.from_delivery_cycles.p99
     );
+    println!("{:-<112}", "");
+    super::per_kind::print(s);
     print_contact_examples(s);
     println!("{:-<112}", "");
     println!("COUNTERS");

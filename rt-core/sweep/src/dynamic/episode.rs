@@ -20,6 +20,7 @@ use rt_core::twin_thread::intake::FrameRefusal;
 
 use super::DynamicSettings;
 use super::intruder::{ArmMotion, Intruder, IntruderDraw};
+use super::kinds::{GROWN_SEED_SALT, KindChoice, choose};
 use super::report::{Contact, DynamicEpisodeReport, Onset, Reaction};
 use crate::oracle::{CommandLimits, NominalCapsule, OracleBox, Point, segment_box_distance_m};
 use crate::sweep::{
@@ -115,6 +116,8 @@ struct Rehearsal {
     reach_cycle: Option<u64>,
     /// The arm's capsules every other cycle from the start of motion to the goal.
     path: Vec<(u64, Capsules)>,
+    /// Stops the cycle began.
+    stops: u64,
 }
 
 impl Rehearsal {
@@ -202,6 +205,18 @@ struct Run<'a> {
     start_cycle: Option<u64>,
     reach_cycle: Option<u64>,
     goal_target: Point,
+    /// Stops the cycle began.
+    stops: u64,
+}
+
+/// The goal's target point: the TCP's, above the goal cube, m.
+fn goal_target(assets: &SweepAssets, world: &StillWorld) -> Point {
+    let gc = world.goal_center.map(f64::from);
+    [
+        gc[0],
+        gc[1],
+        gc[2] + f64::from(world.goal_size) / 2.0 + assets.task.success.goal_hover_m,
+    ]
 }
 
 fn bump(counts: &mut BTreeMap<String, u64>, key: &str) {
@@ -229,7 +244,6 @@ impl<'a> Run<'a> {
         if let Some(p) = policy {
             rig.worker.on_policy(p, &mut Vec::new());
         }
-        let gc = world.goal_center.map(f64::from);
         Self {
             assets,
             settings,
@@ -253,11 +267,8 @@ impl<'a> Run<'a> {
             sent_seen: 0,
             start_cycle: None,
             reach_cycle: None,
-            goal_target: [
-                gc[0],
-                gc[1],
-                gc[2] + f64::from(world.goal_size) / 2.0 + assets.task.success.goal_hover_m,
-            ],
+            goal_target: goal_target(assets, world),
+            stops: 0,
         }
     }
 
@@ -394,9 +405,11 @@ impl<'a> Run<'a> {
             bump(&mut self.counts, key);
         }
         let counts = &mut self.counts;
+        let stops = &mut self.stops;
         self.rig.log.drain(|r| {
             let key = match r.event {
                 CycleEvent::StopBegun { reason } => {
+                    *stops += 1;
                     bump(counts, &format!("cycle_stops_{}", stop_reason_name(reason)));
                     return;
                 }
@@ -482,6 +495,7 @@ impl<'a> Run<'a> {
             start_cycle: self.start_cycle,
             reach_cycle: self.reach_cycle,
             path,
+            stops: self.stops,
         }
     }
 
@@ -557,6 +571,11 @@ impl<'a> Run<'a> {
                 .or_insert(0) += r.envelope_breaches;
         }
         report.cycles = c;
+        let p = self.period_s;
+        report.start_s = self.start_cycle.map(|c| c as f64 * p);
+        report.rehearsal_start_s = rehearsal.start_cycle.map(|c| c as f64 * p);
+        report.stops = self.stops;
+        report.rehearsal_stops = rehearsal.stops;
         self.finish(ck, rehearsal, report);
     }
 
@@ -853,44 +872,36 @@ impl<'a> Run<'a> {
     }
 }
 
+/// Episode `index`'s intruder, and the generator its world is drawn from next: a classic
+/// kind from the classic stream (as before issue 42), a grown one from its own.
+fn draw_intruder(settings: &DynamicSettings, index: u64) -> (ChaCha8Rng, IntruderDraw) {
+    let speeds = (settings.min_speed_m_s, settings.max_speed_m_s);
+    match choose(settings.kinds, settings.seed, index) {
+        KindChoice::Classic(kind) => {
+            let mut rng = episode_rng(settings.seed ^ super::DYNAMIC_SEED_SALT, index);
+            let mut draw = IntruderDraw::draw(&mut rng, speeds);
+            if let Some(k) = kind {
+                draw.kind = k;
+            }
+            (rng, draw)
+        }
+        KindChoice::Grown(kind) => {
+            let mut rng = episode_rng(settings.seed ^ GROWN_SEED_SALT, index);
+            let draw = IntruderDraw::draw_grown(&mut rng, kind, speeds);
+            (rng, draw)
+        }
+    }
+}
+
 /// Runs dynamic episode `index` (deterministic in `settings.seed` and `index`).
 pub fn run_dynamic_episode(
     assets: &SweepAssets,
     settings: &DynamicSettings,
     index: u64,
 ) -> DynamicEpisodeReport {
-    let mut rng = episode_rng(settings.seed ^ super::DYNAMIC_SEED_SALT, index);
-    let draw = IntruderDraw::draw(&mut rng, (settings.min_speed_m_s, settings.max_speed_m_s));
+    let (mut rng, draw) = draw_intruder(settings, index);
     let seeds = (rng.random::<u64>(), rng.random::<u64>());
-    let mut report = DynamicEpisodeReport {
-        episode: index,
-        world_attempts: 0,
-        policy: PolicyKind::GoalSeeking,
-        kind: draw.kind,
-        speed_m_s: draw.speed_m_s,
-        size_m: draw.size_m,
-        intruder: None,
-        cycles: 0,
-        commands: 0,
-        hard: HardCounts::default(),
-        failures: Vec::new(),
-        onsets: Vec::new(),
-        contacts: Vec::new(),
-        moving_contact_poses_avoidable: 0,
-        moving_contact_poses_unavoidable: 0,
-        moving_contact_poses_avoidable_reaction_only_rule: 0,
-        rest_contact_poses: 0,
-        max_moving_depth_m: 0.0,
-        min_separation_m: f64::INFINITY,
-        min_separation_avoidable_m: f64::INFINITY,
-        reaction: None,
-        first_intruder_frame_cycle: None,
-        changed_cycle: None,
-        rehearsal_reach_s: None,
-        reach_s: None,
-        cleared_s: None,
-        counts: BTreeMap::new(),
-    };
+    let mut report = DynamicEpisodeReport::new(index, draw.kind, draw.speed_m_s, draw.size_m);
     let cal = &assets.cfg.intake;
     let calibrated = (cal.calibrated_min_m, cal.calibrated_max_m);
     let table = assets.task.sampling.table_height_m;
@@ -901,11 +912,15 @@ pub fn run_dynamic_episode(
         else {
             continue;
         };
+        let goal_size = f64::from(world.goal_size);
+        let goal_center = world.goal_center.map(f64::from);
         let motion = ArmMotion {
             pose: &rehearsal.pose,
             start_cycle,
             reach_cycle,
             period_s: 1.0 / assets.cfg.rate_hz,
+            goal_cube: OracleBox::new(goal_center, [goal_size; 3]),
+            goal_target_m: goal_target(assets, &world),
         };
         let Some((intruder, clear)) =
             Intruder::place(&draw, assets.oracle(), &motion, calibrated, table)
@@ -915,6 +930,7 @@ pub fn run_dynamic_episode(
         report.world_attempts = attempt;
         report.policy = world.policy;
         report.intruder = Some(intruder);
+        report.size_m = intruder.spec.size_m;
         Run::new(assets, settings, index, &world, seeds).with_intruder(
             &intruder,
             &rehearsal,

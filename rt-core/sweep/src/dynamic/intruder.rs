@@ -10,7 +10,11 @@ use shm_schemas::scene_file::{BoxPath, BoxSpec, Keyframe};
 use crate::oracle::{DistanceOracle, OracleBox, Point};
 use twin::Joints;
 
-/// How the intruder comes in (and goes).
+pub(crate) mod grown;
+
+/// How the intruder comes in (and goes). The first four are the dynamic sweep's original
+/// kinds ([`IntruderKind::CLASSIC`], drawn as they always were); the other five are issue
+/// 42's ([`IntruderKind::GROWN`], drawn from a seed stream of their own: [`grown`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 pub enum IntruderKind {
     /// Enters the workspace, moves onto the arm's path and stays there.
@@ -22,25 +26,71 @@ pub enum IntruderKind {
     /// Appears at once, still, on or near the arm's path; after a while it leaves the
     /// workspace at its speed.
     Teleport,
+    /// Already moving before the arm starts (and while it starts): crosses the view on a
+    /// line through, or 0.1–0.3 m beside, the start of the arm's way.
+    MovingAtStart,
+    /// Crosses the view close beside the arm's way (a few cm from the swept arm) but never
+    /// on it.
+    NearMiss,
+    /// Enters well ahead of the arm, parks on the rest of its path and stays (not on the
+    /// goal).
+    ParksOnPath,
+    /// Slides along the table onto the goal cube, covers the goal's target point and stays.
+    TakesGoal,
+    /// Appears (does not slide in), still, a few mm to cm beside the arm where it is; stays,
+    /// or leaves after a while.
+    AppearsNextToArm,
 }
 
 impl IntruderKind {
-    /// Every kind, in the order of the reports.
-    pub const ALL: [IntruderKind; 4] = [
+    /// The original four kinds (issue 33), in the order of the reports.
+    pub const CLASSIC: [IntruderKind; 4] = [
         IntruderKind::EnterAndStop,
         IntruderKind::Cross,
         IntruderKind::StopThenLeave,
         IntruderKind::Teleport,
     ];
 
-    /// A short name (reports, summary keys).
+    /// Issue 42's kinds.
+    pub const GROWN: [IntruderKind; 5] = [
+        IntruderKind::MovingAtStart,
+        IntruderKind::NearMiss,
+        IntruderKind::ParksOnPath,
+        IntruderKind::TakesGoal,
+        IntruderKind::AppearsNextToArm,
+    ];
+
+    /// Every kind, in the order of the reports.
+    pub const ALL: [IntruderKind; 9] = [
+        IntruderKind::EnterAndStop,
+        IntruderKind::Cross,
+        IntruderKind::StopThenLeave,
+        IntruderKind::Teleport,
+        IntruderKind::MovingAtStart,
+        IntruderKind::NearMiss,
+        IntruderKind::ParksOnPath,
+        IntruderKind::TakesGoal,
+        IntruderKind::AppearsNextToArm,
+    ];
+
+    /// A short name (reports, summary keys, `--kinds`).
     pub fn name(self) -> &'static str {
         match self {
             IntruderKind::EnterAndStop => "enter_and_stop",
             IntruderKind::Cross => "cross",
             IntruderKind::StopThenLeave => "stop_then_leave",
             IntruderKind::Teleport => "teleport",
+            IntruderKind::MovingAtStart => "moving_at_start",
+            IntruderKind::NearMiss => "near_miss",
+            IntruderKind::ParksOnPath => "parks_on_path",
+            IntruderKind::TakesGoal => "takes_goal",
+            IntruderKind::AppearsNextToArm => "appears_next_to_arm",
         }
+    }
+
+    /// Whether it is one of the original four.
+    pub fn is_classic(self) -> bool {
+        Self::CLASSIC.contains(&self)
     }
 }
 
@@ -81,9 +131,16 @@ pub(crate) struct IntruderDraw {
     dwell_s: f64,
     /// The way out: the way in, reversed and turned by this much about the vertical, rad.
     leave_turn_rad: f64,
-    /// A teleport lands near the path (3–12 cm off the arm) rather than on it.
+    /// A teleport lands near the path (3–12 cm off the arm) rather than on it; a box moving
+    /// at the start crosses beside the way; a box next to the arm stays.
     near: bool,
     near_offset_m: Point,
+    /// The grown kinds' distance from the arm or its way (beside the way, the near miss's
+    /// clearance, the gap next to the arm), m; 0 for the classic kinds.
+    side_m: f64,
+    /// The grown kinds' side of the line (the angle about its direction, 0 = horizontal,
+    /// π/2 = above), rad; 0 for the classic kinds.
+    side_angle_rad: f64,
 }
 
 fn unit(azimuth_rad: f64, elevation_rad: f64) -> Point {
@@ -97,7 +154,7 @@ fn unit(azimuth_rad: f64, elevation_rad: f64) -> Point {
 impl IntruderDraw {
     /// Draws an intruder with speeds in `speed_m_s` (min, max).
     pub(crate) fn draw(rng: &mut ChaCha8Rng, speed_m_s: (f64, f64)) -> Self {
-        let kind = IntruderKind::ALL[rng.random_range(0..IntruderKind::ALL.len())];
+        let kind = IntruderKind::CLASSIC[rng.random_range(0..IntruderKind::CLASSIC.len())];
         let at = match rng.random_range(0..10u8) {
             0..4 => ArmPoint::Tcp,
             4..6 => ArmPoint::Wrist,
@@ -134,6 +191,8 @@ impl IntruderDraw {
             leave_turn_rad: rng.random_range(-1.0..1.0),
             near: rng.random_bool(0.3),
             near_offset_m: near_dir.map(|v| v * near_m),
+            side_m: 0.0,
+            side_angle_rad: 0.0,
         }
     }
 }
@@ -201,6 +260,42 @@ pub(crate) struct ArmMotion<'a> {
     pub(crate) reach_cycle: u64,
     /// Cycle period, s.
     pub(crate) period_s: f64,
+    /// The goal cube (the grown kinds keep off it, or take it).
+    pub(crate) goal_cube: OracleBox,
+    /// The goal's target point (the TCP's), m.
+    pub(crate) goal_target_m: Point,
+}
+
+impl ArmMotion<'_> {
+    /// The rehearsal's pose in the cycle of `t_s` (the last one after its end).
+    pub(crate) fn pose_at(&self, t_s: f64) -> Joints {
+        let k = ((t_s / self.period_s).floor().max(0.0) as usize).min(self.pose.len() - 1);
+        self.pose[k]
+    }
+
+    /// Start of motion, s.
+    pub(crate) fn start_s(&self) -> f64 {
+        self.start_cycle as f64 * self.period_s
+    }
+
+    /// Goal reached, s.
+    pub(crate) fn reach_s(&self) -> f64 {
+        self.reach_cycle as f64 * self.period_s
+    }
+}
+
+/// The point of the arm at `q` that `d` aims at.
+fn arm_point(d: &IntruderDraw, oracle: &DistanceOracle, q: &Joints) -> Point {
+    match d.at {
+        ArmPoint::Tcp => oracle.tcp_m(q),
+        ArmPoint::Wrist => oracle.frame_origins_m(q)[4],
+        ArmPoint::Elbow => oracle.frame_origins_m(q)[3],
+        ArmPoint::LinkAxis => {
+            let caps = oracle.world_capsules(q);
+            let (_, a, b) = caps[d.axis_capsule % caps.len()];
+            add(&a, &[b[0] - a[0], b[1] - a[1], b[2] - a[2]], d.axis_t)
+        }
+    }
 }
 
 /// A placed intruder: its box and path on the episode's clock, and when it appears,
@@ -245,7 +340,12 @@ impl Intruder {
         let mut placed = None;
         for attempt in 0..PLACE_ATTEMPTS {
             let pick = (d.pick + attempt as f64 * 0.618_033_988_749_895).fract();
-            let Some(i) = Self::place_at(d, pick, oracle, arm, calibrated, table_z_m) else {
+            let placed_at = if d.kind.is_classic() {
+                Self::place_at(d, pick, oracle, arm, calibrated, table_z_m)
+            } else {
+                grown::place(d, pick, oracle, arm, calibrated, table_z_m)
+            };
+            let Some(i) = placed_at else {
                 continue;
             };
             let k = ((i.appear_s / arm.period_s).floor() as usize).min(arm.pose.len() - 1);
@@ -289,16 +389,7 @@ impl Intruder {
         let target_arm_s = (arrive_s + lead_s).clamp(start_s, reach_s);
         let target_cycle = (target_arm_s / p).round() as u64;
         let q = arm.pose[(target_cycle as usize).min(arm.pose.len() - 1)];
-        let point = match d.at {
-            ArmPoint::Tcp => oracle.tcp_m(&q),
-            ArmPoint::Wrist => oracle.frame_origins_m(&q)[4],
-            ArmPoint::Elbow => oracle.frame_origins_m(&q)[3],
-            ArmPoint::LinkAxis => {
-                let caps = oracle.world_capsules(&q);
-                let (_, a, b) = caps[d.axis_capsule % caps.len()];
-                add(&a, &[b[0] - a[0], b[1] - a[1], b[2] - a[2]], d.axis_t)
-            }
-        };
+        let point = arm_point(d, oracle, &q);
         let offset = if d.kind == IntruderKind::Teleport && d.near {
             add(&d.offset_m, &d.near_offset_m, 1.0)
         } else {

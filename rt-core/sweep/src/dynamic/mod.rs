@@ -9,8 +9,11 @@
 //! goal, else another world is drawn. At a random point of the rehearsal's motion an
 //! intruder box (random size, speed 0.1–1.6 m/s, random direction) is placed on the arm's
 //! path ([`IntruderKind`]): it enters the workspace and stops on the path, crosses the path,
-//! stops on it and leaves, or appears at once on or near it (and later leaves). The episode
-//! then runs again with it. Frames come at 60 Hz, stamped with their capture time and
+//! stops on it and leaves, or appears at once on or near it (and later leaves). Issue 42's
+//! kinds ([`IntruderKind::GROWN`], [`intruder::grown`]; `--kinds` selects, [`kinds`]): a box
+//! already moving when the arm starts, a near miss beside the way, a box that parks on the
+//! path, one that takes the goal, one that appears next to the arm. The episode then runs
+//! again with it. Frames come at 60 Hz, stamped with their capture time and
 //! delivered 10–30 ms later through the production intake; each carries the intruder's true
 //! centre at capture plus noise, its velocity as a tracker reports it (true velocity plus
 //! noise; zero with `UNKNOWN_VELOCITY_SIGMA_M_S` for its first two frames), and is settled
@@ -34,6 +37,8 @@
 
 pub mod episode;
 pub mod intruder;
+pub mod kinds;
+pub mod outcome;
 pub mod report;
 pub mod summary;
 
@@ -43,6 +48,7 @@ use serde::Serialize;
 
 pub use episode::run_dynamic_episode;
 pub use intruder::{Intruder, IntruderKind};
+pub use kinds::KindSet;
 pub use report::DynamicEpisodeReport;
 pub use summary::{DynamicSummary, DynamicTally, GroupFigures};
 
@@ -93,6 +99,9 @@ pub struct DynamicSettings {
     /// the continuation after the intruder has left may then go by the planner's path where
     /// no policy passes from where the arm stopped.
     pub planner_fallback: bool,
+    /// The intruder kinds drawn (`--kinds`; default all): [`KindSet::CLASSIC`] is the sweep
+    /// before issue 42, episode for episode.
+    pub kinds: KindSet,
 }
 
 impl Default for DynamicSettings {
@@ -115,6 +124,7 @@ impl Default for DynamicSettings {
             world_attempts: 8,
             blind_to_intruder: false,
             planner_fallback: false,
+            kinds: KindSet::ALL,
         }
     }
 }

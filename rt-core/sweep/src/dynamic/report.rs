@@ -144,11 +144,61 @@ pub struct DynamicEpisodeReport {
     pub reach_s: Option<f64>,
     /// The intruder left, or came to rest out of the way, s (none: it stays on the path).
     pub cleared_s: Option<f64>,
+    /// The rehearsal's arm started to move, s.
+    pub rehearsal_start_s: Option<f64>,
+    /// This run's arm started to move, s.
+    pub start_s: Option<f64>,
+    /// Stops the cycle began in the rehearsal (protective stops of any reason).
+    pub rehearsal_stops: u64,
+    /// Stops the cycle began in this run.
+    pub stops: u64,
+    /// rt-core said the goal is infeasible (taken). This rt-core has no such report (issue
+    /// 42 item 4 adds it), so it stays false here: a goal it cannot reach shows as not
+    /// reached.
+    pub infeasible_reported: bool,
     /// Counters (frames, events, stops).
     pub counts: BTreeMap<String, u64>,
 }
 
 impl DynamicEpisodeReport {
+    /// The report of episode `episode` before it ran: its intruder drawn, nothing else.
+    pub fn new(episode: u64, kind: IntruderKind, speed_m_s: f64, size_m: Point) -> Self {
+        Self {
+            episode,
+            world_attempts: 0,
+            policy: PolicyKind::GoalSeeking,
+            kind,
+            speed_m_s,
+            size_m,
+            intruder: None,
+            cycles: 0,
+            commands: 0,
+            hard: HardCounts::default(),
+            failures: Vec::new(),
+            onsets: Vec::new(),
+            contacts: Vec::new(),
+            moving_contact_poses_avoidable: 0,
+            moving_contact_poses_unavoidable: 0,
+            moving_contact_poses_avoidable_reaction_only_rule: 0,
+            rest_contact_poses: 0,
+            max_moving_depth_m: 0.0,
+            min_separation_m: f64::INFINITY,
+            min_separation_avoidable_m: f64::INFINITY,
+            reaction: None,
+            first_intruder_frame_cycle: None,
+            changed_cycle: None,
+            rehearsal_reach_s: None,
+            reach_s: None,
+            cleared_s: None,
+            rehearsal_start_s: None,
+            start_s: None,
+            rehearsal_stops: 0,
+            stops: 0,
+            infeasible_reported: false,
+            counts: BTreeMap::new(),
+        }
+    }
+
     /// A contact while moving outside every unavoidable window.
     pub fn avoidable_moving_contact(&self) -> bool {
         self.moving_contact_poses_avoidable > 0
@@ -178,5 +228,17 @@ impl DynamicEpisodeReport {
     /// Reach time lost against the rehearsal, s.
     pub fn time_lost_s(&self) -> Option<f64> {
         Some(self.reach_s? - self.rehearsal_reach_s?)
+    }
+
+    /// The intrusion cost no protective stop: the arm moved and the cycle began no more
+    /// stops than in the rehearsal.
+    pub fn handled_without_stop(&self) -> bool {
+        self.start_s.is_some() && self.stops <= self.rehearsal_stops
+    }
+
+    /// The start of motion later than the rehearsal's, s (negative: earlier; none: either
+    /// did not start).
+    pub fn start_delay_s(&self) -> Option<f64> {
+        Some(self.start_s? - self.rehearsal_start_s?)
     }
 }

@@ -8,6 +8,7 @@ use serde::Serialize;
 
 use super::DynamicSettings;
 use super::intruder::IntruderKind;
+use super::outcome::{MovingWorldTargets, OutcomeFigures, OutcomeLine};
 use super::report::{Contact, DynamicEpisodeReport, Onset, Reaction, SPEED_BANDS, speed_band};
 use crate::sweep::{BrakingHorizon, HardCounts, HardFailure, PolicyKind, SweepAssets};
 use twin::Joints;
@@ -37,7 +38,7 @@ pub struct Spread {
 }
 
 impl Spread {
-    fn of(mut v: Vec<f64>) -> Self {
+    pub(crate) fn of(mut v: Vec<f64>) -> Self {
         v.sort_by(f64::total_cmp);
         let pct = |q: f64| {
             if v.is_empty() {
@@ -112,6 +113,9 @@ pub struct GroupFigures {
     pub reaction: ReactionFigures,
     /// Reach time lost against the rehearsal (episodes reaching in both), s.
     pub time_lost_s: Spread,
+    /// How the intrusions ended: without a stop, the start delayed, the goal while the
+    /// intruder stayed in the way.
+    pub outcome: OutcomeFigures,
 }
 
 /// The speed up to which no avoidable contact while moving happened.
@@ -229,6 +233,8 @@ pub struct DynamicSummary {
     pub envelope_by_kind: BTreeMap<String, Envelope>,
     /// The issue's targets.
     pub targets: Targets,
+    /// Issue 42's targets.
+    pub moving_world_targets: MovingWorldTargets,
     /// Episodes with an avoidable contact while moving (the first few).
     pub avoidable_contact_examples: Vec<ContactExample>,
     /// Episodes with an unavoidable contact while moving (the first few).
@@ -272,6 +278,7 @@ struct Line {
     /// (capture → change s, delivery → change cycles).
     reaction: Option<(f64, i64)>,
     time_lost_s: Option<f64>,
+    outcome: OutcomeLine,
 }
 
 /// Sums dynamic episode reports (independent of their order).
@@ -385,6 +392,7 @@ impl DynamicTally {
                 .reaction
                 .and_then(|x| Some((x.from_capture_s?, x.from_delivery_cycles?))),
             time_lost_s: r.time_lost_s(),
+            outcome: OutcomeLine::of(r),
         };
         self.lines.push(line);
         if line.moving_avoidable {
@@ -426,10 +434,11 @@ impl DynamicTally {
         &self.hard
     }
 
-    fn group<'l>(lines: impl Iterator<Item = &'l Line>) -> GroupFigures {
+    fn group<'l>(lines: impl Iterator<Item = &'l Line> + Clone) -> GroupFigures {
         let mut g = GroupFigures {
             min_separation_m: f64::INFINITY,
             min_separation_avoidable_m: f64::INFINITY,
+            outcome: OutcomeFigures::of(lines.clone().map(|l| &l.outcome)),
             ..GroupFigures::default()
         };
         let (mut capture_ms, mut cycles, mut reactive, mut lost) =
@@ -506,14 +515,14 @@ impl DynamicTally {
         for (_, _, band) in SPEED_BANDS {
             let in_band = |l: &&Line| speed_band(l.speed_m_s) == band;
             by_speed_band.insert(band.to_owned(), Self::group(lines.iter().filter(in_band)));
-            for kind in IntruderKind::ALL {
+            for kind in self.settings.kinds.kinds() {
                 by_kind_and_band.insert(
                     format!("{}/{band}", kind.name()),
                     Self::group(lines.iter().filter(in_band).filter(|l| l.kind == kind)),
                 );
             }
         }
-        for kind in IntruderKind::ALL {
+        for kind in self.settings.kinds.kinds() {
             let of_kind = |l: &&Line| l.kind == kind;
             by_kind.insert(
                 kind.name().to_owned(),
@@ -534,6 +543,7 @@ impl DynamicTally {
             reach_after_clear_at_least_95_percent: all.reach_after_clear_fraction >= 0.95,
             reaction_p99_at_most_1_cycle: all.reaction.from_delivery_cycles.p99 <= 1.0,
         };
+        let moving_world_targets = MovingWorldTargets::of(&all, up_to_1);
         let sorted = |v: &[ContactExample]| {
             let mut v = v.to_vec();
             v.sort_by_key(|e| e.episode);
@@ -574,6 +584,7 @@ impl DynamicTally {
             envelope,
             envelope_by_kind,
             targets,
+            moving_world_targets,
             avoidable_contact_examples: sorted(&self.avoidable_examples),
             unavoidable_contact_examples: sorted(&self.unavoidable_examples),
             onsets,
