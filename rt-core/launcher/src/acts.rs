@@ -238,7 +238,10 @@ mod tests {
         a.on_published(9);
         assert_eq!(a.on_verdict(3.0, &verdict(9, false)), None);
         assert!(!a.loop_closed(false));
-        assert_eq!(a.on_verdict(4.0, &verdict(9, true)), Some(ActMark::Accepted(9)));
+        assert_eq!(
+            a.on_verdict(4.0, &verdict(9, true)),
+            Some(ActMark::Accepted(9))
+        );
         assert!(a.loop_closed(false));
         assert!(a.loop_closed(true));
     }
@@ -259,14 +262,19 @@ mod tests {
         a.on_request(1.0, &request(1, 7));
         a.on_published(9);
         match a.on_request(2.0, &request(2, 9)) {
-            Some(ActMark::Refused(w)) => assert!(w.contains("policy 9") && w.contains("clearance"), "{w}"),
+            Some(ActMark::Refused(w)) => {
+                assert!(w.contains("policy 9") && w.contains("clearance"), "{w}")
+            }
             other => panic!("{other:?}"),
         }
         assert_eq!(a.refused.len(), 1);
         assert!(!a.loop_closed(false));
         let mut nl = verdict(9, false);
         nl.episode_end = EpisodeEnd::NotLearned as u8;
-        assert!(matches!(a.on_verdict(3.0, &nl), Some(ActMark::NotLearned(_))));
+        assert!(matches!(
+            a.on_verdict(3.0, &nl),
+            Some(ActMark::NotLearned(_))
+        ));
         assert!(a.loop_closed(false));
     }
 }

@@ -138,7 +138,12 @@ fn a_goal_reached_is_not_driven_again_and_a_policy_received_then_is_judged_from_
     cfg.dwell_at_goal_s = 0.2;
     // Policy 1 reaches the goal (1 s), rests, and returns home (about 1 s); policy 2
     // arrives at 5 s, with the arm at home in the same scene.
-    let events = run(&cfg, solving(vec![1, 2]), &[(0, 1), (at_s(&cfg, 5.0), 2)], 8);
+    let events = run(
+        &cfg,
+        solving(vec![1, 2]),
+        &[(0, 1), (at_s(&cfg, 5.0), 2)],
+        8,
+    );
     assert!(
         events
             .iter()
@@ -165,7 +170,12 @@ fn with_action_goals_a_new_policy_after_the_goal_is_driven_as_before() {
     let mut cfg = RuntimeConfig::xarm5_default();
     cfg.dwell_at_goal_s = 0.2;
     cfg.goal.source = shm_schemas::runtime_view::GoalSource::Action;
-    let events = run(&cfg, solving(vec![1, 2]), &[(0, 1), (at_s(&cfg, 5.0), 2)], 8);
+    let events = run(
+        &cfg,
+        solving(vec![1, 2]),
+        &[(0, 1), (at_s(&cfg, 5.0), 2)],
+        8,
+    );
     assert_eq!(approved_by(&events), vec![1, 2], "{events:?}");
 }
 
@@ -212,8 +222,7 @@ fn refused_retrainings_are_said_and_bounded_and_the_scene_is_then_not_learned() 
 }
 
 #[test]
-fn a_policy_that_arrives_while_the_arm_moves_and_cannot_join_is_judged_from_home_after_the_goal()
-{
+fn a_policy_that_arrives_while_the_arm_moves_and_cannot_join_is_judged_from_home_after_the_goal() {
     // Policy 2 (a retrained one, as the demo's act 2 on a slow machine) arrives halfway
     // through policy 1's plan; its join from the moving arm fails, the base policy's join
     // passes and reaches the goal. Back home, policy 2 is judged from there (it passes) and
@@ -225,10 +234,7 @@ fn a_policy_that_arrives_while_the_arm_moves_and_cannot_join_is_judged_from_home
         from_home_only: vec![2],
     };
     let events = run(&cfg, la, &[(0, 1), (at_s(&cfg, 0.5), 2)], 6);
-    assert!(
-        approved_by(&events).iter().all(|&id| id == 1),
-        "{events:?}"
-    );
+    assert!(approved_by(&events).iter().all(|&id| id == 1), "{events:?}");
     let judged: Vec<(PhaseCode, bool)> = events
         .iter()
         .filter_map(|e| match e {
