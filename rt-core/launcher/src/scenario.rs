@@ -510,10 +510,9 @@ impl Director {
         if matches!(
             phase,
             Some(RetrainPhase::Published | RetrainPhase::BudgetExhausted)
-        ) {
-            if let Some(mark) = self.acts[scene].on_published(p.published_policy_id) {
-                self.log_act(t_s, mark);
-            }
+        ) && let Some(mark) = self.acts[scene].on_published(p.published_policy_id)
+        {
+            self.log_act(t_s, mark);
         }
         let published = phase == Some(RetrainPhase::Published);
         if published && self.published_s.is_none() && self.request_s.is_some() {
