@@ -323,6 +323,10 @@ pub struct SceneIntake {
     counters: IntakeCounters,
     /// `Some` with the goal source `action`.
     requested: Option<RequestedGoals>,
+    /// A frame's age the prediction horizon already covers, ns (the reaction time it was
+    /// derived with, `RuntimeConfig::prediction_floor_s`): a moving obstacle of an older
+    /// frame is predicted over the horizon plus the excess (`with_covered_age_s`).
+    covered_age_ns: u64,
 }
 
 impl SceneIntake {
@@ -347,7 +351,18 @@ impl SceneIntake {
             last_source: None,
             counters: IntakeCounters::default(),
             requested: None,
+            covered_age_ns: 0,
         }
+    }
+
+    /// The prediction horizon covers frames up to `covered_s` old (its reaction time): a
+    /// moving obstacle of a frame older than that is predicted over the horizon plus the
+    /// excess age, so the volume still reaches past the arm's stop from now. Without it
+    /// every frame's whole age is added (safe, more conservative).
+    #[must_use]
+    pub fn with_covered_age_s(mut self, covered_s: f64) -> Self {
+        self.covered_age_ns = (covered_s.max(0.0) * 1e9) as u64;
+        self
     }
 
     /// The goal source `action`: goals come from [`SceneIntake::request`] within `bounds`
@@ -460,7 +475,13 @@ impl SceneIntake {
         frame.validate().map_err(FrameRefusal::Invalid)?;
         let stamp_ns = self.check_stamp(frame.capture_time_ns, mono_now_ns)?;
         self.check_places(frame)?;
-        let (scene, goal_seen, intruders) = self.scene_of(frame);
+        // The horizon runs from capture; a frame that took longer than the horizon's
+        // reaction time to arrive is predicted that much further (issue 42 item 5).
+        let late_s = mono_now_ns
+            .saturating_sub(frame.capture_time_ns)
+            .saturating_sub(self.covered_age_ns) as f64
+            * 1e-9;
+        let (scene, goal_seen, intruders) = self.scene_of(frame, late_s);
         let stop_requested = self
             .requested
             .as_mut()
@@ -570,8 +591,9 @@ impl SceneIntake {
         best.map(|(index, _)| index)
     }
 
-    /// The scene of a checked frame; whether it has a goal; its obstacles seen moving.
-    fn scene_of(&mut self, frame: &DetectionFrame) -> (Scene, bool, Intruders) {
+    /// The scene of a checked frame that arrived `late_s` past what the prediction horizon
+    /// covers; whether it has a goal; its obstacles seen moving.
+    fn scene_of(&mut self, frame: &DetectionFrame, late_s: f64) -> (Scene, bool, Intruders) {
         let mut intruders = Intruders::NONE;
         let table_height_m = self.table_height_m;
         let mut scene = Scene::empty(table_height_m, self.last_goal);
@@ -583,7 +605,7 @@ impl SceneIntake {
             let (o_center_m, o_size_m) = if settled {
                 (o.center_m, o.size_m)
             } else {
-                predicted_occupancy(o, &self.cfg)
+                predicted_occupancy(o, &self.cfg, late_s)
             };
             if goal_index == Some(index) {
                 let size_m = snap(o_size_m[0]);
@@ -715,17 +737,22 @@ impl RequestedGoals {
 }
 
 /// Where an obstacle of a frame that is not settled may be over the prediction horizon
-/// `h` = [`IntakeConfig::prediction_horizon_s`] from its capture: its box swept along its
-/// velocity `v` (the box from `c` to `c + v·h`, per axis), grown on every side by the
-/// distance its velocity's uncertainty allows, `k·σ·h` with `k` =
+/// `h` = [`IntakeConfig::prediction_horizon_s`] from its capture, plus `late_s` (the part
+/// of the frame's age the horizon does not cover: `SceneIntake::with_covered_age_s`): its
+/// box swept along its velocity `v` (the box from `c` to `c + v·h`, per axis), grown on
+/// every side by the distance its velocity's uncertainty allows, `k·σ·h` with `k` =
 /// [`IntakeConfig::uncertainty_sigmas`] (σ capped at the assumed intruder speed
 /// [`IntakeConfig::intruder_speed_m_s`]: an object of unknown velocity may be anywhere
 /// a hand can reach in that time). Returns the centre and the full extents, m.
 ///
 /// A settled frame (perception saw nothing move) is taken as measured. The goal is swept
 /// too, but only obstacles count for clearance.
-pub fn predicted_occupancy(o: &DetectedObject, cfg: &IntakeConfig) -> ([f32; 3], [f32; 3]) {
-    let h = cfg.prediction_horizon_s as f32;
+pub fn predicted_occupancy(
+    o: &DetectedObject,
+    cfg: &IntakeConfig,
+    late_s: f64,
+) -> ([f32; 3], [f32; 3]) {
+    let h = (cfg.prediction_horizon_s + late_s.max(0.0)) as f32;
     let sigma = o
         .velocity_sigma_m_s
         .min(cfg.intruder_speed_m_s as f32)
@@ -760,8 +787,10 @@ mod tests {
         }
     }
 
+    /// An intake whose horizon covers frames 0.1 s old (the shipped reaction time).
     fn intake() -> SceneIntake {
         SceneIntake::new(IntakeConfig::default(), MAX_AGE_NS, 0.0, ORIGIN_NS)
+            .with_covered_age_s(0.1)
     }
 
     fn goal(center_m: [f32; 3]) -> DetectedObject {
@@ -904,6 +933,32 @@ mod tests {
                 value: 0x100
             }))
         );
+    }
+
+    /// Issue 42 item 5 (found under load): the horizon runs from capture and covers the
+    /// reaction time; a frame that arrives later than that (up to the stale bound) is
+    /// predicted further by the excess, so its volume still covers the stop from now.
+    #[test]
+    fn a_late_frame_counts_a_moving_obstacle_over_the_horizon_plus_its_excess_age() {
+        let cfg = IntakeConfig::default();
+        let h = cfg.prediction_horizon_s;
+        let capture = ORIGIN_NS + 1_000_000_000;
+        let moving =
+            obstacle(2, [0.30, 0.00, 0.10], [0.10, 0.10, 0.20]).with_velocity([0.0, 1.0, 0.0], 0.0);
+        let f = frame(1, capture, &[goal([0.3, 0.2, 0.025]), moving]);
+        let swept_y = |age_ns: u64| {
+            let mut k = intake();
+            k.accept(&f, f.capture_time_ns + age_ns, 1)
+                .unwrap()
+                .scene
+                .obstacles[0]
+                .size_m[1]
+        };
+        // Within the covered 0.1 s: the horizon alone (swept 1 m/s · h).
+        assert!((swept_y(50_000_000) - (0.10 + h)).abs() <= SNAP_GRID_M);
+        // 0.4 s old: 0.3 s more of travel.
+        let late = swept_y(400_000_000);
+        assert!((late - (0.10 + h + 0.3)).abs() <= SNAP_GRID_M, "{late}");
     }
 
     /// Issue 33 item 4: a moving obstacle counts where it will be over the prediction

@@ -695,7 +695,8 @@ fn start_intake(
         (cfg.stale.max_detection_age_s * 1e9) as u64,
         task.sampling.table_height_m,
         clock.origin_ns(),
-    );
+    )
+    .with_covered_age_s(cfg.separation.reaction_time_s);
     if cfg.goal.source == crate::config::GoalSource::Action {
         intake = intake.with_requested_goals(cfg.goal_bounds(), task.success.goal_hover_m);
     }

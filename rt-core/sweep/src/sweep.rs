@@ -1156,7 +1156,8 @@ impl Rig {
             (cfg.stale.max_detection_age_s * 1e9) as u64,
             assets.task.sampling.table_height_m,
             ORIGIN_NS,
-        );
+        )
+        .with_covered_age_s(cfg.separation.reaction_time_s);
         let intake = SweepIntake { checks, path };
         Self {
             clock,
