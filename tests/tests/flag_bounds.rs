@@ -113,6 +113,7 @@ fn table() -> Vec<Cmd> {
                 ("--seed", I),
                 ("--retrain-budget-s", F),
                 ("--retrain-steps", I),
+                ("--learner-delay-s", F),
                 ("--phase-timeout-s", F),
                 ("--record-max-mib", I),
             ],
@@ -183,7 +184,7 @@ fn table() -> Vec<Cmd> {
         Cmd {
             bin: "learner",
             args: &["serve"],
-            flags: cat(&[&RETRAIN, &[("--max-requests", I)]]),
+            flags: cat(&[&RETRAIN, &[("--max-requests", I), ("--publish-delay-s", F)]]),
         },
         Cmd {
             bin: "learner",

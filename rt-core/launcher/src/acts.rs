@@ -31,6 +31,9 @@ pub struct ActRecord {
     /// Launcher time of the last request and of the last acceptance (s).
     last_request_s: Option<f64>,
     last_accept_s: Option<f64>,
+    /// Launcher time of the learner's last answer that publishes nothing ("no safe way",
+    /// also for now while boxes move), s: nothing more will come for that request.
+    last_unpublished_answer_s: Option<f64>,
     /// World change → goal reached (s).
     pub change_to_goal_s: Option<f64>,
 }
@@ -123,16 +126,25 @@ impl ActRecord {
         None
     }
 
-    /// Whether nothing is owed: no request, an acceptance since the last one, or the scene
-    /// not learned (`infeasible`: the learner proved it has no safe way).
+    /// The learner answered the act's request without a policy ("no safe way", final or
+    /// for now).
+    pub fn on_unpublished_answer(&mut self, t_s: f64) {
+        self.last_unpublished_answer_s = Some(t_s);
+    }
+
+    /// Whether nothing is owed: no request, an acceptance or an answer without a policy
+    /// since the last one, or the scene not learned (`infeasible`: the learner proved it
+    /// has no safe way).
     pub fn loop_closed(&self, infeasible: bool) -> bool {
+        let since_request = |t: Option<f64>| match (self.last_request_s, t) {
+            (Some(req), Some(t)) => t >= req,
+            _ => false,
+        };
         infeasible
             || self.not_learned.is_some()
-            || match (self.last_request_s, self.last_accept_s) {
-                (None, _) => true,
-                (Some(req), Some(acc)) => acc >= req,
-                (Some(_), None) => false,
-            }
+            || self.last_request_s.is_none()
+            || since_request(self.last_accept_s)
+            || since_request(self.last_unpublished_answer_s)
     }
 }
 
@@ -244,6 +256,11 @@ mod tests {
         );
         assert!(a.loop_closed(false));
         assert!(a.loop_closed(true));
+        // A later request is owed again; "no safe way for now" answers it.
+        a.on_request(5.0, &request(2, 9));
+        assert!(!a.loop_closed(false));
+        a.on_unpublished_answer(6.0);
+        assert!(a.loop_closed(false));
     }
 
     #[test]

@@ -461,6 +461,9 @@ impl Director {
         if phase == Some(RetrainPhase::BudgetExhausted) {
             self.budgets_exhausted[scene] += 1;
         }
+        if phase == Some(RetrainPhase::Infeasible) {
+            self.acts[scene].on_unpublished_answer(t_s);
+        }
         if phase == Some(RetrainPhase::Infeasible) && self.infeasible[scene].is_none() {
             // Where the boxes were when the learner judged (a moving box's place on its
             // path), not where the scene file starts them.

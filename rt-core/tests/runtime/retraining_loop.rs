@@ -18,7 +18,8 @@ use crate::common::{START, TARGET_A, deliver, frame};
 
 /// A scripted lookahead: straight waypoints from where the arm is to [`TARGET_A`] for every
 /// policy; only the policies in `solves` pass (the others "end in contact"), and those in
-/// `from_home_only` pass only from [`START`] (a join from a moving arm fails).
+/// `from_home_only` pass only from [`START`] (a join from a moving arm fails). A scene with
+/// any box blocks every policy.
 struct ScriptedLookahead {
     solves: Vec<u64>,
     from_home_only: Vec<u64>,
@@ -39,7 +40,7 @@ impl Lookahead for ScriptedLookahead {
     fn lookahead(
         &mut self,
         policy: &ToyPolicy,
-        _scene: &ToyScene,
+        scene: &ToyScene,
         start_q_rad: &Joints,
         waypoints: &mut Vec<Joints>,
     ) -> Verdict {
@@ -54,8 +55,9 @@ impl Lookahead for ScriptedLookahead {
             .iter()
             .zip(START.iter())
             .all(|(a, b)| (a - b).abs() < 1e-6);
-        let ok = self.solves.contains(&policy.id)
-            || (at_home && self.from_home_only.contains(&policy.id));
+        let ok = scene.count == 0
+            && (self.solves.contains(&policy.id)
+                || (at_home && self.from_home_only.contains(&policy.id)));
         Verdict {
             task_ok: ok,
             safe: ok,
@@ -81,6 +83,17 @@ fn run(
     arrivals: &[(u64, u64)],
     seconds: u64,
 ) -> Vec<TwinEvent<ToyScene>> {
+    run_in(cfg, la, arrivals, seconds, |_| ToyScene::empty())
+}
+
+/// [`run`] with the scene of each frame from `scene_at(cycle)`.
+fn run_in(
+    cfg: &RuntimeConfig,
+    la: ScriptedLookahead,
+    arrivals: &[(u64, u64)],
+    seconds: u64,
+    scene_at: impl Fn(u64) -> ToyScene,
+) -> Vec<TwinEvent<ToyScene>> {
     let (mut cycle, twin_io, _log) = toy_cycle(cfg, START);
     let limits = ShieldLimits::from_config(&cfg.limits, &cfg.shield);
     let clock = ManualClock::new(1_000_000_000);
@@ -99,7 +112,7 @@ fn run(
             deliver(
                 &mut path,
                 &mut twin,
-                &frame(ToyScene::empty(), now, true, true),
+                &frame(scene_at(k), now, true, true),
                 &mut events,
             );
         }
@@ -292,4 +305,31 @@ fn a_policy_that_arrives_on_the_way_home_does_not_join_it_and_is_judged_at_home(
         })
         .collect();
     assert_eq!(judged, vec![(PhaseCode::Verification, true)], "{events:?}");
+}
+
+#[test]
+fn back_in_a_scene_after_another_one_its_goal_is_driven_again() {
+    // Scene A's goal reached; at home the world changes to B (a box that blocks every
+    // policy: nothing is driven) and back to A: the world changed, so A's goal is driven
+    // again (the launcher's acts expect one goal per world change). Before, A's goal stayed
+    // "reached" through B and the arm was held.
+    let mut cfg = RuntimeConfig::xarm5_default();
+    cfg.dwell_at_goal_s = 0.2;
+    let mut b = ToyScene::empty();
+    b.push_obstacle([5.0, 5.0, 5.0], [0.1, 0.1, 0.1]);
+    let (b_from, a_again) = (at_s(&cfg, 4.0), at_s(&cfg, 5.0));
+    let events = run_in(&cfg, solving(vec![1]), &[(0, 1)], 8, |k| {
+        if (b_from..a_again).contains(&k) {
+            b
+        } else {
+            ToyScene::empty()
+        }
+    });
+    assert!(
+        events
+            .iter()
+            .any(|e| matches!(e, TwinEvent::Retrain { .. })),
+        "B refused: {events:?}"
+    );
+    assert_eq!(approved_by(&events), vec![1, 1], "{events:?}");
 }

@@ -139,13 +139,24 @@ fn verdict_rejects_bad_input() {
             value: 0
         })
     );
+    // Schema 4: episode_end 7 (not learned) and phase 6 (verification) are known; the
+    // next values are not.
     let mut v = verdict();
-    v.phase = 6;
+    v.episode_end = 8;
+    assert_eq!(
+        v.validate(),
+        Err(SchemaError::BadEnum {
+            field: "episode_end",
+            value: 8
+        })
+    );
+    let mut v = verdict();
+    v.phase = 7;
     assert_eq!(
         v.validate(),
         Err(SchemaError::BadEnum {
             field: "phase",
-            value: 6
+            value: 7
         })
     );
     let mut v = verdict();

@@ -261,6 +261,14 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         if change.plan_due {
             self.planning.request();
         }
+        // A goal reached stays reached while the arm rests over it (hiding the cube may
+        // change the scene seen) and on the way home; a different settled scene seen with
+        // the arm at rest elsewhere is a changed world (`acceptance`).
+        let at_rest_away = self.cycle.report.is_some_and(|r| r.mode == Mode::Idle)
+            && !matches!(self.excursion.phase(), Phase::DwellAtGoal { .. });
+        if frame.settled && at_rest_away {
+            self.scene.forget_goal_reached_unless(frame.scene);
+        }
         self.take_revocations(events);
     }
 

@@ -185,6 +185,15 @@ impl<S: Copy + PartialEq> SceneView<S> {
         self.goal_reached_in = Some(scene);
     }
 
+    /// A settled `scene` seen with the arm at rest away from the goal: a goal reached in
+    /// another scene is forgotten (the world changed; back to the same scene later, its
+    /// goal is driven again).
+    pub fn forget_goal_reached_unless(&mut self, scene: S) {
+        if self.goal_reached_in != Some(scene) {
+            self.goal_reached_in = None;
+        }
+    }
+
     /// Whether the scene in force is one whose goal an episode plan reached last.
     pub fn goal_reached(&self) -> bool {
         self.goal_reached_in.is_some() && self.goal_reached_in == self.scene
