@@ -79,6 +79,9 @@ enum ReplyEvent {
     ErrorCode(u8, u8),
 }
 
+/// The report's controller state when stopped (by an error, or by a stop request).
+const REPORT_STATE_STOPPED: u8 = 4;
+
 /// The xArm5 driver.
 pub struct XArmDriver {
     cfg: XArmConfig,
@@ -89,6 +92,12 @@ pub struct XArmDriver {
     error: ControllerError,
     warning: ControllerWarning,
     error_bit_seen: bool,
+    /// The last report said "stopped" (state 4) without carrying a code (the 30001/30003
+    /// reports have none) while no error is known: `GET_ERROR` is asked, rate-limited by
+    /// `error_poll_ns`, so a controller that stops while nothing is sent is still named by
+    /// its error. Without it the code was learnt only from a reply's error bit, i.e. only
+    /// when a command happened to be in flight when the error was raised.
+    stopped_unexplained: bool,
     not_ready_seen: bool,
     resume_from: Option<[f64; 5]>,
     reconnects: u32,
@@ -132,6 +141,7 @@ impl XArmDriver {
             error: session.error,
             warning: session.warning,
             error_bit_seen: session.error != ControllerError::None,
+            stopped_unexplained: false,
             conn: Some(session),
             cfg,
             state: None,
@@ -365,6 +375,7 @@ impl XArmDriver {
         self.error = ControllerError::None;
         self.warning = ControllerWarning::None;
         self.error_bit_seen = false;
+        self.stopped_unexplained = false;
         self.not_ready_seen = false;
         self.servo_mode_wanted = true;
         self.resume_from = self.state.map(|s| s.report.joints5_rad());
@@ -429,6 +440,7 @@ impl XArmDriver {
         self.warning = new.session.warning;
         self.conn = Some(new.session);
         self.error_bit_seen = self.error != ControllerError::None;
+        self.stopped_unexplained = false;
         self.not_ready_seen = false;
         self.state = None;
         self.prev_q = None;
@@ -524,7 +536,7 @@ impl XArmDriver {
         // An error bit with an unknown code: ask for it (pipelined). A known error is
         // re-read every `error_poll_ns` until it reads cleared (the operator may clear it on
         // the controller; the 30003 report carries no code).
-        let poll_due = self.error != ControllerError::None
+        let poll_due = (self.error != ControllerError::None || self.stopped_unexplained)
             && now_ns.saturating_sub(self.last_error_poll_ns) >= self.cfg.error_poll_ns;
         if ((self.error_bit_seen && self.error == ControllerError::None) || poll_due)
             && let Some(c) = self.conn.as_mut()
@@ -586,6 +598,10 @@ impl XArmDriver {
                 self.error = ControllerError::from(e);
                 self.error_bit_seen = e != 0;
             }
+            self.stopped_unexplained = r.error_code.is_none()
+                && r.state == REPORT_STATE_STOPPED
+                && self.acknowledging.is_none()
+                && self.error == ControllerError::None;
             if let Some(w) = r.warn_code {
                 self.warning = ControllerWarning::from(w);
             }

@@ -251,6 +251,12 @@ fn a_stopped_controller_is_asked_for_its_error_even_when_nothing_is_sent() {
         let _ = d.read_state(clock.ns());
         d.send_servo(clock.ns(), &q0).expect("servo");
     }
+    // Every reply in: no command is in flight when the error is raised, so no reply can
+    // carry its error bit; only the reports (30003: state 4, no code) tell of it. Before
+    // the driver asked GET_ERROR on an unexplained stopped state this test passed only when
+    // a servo_j reply happened to be answered after the injection (it failed every time
+    // with two busy loops beside it).
+    d.flush().expect("every reply arrives");
     s.inject_error(ControllerError::Collision);
     let mut saw = None;
     // Until a wall-clock bound, not a count of periods: this binary's tests run side by side,
