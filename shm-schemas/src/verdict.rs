@@ -27,6 +27,11 @@ pub enum EpisodeEnd {
     /// is asked for it. `policy_id` and `min_distance_m` are the last refused policy's, and
     /// the reason is its refusal's (logged by rt-core, listed in the run's report).
     NotLearned = 7,
+    /// No plan is made: the goal is taken — a box overlaps the goal cube or blocks every
+    /// goal posture (`twin::InfeasibleReason::NoGoalPosture`, carried by
+    /// [`TwinVerdict::goal_taken_wire`]). Said on the frame that shows it; the arm holds,
+    /// and the goal is live again once the box has gone.
+    GoalTaken = 8,
 }
 
 impl TryFrom<u8> for EpisodeEnd {
@@ -40,6 +45,7 @@ impl TryFrom<u8> for EpisodeEnd {
             5 => Ok(Self::Other),
             6 => Ok(Self::NoGoal),
             7 => Ok(Self::NotLearned),
+            8 => Ok(Self::GoalTaken),
             _ => Err(SchemaError::BadEnum {
                 field: "episode_end",
                 value: u32::from(value),
@@ -71,6 +77,9 @@ pub enum PhaseCode {
     /// task's start posture (its verdict is rt-core's acceptance or refusal of it) and its
     /// plan is not sent — the arm rests until the goal or the scene changes.
     Verification = 6,
+    /// The arm rested too close to a box that came to it and backs out along the path it
+    /// came, re-verified against the current scene; then it plans as usual.
+    BackingOut = 7,
 }
 
 impl PhaseCode {
@@ -84,6 +93,7 @@ impl PhaseCode {
             Self::ReturningHome => "returning-home",
             Self::HoldingAfterRefusedReturn => "holding-after-refused-return",
             Self::Verification => "verification",
+            Self::BackingOut => "backing-out",
         }
     }
 }
@@ -99,6 +109,7 @@ impl TryFrom<u8> for PhaseCode {
             4 => Ok(Self::ReturningHome),
             5 => Ok(Self::HoldingAfterRefusedReturn),
             6 => Ok(Self::Verification),
+            7 => Ok(Self::BackingOut),
             _ => Err(SchemaError::BadEnum {
                 field: "phase",
                 value: u32::from(value),
@@ -182,8 +193,10 @@ pub struct TwinVerdict {
     pub phase: u8,
     /// The [`Executor`] of the verdict's plan as a byte.
     pub executor: u8,
-    /// Reserved, zero.
-    pub reserved: [u8; 2],
+    /// With [`EpisodeEnd::GoalTaken`]: the blocking box (`twin::Blocker::wire`); else 0.
+    pub taken_blocker: u8,
+    /// With [`EpisodeEnd::GoalTaken`]: the robot part blocked (1–5 links, 6 the tool); else 0.
+    pub taken_link: u8,
 }
 
 const _: () = assert!(size_of::<TwinVerdict>() == 64);
@@ -192,8 +205,9 @@ impl TwinVerdict {
     /// Schema version carried as a service attribute (3: `phase` and `executor` took two
     /// reserved bytes; 4: `episode_end` `NotLearned`, `phase` `Verification`, and one
     /// verdict per plan tried, published after its smoothed plan was checked, so that
-    /// `plan_approved` is rt-core's final word on it).
-    pub const SCHEMA_VERSION: u32 = 4;
+    /// `plan_approved` is rt-core's final word on it; 5: `episode_end` [`EpisodeEnd::GoalTaken`],
+    /// its blocker and link took the last two reserved bytes, and `phase` `BackingOut`).
+    pub const SCHEMA_VERSION: u32 = 5;
 
     /// Sets the three flags from bools.
     pub fn set_flags(&mut self, task_ok: bool, safe: bool, plan_approved: bool) {
@@ -231,6 +245,20 @@ impl TwinVerdict {
     /// [`SchemaError::BadEnum`] for an unknown byte.
     pub fn phase(&self) -> Result<PhaseCode, SchemaError> {
         PhaseCode::try_from(self.phase)
+    }
+
+    /// The reason of a [`EpisodeEnd::GoalTaken`] verdict as `twin::InfeasibleReason::wire`'s
+    /// bytes `(kind, blocker, link, by_m)` (kind `NoGoalPosture`; `by_m` is minus
+    /// `min_distance_m`, the best goal posture's shortfall); `None` for any other verdict.
+    pub fn goal_taken_wire(&self) -> Option<(u8, u8, u8, f32)> {
+        (self.episode_end == EpisodeEnd::GoalTaken as u8).then(|| {
+            (
+                crate::InfeasibleKind::NoGoalPosture as u8,
+                self.taken_blocker,
+                self.taken_link,
+                (-self.min_distance_m).max(0.0) as f32,
+            )
+        })
     }
 
     /// The executor, checked.

@@ -112,6 +112,11 @@ pub struct Summary {
     /// Every act of the run (scene by scene): goals, retraining, acceptance, executor.
     #[serde(default)]
     pub acts: Vec<crate::acts::ActSummary>,
+    /// Each time rt-core said a box had taken a scene's goal (issue 42 item 4), on the frame
+    /// that showed it: `scene <i> (+<s> s): infeasible: <reason>` (time since the scene came
+    /// into force). The goal is live again once the box leaves, so a later `reached` stands.
+    #[serde(default)]
+    pub goal_taken: Vec<String>,
     /// Free-form notes (e.g. what timed out).
     pub notes: Vec<String>,
 }

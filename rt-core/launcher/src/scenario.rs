@@ -116,6 +116,9 @@ pub struct Director {
     goals_reached: Vec<bool>,
     /// Per scene: the learner's "no safe way" verdict, in words.
     infeasible: Vec<Option<String>>,
+    /// rt-core's "a box has taken the goal" verdicts, in words (`summary.json`'s
+    /// `goal_taken`).
+    goal_taken: Vec<String>,
     /// Per scene: retraining budgets that ran out without a passing policy.
     budgets_exhausted: Vec<u32>,
     /// Per scene: verdicts that refused a plan (lookahead failed or not approved).
@@ -200,6 +203,7 @@ impl Director {
             policy_swaps: 0,
             goals_reached: vec![false; n],
             infeasible: vec![None; n],
+            goal_taken: Vec::new(),
             budgets_exhausted: vec![0; n],
             refused_verdicts: vec![0; n],
             zero_shot: vec![None; n],
@@ -347,6 +351,11 @@ impl Director {
 
     /// A lookahead verdict: logged; the first after a change marks the prediction.
     fn on_verdict(&mut self, t_s: f64, v: &TwinVerdict, scene: usize) {
+        if let Some((kind, blocker, link, by_m)) = v.goal_taken_wire() {
+            let reason = InfeasibleReason::from_wire(kind, blocker, link, by_m);
+            self.on_goal_taken(t_s, reason, scene);
+            return;
+        }
         let by = match v.executor() {
             Ok(Executor::Planner) => "planner".to_owned(),
             _ => format!("policy {}", v.policy_id),
@@ -416,6 +425,70 @@ impl Director {
         }
     }
 
+    /// rt-core said a box has taken the goal (its verdict, on the frame that showed it):
+    /// logged as `goal_taken` (`infeasible: <reason>`) and kept for `summary.json`; final (the
+    /// scene is over, the arm held; the act ends `infeasible: <reason>`) unless the scene's
+    /// boxes still move, as for the learner's answer — a box that leaves makes the goal live
+    /// again.
+    fn on_goal_taken(&mut self, t_s: f64, reason: Option<InfeasibleReason>, scene: usize) {
+        let t_in_scene_s = t_s - self.scene_since_s;
+        let words = self.reason_words(t_s, scene, reason, "rt-core found");
+        let detail = format!("infeasible: {words}");
+        self.goal_taken
+            .push(format!("scene {scene} (+{t_in_scene_s:.2} s): {detail}"));
+        self.log(t_s, "goal_taken", detail);
+        if self.infeasible[scene].is_none()
+            && self
+                .words_if_final(t_s, scene, reason, "rt-core found")
+                .is_some()
+        {
+            self.infeasible[scene] = Some(words);
+        }
+    }
+
+    /// `reason` in words, its box described where it was at `t_s` (a moving box's place on
+    /// its path, not where the scene file starts it).
+    fn reason_words(
+        &self,
+        t_s: f64,
+        scene: usize,
+        reason: Option<InfeasibleReason>,
+        who: &str,
+    ) -> String {
+        let t_in_scene_s = t_s - self.scene_since_s;
+        let boxes = self
+            .cfg
+            .world
+            .get(scene)
+            .and_then(|(_, file)| twin::Scene::from_file(&file.at(t_in_scene_s)).ok())
+            .map(|s| s.obstacles)
+            .unwrap_or_default();
+        reason.map_or_else(
+            || format!("{who} no safe way (reason not given)"),
+            |r| r.display_with(&boxes).to_string(),
+        )
+    }
+
+    /// `reason` in words when it is final for `scene` at `t_s`: a box still on its way (or
+    /// standing for a while before it moves on) may take a goal only for now, so nothing is
+    /// final while the scene's boxes still move (rt-core plans again once they rest).
+    fn words_if_final(
+        &self,
+        t_s: f64,
+        scene: usize,
+        reason: Option<InfeasibleReason>,
+        who: &str,
+    ) -> Option<String> {
+        let t_in_scene_s = t_s - self.scene_since_s;
+        let last_motion_s = self.cfg.world.get(scene).map_or(0.0, |(_, file)| {
+            file.obstacles
+                .iter()
+                .filter_map(|b| b.path.keyframes().last().map(|k| k.at_s))
+                .fold(0.0, f64::max)
+        });
+        (t_in_scene_s >= last_motion_s).then(|| self.reason_words(t_s, scene, reason, who))
+    }
+
     /// A retrain request: logged; the first after a change is timed.
     fn on_retrain_request(&mut self, t_s: f64, r: &RetrainRequest, scene: usize) {
         if !self.requests[scene].contains(&r.request_id) {
@@ -465,47 +538,28 @@ impl Director {
             self.acts[scene].on_unpublished_answer(t_s);
         }
         if phase == Some(RetrainPhase::Infeasible) && self.infeasible[scene].is_none() {
-            // Where the boxes were when the learner judged (a moving box's place on its
-            // path), not where the scene file starts them.
-            let t_in_scene_s = t_s - self.scene_since_s;
-            let file = &self.cfg.world[scene].1;
-            let boxes = twin::Scene::from_file(&file.at(t_in_scene_s))
-                .map(|s| s.obstacles)
-                .unwrap_or_default();
-            // A box still on its way (or standing for a while before it moves on) may make a
-            // goal unreachable only for now: the verdict is logged, but the scene is not
-            // given up while its boxes still move; rt-core plans again once they are at rest.
-            let last_motion_s = file
-                .obstacles
-                .iter()
-                .filter_map(|b| b.path.keyframes().last().map(|k| k.at_s))
-                .fold(0.0, f64::max);
-            if t_in_scene_s < last_motion_s {
-                self.log(
-                    t_s,
-                    "infeasible_for_now",
-                    format!(
-                        "no safe way while the boxes move (after {:.2} s); waiting for them to \
-                         come to rest",
-                        p.wall_time_s
-                    ),
-                );
-                return;
-            }
-            let words = InfeasibleReason::from_wire(
+            let reason = InfeasibleReason::from_wire(
                 p.infeasible_kind,
                 p.infeasible_blocker,
                 p.infeasible_link,
                 p.infeasible_by_m,
-            )
-            .map_or_else(
-                || "the learner found no safe way (reason not given)".to_owned(),
-                |r| r.display_with(&boxes).to_string(),
             );
+            let wall_time_s = p.wall_time_s;
+            let Some(words) = self.words_if_final(t_s, scene, reason, "the learner found") else {
+                self.log(
+                    t_s,
+                    "infeasible_for_now",
+                    format!(
+                        "no safe way while the boxes move (after {wall_time_s:.2} s); waiting \
+                         for them to come to rest"
+                    ),
+                );
+                return;
+            };
             self.log(
                 t_s,
                 "infeasible",
-                format!("no safe way found: {words} (after {:.2} s)", p.wall_time_s),
+                format!("no safe way found: {words} (after {wall_time_s:.2} s)"),
             );
             self.infeasible[scene] = Some(words);
             return;
@@ -940,6 +994,7 @@ impl Director {
             restarts,
             arm_rejected_commands: None,
             remote_learner: None,
+            goal_taken: self.goal_taken.clone(),
             notes,
         }
     }
@@ -1365,6 +1420,59 @@ mod tests {
         let kinds: Vec<&str> = d.events().iter().map(|e| e.kind).collect();
         assert!(kinds.contains(&"infeasible"), "{kinds:?}");
         assert_eq!(d.summary(0, None, 0, 0).outcome, Outcome::Infeasible);
+    }
+
+    /// Issue 42 item 4: rt-core's "a box has taken the goal" verdict is in the timeline and
+    /// `summary.json` at once (`infeasible: <reason>`); while the scene's box still moves it
+    /// is not final, after its last keyframe it ends the scene infeasible.
+    #[test]
+    fn rt_core_s_goal_taken_is_in_the_timeline_and_the_summary_at_once() {
+        let mut d = switched_to_scene_1(moving_world(
+            0.12,
+            &[
+                (0.5, [0.6, 0.06, 0.06]),
+                (1.0, [0.3, 0.19, 0.06]),
+                (2.0, [0.3, 0.19, 0.06]),
+                (2.5, [0.6, 0.06, 0.06]),
+            ],
+        ));
+        let taken = |verdict_id: u64| Observations {
+            verdicts: vec![TwinVerdict {
+                verdict_id,
+                episode_end: EpisodeEnd::GoalTaken as u8,
+                taken_blocker: 0,
+                taken_link: twin::LINK_TOOL,
+                min_distance_m: -0.045,
+                ..TwinVerdict::default()
+            }],
+            ..Observations::default()
+        };
+        d.step(1.6, &taken(9));
+        let detail = d
+            .events()
+            .iter()
+            .find(|e| e.kind == "goal_taken")
+            .map(|e| e.detail.clone())
+            .unwrap_or_else(|| panic!("no goal_taken line: {:?}", d.events()));
+        assert!(
+            detail.starts_with("infeasible: no safe goal posture: box 0 (0.06 × 0.06 × 0.12 m"),
+            "{detail}"
+        );
+        let s = d.summary(0, None, 0, 0);
+        assert_eq!(s.goal_taken.len(), 1, "{s:?}");
+        assert!(s.goal_taken[0].contains("infeasible: "), "{s:?}");
+        assert_ne!(s.outcome, Outcome::Infeasible, "the box still moves: {s:?}");
+        assert_eq!(s.acts[1].infeasible, None, "the box still moves: {s:?}");
+        d.step(3.0, &taken(10));
+        let s = d.summary(0, None, 0, 0);
+        assert_eq!(s.outcome, Outcome::Infeasible);
+        // The act ends "infeasible: <reason>" (summary.json's acts, report.md's table).
+        let row = s.acts[1].markdown_row();
+        assert!(
+            row.contains("| infeasible: no safe goal posture: box 0 (")
+                && !row.contains("infeasible: infeasible"),
+            "{row}"
+        );
     }
 
     /// Each world change times its own settled scene: the demo's third act once reported

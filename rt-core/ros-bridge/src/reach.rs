@@ -29,7 +29,8 @@
 //! - It ends [`ReachOutcome::Reached`] when the reported TCP is within the task's
 //!   `success.tolerance_m` of the target (the one truth for "reached"), or
 //!   [`ReachOutcome::Infeasible`] with the learner's feasibility reason when the retrain
-//!   request for its scene is answered infeasible, or [`ReachOutcome::Stopped`] when the arm
+//!   request for its scene is answered infeasible or rt-core says a box has taken the goal
+//!   (`infeasible: <reason>`, on the frame that shows it), or [`ReachOutcome::Stopped`] when the arm
 //!   stays stopped for a fault (link lost, arm error, model mismatch, shutdown) or the
 //!   deadline passes, or [`ReachOutcome::Cancelled`] once a cancelled goal's arm is at rest
 //!   for good (rt-core revokes the plan under way: the arm stops along its checked path and,
@@ -355,6 +356,15 @@ fn distance_m(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
+/// A goal-taken verdict's reason ([`TwinVerdict::goal_taken_wire`]) as the `Reach` result
+/// says it: `infeasible: <reason>`.
+pub fn goal_taken_words((kind, blocker, link, by_m): (u8, u8, u8, f32)) -> String {
+    InfeasibleReason::from_wire(kind, blocker, link, by_m).map_or_else(
+        || "infeasible: a box has taken the goal".to_owned(),
+        |r| format!("infeasible: {r}"),
+    )
+}
+
 /// The verdict in words, with whether its plan was approved (the action's feedback; the
 /// scene's text marker, [`recorder::ros_view::verdict_line`]).
 pub fn verdict_words(v: &TwinVerdict) -> String {
@@ -375,8 +385,8 @@ fn is_fault(reason: StopReason) -> bool {
 
 /// Takes this iteration's `inputs` into the active goal `a` (retrain requests for its
 /// scene, the arm's distance, rest and faults) and says how it ends, if it does now: a
-/// refusal by rt-core, infeasible, cancelled at rest, reached, stopped for a fault or the
-/// deadline.
+/// refusal by rt-core, infeasible (the learner's answer, or a box that has taken the goal),
+/// cancelled at rest, reached, stopped for a fault or the deadline.
 fn ending(
     a: &mut Active,
     inputs: &ReachInputs<'_>,
@@ -409,7 +419,17 @@ fn ending(
     }
     refused_by_rt_core(a, inputs.goal_refusals)
         .or_else(|| infeasible(a, inputs.retrain_progress))
+        .or_else(|| goal_taken(a, inputs.verdict))
         .or_else(|| ended_by_the_arm(a, settings, now))
+}
+
+/// The goal's end when rt-core says, on the frame that showed it, that a box has taken the
+/// goal (a goal-taken verdict since the goal was accepted).
+fn goal_taken(a: &Active, verdict: Option<&TwinVerdict>) -> Option<(ReachOutcome, String)> {
+    verdict
+        .filter(|v| Some(v.verdict_id) != a.verdict_at_accept)
+        .and_then(TwinVerdict::goal_taken_wire)
+        .map(|wire| (ReachOutcome::Infeasible, goal_taken_words(wire)))
 }
 
 /// The goal's end when rt-core refused its reach request (by age, above all: a request
@@ -1081,5 +1101,29 @@ mod tests {
         let info = mirror(&request).unwrap();
         assert_eq!(info.goal_id, id);
         assert_eq!(info.stamp, builtin_interfaces::Time::ZERO);
+    }
+
+    /// Issue 42 item 4: rt-core's goal-taken verdict is read into the `Reach` result's words;
+    /// any other verdict carries no such reason.
+    #[test]
+    fn a_goal_taken_verdict_ends_the_goal_infeasible_with_its_reason() {
+        let v = TwinVerdict {
+            episode_end: shm_schemas::EpisodeEnd::GoalTaken as u8,
+            taken_blocker: 0,
+            taken_link: twin::LINK_TOOL,
+            min_distance_m: -0.045,
+            ..TwinVerdict::default()
+        };
+        v.validate().unwrap();
+        let words = goal_taken_words(v.goal_taken_wire().unwrap());
+        assert_eq!(
+            words,
+            "infeasible: no safe goal posture: box 0 blocks the tool by 45 mm"
+        );
+        let other = TwinVerdict {
+            episode_end: shm_schemas::EpisodeEnd::Collision as u8,
+            ..v
+        };
+        assert_eq!(other.goal_taken_wire(), None);
     }
 }

@@ -3,12 +3,12 @@
 //! runs exactly it on every sample of a plan (issue 40); the cycle uses it from there.
 
 pub use twin::approval::shield::{
-    MAX_TCP_STEP_M, STEP_TOLERANCE, Shield, ShieldLimits, ShieldModel, ShieldViolation,
-    WATCHED_POINTS,
+    BACK_OUT_TOLERANCE_M, BOX_SLOTS, MAX_TCP_STEP_M, STEP_TOLERANCE, Shield, ShieldLimits,
+    ShieldModel, ShieldViolation, WATCHED_POINTS,
 };
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::config::RuntimeConfig;
     use crate::testing::toy::{ToyArm, ToyScene};
@@ -19,7 +19,79 @@ mod tests {
         Shield::new(ToyArm, ShieldLimits::from_config(&cfg.limits, &cfg.shield))
     }
 
-    const HOME: Joints = [0.0, -0.5, -1.0, 0.5, 0.0];
+    pub(crate) const HOME: Joints = [0.0, -0.5, -1.0, 0.5, 0.0];
+
+    /// A box straight beyond the toy arm's TCP at `HOME` (away from the base), placed so that
+    /// the arm's clearance to it is `clearance_m`.
+    pub(crate) fn box_beyond_tcp(clearance_m: f64) -> ToyScene {
+        let tcp = ToyArm.tcp_position_m(&HOME);
+        let dir = [tcp[0], tcp[1], 0.0];
+        let n = (dir[0] * dir[0] + dir[1] * dir[1]).sqrt();
+        let at = |s: f64| {
+            let mut scene = ToyScene::empty();
+            scene.push_obstacle(
+                [tcp[0] + dir[0] / n * s, tcp[1] + dir[1] / n * s, tcp[2]],
+                [0.05; 3],
+            );
+            scene
+        };
+        let (mut lo, mut hi) = (0.0, 0.5);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if ToyArm.min_distance_m(&HOME, &at(mid)) < clearance_m {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        at(hi)
+    }
+
+    /// Issue 42 item 3, the backing-out rule: below the clearance a step passes only when it
+    /// takes the arm no closer to any box (staying put included); entering the clearance, or
+    /// going deeper into it, is refused as ever.
+    #[test]
+    fn below_the_clearance_only_a_step_away_from_every_box_passes() {
+        let mut s = shield();
+        let dt = 0.004;
+        let scene = box_beyond_tcp(0.005);
+        let d_home = ToyArm.min_distance_m(&HOME, &scene);
+        assert!((d_home - 0.005).abs() < 1e-6, "{d_home}");
+        assert!(matches!(
+            s.check_pose(&HOME, &scene),
+            Err(ShieldViolation::Clearance { .. })
+        ));
+        // The base turning by small steps takes the TCP sideways, away from the box.
+        let step = s.limits().max_velocity_rad_s[0] * dt * 0.5;
+        let turned = |k: f64| {
+            let mut q = HOME;
+            q[0] += step * k;
+            q
+        };
+        let away = turned(1.0);
+        assert!(ToyArm.min_distance_m(&away, &scene) > d_home);
+        assert!(s.check_step(&HOME, &away, dt, &scene).is_ok());
+        assert!(
+            s.check_step(&HOME, &HOME, dt, &scene).is_ok(),
+            "staying put"
+        );
+        assert!(matches!(
+            s.check_step(&away, &HOME, dt, &scene),
+            Err(ShieldViolation::Clearance { .. })
+        ));
+        assert!(!s.backs_out(&away, &HOME, d_home, &scene));
+        // From a free pose into the clearance: refused.
+        let min_m = s.limits().min_distance_m;
+        let k = (1..1000)
+            .map(f64::from)
+            .find(|k| ToyArm.min_distance_m(&turned(*k), &scene) >= min_m)
+            .unwrap();
+        assert!(ToyArm.min_distance_m(&turned(k - 1.0), &scene) < min_m);
+        assert!(matches!(
+            s.check_step(&turned(k), &turned(k - 1.0), dt, &scene),
+            Err(ShieldViolation::Clearance { .. })
+        ));
+    }
 
     #[test]
     fn a_free_pose_passes_and_reports_its_clearance() {

@@ -7,7 +7,7 @@
 
 use crate::cycle::shield::{ShieldModel, WATCHED_POINTS};
 use crate::twin_thread::worker::{GoalApproach, Lookahead, Verdict};
-use twin::{DOF, Joints};
+use twin::{Blocker, DOF, InfeasibleReason, Joints, LINK_TOOL};
 
 /// Maximum obstacles in a [`ToyScene`].
 pub const TOY_MAX_OBSTACLES: usize = 8;
@@ -201,6 +201,8 @@ pub struct ToyLookahead {
     /// counts as reached on a smoothed plan, m: loose enough for every episode that ends
     /// within twice `tolerance_rad` of the target (a TCP within ~0.04 m).
     pub goal_tolerance_m: f64,
+    /// Answer [`Lookahead::goal_taken`] (off: the toy never finds its goal taken).
+    pub goal_check: bool,
 }
 
 impl Default for ToyLookahead {
@@ -211,6 +213,7 @@ impl Default for ToyLookahead {
             min_distance_m: 0.01,
             tolerance_rad: 0.01,
             goal_tolerance_m: 0.05,
+            goal_check: false,
         }
     }
 }
@@ -290,6 +293,24 @@ impl Lookahead for ToyLookahead {
             steps: steps as u32,
             policy_id: policy.id,
         }
+    }
+
+    /// With [`ToyLookahead::goal_check`]: the goal is taken when a box holds the toy's goal
+    /// target point (the TCP at `policy`'s joint target, its one goal posture).
+    fn goal_taken(&mut self, policy: &ToyPolicy, scene: &ToyScene) -> Option<InfeasibleReason> {
+        if !self.goal_check {
+            return None;
+        }
+        let tcp = ToyArm::points_m(&policy.target_rad)[4];
+        (0..scene.count)
+            .map(|i| (i, box_distance(&tcp, &scene.centers_m[i], &scene.half_m[i])))
+            .find(|(_, d)| *d < 0.0)
+            .map(|(i, d)| InfeasibleReason::NoGoalPosture {
+                blocker: Blocker::Box(i),
+                link: LINK_TOOL,
+                deficit_m: self.min_distance_m - d,
+                postures_tried: 1,
+            })
     }
 
     fn goal_approach(

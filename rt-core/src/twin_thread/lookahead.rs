@@ -22,14 +22,16 @@ use std::time::Instant;
 
 use policy::MlpPolicy;
 use twin::{
-    DOF, Joints, MAX_EPISODE_STEPS, RobotModel, Sampler, SamplingSettings, Scene, TaskConfig,
-    TwinEnv, max_joint_gap_rad, rollout_until,
+    Blocker, DOF, FeasibilityConfig, InfeasibleReason, Joints, MAX_EPISODE_STEPS, RobotModel,
+    Sampler, SamplingSettings, Scene, TaskConfig, TwinEnv, check_goal_postures, max_joint_gap_rad,
+    rollout_until,
 };
 
 /// "Goal reached" on a path, and the settling of an episode's end onto the goal: the twin's
 /// verification's (`twin::approval`), which the learner runs too.
 pub use twin::approval::{SETTLE_DONE_M, SETTLE_STEPS, tcp_goal_approach};
 
+use crate::twin_thread::worker::goal_taken::goal_overlap_reason;
 use crate::twin_thread::worker::{GoalApproach, Lookahead, Sampled, Verdict};
 
 /// How the lookahead picks the executed actions.
@@ -211,6 +213,31 @@ impl Lookahead for TwinLookahead {
             min_distance_m: summary.min_distance_m,
             steps: summary.steps,
             policy_id: policy.policy_id(),
+        })
+    }
+
+    /// A box on the goal cube ([`goal_overlap_reason`]), else the learner's goal-posture
+    /// check ([`check_goal_postures`], its default seeds) finding every posture at the goal
+    /// target blocked by a box. Out of reach, or blocked by the table or the arm itself, is
+    /// not a taken goal (the learner's feasibility check says those).
+    ///
+    /// # Performance
+    /// Tens of ms (the check's IK seeds); asked once per settled scene whose candidates all
+    /// failed.
+    fn goal_taken(&mut self, _policy: &MlpPolicy, scene: &Scene) -> Option<InfeasibleReason> {
+        goal_overlap_reason(scene, 0.0).or_else(|| {
+            let seeds = FeasibilityConfig::default().goal_seeds;
+            check_goal_postures(&self.env, scene, seeds)
+                .reason
+                .filter(|r| {
+                    matches!(
+                        r,
+                        InfeasibleReason::NoGoalPosture {
+                            blocker: Blocker::Box(_),
+                            ..
+                        }
+                    )
+                })
         })
     }
 

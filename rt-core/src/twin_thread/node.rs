@@ -286,6 +286,9 @@ impl TwinNode {
                 TwinEvent::NotLearned {
                     verdict, refusals, ..
                 } => self.publish_not_learned(&verdict, refusals, now_ns)?,
+                TwinEvent::GoalTaken {
+                    reason, policy_id, ..
+                } => self.publish_goal_taken(&reason, policy_id, now_ns)?,
                 other => log_event(&other, rate_hz),
             }
         }
@@ -333,6 +336,36 @@ impl TwinNode {
             cause,
         })?;
         Ok(())
+    }
+
+    /// A verdict saying why nothing is planned: a box has taken the goal
+    /// ([`EpisodeEnd::GoalTaken`], the reason in `taken_blocker`, `taken_link` and minus the
+    /// shortfall in `min_distance_m`: [`TwinVerdict::goal_taken_wire`]).
+    fn publish_goal_taken(
+        &mut self,
+        reason: &twin::InfeasibleReason,
+        policy_id: u64,
+        now_ns: u64,
+    ) -> Result<(), TwinNodeError> {
+        self.verdict_id += 1;
+        let (_, blocker, link, by_m) = reason.wire();
+        let mut v = TwinVerdict {
+            verdict_id: self.verdict_id,
+            scene_sequence: self.scene_seq,
+            policy_id,
+            computed_time_ns: now_ns,
+            min_distance_m: -f64::from(by_m),
+            episode_end: EpisodeEnd::GoalTaken as u8,
+            taken_blocker: blocker,
+            taken_link: link,
+            ..TwinVerdict::default()
+        };
+        v.set_flags(false, true, false);
+        tracing::warn!(
+            policy_id,
+            "infeasible: {reason}: the arm holds until the box leaves"
+        );
+        self.send_verdict(v)
     }
 
     /// A verdict saying why nothing is planned: no goal in the latest frame.
@@ -546,6 +579,16 @@ fn log_event(e: &TwinEvent<Scene>, rate_hz: f64) {
             "scene change: running plan unsafe ahead, stop scheduled unless a joining plan takes over"
         ),
         TwinEvent::PolicySwapped { policy_id } => tracing::info!(policy_id, "policy swapped in"),
+        TwinEvent::BackingOut {
+            plan_id,
+            samples,
+            clearance_m,
+        } => tracing::info!(
+            plan_id,
+            duration_s = *samples as f64 / rate_hz,
+            clearance_m,
+            "too close to a box at rest: backing out along the path it came"
+        ),
         TwinEvent::ReturningHome { plan_id, samples } => tracing::info!(
             plan_id,
             duration_s = *samples as f64 / rate_hz,
@@ -566,7 +609,8 @@ fn log_event(e: &TwinEvent<Scene>, rate_hz: f64) {
         TwinEvent::Verdict { .. }
         | TwinEvent::Retrain { .. }
         | TwinEvent::NoGoal { .. }
-        | TwinEvent::NotLearned { .. } => {}
+        | TwinEvent::NotLearned { .. }
+        | TwinEvent::GoalTaken { .. } => {}
     }
 }
 

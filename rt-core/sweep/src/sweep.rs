@@ -1436,6 +1436,8 @@ impl<'a> Episode<'a> {
                 TwinEvent::AwaitingSettledScene { .. } => "twin_awaiting_settled_scene",
                 TwinEvent::RetrainingRefused { .. } => "twin_retrainings_refused",
                 TwinEvent::NotLearned { .. } => "twin_not_learned",
+                TwinEvent::GoalTaken { .. } => "twin_goal_taken",
+                TwinEvent::BackingOut { .. } => "twin_backing_out",
             };
             self.report.bump(key);
         }

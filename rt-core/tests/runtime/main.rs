@@ -10,7 +10,8 @@
 //! (`starved_controller`), and a plan unsafe far ahead joined by a safe one without
 //! stopping (`join_before_stop`), and planning while a box moves (`moving_world`), and a
 //! planner-made plan that joins the running one in time despite its search
-//! (`planner_join`).
+//! (`planner_join`), and a goal a box has taken said at once (`goal_taken`), and an arm
+//! stopped too close backing out along the path it came (`back_out`).
 
 #![allow(missing_docs, clippy::unwrap_used, clippy::expect_used)]
 // The tests drive the runtime from threads of their own and wait in wall time; the bans of
@@ -25,9 +26,11 @@ mod twin_common;
 mod xarm_rig;
 
 mod arm_owner;
+mod back_out;
 mod cycle;
 mod goal_cancel;
 mod goal_reach;
+mod goal_taken;
 mod join_before_stop;
 mod limits;
 mod moving_world;

@@ -18,6 +18,7 @@ fn kind(p: Phase) -> &'static str {
         Phase::HoldingAfterRefusedReturn { .. } => "holding",
         Phase::Continuing { .. } => "continuing",
         Phase::Paused { .. } => "paused",
+        Phase::BackingOut { .. } => "backing-out",
     }
 }
 

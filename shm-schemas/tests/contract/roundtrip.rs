@@ -148,6 +148,26 @@ fn twin_verdict_round_trips() {
     round_trip(verdict());
 }
 
+/// Schema 5: a goal-taken verdict carries its blocker and link in the bytes that were
+/// reserved, and its reason reads back from them.
+#[test]
+fn a_goal_taken_verdict_round_trips_its_reason() {
+    let v = TwinVerdict {
+        episode_end: EpisodeEnd::GoalTaken as u8,
+        phase: PhaseCode::BackingOut as u8,
+        taken_blocker: 2,
+        taken_link: 6,
+        min_distance_m: -0.045,
+        ..verdict()
+    };
+    round_trip(v);
+    assert_eq!(
+        v.goal_taken_wire(),
+        Some((InfeasibleKind::NoGoalPosture as u8, 2, 6, 0.045))
+    );
+    assert_eq!(verdict().goal_taken_wire(), None);
+}
+
 #[test]
 fn retrain_request_round_trips() {
     round_trip(retrain_request());

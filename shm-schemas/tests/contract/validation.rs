@@ -139,24 +139,30 @@ fn verdict_rejects_bad_input() {
             value: 0
         })
     );
-    // Schema 4: episode_end 7 (not learned) and phase 6 (verification) are known; the
-    // next values are not.
+    // Schema 4: episode_end 7 (not learned) and phase 6 (verification) are known; schema 5:
+    // episode_end 8 (goal taken) and phase 7 (backing out) are; the next values are not.
+    for (episode_end, phase) in [(7, 6), (8, 7)] {
+        let mut v = verdict();
+        v.episode_end = episode_end;
+        v.phase = phase;
+        assert_eq!(v.validate(), Ok(()), "{episode_end} {phase}");
+    }
     let mut v = verdict();
-    v.episode_end = 8;
+    v.episode_end = 9;
     assert_eq!(
         v.validate(),
         Err(SchemaError::BadEnum {
             field: "episode_end",
-            value: 8
+            value: 9
         })
     );
     let mut v = verdict();
-    v.phase = 7;
+    v.phase = 8;
     assert_eq!(
         v.validate(),
         Err(SchemaError::BadEnum {
             field: "phase",
-            value: 7
+            value: 8
         })
     );
     let mut v = verdict();

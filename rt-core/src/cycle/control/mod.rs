@@ -975,7 +975,11 @@ impl<M: ShieldModel, L: RobotLink> Cycle<M, L> {
         let ahead_k = k + usize::from(frac > 0.0) + self.cfg.brake_horizon_samples;
         let ahead = plan.q_rad[ahead_k.min(plan.len() - 1)];
         let ahead_ok = match &self.scene {
-            Some(s) => self.shield.check_pose(&ahead, &s.scene).map(|_| ()),
+            // Below the clearance only when backing out from where the arm is.
+            Some(s) => self
+                .shield
+                .check_pose_from(&self.last_sent.q_rad, &ahead, &s.scene)
+                .map(|_| ()),
             None => Err(ShieldViolation::NoScene),
         };
         match ahead_ok {

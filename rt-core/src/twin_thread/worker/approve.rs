@@ -93,6 +93,11 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> Approver<L, M> {
         self.period_s
     }
 
+    /// The plan-check shield.
+    pub fn shield_mut(&mut self) -> &mut Shield<M> {
+        &mut self.shield
+    }
+
     /// The lookahead.
     pub fn lookahead_mut(&mut self) -> &mut L {
         &mut self.la
@@ -165,6 +170,31 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> Approver<L, M> {
         if !approach.reached() {
             return Err(PlanRejection::MissesGoal(approach));
         }
+        Ok(plan)
+    }
+
+    /// A plan of the given samples (`q`, `dq`, `ddq` at the cycle's period) from `start`, with
+    /// a new id, checked by the shield on every sample in `scene` (a retreat: its samples are
+    /// the path it came, re-timed, not smoothed anew).
+    ///
+    /// # Errors
+    /// [`PlanRejection::Shield`] with the first refused sample.
+    pub fn checked_samples(
+        &mut self,
+        start: &Joints,
+        samples: &[(Joints, Joints, Joints)],
+        policy_id: u64,
+        scene: &L::Scene,
+    ) -> Result<Plan, PlanRejection> {
+        let id = self.next_plan_id;
+        self.next_plan_id += 1;
+        let mut plan = Plan::with_capacity(id, policy_id, self.period_s, samples.len());
+        for (q, dq, ddq) in samples {
+            plan.push(*q, *dq, *ddq);
+        }
+        self.shield
+            .check_path(start, &plan.q_rad, self.period_s, scene)
+            .map_err(|(index, violation)| PlanRejection::Shield { index, violation })?;
         Ok(plan)
     }
 

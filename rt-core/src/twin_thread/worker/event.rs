@@ -2,6 +2,7 @@
 //! retrain requests), logged, counted by the sweep, asserted on by tests.
 
 use shm_schemas::{Executor, PhaseCode};
+use twin::InfeasibleReason;
 
 use super::approve::PlanRejection;
 use super::{SampleTag, Verdict};
@@ -108,6 +109,16 @@ pub enum TwinEvent<S> {
         /// Why.
         why: PlanRejection,
     },
+    /// The arm rested too close to a box and backs out along the path it came
+    /// ([`crate::twin_thread::worker::retreat`]): the retreat was approved and sent.
+    BackingOut {
+        /// Plan id.
+        plan_id: u64,
+        /// Samples in the plan.
+        samples: usize,
+        /// The clearance where it ends, m.
+        clearance_m: f64,
+    },
     /// A new policy was swapped in.
     PolicySwapped {
         /// Its id.
@@ -118,6 +129,19 @@ pub enum TwinEvent<S> {
     NoGoal {
         /// The current policy, 0 for none.
         policy_id: u64,
+    },
+    /// Every candidate failed on a settled scene whose goal a box has taken (it overlaps the
+    /// goal cube or blocks every goal posture): said at once, on that frame's planning, once
+    /// per scene; no retraining is asked for and the arm holds (the plan guard has bounded
+    /// the running plan in this scene). A later scene without it makes the goal live again
+    /// ([`crate::twin_thread::worker::goal_taken`]).
+    GoalTaken {
+        /// Why, in the feasibility check's words (`infeasible: <reason>`).
+        reason: InfeasibleReason,
+        /// The current policy.
+        policy_id: u64,
+        /// The scene.
+        scene: S,
     },
     /// A plan is due but the latest detection frame is not settled (the world is changing):
     /// nothing is planned until a settled frame arrives (reported once per unsettled

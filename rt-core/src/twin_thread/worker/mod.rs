@@ -23,7 +23,9 @@
 //! - [`approve`]: lookahead → smoothing → shield → goal check, or a [`PlanRejection`];
 //! - `moving`: planning from rest while the world still moves (`plan_in_moving_world`);
 //! - `join`: where a planner-made plan joins the running one (ahead of its search);
-//! - [`verdict`]: the [`Lookahead`] trait and its [`Verdict`]; [`event`]: [`TwinEvent`].
+//! - [`verdict`]: the [`Lookahead`] trait and its [`Verdict`]; [`event`]: [`TwinEvent`];
+//! - [`goal_taken`]: a goal a box has taken, said at once; [`retreat`]: an arm at rest too
+//!   close to a box that came to it backs out along the path it came.
 //!
 //! A replacement plan joins the running one at a sample `join_ahead_s` ahead of the arm
 //! ([`Plan::sample`]), so the hand-over is continuous. With `return_home`, once an episode's
@@ -38,12 +40,14 @@
 mod acceptance;
 pub mod approve;
 pub mod event;
+pub mod goal_taken;
 mod join;
 mod moving;
 pub mod path_recorder;
 pub mod phase;
 mod planning;
 pub mod policy_library;
+pub mod retreat;
 pub mod scene_view;
 pub mod verdict;
 
@@ -150,6 +154,10 @@ pub struct TwinWorker<L: Lookahead, M: ShieldModel<Scene = L::Scene>> {
     cycle: CycleView,
     sent: SentPlans<L::Scene>,
     next_request_id: u64,
+    /// The scene a box was last said to have taken the goal in ([`goal_taken`]).
+    goal: goal_taken::GoalWatch<L::Scene>,
+    /// Where a retreat was refused last ([`retreat`]).
+    retreat: retreat::RetreatWatch<L::Scene>,
 }
 
 impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
@@ -216,6 +224,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 newest_id: 0,
             },
             next_request_id: 1,
+            goal: goal_taken::GoalWatch::default(),
+            retreat: retreat::RetreatWatch::default(),
         };
         (worker, path)
     }
@@ -365,6 +375,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     pub fn step(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
         self.take_reports();
         self.take_revocations(events);
+        if self.back_out_if_too_close(events) {
+            return;
+        }
         match self.scene.ready() {
             Err(Hold::Refused | Hold::NoScene) => return,
             Err(Hold::Unsettled) if self.stop_due_on_running() => {
@@ -500,6 +513,8 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 false
             }
             (_, _, None) => false,
+            // The end of a retreat is no goal: the ordinary planning goes on from there.
+            (Rest::AtEnd, Phase::BackingOut { .. }, _) => false,
             _ if !home_open => false,
             (Rest::Stopped, _, Some(scene)) => {
                 self.excursion.next(Transition::Stopped {

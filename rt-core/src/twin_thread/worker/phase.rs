@@ -60,6 +60,15 @@ pub enum Phase {
         /// The plan whose return was refused.
         plan_id: u64,
     },
+    /// The arm rested too close to a box and backs out along the path it came: retreat
+    /// `plan_id` (`done` once the arm rests at its end; then it plans as usual from there,
+    /// [`super::retreat`]). An episode plan sent ends it.
+    BackingOut {
+        /// The retreat.
+        plan_id: u64,
+        /// The retreat has ended (planning was asked for).
+        done: bool,
+    },
 }
 
 /// What a pause interrupted (its diagnostics code stays that of the leg: a pause is not a
@@ -95,9 +104,10 @@ impl Phase {
     /// The leg of the excursion this phase belongs to (a pause: the one it interrupted).
     pub fn leg(&self) -> Leg {
         match self {
-            Self::Episode | Self::Continuing { .. } | Self::HoldingAfterRefusedReturn { .. } => {
-                Leg::Episode
-            }
+            Self::Episode
+            | Self::Continuing { .. }
+            | Self::HoldingAfterRefusedReturn { .. }
+            | Self::BackingOut { .. } => Leg::Episode,
             Self::DwellAtGoal { .. } => Leg::DwellAtGoal,
             Self::ReturningHome => Leg::ReturningHome,
             Self::Paused { during, .. } => *during,
@@ -134,6 +144,15 @@ impl Phase {
             (_, Transition::ReturnRefused { plan_id }) => {
                 Phase::HoldingAfterRefusedReturn { plan_id }
             }
+            (_, Transition::BackOutSent { plan_id }) => Phase::BackingOut {
+                plan_id,
+                done: false,
+            },
+            (Phase::BackingOut { plan_id, .. }, Transition::BackedOut) => Phase::BackingOut {
+                plan_id,
+                done: true,
+            },
+            (_, Transition::BackedOut) => self,
         }
     }
 }
@@ -172,6 +191,13 @@ pub enum Transition {
         /// The plan.
         plan_id: u64,
     },
+    /// A retreat (plan `plan_id`) from too close to a box was sent.
+    BackOutSent {
+        /// The plan.
+        plan_id: u64,
+    },
+    /// The arm rests at the end of the retreat.
+    BackedOut,
 }
 
 /// The worker's excursion: its [`Phase`], and whether a stop sent the arm home during it.
@@ -264,6 +290,7 @@ pub fn phase_code(phase: &Phase, planning: &Planning, now_ns: u64) -> PhaseCode 
     }
     match phase {
         Phase::HoldingAfterRefusedReturn { .. } => PhaseCode::HoldingAfterRefusedReturn,
+        Phase::BackingOut { done: false, .. } => PhaseCode::BackingOut,
         _ => match phase.leg() {
             Leg::Episode => PhaseCode::Episode,
             Leg::DwellAtGoal => PhaseCode::DwellAtGoal,
@@ -324,6 +351,36 @@ mod tests {
         let on = paused.next(Transition::ContinuationSent { plan_id: 4 });
         assert_eq!(on, Phase::Continuing { plan_id: 4 });
         assert_eq!(phase_code(&on, &Planning::Idle, 0), PhaseCode::Episode);
+    }
+
+    #[test]
+    fn a_retreat_ends_once_and_an_episode_plan_ends_the_backing_out() {
+        let out = Phase::Paused {
+            plan_id: 3,
+            since_ns: 100,
+            during: Leg::Episode,
+        }
+        .next(Transition::BackOutSent { plan_id: 4 });
+        assert_eq!(
+            out,
+            Phase::BackingOut {
+                plan_id: 4,
+                done: false
+            }
+        );
+        assert_eq!(phase_code(&out, &Planning::Idle, 0), PhaseCode::BackingOut);
+        let ended = out.next(Transition::BackedOut);
+        assert_eq!(
+            ended,
+            Phase::BackingOut {
+                plan_id: 4,
+                done: true
+            }
+        );
+        assert_eq!(phase_code(&ended, &Planning::Idle, 0), PhaseCode::Episode);
+        assert_eq!(ended.next(Transition::BackedOut), ended);
+        assert_eq!(Phase::Episode.next(Transition::BackedOut), Phase::Episode);
+        assert_eq!(ended.next(Transition::EpisodePlanSent), Phase::Episode);
     }
 
     #[test]

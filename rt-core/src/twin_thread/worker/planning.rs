@@ -228,6 +228,11 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let Some((verdict, lookahead_unsafe)) = first_failure else {
             return;
         };
+        if self.goal_taken_in(scene, events) {
+            // A box has taken the goal: said now, no retraining; the arm holds.
+            self.revoke_if_unsafe_under_way(lookahead_unsafe, scene, events);
+            return;
+        }
         if let (true, Some(budget_s)) = (self.settings.gate, self.settings.sampling_budget_s) {
             let deadline = deadline_in(budget_s);
             for candidate in Candidate::ORDER {
@@ -248,16 +253,27 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 return;
             }
         }
-        // With a stop scheduled on the running plan the guard has bounded it already (safe
-        // up to the stop's end): it stops there unless a later frame's plan joins it first.
+        self.revoke_if_unsafe_under_way(lookahead_unsafe, scene, events);
+        if self.settings.gate && retrain == RetrainOnFailure::Yes {
+            self.ask_retrain(verdict, scene, events);
+        }
+    }
+
+    /// The lookahead found the continuation unsafe in `scene`, a changed scene: the plan
+    /// under way is revoked — unless a stop is scheduled on it, where the guard has bounded
+    /// it already (safe up to the stop's end): it stops there unless a later frame's plan
+    /// joins it first.
+    fn revoke_if_unsafe_under_way(
+        &mut self,
+        lookahead_unsafe: bool,
+        scene: L::Scene,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) {
         if lookahead_unsafe
             && self.sent.live.iter().any(|(_, s)| *s != scene)
             && !self.stop_due_on_running()
         {
             self.revoke_under_way(events);
-        }
-        if self.settings.gate && retrain == RetrainOnFailure::Yes {
-            self.ask_retrain(verdict, scene, events);
         }
     }
 

@@ -114,6 +114,11 @@ impl<S: Copy + PartialEq> SceneView<S> {
         }
     }
 
+    /// The latest accepted frame is settled (nothing appearing, disappearing or moving).
+    pub fn settled(&self) -> bool {
+        self.settled
+    }
+
     /// The latest accepted scene, whatever its gates.
     pub fn scene(&self) -> Option<S> {
         self.scene

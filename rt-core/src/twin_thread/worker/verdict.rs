@@ -4,7 +4,7 @@
 
 use std::time::Instant;
 
-use twin::Joints;
+use twin::{InfeasibleReason, Joints};
 
 /// Result of one lookahead.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -67,6 +67,19 @@ pub trait Lookahead: Send + 'static {
         _index: usize,
         _waypoints: &mut Vec<Joints>,
     ) -> Option<Verdict> {
+        None
+    }
+
+    /// Whether a box has taken the goal in `scene` (the goal of `policy`'s task): it
+    /// overlaps the goal cube, or blocks every goal posture — why, in the feasibility
+    /// check's words ([`InfeasibleReason::NoGoalPosture`] naming the box). Asked when every
+    /// candidate failed on a settled scene (`worker::goal_taken`). The default: never (a
+    /// lookahead without a notion of goal postures).
+    fn goal_taken(
+        &mut self,
+        _policy: &Self::Policy,
+        _scene: &Self::Scene,
+    ) -> Option<InfeasibleReason> {
         None
     }
 

@@ -26,6 +26,14 @@ pub const WATCHED_POINTS: usize = 3;
 /// of the time-scaled stop's interpolation, and is far below the controller's fault margin.
 pub const STEP_TOLERANCE: f64 = 0.05;
 
+/// Rounding the backing-out rule forgives (a distance recomputed at a pose a smoother
+/// reproduced to the last bits), m: a micrometre, far below any clearance.
+pub const BACK_OUT_TOLERANCE_M: f64 = 1e-6;
+
+/// Box slots the backing-out rule compares one by one ([`Shield::backs_out`]): the bits of
+/// [`ShieldModel::intruder_distance_m`]'s mask.
+pub const BOX_SLOTS: u32 = crate::MAX_OBSTACLES as u32;
+
 /// Kinematics and clearance of the arm in a scene.
 pub trait ShieldModel: Send + 'static {
     /// The scene snapshot the clearance is measured against (obstacles, goal).
@@ -291,7 +299,64 @@ impl<M: ShieldModel> Shield<M> {
         scene: &M::Scene,
     ) -> Result<f64, ShieldViolation> {
         self.check_motion(prev_q_rad, q_rad, dt_s)?;
-        self.check_pose(q_rad, scene)
+        self.check_pose_from(prev_q_rad, q_rad, scene)
+    }
+
+    /// [`Shield::check_pose`] of `q_rad` reached from `from_q_rad`, with the one exception to
+    /// the clearance (issue 42 item 3, backing out): a pose closer than `min_distance_m` to
+    /// the scene passes when it [backs out](Shield::backs_out) from `from_q_rad` — an arm
+    /// already too close (stopped there, or a box came to it) may move away, and only away.
+    /// Entering the clearance never passes (the box it enters is closer than before). Returns
+    /// the clearance, m.
+    ///
+    /// # Errors
+    /// The first [`ShieldViolation`] found.
+    pub fn check_pose_from(
+        &mut self,
+        from_q_rad: &Joints,
+        q_rad: &Joints,
+        scene: &M::Scene,
+    ) -> Result<f64, ShieldViolation> {
+        match self.check_pose(q_rad, scene) {
+            Err(ShieldViolation::Clearance { distance_m })
+                if self.backs_out(from_q_rad, q_rad, distance_m, scene) =>
+            {
+                Ok(distance_m)
+            }
+            other => other,
+        }
+    }
+
+    /// The backing-out rule: at `q_rad` (clearance `distance_m`) the arm is no closer to the
+    /// scene than at `from_q_rad`, and no closer to any box (each box's distance,
+    /// [`ShieldModel::intruder_distance_m`] with that box alone, at least what it was; a model
+    /// without per-box distances answers for all boxes at once), up to
+    /// [`BACK_OUT_TOLERANCE_M`] of rounding. Staying put passes; the clearance never shrinks,
+    /// so a contact-free arm stays contact-free.
+    ///
+    /// # Performance
+    /// Two distance queries per box slot ([`BOX_SLOTS`]); asked only below the clearance.
+    pub fn backs_out(
+        &mut self,
+        from_q_rad: &Joints,
+        q_rad: &Joints,
+        distance_m: f64,
+        scene: &M::Scene,
+    ) -> bool {
+        // NaN compares false: refused.
+        let before_m = self.model.min_distance_m(from_q_rad, scene);
+        if distance_m
+            .partial_cmp(&(before_m - BACK_OUT_TOLERANCE_M))
+            .is_none_or(|o| o == std::cmp::Ordering::Less)
+        {
+            return false;
+        }
+        (0..BOX_SLOTS).all(|i| {
+            let mask = 1u32 << i;
+            let now_m = self.model.intruder_distance_m(q_rad, scene, mask);
+            let before_m = self.model.intruder_distance_m(from_q_rad, scene, mask);
+            now_m >= before_m - BACK_OUT_TOLERANCE_M
+        })
     }
 
     /// The motion part of [`Shield::check_step`] (steps and speeds, no clearance).
