@@ -132,7 +132,11 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 .model_mut()
                 .min_distance_m(&r.cmd.q_rad, &planned)
         });
-        if here_m >= min_m + TOO_CLOSE_EXTRA_M || here_m >= planned_m - CAME_CLOSER_M {
+        // In contact (the padded distance at or below zero) nothing moves the arm.
+        if here_m <= 0.0
+            || here_m >= min_m + TOO_CLOSE_EXTRA_M
+            || here_m >= planned_m - CAME_CLOSER_M
+        {
             return false;
         }
         if self.send_retreat(r, policy_id, scene, min_m, events) {

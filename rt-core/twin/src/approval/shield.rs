@@ -327,8 +327,9 @@ impl<M: ShieldModel> Shield<M> {
         }
     }
 
-    /// The backing-out rule: at `q_rad` (clearance `distance_m`) the arm is no closer to the
-    /// scene than at `from_q_rad`, and no closer to any box (each box's distance,
+    /// The backing-out rule: out of contact at both poses (the model's padded clearance above
+    /// zero: an arm in contact is not moved), at `q_rad` (clearance `distance_m`) the arm is no
+    /// closer to the scene than at `from_q_rad`, and no closer to any box (each box's distance,
     /// [`ShieldModel::intruder_distance_m`] with that box alone, at least what it was; a model
     /// without per-box distances answers for all boxes at once), up to
     /// [`BACK_OUT_TOLERANCE_M`] of rounding. Staying put passes; the clearance never shrinks,
@@ -343,11 +344,14 @@ impl<M: ShieldModel> Shield<M> {
         distance_m: f64,
         scene: &M::Scene,
     ) -> bool {
+        // Never in contact (the model's padded distance at or below zero: how deep the arm is
+        // inside a box is not what its distance measures, so no motion there is "away").
         // NaN compares false: refused.
         let before_m = self.model.min_distance_m(from_q_rad, scene);
-        if distance_m
-            .partial_cmp(&(before_m - BACK_OUT_TOLERANCE_M))
-            .is_none_or(|o| o == std::cmp::Ordering::Less)
+        if !(distance_m > 0.0 && before_m > 0.0)
+            || distance_m
+                .partial_cmp(&(before_m - BACK_OUT_TOLERANCE_M))
+                .is_none_or(|o| o == std::cmp::Ordering::Less)
         {
             return false;
         }
