@@ -228,11 +228,6 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
         let Some((verdict, lookahead_unsafe)) = first_failure else {
             return;
         };
-        if self.goal_taken_in(scene, events) {
-            // A box has taken the goal: said now, no retraining; the arm holds.
-            self.revoke_if_unsafe_under_way(lookahead_unsafe, scene, events);
-            return;
-        }
         if let (true, Some(budget_s)) = (self.settings.gate, self.settings.sampling_budget_s) {
             let deadline = deadline_in(budget_s);
             for candidate in Candidate::ORDER {
@@ -242,6 +237,12 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                     return;
                 }
             }
+        }
+        if self.goal_taken_in(scene, events) {
+            // A box has taken the goal: said now (after verified sampling, which may still
+            // find a way to a goal posture), no retraining; the arm holds.
+            self.revoke_if_unsafe_under_way(lookahead_unsafe, scene, events);
+            return;
         }
         if self.settings.gate && self.library.planner_mut().is_some() {
             // No policy passes: retraining is asked for as always, and the planner's path,
