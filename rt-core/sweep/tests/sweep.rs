@@ -341,3 +341,40 @@ fn a_short_grown_dynamic_sweep_runs_every_kind_without_avoidable_contact_and_its
         assert_eq!(banded, g.episodes, "{kind}: the speed bands add up");
     }
 }
+
+/// Issue 42 item 3, backing out, in the dynamic sweep (seed 1, every kind): boxes crossing
+/// beside an arm paused on its way come at it while it rests; it backs out along the path it
+/// came, and the box then stops where no plan from where the arm rests passes. Where a
+/// retreat leaves the arm (its end, or a stop on the way: episode 135's retreat is revoked
+/// as the box comes on) is a pause of the episode: a continuation from there when one passes,
+/// else home along the executed path and the episode again. Before, the retreat's end was
+/// planned on alone (episode 63), and the recorded path was cut at the retreat's end before
+/// the arm got there, so a stop on the way left the arm off it (episode 135); either way the
+/// arm stayed for the rest of the run. These episodes reach their goal on main; with the
+/// retreat they did not (555 of 601 reached after the intruder left in the first 1 000
+/// episodes, main 567; 576 with the fix). Each episode must still back out, so the test fails
+/// loudly should the draw stop exercising the retreat.
+#[test]
+fn an_arm_that_backed_out_of_a_crossing_box_goes_on_to_its_goal_after_it_left() {
+    let assets = assets();
+    let settings = DynamicSettings {
+        seed: 1,
+        kinds: KindSet::ALL,
+        ..dynamic_settings(1)
+    };
+    for episode in [63, 135, 243] {
+        let r = sweep::dynamic::run_dynamic_episode(&assets, &settings, episode);
+        assert_eq!(r.kind, IntruderKind::Cross, "episode {episode}: {r:?}");
+        assert!(
+            r.counts.get("twin_backing_out").copied().unwrap_or(0) > 0,
+            "episode {episode} no longer backs out: {:?}",
+            r.counts
+        );
+        assert_eq!(
+            r.reached_after_clear(settings.reach_limit_s),
+            Some(true),
+            "episode {episode}: the goal not reached after the box left: {:?}",
+            r.counts
+        );
+    }
+}

@@ -513,7 +513,14 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
                 false
             }
             (_, _, None) => false,
-            // The end of a retreat is no goal: the ordinary planning goes on from there.
+            // The end of a retreat is no goal but a pause of the episode (`retreat`): a
+            // continuation from there when one passes, the world waited for while it moves,
+            // else home along the executed path and the episode again — as after a stop.
+            (Rest::AtEnd, Phase::BackingOut { done: true, .. }, Some(scene))
+                if home_open && self.planning.is_due() =>
+            {
+                self.after_pause(r, sent_id, policy_id, scene, events)
+            }
             (Rest::AtEnd, Phase::BackingOut { .. }, _) => false,
             _ if !home_open => false,
             (Rest::Stopped, _, Some(scene)) => {

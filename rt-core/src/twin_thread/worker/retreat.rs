@@ -3,9 +3,12 @@
 //! last plan was approved in — stopped there by a controlled stop after a box appeared, or a
 //! box came to it (a box walking at an arm at rest shows as its predicted occupancy closing
 //! in) — retreats along the path it came (the
-//! recorded path, reversed from where it rests), re-verified against the current scene, and
-//! then plans as usual from where the retreat ended. A fault (the controller's collision
-//! stop, an arm error, a lost link: the cycle awaits an operator) is never backed out of.
+//! recorded path, reversed from where it rests), re-verified against the current scene. Where
+//! it comes to rest (the retreat's end, or a stop on the way) is a pause of the episode, as
+//! after any stop: a continuation from there when one passes, else (with `return_home`) home
+//! along the executed path and the episode again; without `return_home`, the ordinary
+//! planning from there. A fault (the controller's collision stop, an arm error, a lost link:
+//! the cycle awaits an operator) is never backed out of.
 //!
 //! **The retreat rule**: on the way out, the arm's distance to every box never decreases —
 //! from each sample of the retreat to the next, each box's distance (and the clearance to
@@ -149,7 +152,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     /// The retreat from where the arm rests (report `r`) along the recorded path — its
     /// cycle-rate samples reversed, cut where the arm is clear and where the rule would break,
     /// re-timed from rest ([`retime`]) — checked (the shield, the retreat rule on every sample)
-    /// and sent; the recorded path is cut where the retreat ends. True when sent.
+    /// and sent. The recorded path is left as it is: the retreat runs back along it, so
+    /// wherever the arm comes to rest — the retreat's end, or a stop on the way — lies on it
+    /// and the pause that follows cuts it there. True when sent.
     fn send_retreat(
         &mut self,
         r: CycleReport,
@@ -195,11 +200,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             return false;
         }
         let (plan_id, n) = (plan.id, plan.len());
-        let end = plan.q_rad.last().copied().unwrap_or(from);
         if !self.send_plan(plan, scene) {
             return false;
         }
-        self.path.cut_at(&end);
         self.excursion.next(Transition::BackOutSent { plan_id });
         self.planning.taken();
         self.retreat.refused_at = None;
