@@ -53,7 +53,7 @@ pub(crate) fn print(s: &DynamicSummary) {
         "  time lost per intrusion and start delay, s p50/p90; goal reached after the intruder left / left (%);"
     );
     println!(
-        "  stayed in the way: goal reached anyway / infeasible reported (this rt-core has no such report) / stayed"
+        "  stayed in the way: goal reached anyway / infeasible reported (rt-core said the goal taken) / stayed"
     );
     println!(
         "  {:<20} {:>6} {:>6} {:>6} {:>7} {:>6} {:>11} {:>11} {:>11} {:>6} {:>17}",

@@ -870,6 +870,7 @@ impl<'a> Run<'a> {
         report.hard = ck.hard;
         report.failures = ck.failures;
         report.onsets = ck.onsets;
+        report.infeasible_reported = self.counts.contains_key("twin_goal_taken");
         report.counts = self.counts;
     }
 }

@@ -42,7 +42,7 @@ pub struct OutcomeFigures {
     pub stayed_in_the_way: u64,
     /// Of those, the arm reached its goal anyway (around it).
     pub reached_while_in_the_way: u64,
-    /// Of those, rt-core said the goal is infeasible (this rt-core has no such report: 0).
+    /// Of those, rt-core said the goal is infeasible (a box took it: `TwinEvent::GoalTaken`).
     pub infeasible_reported: u64,
     /// Start of motion against the rehearsal's, s (episodes starting in both).
     pub start_delay_s: Spread,

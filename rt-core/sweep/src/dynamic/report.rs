@@ -152,9 +152,8 @@ pub struct DynamicEpisodeReport {
     pub rehearsal_stops: u64,
     /// Stops the cycle began in this run.
     pub stops: u64,
-    /// rt-core said the goal is infeasible (taken). This rt-core has no such report (issue
-    /// 42 item 4 adds it), so it stays false here: a goal it cannot reach shows as not
-    /// reached.
+    /// rt-core said the goal is infeasible: a box has taken it (`TwinEvent::GoalTaken`, issue
+    /// 42 item 4), at any time in the run.
     pub infeasible_reported: bool,
     /// Counters (frames, events, stops).
     pub counts: BTreeMap<String, u64>,
