@@ -199,6 +199,11 @@ fn print_table(s: &SweepSummary) {
     );
     println!(
         "  {:<42} {:>10.1}",
+        "  of a command that moves (no hold), mm",
+        s.min_known_box_clearance_moving_m * 1e3
+    );
+    println!(
+        "  {:<42} {:>10.1}",
         "min clearance to the table, mm",
         s.min_table_clearance_m * 1e3
     );

@@ -405,6 +405,9 @@ pub struct EpisodeReport {
     pub counts: BTreeMap<String, u64>,
     /// The injected boxes.
     pub injections: Vec<InjectionRecord>,
+    /// Smallest nominal clearance to a box known for a braking horizon of a command that
+    /// moves the arm (not a hold: an arm holding still where a box came to it), m.
+    pub min_known_box_clearance_moving_m: f64,
 }
 
 impl EpisodeReport {
@@ -457,8 +460,12 @@ pub struct SweepSummary {
     pub hard: HardCounts,
     /// Unavoidable intrusions.
     pub unavoidable: IntrusionSummary,
-    /// Smallest nominal clearance to a box known for a braking horizon, m.
+    /// Smallest nominal clearance to a box known for a braking horizon, m. Since the
+    /// backing-out rule (issue 42 item 3) a hold below the shield's clearance is sent (the
+    /// arm stays put where a box came to it) and counts here too.
     pub min_known_box_clearance_m: f64,
+    /// The same over the commands that move the arm (the holds left out), m.
+    pub min_known_box_clearance_moving_m: f64,
     /// Smallest nominal clearance to the table, m.
     pub min_table_clearance_m: f64,
     /// Injected boxes per offset bin (cycles ahead): `[injected, intruded]`.
@@ -501,6 +508,7 @@ pub struct SweepTally {
     held_inside_poses: u64,
     depths_m: Vec<f64>,
     min_box_m: f64,
+    min_box_moving_m: f64,
     min_table_m: f64,
     injections: BTreeMap<String, [u64; 2]>,
     injection_records: Vec<InjectionRecord>,
@@ -527,6 +535,7 @@ impl SweepTally {
             held_inside_poses: 0,
             depths_m: Vec::new(),
             min_box_m: f64::INFINITY,
+            min_box_moving_m: f64::INFINITY,
             min_table_m: f64::INFINITY,
             injections: BTreeMap::new(),
             injection_records: Vec::new(),
@@ -549,6 +558,9 @@ impl SweepTally {
         self.held_inside_poses += r.held_inside_poses;
         self.depths_m.extend_from_slice(&r.intrusion_depths_m);
         self.min_box_m = self.min_box_m.min(r.min_known_box_clearance_m);
+        self.min_box_moving_m = self
+            .min_box_moving_m
+            .min(r.min_known_box_clearance_moving_m);
         self.min_table_m = self.min_table_m.min(r.min_table_clearance_m);
         for i in &r.injections {
             let e = self
@@ -629,6 +641,7 @@ impl SweepTally {
                 depth_histogram_mm: hist,
             },
             min_known_box_clearance_m: self.min_box_m,
+            min_known_box_clearance_moving_m: self.min_box_moving_m,
             min_table_clearance_m: self.min_table_m,
             injections_by_offset: self.injections.clone(),
             counts: self.counts.clone(),
@@ -1290,6 +1303,7 @@ impl<'a> Episode<'a> {
             report: EpisodeReport {
                 episode: index,
                 min_known_box_clearance_m: f64::INFINITY,
+                min_known_box_clearance_moving_m: f64::INFINITY,
                 min_table_clearance_m: f64::INFINITY,
                 ..EpisodeReport::default()
             },
@@ -1544,6 +1558,10 @@ impl<'a> Episode<'a> {
                 if settled && !held_inside {
                     self.report.min_known_box_clearance_m =
                         self.report.min_known_box_clearance_m.min(d);
+                    if q != self.prev_q {
+                        self.report.min_known_box_clearance_moving_m =
+                            self.report.min_known_box_clearance_moving_m.min(d);
+                    }
                 }
                 if d >= 0.0 {
                     continue;
