@@ -31,6 +31,10 @@
 //!   the goal target from deterministic seeds), [`plan_path`] (RRT-Connect in joint space
 //!   under the task's contact rule, [`is_safe_posture`]) and [`check_feasibility`] (both;
 //!   [`Feasibility`] or an [`InfeasibleReason`] in words and as `RetrainProgress` bytes).
+//! - Goal-posture choice ([`choose_goal_posture`]): the goal target's IK branches (base
+//!   facing / flipped, elbow up / down, wrist pitches, and the IK's own solution from the
+//!   start), those in contact or closer than the clearance dropped, the rest ordered by
+//!   joint-space distance from the start; [`PostureChoiceError`] says why there is none.
 //! - One verification ([`approval`]): "would rt-core approve this plan in this scene" —
 //!   Ruckig smoothing with rt-core's settings, the shield on every sample, the goal on the
 //!   smoothed path ([`approval::smooth_and_check`], [`approval::EpisodeApproval`]); rt-core's
@@ -118,6 +122,7 @@ mod ik;
 mod kinematics;
 mod model;
 mod planner;
+mod posture;
 mod sampling;
 mod scene;
 mod task;
@@ -140,6 +145,10 @@ pub use model::{
     LinkName, MAX_CAPSULES, N_FRAMES, RobotModel, TOOL_FRAME, UrdfLoadError,
 };
 pub use planner::{PlanOutcome, PlannerBudget, densify_path, is_safe_posture, plan_path};
+pub use posture::{
+    BaseSide, Branch, BranchPosture, Elbow, MAX_BRANCH_POSTURES, POSTURE_IK_ITERATIONS,
+    PostureChoice, PostureChoiceError, choose_goal_posture,
+};
 pub use sampling::{
     MAX_SAMPLE_THREADS, MAX_SAMPLES, Sample, SampleReport, Sampler, SamplingSettings,
 };
