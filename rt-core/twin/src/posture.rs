@@ -1,32 +1,5 @@
-//! The goal posture: which of the goal's IK branches the arm should end in.
-//!
-//! The xArm5 reaches a TCP position with joints 1–4 (joint 5 turns the flange about its own
-//! axis and does not move the TCP), so a goal target has a few discrete branches — joint 1
-//! aimed at the goal or turned half a turn away from it (the arm reaching back over its
-//! base), the elbow above or below the shoulder–wrist line — each a one-parameter family
-//! over the wrist's pitch. [`choose_goal_posture`] enumerates a fixed set of candidates:
-//!
-//! 1. what the twin's position IK ([`IkSolver`], the task's settings, pulled toward the
-//!    start) converges to from the start posture: the posture the Cartesian policy's
-//!    per-step IK drifts toward;
-//! 2. for base facing / flipped × elbow up / down × four wrist pitches (the tool axis
-//!    straight down, tilted 30° and 60° away from the base, 30° toward it): the planar closed form of the arm (joints 2–4 move in
-//!    the vertical plane of joint 1, their link vectors read from the model), polished by the
-//!    same IK pulled toward it (0 iterations on the bundled model: the closed form is exact).
-//!
-//! Joint 5 keeps the start's value. A candidate is dropped when its closed form leaves the
-//! joint limits, when its TCP misses the goal target by more than `success.tolerance_m`
-//! (out of reach), when it breaks the task's contact rule (the one of `TwinEnv::step` and
-//! the planner, [`is_safe_posture`]: a self-collision, or any box — or, links 2–5 and the
-//! tool, the table — closer than `success.min_box_clearance_m`), or when it is within
-//! 0.1 rad (largest joint gap) of a candidate kept before it.
-//!
-//! # Order
-//! The kept postures are ordered by their joint-space distance from the start posture
-//! (Euclidean over the five joints, rad): the branch the arm gets to with the least joint
-//! travel first. Equal distances go to the larger clearance margin
-//! ([`BranchPosture::margin_m`]), then to the enumeration order above. The choice is a
-//! pure function of the task, the scene and the start: deterministic.
+//! The goal posture: which of the goal's IK branches the arm should end in
+//! ([`choose_goal_posture`], whose docs give the candidates and the order).
 //!
 //! Planning code beside the feasibility check (it shares its contact rule and its
 //! classification of what blocks a posture); it does not allocate.
@@ -116,7 +89,7 @@ pub struct BranchPosture {
     pub tcp_error_m: f64,
 }
 
-/// The safe goal postures of a scene, ordered (see the [module docs](self)).
+/// The safe goal postures of a scene, ordered (see [`choose_goal_posture`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct PostureChoice {
     /// The goal target point (m).
@@ -308,8 +281,40 @@ struct Least {
 }
 
 /// Chooses the goal posture of `scene` for an arm starting at `start` (rad, clamped into
-/// the limits): the candidates of the [module docs](self), the unsafe ones dropped, the rest
-/// ordered by joint-space distance from `start`, then by margin, then by enumeration.
+/// the limits).
+///
+/// The xArm5 reaches a TCP position with joints 1–4 (joint 5 turns the flange about its own
+/// axis and does not move the TCP), so a goal target has a few discrete branches — joint 1
+/// aimed at the goal or turned half a turn away from it (the arm reaching back over its
+/// base), the elbow above or below the shoulder–wrist line — each a one-parameter family
+/// over the wrist's pitch. This function enumerates a fixed set of candidates:
+///
+/// 1. what the twin's position IK ([`IkSolver`], the task's settings, pulled toward the
+///    start) converges to from the start posture: the posture the Cartesian policy's
+///    per-step IK drifts toward;
+/// 2. for base facing / flipped × elbow up / down × four wrist pitches (the tool axis
+///    straight down, tilted 30° and 60° away from the base, 30° toward it): the planar
+///    closed form of the arm (joints 2–4 move in the vertical plane of joint 1, their link
+///    vectors read from the model), polished by the same IK pulled toward it (0 iterations
+///    on the bundled model: the closed form is exact).
+///
+/// On the bundled arm and goals on the table, the elbow-down and most flipped closed forms
+/// leave the ranges of joints 2 and 3, so the postures kept are mostly the facing, elbow-up
+/// branch at different wrist pitches (a flipped one appears for goals near the base).
+///
+/// Joint 5 keeps the start's value. A candidate is dropped when its closed form leaves the
+/// joint limits, when its TCP misses the goal target by more than `success.tolerance_m`
+/// (out of reach), when it breaks the task's contact rule (the one of `TwinEnv::step` and
+/// the planner, [`is_safe_posture`]: a self-collision, or any box — or, links 2–5 and the
+/// tool, the table — closer than `success.min_box_clearance_m`), or when it is within
+/// 0.1 rad (largest joint gap) of a candidate kept before it.
+///
+/// # Order
+/// The kept postures are ordered by their joint-space distance from the start posture
+/// (Euclidean over the five joints, rad): the branch the arm gets to with the least joint
+/// travel first. Equal distances go to the larger clearance margin
+/// ([`BranchPosture::margin_m`]), then to the enumeration order above. The choice is a
+/// pure function of the task, the scene and the start: deterministic.
 ///
 /// # Errors
 /// [`PostureChoiceError::Unreachable`] when no candidate reaches the goal target (by the
