@@ -5,7 +5,7 @@
 
 use core::sync::atomic::{AtomicU64, Ordering};
 
-use shm_schemas::{PolicyBlob, SchemaError};
+use shm_schemas::{ActionSpace, PolicyBlob, SchemaError};
 
 use super::mlp::MlpPolicy;
 use shm_schemas::{ACT_DIM, OBS_DIM};
@@ -35,11 +35,53 @@ pub enum PolicyRejectReason {
     /// A finite value out of range (non-positive std or clip).
     #[error("normalisation or clipping value out of range")]
     OutOfRange = 6,
+    /// A space this build knows but this loader does not run ([`ActionSpaceRefusal`]
+    /// names it).
+    #[error("action space not run by this loader (it runs cartesian_step)")]
+    UnsupportedActionSpace = 7,
+    /// An action-space byte this build does not know ([`ActionSpaceRefusal`] names it).
+    #[error("unknown action space")]
+    UnknownActionSpace = 8,
+}
+
+/// The action spaces this loader runs: the Cartesian step (the MLP's output is fed to the
+/// twin's per-step IK by rt-core). A joint-step policy is known (its blob validates) but
+/// refused, until rt-core's executor runs it.
+pub const RUNNABLE_SPACES: [ActionSpace; 1] = [ActionSpace::CartesianStep];
+
+/// Why a blob's action space is refused, naming the space: the words rt-core logs and
+/// returns beside [`PolicyRejectReason::UnsupportedActionSpace`] and
+/// [`PolicyRejectReason::UnknownActionSpace`]. `Copy`, no `String`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum ActionSpaceRefusal {
+    /// A space this build knows but does not run.
+    #[error(
+        "the policy's action space `{}` is not one this rt-core runs yet (it runs `cartesian_step`)",
+        .0.name()
+    )]
+    NotRunnable(ActionSpace),
+    /// A space byte this build does not know (a newer learner's space, or a corrupted byte).
+    #[error(
+        "the policy's action space byte {0} is unknown to this rt-core (it knows `cartesian_step` = 0 and `joint_step` = 1)"
+    )]
+    Unknown(u8),
+}
+
+impl ActionSpaceRefusal {
+    /// The refusal of `blob`'s action space, `None` for a space this loader runs. Reads only
+    /// the `action_space` byte (the full check is [`PolicyLoader::check`]).
+    pub fn of(blob: &PolicyBlob) -> Option<Self> {
+        match ActionSpace::try_from(blob.action_space) {
+            Ok(space) if RUNNABLE_SPACES.contains(&space) => None,
+            Ok(space) => Some(Self::NotRunnable(space)),
+            Err(_) => Some(Self::Unknown(blob.action_space)),
+        }
+    }
 }
 
 impl PolicyRejectReason {
     /// Every reason, in discriminant order.
-    pub const ALL: [PolicyRejectReason; 7] = [
+    pub const ALL: [PolicyRejectReason; 9] = [
         Self::NonFinite,
         Self::DimensionMismatch,
         Self::TaskHashMismatch,
@@ -47,6 +89,8 @@ impl PolicyRejectReason {
         Self::LayoutInvalid,
         Self::VersionMismatch,
         Self::OutOfRange,
+        Self::UnsupportedActionSpace,
+        Self::UnknownActionSpace,
     ];
 
     /// A short static name for logs and metrics.
@@ -59,6 +103,8 @@ impl PolicyRejectReason {
             Self::LayoutInvalid => "layout_invalid",
             Self::VersionMismatch => "version_mismatch",
             Self::OutOfRange => "out_of_range",
+            Self::UnsupportedActionSpace => "unsupported_action_space",
+            Self::UnknownActionSpace => "unknown_action_space",
         }
     }
 }
@@ -70,6 +116,10 @@ impl From<SchemaError> for PolicyRejectReason {
             SchemaError::ChecksumMismatch { .. } => Self::BadChecksum,
             SchemaError::VersionMismatch { .. } => Self::VersionMismatch,
             SchemaError::OutOfRange { .. } => Self::OutOfRange,
+            SchemaError::BadEnum {
+                field: "action_space",
+                ..
+            } => Self::UnknownActionSpace,
             SchemaError::CountOverCapacity { .. }
             | SchemaError::BadEnum { .. }
             | SchemaError::LayoutInvalid { .. } => Self::LayoutInvalid,
@@ -206,7 +256,8 @@ impl PolicyLoader {
     }
 
     /// Checks a blob without building anything: [`PolicyBlob::validate`] (format, layout,
-    /// checksum, finite values, ranges), then dimensions, then task hash. Counts the
+    /// checksum, finite values, ranges; an unknown action space), then whether it runs the
+    /// blob's action space ([`RUNNABLE_SPACES`]), then dimensions, then task hash. Counts the
     /// outcome. No allocation. `blob` is a private copy (see [the type docs](Self)).
     ///
     /// # Errors
@@ -227,6 +278,11 @@ impl PolicyLoader {
         expected: PolicyExpectation,
     ) -> Result<(), PolicyRejectReason> {
         blob.validate()?;
+        // A known space this loader does not run is refused by its own reason before its
+        // (other) dimensions could be taken for a mismatch of the task's.
+        if ActionSpaceRefusal::of(blob).is_some() {
+            return Err(PolicyRejectReason::UnsupportedActionSpace);
+        }
         if blob.obs_dim as usize != expected.obs_dim || blob.act_dim as usize != expected.act_dim {
             return Err(PolicyRejectReason::DimensionMismatch);
         }
