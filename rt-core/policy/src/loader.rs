@@ -35,34 +35,23 @@ pub enum PolicyRejectReason {
     /// A finite value out of range (non-positive std or clip).
     #[error("normalisation or clipping value out of range")]
     OutOfRange = 6,
-    /// A space this build knows but this loader does not run ([`ActionSpaceRefusal`]
-    /// names it).
-    #[error("action space not run by this loader (it runs cartesian_step)")]
-    UnsupportedActionSpace = 7,
     /// An action-space byte this build does not know ([`ActionSpaceRefusal`] names it).
     #[error("unknown action space")]
-    UnknownActionSpace = 8,
+    UnknownActionSpace = 7,
 }
 
-/// The action spaces this loader runs: the Cartesian step (the MLP's output is fed to the
-/// twin's per-step IK by rt-core). A joint-step policy is known (its blob validates) but
-/// refused, until rt-core's executor runs it.
-pub const RUNNABLE_SPACES: [ActionSpace; 1] = [ActionSpace::CartesianStep];
+/// The action spaces this loader runs: every space this build knows. rt-core's lookahead
+/// rolls a Cartesian-step policy out through the twin's per-step IK and a joint-step
+/// policy toward the goal posture the twin chooses; both plans are approved the same way.
+pub const RUNNABLE_SPACES: [ActionSpace; 2] = ActionSpace::ALL;
 
-/// Why a blob's action space is refused, naming the space: the words rt-core logs and
-/// returns beside [`PolicyRejectReason::UnsupportedActionSpace`] and
-/// [`PolicyRejectReason::UnknownActionSpace`]. `Copy`, no `String`.
+/// Why a blob's action space is refused, naming it: the words rt-core logs and returns
+/// beside [`PolicyRejectReason::UnknownActionSpace`]. `Copy`, no `String`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum ActionSpaceRefusal {
-    /// A space this build knows but does not run.
-    #[error(
-        "the policy's action space `{}` is not one this rt-core runs yet (it runs `cartesian_step`)",
-        .0.name()
-    )]
-    NotRunnable(ActionSpace),
     /// A space byte this build does not know (a newer learner's space, or a corrupted byte).
     #[error(
-        "the policy's action space byte {0} is unknown to this rt-core (it knows `cartesian_step` = 0 and `joint_step` = 1)"
+        "the policy's action space byte {0} is unknown to this rt-core (it runs `cartesian_step` = 0 and `joint_step` = 1)"
     )]
     Unknown(u8),
 }
@@ -73,15 +62,14 @@ impl ActionSpaceRefusal {
     pub fn of(blob: &PolicyBlob) -> Option<Self> {
         match ActionSpace::try_from(blob.action_space) {
             Ok(space) if RUNNABLE_SPACES.contains(&space) => None,
-            Ok(space) => Some(Self::NotRunnable(space)),
-            Err(_) => Some(Self::Unknown(blob.action_space)),
+            _ => Some(Self::Unknown(blob.action_space)),
         }
     }
 }
 
 impl PolicyRejectReason {
     /// Every reason, in discriminant order.
-    pub const ALL: [PolicyRejectReason; 9] = [
+    pub const ALL: [PolicyRejectReason; 8] = [
         Self::NonFinite,
         Self::DimensionMismatch,
         Self::TaskHashMismatch,
@@ -89,7 +77,6 @@ impl PolicyRejectReason {
         Self::LayoutInvalid,
         Self::VersionMismatch,
         Self::OutOfRange,
-        Self::UnsupportedActionSpace,
         Self::UnknownActionSpace,
     ];
 
@@ -103,7 +90,6 @@ impl PolicyRejectReason {
             Self::LayoutInvalid => "layout_invalid",
             Self::VersionMismatch => "version_mismatch",
             Self::OutOfRange => "out_of_range",
-            Self::UnsupportedActionSpace => "unsupported_action_space",
             Self::UnknownActionSpace => "unknown_action_space",
         }
     }
@@ -256,8 +242,9 @@ impl PolicyLoader {
     }
 
     /// Checks a blob without building anything: [`PolicyBlob::validate`] (format, layout,
-    /// checksum, finite values, ranges; an unknown action space), then whether it runs the
-    /// blob's action space ([`RUNNABLE_SPACES`]), then dimensions, then task hash. Counts the
+    /// checksum, finite values, ranges; an unknown action space), then dimensions (the
+    /// expectation's for a Cartesian-step blob; a joint-step blob's are its layout's), then
+    /// task hash. Counts the
     /// outcome. No allocation. `blob` is a private copy (see [the type docs](Self)).
     ///
     /// # Errors
@@ -278,12 +265,19 @@ impl PolicyLoader {
         expected: PolicyExpectation,
     ) -> Result<(), PolicyRejectReason> {
         blob.validate()?;
-        // A known space this loader does not run is refused by its own reason before its
-        // (other) dimensions could be taken for a mismatch of the task's.
         if ActionSpaceRefusal::of(blob).is_some() {
-            return Err(PolicyRejectReason::UnsupportedActionSpace);
+            return Err(PolicyRejectReason::UnknownActionSpace);
         }
-        if blob.obs_dim as usize != expected.obs_dim || blob.act_dim as usize != expected.act_dim {
+        // The Cartesian step observes the task's observation; the joint step its own layout
+        // (its lengths already checked by `validate`).
+        let dims_match = match ActionSpace::try_from(blob.action_space) {
+            Ok(ActionSpace::JointStep) => true,
+            _ => {
+                blob.obs_dim as usize == expected.obs_dim
+                    && blob.act_dim as usize == expected.act_dim
+            }
+        };
+        if !dims_match {
             return Err(PolicyRejectReason::DimensionMismatch);
         }
         if blob.task_config_hash != expected.task_config_hash {

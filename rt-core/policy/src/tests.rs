@@ -115,25 +115,30 @@ fn joint_step_blob() -> Box<PolicyBlob> {
         .unwrap()
 }
 
-/// Issue 40 item 3: a blob in a space this loader runs is run; one in a space it knows but
-/// does not run yet (joint_step), or in a space it does not know, is refused, and the
-/// refusal names the space.
+/// Issue 40 item 3: a blob in a space this loader runs is run — the Cartesian step and the
+/// joint step, each through its own entry point — and one in a space it does not know is
+/// refused, the refusal naming the byte.
 #[test]
 fn a_policy_is_run_or_refused_by_its_action_space_named() {
     let loader = PolicyLoader::new(PolicyExpectation::for_task(TASK));
-    let cartesian = valid();
-    assert_eq!(ActionSpaceRefusal::of(&cartesian), None);
-    assert!(loader.prepare(&cartesian).is_ok());
+    let obs = [0.3f32; OBS_DIM];
+    let cartesian = loader.prepare(&valid()).unwrap();
+    assert_eq!(ActionSpaceRefusal::of(&valid()), None);
+    assert_eq!(cartesian.action_space(), ActionSpace::CartesianStep);
+    assert_ne!(cartesian.act(&obs), [0.0; ACT_DIM]);
+    assert_eq!(cartesian.act_joint(&obs), [0.0; JOINT_ACT_DIM]);
 
-    let joint = joint_step_blob();
-    assert_eq!(joint.validate(), Ok(()));
-    assert_eq!(
-        loader.prepare(&joint).err(),
-        Some(PolicyRejectReason::UnsupportedActionSpace)
-    );
-    let why = ActionSpaceRefusal::of(&joint).unwrap();
-    assert_eq!(why, ActionSpaceRefusal::NotRunnable(ActionSpace::JointStep));
-    assert!(why.to_string().contains("`joint_step`"), "{why}");
+    let blob = joint_step_blob();
+    assert_eq!(ActionSpaceRefusal::of(&blob), None);
+    let joint = loader.prepare(&blob).unwrap();
+    assert_eq!(joint.action_space(), ActionSpace::JointStep);
+    let mut expected = [0.0f32; JOINT_ACT_DIM];
+    joint
+        .evaluate(&obs[..JOINT_OBS_DIM], &mut expected)
+        .unwrap();
+    assert_eq!(joint.act_joint(&obs), expected);
+    assert_ne!(expected, [0.0; JOINT_ACT_DIM]);
+    assert_eq!(joint.act(&obs), [0.0; ACT_DIM]);
 
     let mut unknown = valid();
     unknown.action_space = 7;
@@ -145,8 +150,8 @@ fn a_policy_is_run_or_refused_by_its_action_space_named() {
     let why = ActionSpaceRefusal::of(&unknown).unwrap();
     assert_eq!(why, ActionSpaceRefusal::Unknown(7));
     assert!(why.to_string().contains("byte 7"), "{why}");
-    assert_eq!(loader.counters().accepted(), 1);
-    assert_eq!(loader.counters().total_rejected(), 2);
+    assert_eq!(loader.counters().accepted(), 2);
+    assert_eq!(loader.counters().total_rejected(), 1);
 }
 
 #[test]
@@ -207,10 +212,6 @@ fn every_reject_reason_is_detected_counted_and_leaves_the_running_policy() {
     b.obs_std[0] = 0.0;
     b.seal();
     cases.push((b, PolicyRejectReason::OutOfRange));
-    cases.push((
-        joint_step_blob(),
-        PolicyRejectReason::UnsupportedActionSpace,
-    ));
     let mut b = valid();
     b.action_space = 2;
     b.seal();
