@@ -107,6 +107,18 @@ pub struct PostureChoice {
 }
 
 impl PostureChoice {
+    /// No posture kept yet, nothing counted.
+    fn none_yet(target: &Vector3<f64>) -> Self {
+        Self {
+            target_m: (*target).into(),
+            postures: heapless::Vec::new(),
+            candidates: MAX_BRANCH_POSTURES,
+            outside_limits: 0,
+            unreachable: 0,
+            blocked: 0,
+        }
+    }
+
     /// The chosen goal posture: the first of [`PostureChoice::postures`].
     pub fn best(&self) -> &BranchPosture {
         // Never empty: `choose_goal_posture` returns an error instead.
@@ -241,6 +253,20 @@ impl PlanarArm {
         Ok([q2, q3, q4])
     }
 
+    /// The branch of joints `q` reaching `target`: joint 1 within a quarter turn of the
+    /// target's heading (facing) or not, and the elbow side.
+    fn branch(&self, q: &Joints, target: &Vector3<f64>) -> Branch {
+        let facing = (q[0] - target.y.atan2(target.x)).cos() >= 0.0;
+        Branch {
+            base: if facing {
+                BaseSide::Facing
+            } else {
+                BaseSide::Flipped
+            },
+            elbow: self.elbow(q),
+        }
+    }
+
     /// The elbow side of joints `q` (geometric: the elbow above or below the line from the
     /// shoulder to the wrist, seen in the plane).
     fn elbow(&self, q: &Joints) -> Elbow {
@@ -326,8 +352,8 @@ struct Least {
 /// [`MAX_BRANCH_POSTURES`] (17) candidates: one IK solve from the start (the only one that
 /// iterates on the bundled model), sixteen closed forms (most of them outside the joint
 /// limits for goals on the table, dropped before any FK), one FK and one distance query per
-/// candidate within the limits; no allocation. 27.5 µs median on the tall box on the 2-core
-/// dev machine (`cargo bench -p twin --bench twin -- goal_posture`).
+/// candidate within the limits; no allocation. 18–28 µs median on the tall box on the 2-core
+/// dev machine, niced, idle to loaded (`cargo bench -p twin --bench twin -- goal_posture`).
 pub fn choose_goal_posture(
     env: &TwinEnv,
     scene: &Scene,
@@ -336,7 +362,6 @@ pub fn choose_goal_posture(
     let cfg = env.config();
     let model = env.model();
     let limits = model.limits();
-    let (lo, hi) = (limits.lower_rad, limits.upper_rad);
     let mut start = *start;
     limits.clamp(&mut start);
     let target = scene.goal_target_m(cfg.success.goal_hover_m);
@@ -344,47 +369,9 @@ pub fn choose_goal_posture(
     let planar = PlanarArm::of(model);
     let ik = IkSolver::new(model, cfg.ik);
 
-    let aim = near_turn(target.y.atan2(target.x), start[0], lo[0], hi[0]);
-    let away = near_turn(aim + PI, start[0], lo[0], hi[0]);
-    let reach_xy = target.x.hypot(target.y);
-
-    let mut seeds: heapless::Vec<Joints, MAX_BRANCH_POSTURES> = heapless::Vec::new();
-    let mut choice = PostureChoice {
-        target_m: target.into(),
-        postures: heapless::Vec::new(),
-        candidates: MAX_BRANCH_POSTURES,
-        outside_limits: 0,
-        unreachable: 0,
-        blocked: 0,
-    };
+    let mut choice = PostureChoice::none_yet(&target);
     let mut closest_m = f64::INFINITY;
-    let _ = seeds.push(start);
-    for (q1, side) in [(aim, 1.0), (away, -1.0)] {
-        let tcp = Vector2::new(side * reach_xy, target.z);
-        for sign in [1.0, -1.0] {
-            for tilt in WRIST_TILTS_RAD {
-                let tool = -FRAC_PI_2 + side * tilt;
-                let q = planar.solve(tcp, tool, sign).map(|[q2, q3, q4]| {
-                    [
-                        Some(q1),
-                        wrap_into(q2, lo[1], hi[1]),
-                        wrap_into(q3, lo[2], hi[2]),
-                        wrap_into(q4, lo[3], hi[3]),
-                    ]
-                });
-                match q {
-                    Err(by_m) => {
-                        choice.unreachable += 1;
-                        closest_m = closest_m.min(by_m);
-                    }
-                    Ok([Some(q1), Some(q2), Some(q3), Some(q4)]) => {
-                        let _ = seeds.push([q1, q2, q3, q4, start[4]]);
-                    }
-                    Ok(_) => choice.outside_limits += 1,
-                }
-            }
-        }
-    }
+    let seeds = seeds(model, &planar, &target, &start, &mut choice, &mut closest_m);
 
     let mut least: Option<Least> = None;
     let mut reached = 0;
@@ -424,36 +411,40 @@ pub fn choose_goal_posture(
         {
             continue;
         }
-        let facing = (q[0] - target.y.atan2(target.x)).cos() >= 0.0;
         let posture = BranchPosture {
             joints: q,
-            branch: Branch {
-                base: if facing {
-                    BaseSide::Facing
-                } else {
-                    BaseSide::Flipped
-                },
-                elbow: planar.elbow(&q),
-            },
+            branch: planar.branch(&q, &target),
             distance_rad: joint_distance_rad(&q, &start),
             margin_m,
             tcp_error_m,
         };
         let _ = kept.push((posture, index));
     }
+    choice.postures = ordered(kept);
+    if !choice.postures.is_empty() {
+        return Ok(choice);
+    }
+    Err(no_posture(least, reached, closest_m))
+}
+
+/// The kept postures in the stated order: joint distance from the start, then the larger
+/// margin, then the enumeration index.
+fn ordered(
+    mut kept: heapless::Vec<(BranchPosture, usize), MAX_BRANCH_POSTURES>,
+) -> heapless::Vec<BranchPosture, MAX_BRANCH_POSTURES> {
     kept.sort_unstable_by(|(a, ia), (b, ib)| {
         a.distance_rad
             .total_cmp(&b.distance_rad)
             .then(b.margin_m.total_cmp(&a.margin_m))
             .then(ia.cmp(ib))
     });
-    for (p, _) in kept {
-        let _ = choice.postures.push(p);
-    }
-    if !choice.postures.is_empty() {
-        return Ok(choice);
-    }
-    Err(match least {
+    kept.into_iter().map(|(p, _)| p).collect()
+}
+
+/// The error when no candidate is kept: blocked (by the least blocked candidate's blocker)
+/// when some reached the target, else out of reach by `closest_m`.
+fn no_posture(least: Option<Least>, reached: usize, closest_m: f64) -> PostureChoiceError {
+    match least {
         Some(l) => PostureChoiceError::Blocked {
             blocker: l.blocker,
             link: l.link,
@@ -469,7 +460,54 @@ pub fn choose_goal_posture(
             },
             candidates: MAX_BRANCH_POSTURES,
         },
-    })
+    }
+}
+
+/// The IK seeds in enumeration order: `start`, then the closed forms within the joint
+/// limits (those outside them or out of reach counted in `choice`, the reach shortfall in
+/// `closest_m`).
+fn seeds(
+    model: &RobotModel,
+    planar: &PlanarArm,
+    target: &Vector3<f64>,
+    start: &Joints,
+    choice: &mut PostureChoice,
+    closest_m: &mut f64,
+) -> heapless::Vec<Joints, MAX_BRANCH_POSTURES> {
+    let limits = model.limits();
+    let (lo, hi) = (limits.lower_rad, limits.upper_rad);
+    let aim = near_turn(target.y.atan2(target.x), start[0], lo[0], hi[0]);
+    let away = near_turn(aim + PI, start[0], lo[0], hi[0]);
+    let reach_xy = target.x.hypot(target.y);
+    let mut seeds: heapless::Vec<Joints, MAX_BRANCH_POSTURES> = heapless::Vec::new();
+    let _ = seeds.push(*start);
+    for (q1, side) in [(aim, 1.0), (away, -1.0)] {
+        let tcp = Vector2::new(side * reach_xy, target.z);
+        for sign in [1.0, -1.0] {
+            for tilt in WRIST_TILTS_RAD {
+                let tool = -FRAC_PI_2 + side * tilt;
+                let q = planar.solve(tcp, tool, sign).map(|[q2, q3, q4]| {
+                    [
+                        Some(q1),
+                        wrap_into(q2, lo[1], hi[1]),
+                        wrap_into(q3, lo[2], hi[2]),
+                        wrap_into(q4, lo[3], hi[3]),
+                    ]
+                });
+                match q {
+                    Err(by_m) => {
+                        choice.unreachable += 1;
+                        *closest_m = closest_m.min(by_m);
+                    }
+                    Ok([Some(q1), Some(q2), Some(q3), Some(q4)]) => {
+                        let _ = seeds.push([q1, q2, q3, q4, start[4]]);
+                    }
+                    Ok(_) => choice.outside_limits += 1,
+                }
+            }
+        }
+    }
+    seeds
 }
 
 #[cfg(test)]
