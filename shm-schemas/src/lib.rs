@@ -59,9 +59,9 @@ pub use error::{SchemaError, flag_byte};
 pub use goal_refusal::{GoalRefusal, GoalRefusalKind};
 pub use goal_request::{GoalBoundError, GoalBounds, GoalCommand, GoalRequest, GoalRequestAgeError};
 pub use policy_blob::{
-    ACT_DIM, ActionSpace, Activation, LayerView, MAX_ACT, MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH,
-    MAX_OBS, MAX_WEIGHTS, OBS_DIM, PAPER_OBS_DIM, POLICY_FORMAT_VERSION, PolicyBlob,
-    required_weights,
+    ACT_DIM, ActionSpace, Activation, JOINT_ACT_DIM, JOINT_OBS_DIM, LayerView, MAX_ACT,
+    MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_OBS, MAX_WEIGHTS, OBS_DIM, OBS_LAYOUT_CARTESIAN,
+    OBS_LAYOUT_JOINT_V1, PAPER_OBS_DIM, POLICY_FORMAT_VERSION, PolicyBlob, required_weights,
 };
 pub use policy_builder::{PolicyBlobBuilder, PolicyBuildError};
 pub use retrain::{

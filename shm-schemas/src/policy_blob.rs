@@ -51,6 +51,21 @@ pub const PAPER_OBS_DIM: usize = 17;
 /// Action length of the reaching task: a Cartesian TCP step `[dx, dy, dz]`.
 pub const ACT_DIM: usize = 3;
 const _: () = assert!(OBS_DIM <= MAX_OBS && ACT_DIM <= MAX_ACT);
+/// Action length of [`ActionSpace::JointStep`]: one step per joint of the xArm5.
+pub const JOINT_ACT_DIM: usize = 5;
+/// Observation length of [`ActionSpace::JointStep`] under [`OBS_LAYOUT_JOINT_V1`] (the
+/// `twin` crate's joint-space table): the same buffer length as [`OBS_DIM`], whatever the
+/// task's `[observation]`.
+pub const JOINT_OBS_DIM: usize = 29;
+const _: () = assert!(JOINT_OBS_DIM == OBS_DIM && JOINT_ACT_DIM <= MAX_ACT);
+/// `PolicyBlob::obs_layout` of a Cartesian-step policy: the twin's Cartesian table, fixed by
+/// `obs_dim` (17 for the paper's, 17 + 6·(k−1) for `nearest_boxes`). Zero: every blob
+/// written before the field existed (it was reserved, zero) reads as this layout.
+pub const OBS_LAYOUT_CARTESIAN: u32 = 0;
+/// `PolicyBlob::obs_layout` of a joint-step policy: version 1 of the twin's joint-space
+/// table ([`JOINT_OBS_DIM`] values: the goal posture and the joint error to it, the TCP, the
+/// goal target, the nearest boxes; see the `twin` crate's docs).
+pub const OBS_LAYOUT_JOINT_V1: u32 = 1;
 /// Largest action dimension a blob can describe.
 pub const MAX_ACT: usize = 8;
 /// Most hidden layers.
@@ -96,8 +111,9 @@ impl TryFrom<u8> for Activation {
 }
 
 /// The action space a policy's output lives in. Stored as a `u8` (`PolicyBlob::action_space`);
-/// convert with `ActionSpace::try_from(byte)`. The observation layout is fixed by `obs_dim`
-/// under [`POLICY_FORMAT_VERSION`] (the `twin` crate's table).
+/// convert with `ActionSpace::try_from(byte)`. Each space has its observation layout, recorded
+/// with its version in `PolicyBlob::obs_layout` ([`ActionSpace::obs_layout`]; the `twin`
+/// crate's tables).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[repr(u8)]
 pub enum ActionSpace {
@@ -105,13 +121,39 @@ pub enum ActionSpace {
     /// `action.scale_m`; the twin's IK turns it into joints. Byte 0, so every blob written
     /// before the field existed (it was reserved, zero) reads as this space.
     CartesianStep = 0,
+    /// Joint-space steps toward a goal posture the twin chose (issue 40 item 3): five
+    /// per-joint steps in `[-1, 1]`, times the task's `action.joint_scale_rad`; the
+    /// observation carries the goal posture and the joint error to it
+    /// ([`OBS_LAYOUT_JOINT_V1`]). Byte 1.
+    JointStep = 1,
 }
 
 impl ActionSpace {
+    /// Every space this build knows, by byte.
+    pub const ALL: [ActionSpace; 2] = [Self::CartesianStep, Self::JointStep];
+
     /// The space's name, as the export schema and the logs write it.
     pub fn name(self) -> &'static str {
         match self {
             Self::CartesianStep => "cartesian_step",
+            Self::JointStep => "joint_step",
+        }
+    }
+
+    /// The observation layout (and its version) a blob of this space carries in
+    /// `PolicyBlob::obs_layout`.
+    pub fn obs_layout(self) -> u32 {
+        match self {
+            Self::CartesianStep => OBS_LAYOUT_CARTESIAN,
+            Self::JointStep => OBS_LAYOUT_JOINT_V1,
+        }
+    }
+
+    /// The action length of the space ([`ACT_DIM`] or [`JOINT_ACT_DIM`]).
+    pub fn act_dim(self) -> usize {
+        match self {
+            Self::CartesianStep => ACT_DIM,
+            Self::JointStep => JOINT_ACT_DIM,
         }
     }
 }
@@ -121,6 +163,7 @@ impl TryFrom<u8> for ActionSpace {
     fn try_from(value: u8) -> Result<Self, SchemaError> {
         match value {
             0 => Ok(Self::CartesianStep),
+            1 => Ok(Self::JointStep),
             _ => Err(SchemaError::BadEnum {
                 field: "action_space",
                 value: u32::from(value),
@@ -180,8 +223,10 @@ pub struct PolicyBlob {
     pub obs_clip: f32,
     /// Network outputs are clipped to `±action_clip` (> 0) before scaling.
     pub action_clip: f32,
-    /// Reserved, zero.
-    pub reserved1: u32,
+    /// The observation layout and its version ([`ActionSpace::obs_layout`] of
+    /// `action_space`): [`OBS_LAYOUT_CARTESIAN`] (0, as every blob written before the field
+    /// existed, when it was reserved and zero) or [`OBS_LAYOUT_JOINT_V1`].
+    pub obs_layout: u32,
     /// Observation mean (first `obs_dim` used).
     pub obs_mean: [f32; MAX_OBS],
     /// Observation standard deviation, > 0 (first `obs_dim` used).
@@ -305,7 +350,7 @@ impl PolicyBlob {
         self.n_weights = other.n_weights;
         self.obs_clip = other.obs_clip;
         self.action_clip = other.action_clip;
-        self.reserved1 = other.reserved1;
+        self.obs_layout = other.obs_layout;
         self.obs_mean = other.obs_mean;
         self.obs_std = other.obs_std;
         self.action_scale = other.action_scale;
@@ -393,7 +438,7 @@ impl PolicyBlob {
         }
         h.write_u32(self.n_weights);
         h.write_f32s(&[self.obs_clip, self.action_clip]);
-        h.write_u32(self.reserved1);
+        h.write_u32(self.obs_layout);
         h.write_f32s(&self.obs_mean);
         h.write_f32s(&self.obs_std);
         h.write_f32s(&self.action_scale);
@@ -440,8 +485,22 @@ impl PolicyBlob {
             }
         }
         // A space this build does not know is refused by name: its output would otherwise be
-        // run as a Cartesian step (issue 40 item 3).
-        ActionSpace::try_from(self.action_space)?;
+        // run as a Cartesian step (issue 40 item 3). Each space has its own observation
+        // layout: a blob claiming another is refused rather than fed the wrong values.
+        let space = ActionSpace::try_from(self.action_space)?;
+        if self.obs_layout != space.obs_layout() {
+            return Err(SchemaError::BadEnum {
+                field: "obs_layout",
+                value: self.obs_layout,
+            });
+        }
+        if space == ActionSpace::JointStep
+            && (self.obs_dim as usize != JOINT_OBS_DIM || self.act_dim as usize != JOINT_ACT_DIM)
+        {
+            return Err(SchemaError::LayoutInvalid {
+                field: "joint_step obs_dim/act_dim",
+            });
+        }
         Activation::try_from(self.output_activation).map_err(|_| SchemaError::BadEnum {
             field: "output_activation",
             value: u32::from(self.output_activation),

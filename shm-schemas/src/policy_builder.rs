@@ -69,6 +69,7 @@ pub struct PolicyBlobBuilder {
     obs_clip: f32,
     action_scale: Option<Vec<f32>>,
     action_clip: f32,
+    action_space: ActionSpace,
 }
 
 impl PolicyBlobBuilder {
@@ -85,6 +86,7 @@ impl PolicyBlobBuilder {
             obs_clip: 10.0,
             action_scale: None,
             action_clip: 1.0,
+            action_space: ActionSpace::CartesianStep,
         }
     }
 
@@ -124,6 +126,13 @@ impl PolicyBlobBuilder {
     /// Hidden-layer activation.
     pub fn activation(mut self, activation: Activation) -> Self {
         self.activation = activation;
+        self
+    }
+
+    /// The action space (default [`ActionSpace::CartesianStep`]); the blob records the
+    /// space's observation layout with it ([`ActionSpace::obs_layout`]).
+    pub fn action_space(mut self, space: ActionSpace) -> Self {
+        self.action_space = space;
         self
     }
 
@@ -222,7 +231,7 @@ impl PolicyBlobBuilder {
         blob.activation = self.activation as u8;
         blob.output_activation = self.output_activation as u8;
         blob.n_hidden = n_hidden as u8;
-        blob.action_space = ActionSpace::CartesianStep as u8;
+        blob.action_space = self.action_space as u8;
         blob.policy_id = self.policy_id;
         blob.task_config_hash = self.task_config_hash;
         blob.obs_dim = obs_dim as u32;
@@ -234,7 +243,7 @@ impl PolicyBlobBuilder {
         blob.n_weights = total as u32;
         blob.obs_clip = self.obs_clip;
         blob.action_clip = self.action_clip;
-        blob.reserved1 = 0;
+        blob.obs_layout = self.action_space.obs_layout();
         blob.obs_mean = [0.0; MAX_OBS];
         blob.obs_std = [1.0; MAX_OBS];
         blob.action_scale = [1.0; MAX_ACT];

@@ -22,7 +22,10 @@ pub use file::{POLICY_FILE_BYTES, PolicyFileError, read_policy_blob, read_policy
 /// The inference's `tanh` (within 4 ulp, branch-free), also the learner's host network's, so
 /// that training and deployment evaluate hidden layers with the same bits.
 pub use kernel::tanh;
-pub use loader::{PolicyExpectation, PolicyLoader, PolicyRejectReason, RejectCounters};
+pub use loader::{
+    ActionSpaceRefusal, PolicyExpectation, PolicyLoader, PolicyRejectReason, RUNNABLE_SPACES,
+    RejectCounters,
+};
 pub use mlp::{MlpPolicy, PolicyEvalError};
 
 #[cfg(test)]

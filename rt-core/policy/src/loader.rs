@@ -5,7 +5,7 @@
 
 use core::sync::atomic::{AtomicU64, Ordering};
 
-use shm_schemas::{PolicyBlob, SchemaError};
+use shm_schemas::{ActionSpace, PolicyBlob, SchemaError};
 
 use super::mlp::MlpPolicy;
 use shm_schemas::{ACT_DIM, OBS_DIM};
@@ -35,11 +35,41 @@ pub enum PolicyRejectReason {
     /// A finite value out of range (non-positive std or clip).
     #[error("normalisation or clipping value out of range")]
     OutOfRange = 6,
+    /// An action-space byte this build does not know ([`ActionSpaceRefusal`] names it).
+    #[error("unknown action space")]
+    UnknownActionSpace = 7,
+}
+
+/// The action spaces this loader runs: every space this build knows. rt-core's lookahead
+/// rolls a Cartesian-step policy out through the twin's per-step IK and a joint-step
+/// policy toward the goal posture the twin chooses; both plans are approved the same way.
+pub const RUNNABLE_SPACES: [ActionSpace; 2] = ActionSpace::ALL;
+
+/// Why a blob's action space is refused, naming it: the words rt-core logs and returns
+/// beside [`PolicyRejectReason::UnknownActionSpace`]. `Copy`, no `String`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum ActionSpaceRefusal {
+    /// A space byte this build does not know (a newer learner's space, or a corrupted byte).
+    #[error(
+        "the policy's action space byte {0} is unknown to this rt-core (it runs `cartesian_step` = 0 and `joint_step` = 1)"
+    )]
+    Unknown(u8),
+}
+
+impl ActionSpaceRefusal {
+    /// The refusal of `blob`'s action space, `None` for a space this loader runs. Reads only
+    /// the `action_space` byte (the full check is [`PolicyLoader::check`]).
+    pub fn of(blob: &PolicyBlob) -> Option<Self> {
+        match ActionSpace::try_from(blob.action_space) {
+            Ok(space) if RUNNABLE_SPACES.contains(&space) => None,
+            _ => Some(Self::Unknown(blob.action_space)),
+        }
+    }
 }
 
 impl PolicyRejectReason {
     /// Every reason, in discriminant order.
-    pub const ALL: [PolicyRejectReason; 7] = [
+    pub const ALL: [PolicyRejectReason; 8] = [
         Self::NonFinite,
         Self::DimensionMismatch,
         Self::TaskHashMismatch,
@@ -47,6 +77,7 @@ impl PolicyRejectReason {
         Self::LayoutInvalid,
         Self::VersionMismatch,
         Self::OutOfRange,
+        Self::UnknownActionSpace,
     ];
 
     /// A short static name for logs and metrics.
@@ -59,6 +90,7 @@ impl PolicyRejectReason {
             Self::LayoutInvalid => "layout_invalid",
             Self::VersionMismatch => "version_mismatch",
             Self::OutOfRange => "out_of_range",
+            Self::UnknownActionSpace => "unknown_action_space",
         }
     }
 }
@@ -70,6 +102,10 @@ impl From<SchemaError> for PolicyRejectReason {
             SchemaError::ChecksumMismatch { .. } => Self::BadChecksum,
             SchemaError::VersionMismatch { .. } => Self::VersionMismatch,
             SchemaError::OutOfRange { .. } => Self::OutOfRange,
+            SchemaError::BadEnum {
+                field: "action_space",
+                ..
+            } => Self::UnknownActionSpace,
             SchemaError::CountOverCapacity { .. }
             | SchemaError::BadEnum { .. }
             | SchemaError::LayoutInvalid { .. } => Self::LayoutInvalid,
@@ -206,7 +242,9 @@ impl PolicyLoader {
     }
 
     /// Checks a blob without building anything: [`PolicyBlob::validate`] (format, layout,
-    /// checksum, finite values, ranges), then dimensions, then task hash. Counts the
+    /// checksum, finite values, ranges; an unknown action space), then dimensions (the
+    /// expectation's for a Cartesian-step blob; a joint-step blob's are its layout's), then
+    /// task hash. Counts the
     /// outcome. No allocation. `blob` is a private copy (see [the type docs](Self)).
     ///
     /// # Errors
@@ -227,7 +265,19 @@ impl PolicyLoader {
         expected: PolicyExpectation,
     ) -> Result<(), PolicyRejectReason> {
         blob.validate()?;
-        if blob.obs_dim as usize != expected.obs_dim || blob.act_dim as usize != expected.act_dim {
+        if ActionSpaceRefusal::of(blob).is_some() {
+            return Err(PolicyRejectReason::UnknownActionSpace);
+        }
+        // The Cartesian step observes the task's observation; the joint step its own layout
+        // (its lengths already checked by `validate`).
+        let dims_match = match ActionSpace::try_from(blob.action_space) {
+            Ok(ActionSpace::JointStep) => true,
+            _ => {
+                blob.obs_dim as usize == expected.obs_dim
+                    && blob.act_dim as usize == expected.act_dim
+            }
+        };
+        if !dims_match {
             return Err(PolicyRejectReason::DimensionMismatch);
         }
         if blob.task_config_hash != expected.task_config_hash {

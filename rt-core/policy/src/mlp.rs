@@ -2,7 +2,8 @@
 //! without allocation (the deterministic mean action).
 
 use shm_schemas::{
-    Activation, MAX_ACT, MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_OBS, MAX_WEIGHTS, PolicyBlob,
+    ActionSpace, Activation, JOINT_ACT_DIM, MAX_ACT, MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_OBS,
+    MAX_WEIGHTS, PolicyBlob,
 };
 
 use super::kernel::{COLUMN_BLOCK, Simd, columns, rows, tanh};
@@ -81,6 +82,7 @@ pub enum PolicyEvalError {
 pub struct MlpPolicy {
     policy_id: u64,
     task_config_hash: u64,
+    action_space: ActionSpace,
     obs_dim: usize,
     act_dim: usize,
     n_layers: usize,
@@ -104,6 +106,7 @@ impl MlpPolicy {
         Self {
             policy_id: 0,
             task_config_hash: 0,
+            action_space: ActionSpace::CartesianStep,
             obs_dim: 0,
             act_dim: 0,
             n_layers: 0,
@@ -129,9 +132,10 @@ impl MlpPolicy {
     /// clip values cannot make evaluation panic (see [`clip`]).
     pub(crate) fn load_from(&mut self, blob: &PolicyBlob) {
         self.n_layers = 0;
-        let (Ok(activation), Ok(output_activation)) = (
+        let (Ok(activation), Ok(output_activation), Ok(action_space)) = (
             Activation::try_from(blob.activation),
             Activation::try_from(blob.output_activation),
+            ActionSpace::try_from(blob.action_space),
         ) else {
             return;
         };
@@ -179,6 +183,7 @@ impl MlpPolicy {
         }
         self.policy_id = blob.policy_id;
         self.task_config_hash = blob.task_config_hash;
+        self.action_space = action_space;
         self.obs_dim = blob.obs_dim as usize;
         self.act_dim = blob.act_dim as usize;
         self.activation = activation;
@@ -206,6 +211,12 @@ impl MlpPolicy {
         self.task_config_hash
     }
 
+    /// The action space the policy's output lives in ([`Self::act`] for the Cartesian step,
+    /// [`Self::act_joint`] for the joint step).
+    pub fn action_space(&self) -> ActionSpace {
+        self.action_space
+    }
+
     /// Observation dimension (0 when empty).
     pub fn obs_dim(&self) -> usize {
         self.obs_dim
@@ -229,6 +240,18 @@ impl MlpPolicy {
         let used = obs.get(..self.obs_dim).unwrap_or(obs.as_slice());
         if self.evaluate(used, &mut out).is_err() {
             out = [0.0; ACT_DIM];
+        }
+        out
+    }
+
+    /// The deterministic mean joint-step action of a joint-step policy for a twin observation
+    /// of the joint-space layout (`shm_schemas::JOINT_OBS_DIM` values). No allocation, no
+    /// panic; any other policy — or an empty one — yields the zero action (no motion).
+    pub fn act_joint(&self, obs: &[f32; OBS_DIM]) -> [f32; JOINT_ACT_DIM] {
+        let mut out = [0.0; JOINT_ACT_DIM];
+        let used = obs.get(..self.obs_dim).unwrap_or(obs.as_slice());
+        if self.action_space != ActionSpace::JointStep || self.evaluate(used, &mut out).is_err() {
+            out = [0.0; JOINT_ACT_DIM];
         }
         out
     }

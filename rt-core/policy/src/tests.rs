@@ -1,6 +1,9 @@
 //! Unit tests of the policy module: hand-computed outputs and every rejection reason.
 
-use shm_schemas::{Activation, PolicyBlob, PolicyBlobBuilder, SchemaError};
+use shm_schemas::{
+    ActionSpace, Activation, JOINT_ACT_DIM, JOINT_OBS_DIM, PolicyBlob, PolicyBlobBuilder,
+    SchemaError,
+};
 
 use super::*;
 use shm_schemas::{ACT_DIM, OBS_DIM};
@@ -103,6 +106,54 @@ fn valid() -> Box<PolicyBlob> {
         .unwrap()
 }
 
+/// A valid joint-step policy for the task (issue 40 item 3): the joint-space observation
+/// and five joint steps.
+fn joint_step_blob() -> Box<PolicyBlob> {
+    PolicyBlobBuilder::random(9, TASK, JOINT_OBS_DIM, &[32], JOINT_ACT_DIM, 1)
+        .action_space(ActionSpace::JointStep)
+        .build()
+        .unwrap()
+}
+
+/// Issue 40 item 3: a blob in a space this loader runs is run — the Cartesian step and the
+/// joint step, each through its own entry point — and one in a space it does not know is
+/// refused, the refusal naming the byte.
+#[test]
+fn a_policy_is_run_or_refused_by_its_action_space_named() {
+    let loader = PolicyLoader::new(PolicyExpectation::for_task(TASK));
+    let obs = [0.3f32; OBS_DIM];
+    let cartesian = loader.prepare(&valid()).unwrap();
+    assert_eq!(ActionSpaceRefusal::of(&valid()), None);
+    assert_eq!(cartesian.action_space(), ActionSpace::CartesianStep);
+    assert_ne!(cartesian.act(&obs), [0.0; ACT_DIM]);
+    assert_eq!(cartesian.act_joint(&obs), [0.0; JOINT_ACT_DIM]);
+
+    let blob = joint_step_blob();
+    assert_eq!(ActionSpaceRefusal::of(&blob), None);
+    let joint = loader.prepare(&blob).unwrap();
+    assert_eq!(joint.action_space(), ActionSpace::JointStep);
+    let mut expected = [0.0f32; JOINT_ACT_DIM];
+    joint
+        .evaluate(&obs[..JOINT_OBS_DIM], &mut expected)
+        .unwrap();
+    assert_eq!(joint.act_joint(&obs), expected);
+    assert_ne!(expected, [0.0; JOINT_ACT_DIM]);
+    assert_eq!(joint.act(&obs), [0.0; ACT_DIM]);
+
+    let mut unknown = valid();
+    unknown.action_space = 7;
+    unknown.seal();
+    assert_eq!(
+        loader.prepare(&unknown).err(),
+        Some(PolicyRejectReason::UnknownActionSpace)
+    );
+    let why = ActionSpaceRefusal::of(&unknown).unwrap();
+    assert_eq!(why, ActionSpaceRefusal::Unknown(7));
+    assert!(why.to_string().contains("byte 7"), "{why}");
+    assert_eq!(loader.counters().accepted(), 2);
+    assert_eq!(loader.counters().total_rejected(), 1);
+}
+
 #[test]
 fn every_reject_reason_is_detected_counted_and_leaves_the_running_policy() {
     let loader = PolicyLoader::new(PolicyExpectation::for_task(TASK));
@@ -161,6 +212,10 @@ fn every_reject_reason_is_detected_counted_and_leaves_the_running_policy() {
     b.obs_std[0] = 0.0;
     b.seal();
     cases.push((b, PolicyRejectReason::OutOfRange));
+    let mut b = valid();
+    b.action_space = 2;
+    b.seal();
+    cases.push((b, PolicyRejectReason::UnknownActionSpace));
 
     for (blob, want) in &cases {
         assert_eq!(

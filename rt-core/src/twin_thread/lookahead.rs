@@ -12,6 +12,12 @@
 //! installed) — what `twin::TwinEnv::step` calls `task_done`, and what
 //! [`TwinLookahead::goal_approach`] measures on the smoothed plan before it is approved.
 //!
+//! A policy's episode runs in its action space (`MlpPolicy::action_space`): a
+//! Cartesian-step policy through `twin::rollout_until` (the twin's per-step IK), a
+//! joint-step policy through `twin::rollout_joint` (joint steps toward the goal posture the
+//! twin chooses at the reset). Their waypoints are joints either way, and smoothed, checked
+//! and streamed the same way; verified sampling perturbs Cartesian steps only.
+//!
 //! With [`TwinLookahead::set_sampling`] (`[sampling]`), the lookahead also samples: after a
 //! policy's deterministic rollout failed, `twin::Sampler` rolls out its perturbed variants
 //! on a few threads within the worker's budget, each verified as the deterministic rollout
@@ -21,10 +27,11 @@
 use std::time::Instant;
 
 use policy::MlpPolicy;
+use shm_schemas::ActionSpace;
 use twin::{
     Blocker, DOF, FeasibilityConfig, InfeasibleReason, Joints, MAX_EPISODE_STEPS, RobotModel,
     Sampler, SamplingSettings, Scene, TaskConfig, TwinEnv, check_goal_postures, max_joint_gap_rad,
-    rollout_until,
+    rollout_joint, rollout_until,
 };
 
 /// "Goal reached" on a path, and the settling of an episode's end onto the goal: the twin's
@@ -135,7 +142,21 @@ impl Lookahead for TwinLookahead {
         waypoints: &mut Vec<Joints>,
     ) -> Verdict {
         self.approach(start_q_rad, waypoints);
+        // A policy's plan is the rollout in its own action space; the env's observation
+        // layout follows it (the joint step's goal posture is chosen at the reset).
+        let joint = policy.action_space() == ActionSpace::JointStep
+            && self.actions == LookaheadActions::Policy;
+        if !joint {
+            self.env.set_action_space(ActionSpace::CartesianStep);
+        }
         let summary = match self.actions {
+            LookaheadActions::Policy if joint => rollout_joint(
+                &mut self.env,
+                scene,
+                |obs| policy.act_joint(obs),
+                Some(&mut self.wps),
+                !self.blind,
+            ),
             LookaheadActions::Policy => rollout_until(
                 &mut self.env,
                 scene,
@@ -181,7 +202,11 @@ impl Lookahead for TwinLookahead {
         let Some(sampler) = self.sampler.as_mut() else {
             return Sampled::default();
         };
-        if self.blind || self.actions != LookaheadActions::Policy {
+        // Sampling perturbs Cartesian steps: not (yet) for a joint-step policy.
+        if self.blind
+            || self.actions != LookaheadActions::Policy
+            || policy.action_space() != ActionSpace::CartesianStep
+        {
             return Sampled::default();
         }
         let report = sampler.run(scene, &|obs| policy.act(obs), 1, Some(deadline));
@@ -271,6 +296,78 @@ mod tests {
     use crate::twin_thread::serve::plan_shield;
     use crate::twin_thread::smoother::PlanSmoother;
     use crate::twin_thread::worker::FallbackPlanner;
+
+    /// A joint-step network that is the joint line to the goal posture, clipped per joint:
+    /// h = relu([e; −e]) of the joint error e (observation 1–5), a = clamp((h₊ − h₋) / s, ±1).
+    fn joint_line_blob(task: &TaskConfig) -> Box<shm_schemas::PolicyBlob> {
+        use shm_schemas::{JOINT_ACT_DIM, JOINT_OBS_DIM, PolicyBlobBuilder};
+        let mut w1 = vec![0.0f32; 2 * DOF * JOINT_OBS_DIM];
+        let mut w2 = vec![0.0f32; JOINT_ACT_DIM * 2 * DOF];
+        let scale = task.action.joint_scale_rad();
+        for i in 0..DOF {
+            w1[i * JOINT_OBS_DIM + 1 + i] = 1.0;
+            w1[(DOF + i) * JOINT_OBS_DIM + 1 + i] = -1.0;
+            w2[i * 2 * DOF + i] = (1.0 / scale[i]) as f32;
+            w2[i * 2 * DOF + DOF + i] = -(1.0 / scale[i]) as f32;
+        }
+        PolicyBlobBuilder::new(40, task.hash())
+            .activation(shm_schemas::Activation::Relu)
+            .action_space(ActionSpace::JointStep)
+            .layer(JOINT_OBS_DIM, 2 * DOF, &w1, &[0.0; 2 * DOF])
+            .layer(2 * DOF, JOINT_ACT_DIM, &w2, &[0.0; JOINT_ACT_DIM])
+            .obs_normalization(&[0.0; JOINT_OBS_DIM], &[1.0; JOINT_OBS_DIM], 100.0)
+            .action_scaling(&[1.0; JOINT_ACT_DIM], 1.0)
+            .build()
+            .unwrap()
+    }
+
+    /// Issue 40 item 3: rt-core's lookahead runs a joint-step policy in its own space — to
+    /// the goal posture in a free scene, and caught at the wide tall box that stands on its
+    /// joint-space path — and a Cartesian-step policy as before, on the same lookahead.
+    #[test]
+    fn the_lookahead_runs_a_joint_step_policy_in_its_space() {
+        let assets = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets");
+        let model = RobotModel::load(&assets.join("xarm5.urdf")).unwrap();
+        let task = TaskConfig::load(&assets.join("task.toml")).unwrap();
+        let loader = policy::PolicyLoader::new(policy::PolicyExpectation::for_task_obs(
+            task.hash(),
+            task.obs_dim(),
+        ));
+        let joint = loader.prepare(&joint_line_blob(&task)).unwrap();
+        assert_eq!(joint.action_space(), ActionSpace::JointStep);
+        let file = |name: &str| {
+            let f = shm_schemas::scene_file::SceneFile::load(&assets.join("scenes").join(name))
+                .unwrap();
+            Scene::from_file(&f).unwrap()
+        };
+        let boxed = file("wide_tall_box.toml");
+        let mut free = boxed;
+        free.obstacles.clear();
+        let mut la = TwinLookahead::new(model, task, LookaheadActions::Policy);
+        let start = task.start.joints_rad;
+        let mut wps = Vec::new();
+        let v = la.lookahead(&joint, &free, &start, &mut wps);
+        assert!(v.task_ok && v.safe, "{v:?}");
+        assert_eq!(v.policy_id, 40);
+        let goal = la.env.goal_posture().unwrap();
+        assert!(
+            max_joint_gap_rad(wps.last().unwrap(), &goal) < 0.05,
+            "{wps:?}"
+        );
+        let caught = la.lookahead(&joint, &boxed, &start, &mut wps);
+        assert!(!caught.safe && !caught.task_ok, "{caught:?}");
+
+        // The Cartesian policy on the same lookahead: the twin back in its space.
+        let cartesian = loader
+            .prepare(
+                &policy::read_policy_file(&assets.join("policy-distilled/policy.blob")).unwrap(),
+            )
+            .unwrap();
+        let small = file("small_box.toml");
+        let v = la.lookahead(&cartesian, &small, &start, &mut wps);
+        assert_eq!(la.env.action_space(), ActionSpace::CartesianStep);
+        assert!(v.task_ok && v.safe, "{v:?}");
+    }
 
     /// The settling of a plan's end onto the goal target adds no waypoint that breaks the
     /// episode's contact rule: with a box placed so that the posture at the target is too

@@ -16,7 +16,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::port::{LoanError, ReceiveError, SendError};
 use iceoryx2::prelude::*;
-use policy::{PolicyExpectation, PolicyLoader, PolicyRejectReason};
+use policy::{ActionSpaceRefusal, MlpPolicy, PolicyExpectation, PolicyLoader, PolicyRejectReason};
 use shm_schemas::services::{
     NodeCreateError, ShmOpenError, create_node, loan_zeroed, open_publisher, open_subscriber,
 };
@@ -101,6 +101,14 @@ pub enum TwinNodeError {
     /// The intake thread panicked.
     #[error("the intake thread panicked")]
     IntakePanicked,
+    /// The start policy acts in a space this rt-core does not know.
+    #[error("policy {} refused: {refusal}", path.display())]
+    PolicySpace {
+        /// The file.
+        path: PathBuf,
+        /// The space, named.
+        refusal: ActionSpaceRefusal,
+    },
     /// The start policy is valid but not for this task.
     #[error("policy {} rejected: {reason:?}", path.display())]
     PolicyRejected {
@@ -109,6 +117,39 @@ pub enum TwinNodeError {
         /// Why.
         reason: PolicyRejectReason,
     },
+}
+
+/// Reads the start policy file at `path` and checks it with `loader`: a policy in a space
+/// this rt-core does not run is refused first, naming the space; then the blob's own
+/// validation (the field-level reason), then the loader's check (counted).
+///
+/// # Errors
+/// [`TwinNodeError::PolicyRead`], [`TwinNodeError::PolicySpace`],
+/// [`TwinNodeError::PolicyInvalid`], [`TwinNodeError::PolicyRejected`].
+fn read_start_policy(loader: &PolicyLoader, path: &Path) -> Result<MlpPolicy, TwinNodeError> {
+    let blob = policy::read_policy_file(path).map_err(|e| TwinNodeError::PolicyRead {
+        path: path.to_path_buf(),
+        cause: e.into(),
+    })?;
+    // A space this rt-core does not run, named, before anything else is said of it.
+    if let Some(refusal) = ActionSpaceRefusal::of(&blob) {
+        return Err(TwinNodeError::PolicySpace {
+            path: path.to_path_buf(),
+            refusal,
+        });
+    }
+    // The field-level reason for the operator; the loader checks again and counts.
+    blob.validate()
+        .map_err(|cause| TwinNodeError::PolicyInvalid {
+            path: path.to_path_buf(),
+            cause,
+        })?;
+    loader
+        .prepare(&blob)
+        .map_err(|reason| TwinNodeError::PolicyRejected {
+            path: path.to_path_buf(),
+            reason,
+        })
 }
 
 /// The twin thread's ports and what crossed them.
@@ -181,7 +222,8 @@ impl TwinNode {
     /// included) is refused at once, naming the file and both sizes.
     ///
     /// # Errors
-    /// [`TwinNodeError::PolicyRead`], [`TwinNodeError::PolicyInvalid`],
+    /// [`TwinNodeError::PolicyRead`], [`TwinNodeError::PolicySpace`] (an unknown action
+    /// space, named), [`TwinNodeError::PolicyInvalid`],
     /// [`TwinNodeError::PolicyRejected`].
     pub fn load_policy_file(
         &self,
@@ -189,23 +231,7 @@ impl TwinNode {
         twin: &mut ProductionWorker,
         events: &mut Vec<TwinEvent<Scene>>,
     ) -> Result<(), TwinNodeError> {
-        let blob = policy::read_policy_file(path).map_err(|e| TwinNodeError::PolicyRead {
-            path: path.to_path_buf(),
-            cause: e.into(),
-        })?;
-        // The field-level reason for the operator; the loader checks again and counts.
-        blob.validate()
-            .map_err(|cause| TwinNodeError::PolicyInvalid {
-                path: path.to_path_buf(),
-                cause,
-            })?;
-        let policy =
-            self.loader
-                .prepare(&blob)
-                .map_err(|reason| TwinNodeError::PolicyRejected {
-                    path: path.to_path_buf(),
-                    reason,
-                })?;
+        let policy = read_start_policy(&self.loader, path)?;
         tracing::info!(policy_id = policy.policy_id(), path = %path.display(), "start policy loaded; it must pass the lookahead");
         twin.on_policy(Box::new(policy), events);
         Ok(())
@@ -251,6 +277,7 @@ impl TwinNode {
                     policy_id = blob.policy_id,
                     ?reason,
                     detail = ?blob.validate().err(),
+                    space = ActionSpaceRefusal::of(&blob).map(|r| r.to_string()),
                     rejected_total = self.loader.counters().total_rejected(),
                     "policy blob rejected; the running policy stays"
                 ),
@@ -676,4 +703,59 @@ pub fn twin_verdict(
     };
     t.set_flags(v.task_ok, v.safe, (v.task_ok && v.safe) || !gate);
     t
+}
+
+#[cfg(test)]
+mod tests {
+    use shm_schemas::{
+        ACT_DIM, ActionSpace, JOINT_ACT_DIM, JOINT_OBS_DIM, OBS_DIM, PolicyBlob, PolicyBlobBuilder,
+    };
+
+    use super::*;
+
+    const TASK: u64 = 0x40_0003;
+
+    fn file_of(name: &str, blob: &PolicyBlob) -> PathBuf {
+        let path = std::env::temp_dir().join(format!(
+            "foresight-start-policy-{}-{name}.blob",
+            std::process::id()
+        ));
+        std::fs::write(&path, blob.as_bytes()).expect("temp file");
+        path
+    }
+
+    /// Issue 40 item 3: a start policy in a space rt-core runs is loaded (the Cartesian step,
+    /// the joint step); one in a space it does not know is refused, and the error names it.
+    #[test]
+    fn a_start_policy_is_run_or_refused_naming_its_action_space() {
+        let loader = PolicyLoader::new(PolicyExpectation::for_task(TASK));
+        let cartesian = PolicyBlobBuilder::random(3, TASK, OBS_DIM, &[16], ACT_DIM, 1)
+            .build()
+            .expect("cartesian blob");
+        let path = file_of("cartesian", &cartesian);
+        let loaded = read_start_policy(&loader, &path);
+        let _ = std::fs::remove_file(&path);
+        assert_eq!(loaded.expect("run").policy_id(), 3);
+
+        let joint = PolicyBlobBuilder::random(4, TASK, JOINT_OBS_DIM, &[16], JOINT_ACT_DIM, 1)
+            .action_space(ActionSpace::JointStep)
+            .build()
+            .expect("joint blob");
+        let path = file_of("joint", &joint);
+        let loaded = read_start_policy(&loader, &path);
+        let _ = std::fs::remove_file(&path);
+        assert_eq!(loaded.expect("run").action_space(), ActionSpace::JointStep);
+
+        let mut unknown = PolicyBlob::new_boxed();
+        unknown.copy_from(&cartesian);
+        unknown.action_space = 5;
+        unknown.seal();
+        let path = file_of("unknown", &unknown);
+        let refused = read_start_policy(&loader, &path);
+        let _ = std::fs::remove_file(&path);
+        let Err(err) = refused else {
+            panic!("accepted");
+        };
+        assert!(err.to_string().contains("action space byte 5"), "{err}");
+    }
 }

@@ -11,13 +11,25 @@ use crate::common::Rig;
 use rt_core::cycle::StopReason;
 use rt_core::operator_ack::{self, AckChannelError, AckOutcome, AckServer, LatchedStop};
 
+/// A test's private folder, removed with everything in it when the test ends (pass or fail):
+/// `make test` left one folder per test and run in the temp folder before.
+struct ScratchFolder(PathBuf);
+
+impl Drop for ScratchFolder {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
 /// The channel's socket for test `name`, in a private folder of this test's own (the
-/// channel opens only in a folder writable by its user alone, issue 41 item 4).
-fn socket(name: &str) -> PathBuf {
+/// channel opens only in a folder writable by its user alone, issue 41 item 4). Keep the
+/// folder guard alive for as long as the socket is used.
+fn socket(name: &str) -> (ScratchFolder, PathBuf) {
     let folder =
         std::env::temp_dir().join(format!("foresight-ack-test-{}-{name}", std::process::id()));
     xarm::owner::prepare_lock_folder(&folder).unwrap();
-    folder.join(format!("{name}.ack"))
+    let path = folder.join(format!("{name}.ack"));
+    (ScratchFolder(folder), path)
 }
 
 /// A rig whose lost link latched a protective stop, with the link back.
@@ -46,7 +58,7 @@ fn while_cycling<T: Send + 'static>(
 #[test]
 fn the_channel_names_the_latched_stop_and_clears_only_that_one() {
     let mut rig = latched_rig();
-    let path = socket("names");
+    let (_folder, path) = socket("names");
     let server = AckServer::start(path.clone(), rig.cycle.control().clone(), vec![]).unwrap();
     let stop = operator_ack::query(&path).unwrap().expect("latched");
     assert_eq!(
@@ -85,7 +97,7 @@ fn the_channel_names_the_latched_stop_and_clears_only_that_one() {
 #[test]
 fn a_user_that_is_not_an_operator_is_refused() {
     let mut rig = latched_rig();
-    let path = socket("uid");
+    let (_folder, path) = socket("uid");
     // A server that accepts one user id that is not this process's.
     let me = xarm::owner::effective_uid();
     let _server =
@@ -112,7 +124,7 @@ fn a_user_that_is_not_an_operator_is_refused() {
 #[test]
 fn another_users_file_in_the_channels_place_is_refused_not_removed() {
     let rig = Rig::new();
-    let path = socket("taken");
+    let (_folder, path) = socket("taken");
     xarm::owner::prepare_lock_folder(path.parent().unwrap()).unwrap();
     std::fs::write(&path, "not a socket").unwrap();
     match AckServer::start(path.clone(), rig.cycle.control().clone(), vec![]) {
@@ -132,7 +144,7 @@ fn another_users_file_in_the_channels_place_is_refused_not_removed() {
 #[test]
 fn a_planted_file_is_named_with_its_removal_and_a_shared_folder_is_refused() {
     let rig = Rig::new();
-    let path = socket("planted");
+    let (_folder, path) = socket("planted");
     let folder = path.parent().unwrap().to_path_buf();
     xarm::owner::prepare_lock_folder(&folder).unwrap();
     std::fs::write(&path, "planted").unwrap();
@@ -158,7 +170,7 @@ fn a_planted_file_is_named_with_its_removal_and_a_shared_folder_is_refused() {
 #[test]
 fn a_trickling_client_does_not_block_an_acknowledgement() {
     let mut rig = latched_rig();
-    let path = socket("trickle");
+    let (_folder, path) = socket("trickle");
     let _server = AckServer::start(path.clone(), rig.cycle.control().clone(), vec![]).unwrap();
     // Far more bytes than fit in one request deadline at this pace.
     const TRICKLE_BYTES: usize = 200;

@@ -1,9 +1,10 @@
 //! Criterion benchmarks of the digital twin's per-step work: FK, IK, robot-vs-box
 //! distance (all links), the self-collision check, every distance with 16 boxes and a
-//! tool, one task step and one 200-step episode.
+//! tool, one task step and one 200-step episode; and the goal-posture choice.
 //!
 //! Run: `scripts/cargo.sh bench -p rt-core --bench twin`. Targets on the 2-core dev
-//! machine: IK ≤ 10 µs, distance ≤ 5 µs, step ≤ 20 µs, episode ≤ 4 ms.
+//! machine: IK ≤ 10 µs, distance ≤ 5 µs, step ≤ 20 µs, episode ≤ 4 ms, goal-posture choice
+//! ≤ 0.1 ms (issue 40).
 
 // Benchmarks: a failed unwrap or expect is a failed run, with its message.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -14,7 +15,9 @@ use std::path::PathBuf;
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::Vector3;
 use shm_schemas::scene_file::SceneFile;
-use twin::{IkSolver, RobotGeometry, RobotModel, Scene, TaskConfig, TwinEnv, rollout};
+use twin::{
+    IkSolver, RobotGeometry, RobotModel, Scene, TaskConfig, TwinEnv, choose_goal_posture, rollout,
+};
 
 fn assets() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets")
@@ -86,6 +89,14 @@ fn benches(c: &mut Criterion) {
     });
     c.bench_function("twin/all_distances_16_boxes_tool_self", |b| {
         b.iter(|| armed_geometry.all_distances(black_box(&start_poses), black_box(&full)))
+    });
+
+    // The goal posture of the tall-box scene from the task's start: every IK branch of the
+    // goal enumerated, checked against the box, the table and the arm itself, ordered.
+    let start = env.config().start.joints_rad;
+    assert!(choose_goal_posture(&env, &tall, &start).is_ok());
+    c.bench_function("twin/goal_posture_tall_box", |b| {
+        b.iter(|| choose_goal_posture(black_box(&env), black_box(&tall), black_box(&start)))
     });
 
     // One task step (IK + FK + distances + reward + observation), cycling through an

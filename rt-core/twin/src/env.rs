@@ -7,11 +7,13 @@
 
 use nalgebra::Vector3;
 use rand::Rng;
+use shm_schemas::{ActionSpace, JOINT_ACT_DIM, JOINT_OBS_DIM};
 
 use super::geometry::{DistanceReport, RobotGeometry};
 use super::ik::IkSolver;
 use super::kinematics::LinkPoses;
 use super::model::RobotModel;
+use super::posture::choose_goal_posture;
 use super::scene::{BoxObstacle, Goal, Scene};
 use super::task::{
     EXTRA_BOX_VALUES, MAX_EPISODE_STEPS, ObservationKind, ObstacleClass, TaskConfig,
@@ -109,6 +111,29 @@ impl StraightLinePolicy {
     }
 }
 
+/// The joint-space baseline: straight joint-space interpolation toward the goal posture at
+/// full speed — each joint's step proportional to its error, the largest at the task's
+/// `action.joint_scale_rad` (the joint-step space's counterpart of
+/// [`StraightLinePolicy`]; reads the joint error at observation indices 1–5).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointLinePolicy {
+    /// The task's joint-step scale (rad).
+    pub scale_rad: Joints,
+}
+
+impl JointLinePolicy {
+    /// The action for an observation of the joint-step layout.
+    pub fn act(&self, obs: &[f32; OBS_DIM]) -> [f32; JOINT_ACT_DIM] {
+        let mut a: [f64; JOINT_ACT_DIM] =
+            std::array::from_fn(|i| f64::from(obs[1 + i]) / self.scale_rad[i]);
+        let biggest = a.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+        if biggest > 1.0 {
+            a = a.map(|v| v / biggest);
+        }
+        a.map(|v| v as f32)
+    }
+}
+
 /// The reaching environment. `Clone + Send`; all buffers pre-allocated.
 #[derive(Debug, Clone)]
 pub struct TwinEnv {
@@ -130,6 +155,13 @@ pub struct TwinEnv {
     /// How many boxes the observation describes (1 for the paper's).
     observed_boxes: usize,
     start_tcp_m: Vector3<f64>,
+    /// The space of the actions and the observation layout (Cartesian unless set).
+    action_space: ActionSpace,
+    /// The episode's goal posture (joint-step space; `None` when none was found, then the
+    /// observation reads the current joints as the goal).
+    goal_posture: Option<Joints>,
+    /// The robot–table distance at the current poses (m).
+    table_distance_m: f64,
 }
 
 fn uniform<R: Rng + ?Sized>(rng: &mut R, r: [f64; 2]) -> f64 {
@@ -179,6 +211,9 @@ impl TwinEnv {
             box_reports: [DistanceReport::FAR; MAX_OBSTACLES],
             observed_boxes,
             start_tcp_m,
+            action_space: ActionSpace::CartesianStep,
+            goal_posture: None,
+            table_distance_m: f64::INFINITY,
         };
         let scene = env.scene;
         env.reset(&scene);
@@ -248,6 +283,49 @@ impl TwinEnv {
         }
     }
 
+    /// The observation layout, and whether a reset chooses a goal posture:
+    /// [`ActionSpace::CartesianStep`] (the paper's, the default) or
+    /// [`ActionSpace::JointStep`]. Takes effect at the next reset. A policy of a space steps
+    /// with its method ([`TwinEnv::step`], [`TwinEnv::step_joint`]).
+    pub fn set_action_space(&mut self, space: ActionSpace) {
+        self.action_space = space;
+    }
+
+    /// [`TwinEnv::set_action_space`] by value.
+    #[must_use]
+    pub fn with_action_space(mut self, space: ActionSpace) -> Self {
+        self.set_action_space(space);
+        self
+    }
+
+    /// The action space and observation layout.
+    pub fn action_space(&self) -> ActionSpace {
+        self.action_space
+    }
+
+    /// The observation length of the current layout: the task's `obs_dim()` for the
+    /// Cartesian space, [`JOINT_OBS_DIM`] for the joint-step space.
+    pub fn obs_dim(&self) -> usize {
+        match self.action_space {
+            ActionSpace::CartesianStep => self.cfg.obs_dim(),
+            ActionSpace::JointStep => JOINT_OBS_DIM,
+        }
+    }
+
+    /// The episode's goal posture (joint-step space: chosen at reset by
+    /// [`super::choose_goal_posture`] or given to [`TwinEnv::reset_toward`]); `None` in the
+    /// Cartesian space or when the scene has none.
+    pub fn goal_posture(&self) -> Option<Joints> {
+        self.goal_posture
+    }
+
+    /// The scripted joint-space baseline for this task.
+    pub fn joint_line_policy(&self) -> JointLinePolicy {
+        JointLinePolicy {
+            scale_rad: self.cfg.action.joint_scale_rad(),
+        }
+    }
+
     /// Starts an episode in `scene` from the configured start posture.
     pub fn reset(&mut self, scene: &Scene) -> [f32; OBS_DIM] {
         let start = self.cfg.start.joints_rad;
@@ -258,7 +336,28 @@ impl TwinEnv {
     /// instead of the configured start: e.g. a posture along a planned path, for episodes
     /// that begin part of the way to the goal (a reverse curriculum). Otherwise as
     /// [`TwinEnv::reset`] (step count 0, TCP at rest).
+    ///
+    /// In the joint-step space the goal posture is chosen here
+    /// ([`super::choose_goal_posture`] from `joints`).
     pub fn reset_from(&mut self, scene: &Scene, joints: &Joints) -> [f32; OBS_DIM] {
+        let goal = match self.action_space {
+            ActionSpace::CartesianStep => None,
+            ActionSpace::JointStep => choose_goal_posture(self, scene, joints)
+                .ok()
+                .map(|c| c.best().joints),
+        };
+        self.reset_toward(scene, joints, goal)
+    }
+
+    /// [`TwinEnv::reset_from`] with the goal posture given (joint-step space: e.g. one
+    /// branch of [`super::PostureChoice`] per rollout), not chosen.
+    pub fn reset_toward(
+        &mut self,
+        scene: &Scene,
+        joints: &Joints,
+        goal_posture: Option<Joints>,
+    ) -> [f32; OBS_DIM] {
+        self.goal_posture = goal_posture;
         self.scene.clone_from(scene);
         self.target_m = self.scene.goal_target_m(self.cfg.success.goal_hover_m);
         self.q = *joints;
@@ -276,12 +375,71 @@ impl TwinEnv {
     /// The robot's distances at the current poses (and each box's report when the
     /// observation describes more than one box).
     fn distances_now(&mut self) -> super::geometry::Distances {
-        if self.observed_boxes > 1 {
+        let all = if self.observed_boxes > 1 || self.action_space == ActionSpace::JointStep {
             self.geometry
                 .all_distances_per_box(&self.poses, &self.scene, &mut self.box_reports)
         } else {
             self.geometry.all_distances(&self.poses, &self.scene)
+        };
+        self.table_distance_m = all.table.distance_m;
+        all
+    }
+
+    /// The distances (capped at 1 m; 1 when absent) of the 2nd and 3rd nearest boxes.
+    fn further_box_distances(&self) -> [f64; 2] {
+        let n = self.scene.obstacles.len().min(MAX_OBSTACLES);
+        let nearest = self.last_distance.obstacle;
+        let mut out = [1.0; 2];
+        let mut taken: [Option<usize>; 2] = [None; 2];
+        for slot in 0..2 {
+            let mut best: Option<usize> = None;
+            for i in 0..n {
+                if Some(i) == nearest || taken.contains(&Some(i)) {
+                    continue;
+                }
+                if best
+                    .is_none_or(|b| self.box_reports[i].distance_m < self.box_reports[b].distance_m)
+                {
+                    best = Some(i);
+                }
+            }
+            taken[slot] = best;
+            if let Some(i) = best {
+                out[slot] = self.box_reports[i].distance_m.min(1.0);
+            }
         }
+        out
+    }
+
+    /// The joint-step space's observation ([`JOINT_OBS_DIM`] values; the crate docs' joint
+    /// table, layout version [`shm_schemas::OBS_LAYOUT_JOINT_V1`]).
+    fn write_joint_obs(&mut self) {
+        let tcp = self.poses.tcp_m();
+        let d = self.last_distance;
+        let (h, w) = match d.obstacle.and_then(|i| self.scene.obstacles.get(i)) {
+            Some(b) => (b.height_m(), b.width_m()),
+            None => (0.0, 0.0),
+        };
+        let further = self.further_box_distances();
+        let goal = self.goal_posture.unwrap_or(self.q);
+        let o = &mut self.obs;
+        o[0] = (f64::from(self.step_index) / f64::from(self.cfg.episode.max_steps)) as f32;
+        for i in 0..DOF {
+            o[1 + i] = (goal[i] - self.q[i]) as f32;
+            o[6 + i] = goal[i] as f32;
+        }
+        for k in 0..3 {
+            o[11 + k] = tcp[k] as f32;
+            o[14 + k] = self.target_m[k] as f32;
+            o[19 + k] = d.robot_point_m[k] as f32;
+            o[22 + k] = d.obstacle_point_m[k] as f32;
+        }
+        o[17] = h as f32;
+        o[18] = w as f32;
+        o[25] = d.distance_m.min(1.0) as f32;
+        o[26] = further[0] as f32;
+        o[27] = further[1] as f32;
+        o[28] = self.table_distance_m.min(1.0) as f32;
     }
 
     /// The 2nd … k-th nearest boxes (indices `17..obs_dim`): see the crate docs.
@@ -355,6 +513,10 @@ impl TwinEnv {
     }
 
     fn write_obs(&mut self) {
+        if self.action_space == ActionSpace::JointStep {
+            self.write_joint_obs();
+            return;
+        }
         let tcp = self.poses.tcp_m();
         let d = &self.last_distance;
         let (h, w) = match d.obstacle.and_then(|i| self.scene.obstacles.get(i)) {
@@ -381,24 +543,48 @@ impl TwinEnv {
     /// # Performance
     /// One IK solve, one FK, one distance query; no allocation.
     pub fn step(&mut self, action: &[f32; ACT_DIM]) -> StepOutcome {
-        let a = action.map(|v| {
-            if v.is_nan() {
-                0.0
-            } else {
-                f64::from(v).clamp(-1.0, 1.0)
-            }
-        });
+        let a = action.map(clip_action);
         let a_norm = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
         let scale = self.cfg.action.scale_m;
-        let dt = self.cfg.episode.step_period_s;
         let tcp_prev = self.poses.tcp_m();
         let target = tcp_prev + Vector3::new(a[0], a[1], a[2]) * scale;
         let sol = self.ik.solve(&self.model, &target, &self.q);
+        self.advance_toward(&sol.joints, a_norm, tcp_prev)
+    }
+
+    /// Advances one step in the joint-step space with `action` (clipped to `[-1, 1]`; NaN
+    /// counts as 0): joint i asked to move by `action[i] × action.joint_scale_rad[i]`. From
+    /// there on exactly as [`TwinEnv::step`] (the same per-joint step bound, joint limits,
+    /// contact rule, reward and termination; `r_a` is minus the norm of the five clipped
+    /// components).
+    ///
+    /// # Performance
+    /// One FK, one distance query; no allocation.
+    pub fn step_joint(&mut self, action: &[f32; JOINT_ACT_DIM]) -> StepOutcome {
+        let a = action.map(clip_action);
+        let a_norm = a.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let scale = self.cfg.action.joint_scale_rad();
+        let tcp_prev = self.poses.tcp_m();
+        let target: Joints = std::array::from_fn(|i| self.q[i] + a[i] * scale[i]);
+        self.advance_toward(&target, a_norm, tcp_prev)
+    }
+
+    /// The one path from a step's joint target to its outcome, shared by both action
+    /// spaces: each joint moves toward `target` by at most `velocity_rad_s × step_period_s`,
+    /// the joints are clamped into their limits, then contact, reward, termination and the
+    /// observation.
+    fn advance_toward(
+        &mut self,
+        target: &Joints,
+        a_norm: f64,
+        tcp_prev: Vector3<f64>,
+    ) -> StepOutcome {
+        let dt = self.cfg.episode.step_period_s;
         let limits = self.model.limits();
-        for i in 0..DOF {
-            let max_dq = limits.velocity_rad_s[i] * dt;
-            let dq = (sol.joints[i] - self.q[i]).clamp(-max_dq, max_dq);
-            self.q[i] += dq;
+        for ((q, t), v) in self.q.iter_mut().zip(target).zip(&limits.velocity_rad_s) {
+            let max_dq = v * dt;
+            let dq = (t - *q).clamp(-max_dq, max_dq);
+            *q += dq;
         }
         limits.clamp(&mut self.q);
         self.model.fk_into(&self.q, &mut self.poses);
@@ -528,6 +714,15 @@ impl TwinEnv {
             scene.obstacles.clear();
         }
         scene
+    }
+}
+
+/// An action clipped to `[-1, 1]`, NaN as 0.
+fn clip_action(v: f32) -> f64 {
+    if v.is_nan() {
+        0.0
+    } else {
+        f64::from(v).clamp(-1.0, 1.0)
     }
 }
 
@@ -682,11 +877,57 @@ pub fn rollout_until<P>(
     env: &mut TwinEnv,
     scene: &Scene,
     mut policy: P,
-    mut waypoints_out: Option<&mut heapless::Vec<Joints, MAX_EPISODE_STEPS>>,
+    waypoints_out: Option<&mut heapless::Vec<Joints, MAX_EPISODE_STEPS>>,
     stop_at_contact: bool,
 ) -> EpisodeSummary
 where
     P: FnMut(&[f32; OBS_DIM]) -> [f32; ACT_DIM],
+{
+    rollout_with(
+        env,
+        scene,
+        |env, obs| env.step(&policy(obs)),
+        waypoints_out,
+        stop_at_contact,
+    )
+}
+
+/// [`rollout_until`] for a joint-step policy: the environment is switched to the joint-step
+/// space ([`TwinEnv::set_action_space`]), the goal posture chosen at the reset, and every
+/// step taken with [`TwinEnv::step_joint`].
+///
+/// # Performance
+/// One goal-posture choice, then no allocation (the policy closure permitting).
+pub fn rollout_joint<P>(
+    env: &mut TwinEnv,
+    scene: &Scene,
+    mut policy: P,
+    waypoints_out: Option<&mut heapless::Vec<Joints, MAX_EPISODE_STEPS>>,
+    stop_at_contact: bool,
+) -> EpisodeSummary
+where
+    P: FnMut(&[f32; OBS_DIM]) -> [f32; JOINT_ACT_DIM],
+{
+    env.set_action_space(ActionSpace::JointStep);
+    rollout_with(
+        env,
+        scene,
+        |env, obs| env.step_joint(&policy(obs)),
+        waypoints_out,
+        stop_at_contact,
+    )
+}
+
+/// The episode loop of both spaces: reset, then `step` until the end.
+fn rollout_with<S>(
+    env: &mut TwinEnv,
+    scene: &Scene,
+    mut step: S,
+    mut waypoints_out: Option<&mut heapless::Vec<Joints, MAX_EPISODE_STEPS>>,
+    stop_at_contact: bool,
+) -> EpisodeSummary
+where
+    S: FnMut(&mut TwinEnv, &[f32; OBS_DIM]) -> StepOutcome,
 {
     let mut obs = env.reset(scene);
     if let Some(w) = waypoints_out.as_deref_mut() {
@@ -700,8 +941,7 @@ where
         min_distance_m: env.last_distance.distance_m,
     };
     loop {
-        let action = policy(&obs);
-        let out = env.step(&action);
+        let out = step(env, &obs);
         obs = out.obs;
         summary.steps += 1;
         summary.return_ += f64::from(out.reward);

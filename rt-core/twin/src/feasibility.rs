@@ -18,8 +18,9 @@ use rand_chacha::ChaCha8Rng;
 use shm_schemas::{BLOCKER_NONE, BLOCKER_SELF, BLOCKER_TABLE, InfeasibleKind};
 
 use super::env::TwinEnv;
-use super::geometry::{RobotGeometry, SELF_COLLISION_MIN_DISTANCE_M};
+use super::geometry::{Distances, RobotGeometry, SELF_COLLISION_MIN_DISTANCE_M};
 use super::ik::IkSolver;
+use super::kinematics::LinkPoses;
 use super::model::{RobotModel, TOOL_FRAME};
 use super::planner::{PlanOutcome, PlannerBudget, PostureCheck, contact, plan_path};
 use super::scene::{BoxObstacle, Scene};
@@ -35,7 +36,7 @@ pub const GOAL_IK_ITERATIONS: u32 = 200;
 pub const MAX_GOAL_POSTURES: usize = 8;
 
 /// Safe postures closer than this to a kept one (largest joint gap, rad) are duplicates.
-const DUPLICATE_GAP_RAD: f64 = 0.1;
+pub(crate) const DUPLICATE_GAP_RAD: f64 = 0.1;
 
 /// Seed of the random part of the goal-posture seeds (fixed: the check is deterministic).
 const GOAL_SEED_RNG: u64 = 0x00F0_2E51_6470_0001;
@@ -370,7 +371,7 @@ impl Feasibility {
 }
 
 /// `angle` moved by whole turns next to `reference`, then clamped into `[lo, hi]`.
-fn near_turn(angle: f64, reference: f64, lo: f64, hi: f64) -> f64 {
+pub(crate) fn near_turn(angle: f64, reference: f64, lo: f64, hi: f64) -> f64 {
     let tau = std::f64::consts::TAU;
     let a = angle - ((angle - reference) / tau).round() * tau;
     a.clamp(lo, hi)
@@ -416,10 +417,10 @@ fn goal_seeds(model: &RobotModel, target_m: &Vector3<f64>, n: usize) -> Vec<Join
 
 /// The worst violation of the contact rule at one posture.
 #[derive(Debug, Clone, Copy)]
-struct Violation {
-    blocker: Blocker,
-    link: u8,
-    deficit_m: f64,
+pub(crate) struct Violation {
+    pub(crate) blocker: Blocker,
+    pub(crate) link: u8,
+    pub(crate) deficit_m: f64,
 }
 
 /// The frame of a geometry report as a link number: 1–5, [`LINK_TOOL`] for the tool
@@ -432,19 +433,37 @@ fn link_number(frame: usize) -> u8 {
     }
 }
 
-struct Classifier<'a> {
-    check: PostureCheck<'a>,
+pub(crate) struct Classifier<'a> {
+    pub(crate) check: PostureCheck<'a>,
     /// The geometry without the tool (when there is one): tells the tool from link5, which
     /// the geometry's box and table reports both give as frame 5.
     tool_free: Option<RobotGeometry>,
 }
 
-impl Classifier<'_> {
+impl<'a> Classifier<'a> {
+    /// The classifier of `scene` under `env`'s task (the contact rule of
+    /// [`is_safe_posture`]).
+    pub(crate) fn new(env: &'a TwinEnv, scene: &'a Scene) -> Self {
+        let model = env.model();
+        Self {
+            check: PostureCheck::new(env, scene),
+            tool_free: model
+                .tool()
+                .map(|_| RobotGeometry::new(&model.clone().with_tool(None))),
+        }
+    }
+
     /// The margin (see [`GoalPosture::margin_m`]) and the worst violation.
     fn classify(&self, q: &Joints) -> (f64, Violation) {
         let c = &self.check;
         let poses = c.model.fk(q);
         let d = c.geometry.all_distances(&poses, c.scene);
+        self.classify_at(&poses, &d)
+    }
+
+    /// [`Classifier::classify`] on the posture's poses and distances, already computed.
+    pub(crate) fn classify_at(&self, poses: &LinkPoses, d: &Distances) -> (f64, Violation) {
+        let c = &self.check;
         let part =
             |frame: usize, d_with_tool: f64, without_tool: &dyn Fn(&RobotGeometry) -> f64| {
                 match &self.tool_free {
@@ -455,7 +474,7 @@ impl Classifier<'_> {
         let mut worst = Violation {
             blocker: Blocker::Table,
             link: part(d.table.link, d.table.distance_m, &|g| {
-                g.distance_to_table(&poses, c.scene).distance_m
+                g.distance_to_table(poses, c.scene).distance_m
             }),
             deficit_m: c.clearance_m - d.table.distance_m,
         };
@@ -465,7 +484,7 @@ impl Classifier<'_> {
                 worst = Violation {
                     blocker: Blocker::Box(b.obstacle.unwrap_or(0)),
                     link: part(b.link, b.distance_m, &|g| {
-                        g.distance_to_boxes(&poses, c.scene)
+                        g.distance_to_boxes(poses, c.scene)
                             .map_or(f64::INFINITY, |r| r.distance_m)
                     }),
                     deficit_m,
@@ -482,7 +501,7 @@ impl Classifier<'_> {
         }
         let margin_m = -worst.deficit_m;
         // The exact rule decides; the deficit is only the measure.
-        if !contact(&d, c.clearance_m) {
+        if !contact(d, c.clearance_m) {
             worst.deficit_m = 0.0;
         }
         worst.deficit_m = worst.deficit_m.max(0.0);
@@ -507,12 +526,7 @@ pub fn check_goal_postures(env: &TwinEnv, scene: &Scene, seeds: usize) -> GoalPo
     let cfg = env.config();
     let model = env.model();
     let target = scene.goal_target_m(cfg.success.goal_hover_m);
-    let classifier = Classifier {
-        check: PostureCheck::new(env, scene),
-        tool_free: model
-            .tool()
-            .map(|_| RobotGeometry::new(&model.clone().with_tool(None))),
-    };
+    let classifier = Classifier::new(env, scene);
     // A copy of the model whose home is the seed: the IK's null-space pull keeps each
     // solution near its own seed, so the seeds give different postures.
     let mut pull_model = model.clone();

@@ -93,6 +93,14 @@ impl IkSolver {
         }
     }
 
+    /// The same solver with its null-space pull toward `home` instead of the model's home:
+    /// solved from `home` as the start, it keeps the solution near that seed.
+    #[must_use]
+    pub fn with_home(mut self, home: Joints) -> Self {
+        self.home = home;
+        self
+    }
+
     /// The settings.
     pub fn config(&self) -> &IkConfig {
         &self.cfg

@@ -31,6 +31,10 @@
 //!   the goal target from deterministic seeds), [`plan_path`] (RRT-Connect in joint space
 //!   under the task's contact rule, [`is_safe_posture`]) and [`check_feasibility`] (both;
 //!   [`Feasibility`] or an [`InfeasibleReason`] in words and as `RetrainProgress` bytes).
+//! - Goal-posture choice ([`choose_goal_posture`]): the goal target's IK branches (base
+//!   facing / flipped, elbow up / down, wrist pitches, and the IK's own solution from the
+//!   start), those in contact or closer than the clearance dropped, the rest ordered by
+//!   joint-space distance from the start; [`PostureChoiceError`] says why there is none.
 //! - One verification ([`approval`]): "would rt-core approve this plan in this scene" —
 //!   Ruckig smoothing with rt-core's settings, the shield on every sample, the goal on the
 //!   smoothed path ([`approval::smooth_and_check`], [`approval::EpisodeApproval`]); rt-core's
@@ -67,11 +71,44 @@
 //! | +5 | the robot–box distance, capped at 1 | m |
 //!
 //! A missing box reads as zeros with distance 1. Values past the task's `obs_dim()` are 0.
+//! A blob of this layout records `obs_layout` = `shm_schemas::OBS_LAYOUT_CARTESIAN` (0).
 //!
-//! # Action (`[f32; ACT_DIM]`)
-//! `[dx, dy, dz]` in `[-1, 1]` (clipped), times `action.scale_m`: the TCP displacement
-//! asked for this step. The IK turns it into joints; the joint change per step is limited to
-//! `velocity_rad_s × step_period_s`.
+//! ## The joint-step space's observation (layout version 1: `OBS_LAYOUT_JOINT_V1`)
+//! With [`TwinEnv::set_action_space`]`(ActionSpace::JointStep)` the observation is
+//! [`JOINT_OBS_DIM`] (29) values whatever the task's `[observation]`; `g` is the episode's
+//! goal posture ([`choose_goal_posture`] at the reset; the current joints when there is
+//! none), `q` the joints:
+//!
+//! | index | meaning | unit |
+//! |---|---|---|
+//! | 0 | `t` = step index / `max_steps` | 1 |
+//! | 1–5 | joint error `g − q`, joint 1 first | rad |
+//! | 6–10 | goal posture `g` | rad |
+//! | 11–13 | TCP position | m |
+//! | 14–16 | goal target point | m |
+//! | 17 | height of the nearest obstacle box | m |
+//! | 18 | width of the nearest obstacle box | m |
+//! | 19–21 | closest point on the robot to that box | m |
+//! | 22–24 | closest point on that box to the robot | m |
+//! | 25 | the robot–box distance of that box, capped at 1 | m |
+//! | 26–27 | the robot distances of the 2nd and 3rd nearest boxes, capped at 1 (1 if none) | m |
+//! | 28 | the robot–table distance (links 2–5 and the tool), capped at 1 | m |
+//!
+//! Without boxes, 17–18 are 0 and 19–25 describe the table, as in the Cartesian table.
+//!
+//! # Action
+//! The Cartesian step (`[f32; ACT_DIM]`, [`TwinEnv::step`], the paper's): `[dx, dy, dz]`
+//! in `[-1, 1]` (clipped), times `action.scale_m`: the TCP displacement asked for this
+//! step. The IK turns it into joints.
+//!
+//! The joint step (`[f32; JOINT_ACT_DIM]`, [`TwinEnv::step_joint`]): five per-joint steps
+//! in `[-1, 1]` (clipped), times `action.joint_scale_rad` (rad, each ≤
+//! [`MAX_JOINT_SCALE_RAD`]; [`DEFAULT_JOINT_SCALE_RAD`] when absent).
+//!
+//! In both spaces the joint change per step is then limited to `velocity_rad_s ×
+//! step_period_s` and the joints clamped into their limits (one code path); a plan of
+//! either space is approved the same way ([`approval`]: the smoother's TCP-speed cap, the
+//! shield's step bound on every sample).
 //!
 //! # Reward
 //! `r = c1·r_g + c2·r_a + c3·r_o (+ terminal)` with `r_g = d_{t-1} − d_t` (TCP to the goal
@@ -118,12 +155,14 @@ mod ik;
 mod kinematics;
 mod model;
 mod planner;
+mod posture;
 mod sampling;
 mod scene;
 mod task;
 
 pub use env::{
-    EpisodeSummary, RewardTerms, StepOutcome, StraightLinePolicy, TwinEnv, rollout, rollout_until,
+    EpisodeSummary, JointLinePolicy, RewardTerms, StepOutcome, StraightLinePolicy, TwinEnv,
+    rollout, rollout_joint, rollout_until,
 };
 pub use feasibility::{
     Blocker, Feasibility, FeasibilityConfig, GOAL_IK_ITERATIONS, GoalPosture, GoalPostureCheck,
@@ -140,15 +179,19 @@ pub use model::{
     LinkName, MAX_CAPSULES, N_FRAMES, RobotModel, TOOL_FRAME, UrdfLoadError,
 };
 pub use planner::{PlanOutcome, PlannerBudget, densify_path, is_safe_posture, plan_path};
+pub use posture::{
+    BaseSide, Branch, BranchPosture, Elbow, MAX_BRANCH_POSTURES, POSTURE_IK_ITERATIONS,
+    PostureChoice, PostureChoiceError, choose_goal_posture,
+};
 pub use sampling::{
     MAX_SAMPLE_THREADS, MAX_SAMPLES, Sample, SampleReport, Sampler, SamplingSettings,
 };
 pub use scene::{BoxObstacle, Goal, Obstacles, Scene, SceneError};
 pub use shm_schemas::scene_file::MAX_OBSTACLES;
 pub use task::{
-    EXTRA_BOX_VALUES, MAX_EPISODE_STEPS, MAX_OBSERVED_BOXES, MAX_TOOL_RADIUS_M, MAX_TOOL_REACH_M,
-    MAX_WORLD_BOXES, ObservationConfig, ObservationKind, ObstacleClass, TaskConfig,
-    TaskConfigError, ToolConfig, WorldConfig,
+    DEFAULT_JOINT_SCALE_RAD, EXTRA_BOX_VALUES, MAX_EPISODE_STEPS, MAX_JOINT_SCALE_RAD,
+    MAX_OBSERVED_BOXES, MAX_TOOL_RADIUS_M, MAX_TOOL_REACH_M, MAX_WORLD_BOXES, ObservationConfig,
+    ObservationKind, ObstacleClass, TaskConfig, TaskConfigError, ToolConfig, WorldConfig,
 };
 
 /// Number of actuated joints of the xArm5.
@@ -158,7 +201,7 @@ pub const DOF: usize = 5;
 pub type Joints = [f64; DOF];
 
 /// Lengths of the observation and action vectors: the policy contract's (`shm-schemas`).
-pub use shm_schemas::{ACT_DIM, OBS_DIM, PAPER_OBS_DIM};
+pub use shm_schemas::{ACT_DIM, JOINT_ACT_DIM, JOINT_OBS_DIM, OBS_DIM, PAPER_OBS_DIM};
 
 /// The largest per-joint difference between two joint vectors, rad (no allocation: the
 /// controller's cycle uses it too).

@@ -50,12 +50,32 @@ pub struct EpisodeConfig {
     pub step_period_s: f64,
 }
 
+/// Step of each joint for an action component of 1 in the joint-step space, rad, when the
+/// task does not set `action.joint_scale_rad` (0.6 rad/s at the bundled 20 Hz).
+pub const DEFAULT_JOINT_SCALE_RAD: Joints = [0.03; 5];
+
+/// Largest `action.joint_scale_rad` component, rad per step.
+pub const MAX_JOINT_SCALE_RAD: f64 = 0.1;
+
 /// `[action]`
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ActionConfig {
-    /// TCP displacement per step for an action component of 1 (m).
+    /// TCP displacement per step for an action component of 1 (m): the Cartesian-step
+    /// space (the paper's).
     pub scale_m: f64,
+    /// Step of each joint per step for an action component of 1 (rad, each in
+    /// `(0, MAX_JOINT_SCALE_RAD]`): the joint-step space. Absent = [`DEFAULT_JOINT_SCALE_RAD`]
+    /// and left out of the canonical TOML (the hash of a task without it is unchanged).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub joint_scale_rad: Option<Joints>,
+}
+
+impl ActionConfig {
+    /// The joint-step scale: `joint_scale_rad` or [`DEFAULT_JOINT_SCALE_RAD`].
+    pub fn joint_scale_rad(&self) -> Joints {
+        self.joint_scale_rad.unwrap_or(DEFAULT_JOINT_SCALE_RAD)
+    }
 }
 
 /// `[reward]`: `r = c1·r_g + c2·r_a + c3·r_o + terminal`.
@@ -393,6 +413,14 @@ impl TaskConfig {
         }
         if !(pos(self.action.scale_m) && self.action.scale_m <= 0.1) {
             return Err("action.scale_m must be in (0, 0.1] m");
+        }
+        if !self
+            .action
+            .joint_scale_rad()
+            .iter()
+            .all(|v| pos(*v) && *v <= MAX_JOINT_SCALE_RAD)
+        {
+            return Err("action.joint_scale_rad must be in (0, 0.1] rad for every joint");
         }
         let r = &self.reward;
         if ![r.c1, r.c2, r.c3, r.success_bonus, r.collision_penalty]

@@ -320,19 +320,64 @@ fn policy() -> Box<PolicyBlob> {
 }
 
 #[test]
+fn a_joint_step_blob_records_its_space_and_observation_layout() {
+    use shm_schemas::{JOINT_ACT_DIM, JOINT_OBS_DIM, OBS_LAYOUT_CARTESIAN, OBS_LAYOUT_JOINT_V1};
+    let joint = PolicyBlobBuilder::random(1, 2, JOINT_OBS_DIM, &[32], JOINT_ACT_DIM, 3)
+        .action_space(ActionSpace::JointStep)
+        .build()
+        .unwrap();
+    assert_eq!(
+        ActionSpace::try_from(joint.action_space),
+        Ok(ActionSpace::JointStep)
+    );
+    assert_eq!(joint.obs_layout, OBS_LAYOUT_JOINT_V1);
+    assert_eq!(ActionSpace::JointStep.name(), "joint_step");
+    // A Cartesian blob, as every blob before the field, carries layout 0.
+    assert_eq!(policy().obs_layout, OBS_LAYOUT_CARTESIAN);
+    // A layout that is not its space's is refused by name, either way round.
+    let mut b = PolicyBlob::new_boxed();
+    b.copy_from(&joint);
+    b.obs_layout = OBS_LAYOUT_CARTESIAN;
+    b.seal();
+    assert_eq!(
+        b.validate(),
+        Err(SchemaError::BadEnum {
+            field: "obs_layout",
+            value: 0
+        })
+    );
+    let mut c = policy();
+    c.obs_layout = OBS_LAYOUT_JOINT_V1;
+    c.seal();
+    assert_eq!(
+        c.validate(),
+        Err(SchemaError::BadEnum {
+            field: "obs_layout",
+            value: 1
+        })
+    );
+    // A joint-step blob of another length is refused.
+    let short = PolicyBlobBuilder::random(1, 2, 17, &[32], 3, 3)
+        .action_space(ActionSpace::JointStep)
+        .build();
+    assert!(short.is_err(), "{short:?}");
+}
+
+#[test]
 fn policy_blob_rejects_bad_input() {
-    // An action space this build does not know (a joint-space policy from a newer learner,
-    // say) is refused by name, never run as a Cartesian step (issue 40 item 3). Before, the
-    // byte was reserved and never checked.
+    // An action space this build does not know (a space from a newer learner, say) is
+    // refused by name, never run as a Cartesian step (issue 40 item 3). Before, the byte was
+    // reserved and never checked. (Byte 1 was the unknown one until the joint-step space
+    // took it: the next byte now.)
     let mut b = policy();
-    b.action_space = 1;
+    b.action_space = 2;
     b.seal();
     let e = b.validate().unwrap_err();
     assert_eq!(
         e,
         SchemaError::BadEnum {
             field: "action_space",
-            value: 1
+            value: 2
         }
     );
     assert!(e.to_string().contains("action_space"), "{e}");

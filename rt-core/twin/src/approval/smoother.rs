@@ -14,7 +14,7 @@
 //!   waypoint a target with a finite-difference target velocity), within the configured
 //!   velocity, acceleration and jerk limits, and the velocity limits are scaled down until
 //!   the TCP speed stays under its limit. The samples (position, velocity, acceleration per
-//!   cycle) go into a [`Plan`] that the cycle streams sample by sample. The shield then
+//!   cycle) go into rt-core's `Plan`, which the cycle streams sample by sample. The shield then
 //!   re-checks each sample in the cycle against the live scene.
 //! - **Controlled stops** start from an arbitrary state inside the cycle, so they use
 //!   rt-core's `Brake`: per joint, a jerk-limited deceleration to zero velocity (acceleration ramps at

@@ -11,6 +11,7 @@ mod determinism;
 mod feasibility;
 mod geometry;
 mod ik;
+mod joint_space;
 mod kinematics;
 mod robot_checks;
 mod scenes;
