@@ -340,6 +340,19 @@ fn a_short_grown_dynamic_sweep_runs_every_kind_without_avoidable_contact_and_its
             .sum();
         assert_eq!(banded, g.episodes, "{kind}: the speed bands add up");
     }
+    // Issue 42 item 4: a box that takes the goal and stays there is said at once, on the
+    // sweep's simulated clock: every one, within 1 s of the box coming to rest on the goal.
+    let taken = &s.by_kind[IntruderKind::TakesGoal.name()].outcome;
+    assert!(taken.stayed_in_the_way > 0, "{report}");
+    assert_eq!(
+        taken.infeasible_reported, taken.stayed_in_the_way,
+        "{report}"
+    );
+    assert_eq!(
+        taken.infeasible_report_delay_s.samples, taken.infeasible_reported,
+        "{report}"
+    );
+    assert!(taken.infeasible_report_delay_s.max <= 1.0, "{report}");
 }
 
 /// Issue 42 item 3, backing out, in the dynamic sweep (seed 1, every kind): boxes crossing

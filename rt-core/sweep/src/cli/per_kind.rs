@@ -77,7 +77,7 @@ pub(crate) fn print(s: &DynamicSummary) {
     row("all", &s.all);
     let t = &s.moving_world_targets;
     println!(
-        "MOVING-WORLD TARGETS (issue 42): >= 2000 intrusions: {} ({}); 0 avoidable contacts while moving up to 1.0 m/s: {}; >= 90 % without a stop: {} ({} %); time lost p50 <= 1.0 s: {} ({:.2} s); >= 99 % reach the goal after the intruder left: {} ({} %)",
+        "MOVING-WORLD TARGETS (issue 42): >= 2000 intrusions: {} ({}); 0 avoidable contacts while moving up to 1.0 m/s: {}; >= 90 % without a stop: {} ({} %); time lost p50 <= 1.0 s: {} ({:.2} s); >= 99 % reach the goal after the intruder left: {} ({} %); goal taken said within 1 s: {} (p50 {:.2} s, max {:.2} s over {})",
         yes(t.at_least_2000_intrusions),
         s.all.episodes,
         yes(t.no_avoidable_moving_contact_up_to_1_m_s),
@@ -87,5 +87,9 @@ pub(crate) fn print(s: &DynamicSummary) {
         s.all.time_lost_s.p50,
         yes(t.reach_after_clear_at_least_99_percent),
         pct(s.all.reached_after_clear, s.all.intruder_cleared),
+        yes(t.infeasible_said_within_1_s),
+        s.all.outcome.infeasible_report_delay_s.p50,
+        s.all.outcome.infeasible_report_delay_s.max,
+        s.all.outcome.infeasible_report_delay_s.samples,
     );
 }

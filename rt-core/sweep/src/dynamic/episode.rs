@@ -204,6 +204,8 @@ struct Run<'a> {
     sent_seen: usize,
     start_cycle: Option<u64>,
     reach_cycle: Option<u64>,
+    /// The cycle in which rt-core first said the goal taken.
+    goal_taken_cycle: Option<u64>,
     goal_target: Point,
     /// Stops the cycle began.
     stops: u64,
@@ -267,6 +269,7 @@ impl<'a> Run<'a> {
             sent_seen: 0,
             start_cycle: None,
             reach_cycle: None,
+            goal_taken_cycle: None,
             goal_target: goal_target(assets, world),
             stops: 0,
         }
@@ -446,6 +449,14 @@ impl<'a> Run<'a> {
         }
         self.rig.worker.step(&mut self.events);
         let mode = self.rig.cycle.process(now);
+        if self.goal_taken_cycle.is_none()
+            && self
+                .events
+                .iter()
+                .any(|e| matches!(e, TwinEvent::GoalTaken { .. }))
+        {
+            self.goal_taken_cycle = Some(c);
+        }
         self.count_events();
         let sent = &self.rig.cycle.link().sent;
         let new = (sent.len() > self.sent_seen).then(|| sent[sent.len() - 1].1);
@@ -871,6 +882,10 @@ impl<'a> Run<'a> {
         report.failures = ck.failures;
         report.onsets = ck.onsets;
         report.infeasible_reported = self.counts.contains_key("twin_goal_taken");
+        report.infeasible_report_delay_s = self
+            .goal_taken_cycle
+            .zip(i.stop_s)
+            .map(|(c, stop)| c as f64 * p - stop);
         report.counts = self.counts;
     }
 }

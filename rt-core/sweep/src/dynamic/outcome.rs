@@ -14,6 +14,7 @@ pub(crate) struct OutcomeLine {
     stayed_in_the_way: bool,
     reached: bool,
     infeasible_reported: bool,
+    infeasible_report_delay_s: Option<f64>,
     start_delay_s: Option<f64>,
 }
 
@@ -24,6 +25,9 @@ impl OutcomeLine {
             stayed_in_the_way: r.cleared_s.is_none(),
             reached: r.reach_s.is_some(),
             infeasible_reported: r.infeasible_reported,
+            infeasible_report_delay_s: r
+                .infeasible_report_delay_s
+                .filter(|_| r.cleared_s.is_none()),
             start_delay_s: r.start_delay_s(),
         }
     }
@@ -44,6 +48,9 @@ pub struct OutcomeFigures {
     pub reached_while_in_the_way: u64,
     /// Of those, rt-core said the goal is infeasible (a box took it: `TwinEvent::GoalTaken`).
     pub infeasible_reported: u64,
+    /// Of those reported, the intruder coming to rest → the goal said taken, s (negative:
+    /// said while it was still arriving over the goal). Target: ≤ 1 s.
+    pub infeasible_report_delay_s: Spread,
     /// Start of motion against the rehearsal's, s (episodes starting in both).
     pub start_delay_s: Spread,
 }
@@ -51,7 +58,7 @@ pub struct OutcomeFigures {
 impl OutcomeFigures {
     pub(crate) fn of<'l>(lines: impl Iterator<Item = &'l OutcomeLine>) -> Self {
         let mut f = Self::default();
-        let (mut n, mut delays) = (0u64, Vec::new());
+        let (mut n, mut delays, mut said) = (0u64, Vec::new(), Vec::new());
         for l in lines {
             n += 1;
             f.handled_without_stop += u64::from(l.handled_without_stop);
@@ -59,6 +66,7 @@ impl OutcomeFigures {
                 f.stayed_in_the_way += 1;
                 f.reached_while_in_the_way += u64::from(l.reached);
                 f.infeasible_reported += u64::from(l.infeasible_reported);
+                said.extend(l.infeasible_report_delay_s);
             }
             delays.extend(l.start_delay_s);
         }
@@ -68,6 +76,7 @@ impl OutcomeFigures {
             f.handled_without_stop as f64 / n as f64
         };
         f.start_delay_s = Spread::of(delays);
+        f.infeasible_report_delay_s = Spread::of(said);
         f
     }
 }
@@ -85,6 +94,9 @@ pub struct MovingWorldTargets {
     pub time_lost_p50_at_most_1_s: bool,
     /// At least 99 % reach the goal after the intruder left.
     pub reach_after_clear_at_least_99_percent: bool,
+    /// Every goal said taken within 1 s of its intruder coming to rest on it (true when
+    /// none was said).
+    pub infeasible_said_within_1_s: bool,
 }
 
 impl MovingWorldTargets {
@@ -97,6 +109,7 @@ impl MovingWorldTargets {
                 >= 0.9,
             time_lost_p50_at_most_1_s: all.time_lost_s.p50 <= 1.0,
             reach_after_clear_at_least_99_percent: all.reach_after_clear_fraction >= 0.99,
+            infeasible_said_within_1_s: all.outcome.infeasible_report_delay_s.max <= 1.0,
         }
     }
 }

@@ -155,6 +155,10 @@ pub struct DynamicEpisodeReport {
     /// rt-core said the goal is infeasible: a box has taken it (`TwinEvent::GoalTaken`, issue
     /// 42 item 4), at any time in the run.
     pub infeasible_reported: bool,
+    /// The first "goal taken" said, s after the intruder came to rest (negative: said
+    /// while it was still arriving, its box already over the goal; none: never said, or an
+    /// intruder that never comes to rest).
+    pub infeasible_report_delay_s: Option<f64>,
     /// Counters (frames, events, stops).
     pub counts: BTreeMap<String, u64>,
 }
@@ -194,6 +198,7 @@ impl DynamicEpisodeReport {
             rehearsal_stops: 0,
             stops: 0,
             infeasible_reported: false,
+            infeasible_report_delay_s: None,
             counts: BTreeMap::new(),
         }
     }
