@@ -183,6 +183,17 @@ fn print_tables(s: &DynamicSummary) {
     println!("{:-<112}", "");
     super::per_kind::print(s);
     print_contact_examples(s);
+    for e in s.late_infeasible_examples.iter().take(8) {
+        println!(
+            "goal said taken late: episode {} ({}), {} {:.2} s after the box came to rest; stops {}, retreats {}",
+            e.episode,
+            e.replay,
+            e.kind.name(),
+            e.delay_s,
+            e.stops,
+            e.backing_out
+        );
+    }
     println!("{:-<112}", "");
     println!("COUNTERS");
     for (k, v) in &s.counts {

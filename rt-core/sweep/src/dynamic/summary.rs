@@ -139,6 +139,24 @@ pub struct Targets {
     pub reaction_p99_at_most_1_cycle: bool,
 }
 
+/// An episode whose taken goal was said more than 1 s after its box came to rest (issue 42
+/// item 4's target), for debugging.
+#[derive(Debug, Clone, Serialize)]
+pub struct LateInfeasibleExample {
+    /// The episode.
+    pub episode: u64,
+    /// How to replay it.
+    pub replay: String,
+    /// The intruder.
+    pub kind: IntruderKind,
+    /// The box coming to rest → the goal said taken, s.
+    pub delay_s: f64,
+    /// Protective stops the cycle began in the run.
+    pub stops: u64,
+    /// Retreats the worker began (`TwinEvent::BackingOut`).
+    pub backing_out: u64,
+}
+
 /// An episode with a contact, for debugging.
 #[derive(Debug, Clone, Serialize)]
 pub struct ContactExample {
@@ -239,6 +257,9 @@ pub struct DynamicSummary {
     pub avoidable_contact_examples: Vec<ContactExample>,
     /// Episodes with an unavoidable contact while moving (the first few).
     pub unavoidable_contact_examples: Vec<ContactExample>,
+    /// Episodes whose taken goal was said more than 1 s after its box came to rest (the
+    /// first few).
+    pub late_infeasible_examples: Vec<LateInfeasibleExample>,
     /// The onsets (the first few thousand), by episode.
     pub onsets: Vec<OnsetRecord>,
     /// Named counters summed over the episodes.
@@ -296,6 +317,7 @@ pub struct DynamicTally {
     lines: Vec<Line>,
     avoidable_examples: Vec<ContactExample>,
     unavoidable_examples: Vec<ContactExample>,
+    late_infeasible: Vec<LateInfeasibleExample>,
     onsets: Vec<OnsetRecord>,
     counts: BTreeMap<String, u64>,
 }
@@ -348,6 +370,7 @@ impl DynamicTally {
             lines: Vec::new(),
             avoidable_examples: Vec::new(),
             unavoidable_examples: Vec::new(),
+            late_infeasible: Vec::new(),
             onsets: Vec::new(),
             counts: BTreeMap::new(),
         }
@@ -399,6 +422,19 @@ impl DynamicTally {
             self.avoidable_examples.extend(example(r, &self.settings));
         } else if line.moving_unavoidable_only {
             self.unavoidable_examples.extend(example(r, &self.settings));
+        }
+        if let Some(delay_s) = r.infeasible_report_delay_s.filter(|d| *d > 1.0) {
+            self.late_infeasible.push(LateInfeasibleExample {
+                episode: r.episode,
+                replay: format!(
+                    "sweep --dynamic --seed {} --first-episode {} --episodes 1",
+                    self.settings.seed, r.episode
+                ),
+                kind: r.kind,
+                delay_s,
+                stops: r.stops,
+                backing_out: r.counts.get("twin_backing_out").copied().unwrap_or(0),
+            });
         }
         for o in &r.onsets {
             self.onsets.push(OnsetRecord {
@@ -587,6 +623,12 @@ impl DynamicTally {
             moving_world_targets,
             avoidable_contact_examples: sorted(&self.avoidable_examples),
             unavoidable_contact_examples: sorted(&self.unavoidable_examples),
+            late_infeasible_examples: {
+                let mut v = self.late_infeasible.clone();
+                v.sort_by_key(|e| e.episode);
+                v.truncate(MAX_EXAMPLES);
+                v
+            },
             onsets,
             counts: self.counts.clone(),
             bundled_problem: assets.bundled_problem.map(|b| format!("{b:?}")),
