@@ -367,6 +367,35 @@ fn a_short_grown_dynamic_sweep_runs_every_kind_without_avoidable_contact_and_its
 /// retreat they did not (555 of 601 reached after the intruder left in the first 1 000
 /// episodes, main 567; 576 with the fix). Each episode must still back out, so the test fails
 /// loudly should the draw stop exercising the retreat.
+/// Issue 42 item 4 while backing out: a box that stops where no goal posture is left, next
+/// to an arm that then backs out, is said to have taken the goal within 1 s of coming to
+/// rest (on the sweep's simulated clock). Before, the goal was asked only once the retreat
+/// had ended: these episodes said it 1.33, 1.73, 1.84 and 2.68 s after the box came to rest.
+#[test]
+fn a_goal_taken_while_the_arm_backs_out_is_said_within_a_second() {
+    let assets = assets();
+    let settings = DynamicSettings {
+        seed: 1,
+        kinds: KindSet::ALL,
+        ..dynamic_settings(1)
+    };
+    for episode in [269, 461, 1113, 1170] {
+        let r = sweep::dynamic::run_dynamic_episode(&assets, &settings, episode);
+        assert!(
+            r.counts.get("twin_backing_out").copied().unwrap_or(0) > 0,
+            "episode {episode} no longer backs out: {:?}",
+            r.counts
+        );
+        let delay_s = r
+            .infeasible_report_delay_s
+            .unwrap_or_else(|| panic!("episode {episode}: the goal never said taken: {r:?}"));
+        assert!(
+            delay_s <= 1.0,
+            "episode {episode}: said {delay_s:.2} s after"
+        );
+    }
+}
+
 #[test]
 fn an_arm_that_backed_out_of_a_crossing_box_goes_on_to_its_goal_after_it_left() {
     let assets = assets();

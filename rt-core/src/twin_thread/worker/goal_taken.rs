@@ -7,24 +7,34 @@
 //! re-verified the running plan against the same scene). Said once per scene; a later scene
 //! is planned on as ever, so when the box leaves the goal is live again.
 //!
+//! While the arm backs out ([`retreat`](super::retreat)) nothing is planned until the retreat
+//! ends, about a second; so each new settled scene is asked then too, and a taken goal is
+//! said on the first one that shows it. The retreat goes on; the planning after it finds the
+//! goal already said for that scene and holds.
+//!
 //! [`goal_overlap`] is the first half of the real twin's check ([`TwinLookahead`]'s).
 //!
 //! [`TwinLookahead`]: crate::twin_thread::lookahead::TwinLookahead
 
 use twin::{Blocker, InfeasibleReason, LINK_TOOL, Scene};
 
-use super::{Lookahead, TwinEvent, TwinWorker};
+use super::{Lookahead, Phase, TwinEvent, TwinWorker};
 use crate::cycle::shield::ShieldModel;
 
-/// The scene the goal was last said taken in (a newer scene is checked again).
+/// The scene the goal was last said taken in (a newer scene is checked again), and the last
+/// scene asked about while the arm backs out.
 #[derive(Debug, Clone, Copy)]
 pub struct GoalWatch<S> {
     taken_in: Option<S>,
+    asked_backing_out: Option<S>,
 }
 
 impl<S> Default for GoalWatch<S> {
     fn default() -> Self {
-        Self { taken_in: None }
+        Self {
+            taken_in: None,
+            asked_backing_out: None,
+        }
     }
 }
 
@@ -90,6 +100,29 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
             scene,
         });
         true
+    }
+
+    /// While a retreat runs: each new settled scene is asked whether a box has taken the
+    /// goal ([`Self::goal_taken_in`]), once per scene, so that it is said within the
+    /// issue's second rather than after the retreat. Nothing is sent or revoked here.
+    pub(super) fn say_taken_goal_while_backing_out(
+        &mut self,
+        events: &mut Vec<TwinEvent<L::Scene>>,
+    ) {
+        if !matches!(
+            self.excursion.phase(),
+            Phase::BackingOut { done: false, .. }
+        ) {
+            return;
+        }
+        let Ok(scene) = self.scene.ready() else {
+            return;
+        };
+        if self.goal.asked_backing_out == Some(scene) {
+            return;
+        }
+        self.goal.asked_backing_out = Some(scene);
+        self.goal_taken_in(scene, events);
     }
 }
 

@@ -375,7 +375,9 @@ impl<L: Lookahead, M: ShieldModel<Scene = L::Scene>> TwinWorker<L, M> {
     pub fn step(&mut self, events: &mut Vec<TwinEvent<L::Scene>>) {
         self.take_reports();
         self.take_revocations(events);
-        if self.back_out_if_too_close(events) {
+        let backing_out = self.back_out_if_too_close(events);
+        self.say_taken_goal_while_backing_out(events);
+        if backing_out {
             return;
         }
         match self.scene.ready() {
