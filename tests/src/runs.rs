@@ -3,11 +3,13 @@
 
 use std::path::{Path, PathBuf};
 
-/// A fresh scratch folder `foresight-<kind>-<test>-<pid>-<ns>` in the temporary folder.
+/// A fresh scratch folder `foresight-<kind>-<test>-<pid>-<ns>` in the temporary folder,
+/// removed when the test passes (a launcher run leaves about 4 MB there) and kept, its path
+/// printed, when it fails ([`ScratchDir`]).
 ///
 /// # Panics
 /// If it cannot be created.
-pub fn scratch_dir(kind: &str, test: &str) -> PathBuf {
+pub fn scratch_dir(kind: &str, test: &str) -> ScratchDir {
     let dir = std::env::temp_dir().join(format!(
         "foresight-{kind}-{test}-{}-{}",
         std::process::id(),
@@ -17,7 +19,46 @@ pub fn scratch_dir(kind: &str, test: &str) -> PathBuf {
             .unwrap_or(0)
     ));
     std::fs::create_dir_all(&dir).expect("scratch dir");
-    dir
+    ScratchDir(dir)
+}
+
+/// A test's scratch folder ([`scratch_dir`]): dropped while the test passes, it is
+/// removed; dropped while it panics (the test fails), it is kept for a look and its path
+/// printed. Keep it alive for the whole test (`let out = scratch_dir(..)`, never `let _`).
+#[derive(Debug)]
+pub struct ScratchDir(PathBuf);
+
+impl std::ops::Deref for ScratchDir {
+    type Target = Path;
+
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for ScratchDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<std::ffi::OsStr> for ScratchDir {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.0.as_os_str()
+    }
+}
+
+impl Drop for ScratchDir {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            println!(
+                "---- kept the failed test's scratch folder {}",
+                self.0.display()
+            );
+        } else {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
 }
 
 /// The newest run folder under `out` (`runs/latest`, a symlink beside them, is skipped).

@@ -16,11 +16,11 @@ use std::process::{Command, Stdio};
 use std::sync::{Mutex, MutexGuard, mpsc};
 use std::time::{Duration, Instant};
 
-use foresight_tests::runs::{LogsOnFailure, newest_run, scratch_dir};
+use foresight_tests::runs::{LogsOnFailure, ScratchDir, newest_run, scratch_dir};
 use foresight_tests::{ChildGuard, bin_path, repo_root};
 
 /// A scratch folder for one test's runs.
-fn scratch(test: &str) -> PathBuf {
+fn scratch(test: &str) -> ScratchDir {
     scratch_dir("demo", test)
 }
 

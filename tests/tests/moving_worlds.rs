@@ -74,7 +74,7 @@ fn the_arm_pauses_for_the_box_and_reaches_the_goal(test: &str, world: &str) {
     let _one = one_at_a_time();
     let out = scratch_dir("moving", test);
     let _logs = LogsOnFailure {
-        runs: out.clone(),
+        runs: out.to_path_buf(),
         extra: Vec::new(),
     };
     let (code, run) = run_world(&out, world);

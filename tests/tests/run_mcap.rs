@@ -137,7 +137,7 @@ fn a_run_leaves_an_mcap_file_that_an_independent_reader_validates() {
     let _one = one_at_a_time();
     let out = scratch_dir("mcap", "run");
     let _logs = LogsOnFailure {
-        runs: out.clone(),
+        runs: out.to_path_buf(),
         extra: Vec::new(),
     };
     let mut guard = launch(&out, &one_scene_world(&out));
@@ -222,7 +222,7 @@ fn a_killed_launcher_leaves_a_recording_readable_up_to_its_last_chunk() {
     let _one = one_at_a_time();
     let out = scratch_dir("mcap", "killed");
     let _logs = LogsOnFailure {
-        runs: out.clone(),
+        runs: out.to_path_buf(),
         extra: Vec::new(),
     };
     // The two-scene world (retraining in the middle): long enough to be killed mid-run.

@@ -13,7 +13,7 @@
 // Integration tests: a failed unwrap or expect is a failed run, with its message.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::sync::{Mutex, MutexGuard};
 use std::time::Duration;
@@ -59,7 +59,7 @@ fn logs(out: &Path) -> LogsOnFailure {
 #[test]
 fn an_infeasible_world_is_refused_with_its_reason_and_the_arm_is_held() {
     let _one = one_at_a_time();
-    let out: PathBuf = scratch_dir("worlds", "infeasible");
+    let out = scratch_dir("worlds", "infeasible");
     let _logs = logs(&out);
     let code = run_foresight(
         &out,
@@ -126,7 +126,7 @@ fn an_infeasible_world_is_refused_with_its_reason_and_the_arm_is_held() {
 #[test]
 fn random_unseen_worlds_are_reached_or_refused_without_collision() {
     let _one = one_at_a_time();
-    let out: PathBuf = scratch_dir("worlds", "random");
+    let out = scratch_dir("worlds", "random");
     let _logs = logs(&out);
     let code = run_foresight(
         &out,

@@ -8,7 +8,8 @@
 //! sampling before the planner (`sampling`), and the operator's acknowledgement channel
 //! (`operator_ack`), and a controller starved of CPU while the arm moves
 //! (`starved_controller`), and a plan unsafe far ahead joined by a safe one without
-//! stopping (`join_before_stop`), and planning while a box moves (`moving_world`), and a
+//! stopping (`join_before_stop`), and planning while a box moves and a horizon that covers
+//! the stop (`moving_world`), and a
 //! planner-made plan that joins the running one in time despite its search
 //! (`planner_join`), and a goal a box has taken said at once (`goal_taken`), and an arm
 //! stopped too close backing out along the path it came (`back_out`).
