@@ -10,9 +10,10 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
+use shm_schemas::ActionSpace;
 use twin::{FeasibilityConfig, Scene};
 
-use super::{DistilConfig, DistilIter, DistilWorlds, LessonCounts, distil, lessons};
+use super::{DistilConfig, DistilIter, DistilWorlds, LessonCounts, dagger_pairs, distil, lessons};
 use crate::checkpoint::{self, Checkpoint, CheckpointError};
 use crate::env::SceneSampler;
 use crate::net::ActorCritic;
@@ -23,6 +24,10 @@ use crate::twin_env::{CurriculumSampler, EVAL_SEED, TaskLoadError, TwinTask, fix
 /// Seed family of the distillation worlds (distinct from the evaluation scenes' and from every
 /// benchmark generator's).
 const WORLD_SEED_BASE: u64 = 0xD157_0000;
+
+/// Seed family of the joint-step network's observation statistics (the teachers' episodes
+/// before the first iteration).
+const STATS_SEED: u64 = 0x5747_0000;
 
 /// The summary file written beside the checkpoints.
 pub const SUMMARY: &str = "distil.json";
@@ -55,6 +60,12 @@ pub struct DistilJob {
     pub threads: usize,
     /// Output directory.
     pub out: PathBuf,
+    /// The action space the distilled policy acts in. The paper's Cartesian step keeps the
+    /// checkpoint's network; the joint step (another network: 29 observations, 5 actions)
+    /// starts from fresh weights of the checkpoint's (or `hidden`) shape, its observation
+    /// statistics taken from the teachers' own episodes, and records the space in its
+    /// checkpoints (and so in its blob).
+    pub action_space: ActionSpace,
 }
 
 /// What a distillation reports while it runs (for a progress display).
@@ -91,6 +102,8 @@ pub struct DistilRecord {
 pub struct DistilSummary {
     /// The checkpoint started from.
     pub checkpoint: PathBuf,
+    /// The distilled policy's action space (`cartesian_step`, `joint_step`).
+    pub action_space: &'static str,
     /// Worlds with and without a teacher.
     pub worlds: LessonCounts,
     /// The DAgger configuration.
@@ -177,7 +190,8 @@ impl DistilJob {
         mut on_event: impl FnMut(DistilEvent<'_>),
     ) -> Result<DistilSummary, DistilJobError> {
         let t0 = Instant::now();
-        let env = TwinTask::load(&self.task, None)?;
+        let mut env = TwinTask::load(&self.task, None)?;
+        env.set_action_space(self.action_space);
         let hash = env.task_hash();
         let path = checkpoint::resolve(&self.checkpoint);
         let ck = Checkpoint::load(&path).map_err(|source| DistilJobError::Load {
@@ -193,7 +207,6 @@ impl DistilJob {
             });
         }
         let mut trainer = self.trainer(&ck, &env, device)?;
-        let norm = trainer.obs_normalizer();
         let sampler = CurriculumSampler::pretraining(&env);
         let eval_scenes = fixed_scenes(&sampler, self.eval_episodes, EVAL_SEED);
         let before = trainer.evaluate(&eval_scenes);
@@ -220,6 +233,22 @@ impl DistilJob {
                 worlds: self.worlds,
             });
         }
+
+        if self.action_space != ck.meta.action_space() {
+            // A fresh network of another observation layout: its statistics from the
+            // teachers' own episodes (the states the first iteration clones on).
+            let (set, _) = dagger_pairs(
+                &trainer.net,
+                &trainer.obs_normalizer(),
+                &env.env,
+                &lessons,
+                1.0,
+                self.config.noise_std,
+                &mut ChaCha8Rng::seed_from_u64(STATS_SEED ^ self.seed),
+            );
+            trainer.obs_rms.update(&set.obs);
+        }
+        let norm = trainer.obs_normalizer();
 
         std::fs::create_dir_all(&self.out).map_err(|source| DistilJobError::Output {
             path: self.out.clone(),
@@ -255,7 +284,8 @@ impl DistilJob {
                 };
                 records.push(record);
                 let is_best = best.is_none_or(|(_, b)| better(&eval, &b));
-                if let Err(e) = save(net, &trainer, &ck, hash, &self.out, is_best, eval) {
+                let saved = save(net, &trainer, &ck, hash, &self.out, is_best, eval);
+                if let Err(e) = saved {
                     save_err = Some(e);
                     return false;
                 }
@@ -272,6 +302,7 @@ impl DistilJob {
         }
         let summary = DistilSummary {
             checkpoint: path,
+            action_space: self.action_space.name(),
             worlds: counts,
             config: self.config,
             before,
@@ -287,13 +318,21 @@ impl DistilJob {
     }
 
     /// The trainer whose network is distilled into: the checkpoint's, or a fresh one of the
-    /// asked shape with the checkpoint's statistics.
+    /// asked shape with the checkpoint's statistics, or in the joint-step space a fresh one
+    /// of the asked (or the checkpoint's) shape with fresh statistics.
     fn trainer(
         &self,
         ck: &Checkpoint,
         env: &TwinTask,
         device: tch::Device,
     ) -> Result<Trainer<TwinTask>, DistilJobError> {
+        if self.action_space != ck.meta.action_space() {
+            let mut cfg = ck.meta.ppo.clone();
+            if let Some(h) = &self.hidden {
+                cfg.hidden.clone_from(h);
+            }
+            return Ok(Trainer::new(cfg, env.clone(), self.seed, device)?);
+        }
         Ok(match &self.hidden {
             Some(h) if *h != ck.meta.spec.hidden => {
                 let mut cfg = ck.meta.ppo.clone();
@@ -313,7 +352,7 @@ impl DistilJob {
 }
 
 /// Writes `last.ckpt` (and `best.ckpt` when `is_best`) for the network `net` with the base
-/// checkpoint's trainer state.
+/// checkpoint's trainer state (and the trainer's action space: [`Checkpoint::capture`]).
 fn save(
     net: &ActorCritic,
     trainer: &Trainer<TwinTask>,
@@ -337,6 +376,7 @@ fn save(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::normalize::ObsNormalizer;
 
     fn assets() -> PathBuf {
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets")
@@ -362,6 +402,7 @@ mod tests {
             seed: 3,
             threads: 2,
             out: out.to_path_buf(),
+            action_space: ActionSpace::CartesianStep,
         }
     }
 
@@ -395,6 +436,80 @@ mod tests {
             serde_json::from_slice(&std::fs::read(out.join(SUMMARY)).expect(SUMMARY))
                 .expect("JSON");
         assert_eq!(written["iterations"].as_array().map(Vec::len), Some(2));
+        let _ = std::fs::remove_dir_all(&out);
+    }
+
+    #[test]
+    fn a_joint_step_distillation_keeps_a_blob_that_rt_core_loads_and_the_twin_rolls_out() {
+        use policy::{PolicyExpectation, PolicyLoader};
+        use shm_schemas::scene_file::SceneFile;
+        use shm_schemas::{JOINT_ACT_DIM, JOINT_OBS_DIM, OBS_LAYOUT_JOINT_V1};
+
+        tch::set_num_threads(1);
+        let out = std::env::temp_dir().join(format!("learner-distil-joint-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        let mut j = job(6, &out);
+        j.action_space = ActionSpace::JointStep;
+        j.config.bc.steps = 60;
+        let summary = j.run(tch::Device::Cpu, |_| {}).expect("joint distillation");
+        let w = summary.worlds;
+        assert!(w.line + w.planner >= 1, "no joint-step teacher: {w:?}");
+        assert_eq!(w.via, 0, "a via-point route is a Cartesian teacher: {w:?}");
+
+        // The checkpoint records its space; its network is the joint layout's.
+        let ck = Checkpoint::load(&out.join(checkpoint::BEST)).expect("best.ckpt");
+        assert_eq!(ck.meta.action_space(), ActionSpace::JointStep);
+        assert_eq!(ck.meta.spec.obs_dim, JOINT_OBS_DIM);
+        assert_eq!(ck.meta.spec.act_dim, JOINT_ACT_DIM);
+
+        // Its blob names the space and the layout, and rt-core's loader takes it.
+        let blob = crate::export::export_blob(&ck, 7).expect("blob");
+        assert!(matches!(
+            ActionSpace::try_from(blob.action_space),
+            Ok(ActionSpace::JointStep)
+        ));
+        assert_eq!(blob.obs_layout, OBS_LAYOUT_JOINT_V1);
+        let mlp = PolicyLoader::new(PolicyExpectation::for_task(ck.meta.task_hash))
+            .prepare(&blob)
+            .expect("rt-core's loader refused the joint-step blob");
+
+        // It rolls out in the twin's joint-step space, and moves the arm there with the
+        // actions the learner's network gives.
+        let task = TwinTask::load(&assets().join("task.toml"), None).expect("task");
+        let file =
+            SceneFile::load(&assets().join("scenes").join("tall_box.toml")).expect("scene file");
+        let scene = Scene::from_file(&file).expect("scene");
+        let mut tw = task.env.clone();
+        let mut first: Option<([f32; twin::OBS_DIM], [f32; JOINT_ACT_DIM])> = None;
+        let ep = twin::rollout_joint(
+            &mut tw,
+            &scene,
+            |o| {
+                let a = mlp.act_joint(o);
+                first.get_or_insert((*o, a));
+                a
+            },
+            None,
+            true,
+        );
+        assert!(ep.steps >= 1);
+        let start = task.env.config().start.joints_rad;
+        assert_ne!(
+            tw.joints(),
+            start,
+            "the joint-step policy did not move the arm"
+        );
+        let (obs, act) = first.expect("one step");
+        let net = ck.network(tch::Device::Cpu).expect("network");
+        let norm = ObsNormalizer::from_stats(&ck.meta.obs_rms.to_rms(), ck.meta.ppo.clip_obs);
+        let mut row = vec![0.0f32; JOINT_OBS_DIM];
+        norm.apply(&obs[..JOINT_OBS_DIM], &mut row);
+        let mean = net.actor_mean(&tch::Tensor::from_slice(&row).view([1, -1]));
+        let mut want = [0.0f32; JOINT_ACT_DIM];
+        mean.view([-1]).copy_data(&mut want, JOINT_ACT_DIM);
+        for (a, b) in act.iter().zip(want) {
+            assert!((a - b.clamp(-1.0, 1.0)).abs() < 1e-4, "{act:?} vs {want:?}");
+        }
         let _ = std::fs::remove_dir_all(&out);
     }
 
