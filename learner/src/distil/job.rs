@@ -376,7 +376,6 @@ fn save(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::normalize::ObsNormalizer;
 
     fn assets() -> PathBuf {
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets")
@@ -436,80 +435,6 @@ mod tests {
             serde_json::from_slice(&std::fs::read(out.join(SUMMARY)).expect(SUMMARY))
                 .expect("JSON");
         assert_eq!(written["iterations"].as_array().map(Vec::len), Some(2));
-        let _ = std::fs::remove_dir_all(&out);
-    }
-
-    #[test]
-    fn a_joint_step_distillation_keeps_a_blob_that_rt_core_loads_and_the_twin_rolls_out() {
-        use policy::{PolicyExpectation, PolicyLoader};
-        use shm_schemas::scene_file::SceneFile;
-        use shm_schemas::{JOINT_ACT_DIM, JOINT_OBS_DIM, OBS_LAYOUT_JOINT_V1};
-
-        tch::set_num_threads(1);
-        let out = std::env::temp_dir().join(format!("learner-distil-joint-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&out);
-        let mut j = job(6, &out);
-        j.action_space = ActionSpace::JointStep;
-        j.config.bc.steps = 60;
-        let summary = j.run(tch::Device::Cpu, |_| {}).expect("joint distillation");
-        let w = summary.worlds;
-        assert!(w.line + w.planner >= 1, "no joint-step teacher: {w:?}");
-        assert_eq!(w.via, 0, "a via-point route is a Cartesian teacher: {w:?}");
-
-        // The checkpoint records its space; its network is the joint layout's.
-        let ck = Checkpoint::load(&out.join(checkpoint::BEST)).expect("best.ckpt");
-        assert_eq!(ck.meta.action_space(), ActionSpace::JointStep);
-        assert_eq!(ck.meta.spec.obs_dim, JOINT_OBS_DIM);
-        assert_eq!(ck.meta.spec.act_dim, JOINT_ACT_DIM);
-
-        // Its blob names the space and the layout, and rt-core's loader takes it.
-        let blob = crate::export::export_blob(&ck, 7).expect("blob");
-        assert!(matches!(
-            ActionSpace::try_from(blob.action_space),
-            Ok(ActionSpace::JointStep)
-        ));
-        assert_eq!(blob.obs_layout, OBS_LAYOUT_JOINT_V1);
-        let mlp = PolicyLoader::new(PolicyExpectation::for_task(ck.meta.task_hash))
-            .prepare(&blob)
-            .expect("rt-core's loader refused the joint-step blob");
-
-        // It rolls out in the twin's joint-step space, and moves the arm there with the
-        // actions the learner's network gives.
-        let task = TwinTask::load(&assets().join("task.toml"), None).expect("task");
-        let file =
-            SceneFile::load(&assets().join("scenes").join("tall_box.toml")).expect("scene file");
-        let scene = Scene::from_file(&file).expect("scene");
-        let mut tw = task.env.clone();
-        let mut first: Option<([f32; twin::OBS_DIM], [f32; JOINT_ACT_DIM])> = None;
-        let ep = twin::rollout_joint(
-            &mut tw,
-            &scene,
-            |o| {
-                let a = mlp.act_joint(o);
-                first.get_or_insert((*o, a));
-                a
-            },
-            None,
-            true,
-        );
-        assert!(ep.steps >= 1);
-        let start = task.env.config().start.joints_rad;
-        assert_ne!(
-            tw.joints(),
-            start,
-            "the joint-step policy did not move the arm"
-        );
-        let (obs, act) = first.expect("one step");
-        let net = ck.network(tch::Device::Cpu).expect("network");
-        let norm = ObsNormalizer::from_stats(&ck.meta.obs_rms.to_rms(), ck.meta.ppo.clip_obs);
-        let mut row = vec![0.0f32; JOINT_OBS_DIM];
-        norm.apply(&obs[..JOINT_OBS_DIM], &mut row);
-        let mean = net.actor_mean(&tch::Tensor::from_slice(&row).view([1, -1]));
-        let mut want = [0.0f32; JOINT_ACT_DIM];
-        mean.view([-1]).copy_data(&mut want, JOINT_ACT_DIM);
-        for (a, b) in act.iter().zip(want) {
-            assert!((a - b.clamp(-1.0, 1.0)).abs() < 1e-4, "{act:?} vs {want:?}");
-        }
         let _ = std::fs::remove_dir_all(&out);
     }
 

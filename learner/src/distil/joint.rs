@@ -83,11 +83,12 @@ impl JointPathExpert {
                 .map(|i| ((p[i] - q[i]) / self.scale_rad[i]).powi(2))
                 .sum::<f64>()
         };
+        let from = self.progress.min(last);
         let end = (self.progress + WINDOW).min(last);
-        let mut best = self.progress.min(last);
+        let mut best = from;
         let mut best_d = f64::INFINITY;
-        for k in self.progress.min(last)..=end {
-            let d = scaled(&self.points[k]);
+        for (k, p) in self.points.iter().enumerate().take(end + 1).skip(from) {
+            let d = scaled(p);
             if d < best_d {
                 best_d = d;
                 best = k;
@@ -175,50 +176,5 @@ pub(super) fn joint_teacher(
             }
         }
         PlanOutcome::NoPath { .. } => Err(Untaught::Infeasible),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_step_toward_a_target_keeps_its_direction_and_its_largest_joint_at_one() {
-        let scale = [0.03; DOF];
-        let q = [0.0; DOF];
-        let a = joint_step_toward(&q, &[0.3, -0.15, 0.0, 0.0, 0.03], &scale);
-        assert_eq!(a, [1.0, -0.5, 0.0, 0.0, 0.1]);
-        // Within one step: exactly the difference.
-        let b = joint_step_toward(&q, &[0.015, 0.0, 0.0, 0.0, -0.03], &scale);
-        assert!(
-            (b[0] - 0.5).abs() < 1e-6 && (b[4] + 1.0).abs() < 1e-6,
-            "{b:?}"
-        );
-    }
-
-    #[test]
-    fn the_path_expert_follows_its_path_to_the_end() {
-        let scale = [0.03; DOF];
-        let path = [
-            [0.0; DOF],
-            [0.5, 0.0, 0.0, 0.0, 0.0],
-            [0.5, 0.5, 0.0, 0.0, 0.0],
-        ];
-        let mut e = JointPathExpert::new(&path, scale);
-        let mut q = [0.0; DOF];
-        for _ in 0..200 {
-            let a = e.action(&q);
-            for i in 0..DOF {
-                q[i] += f64::from(a[i]) * scale[i];
-            }
-            // Never far from the L-shaped path (no corner cut by more than the lookahead).
-            assert!(q[1] <= 0.01 || q[0] >= 0.45, "{q:?}");
-        }
-        assert!(
-            (q[0] - 0.5).abs() < 1e-6 && (q[1] - 0.5).abs() < 1e-6,
-            "{q:?}"
-        );
-        e.restart();
-        assert_eq!(e.progress, 0);
     }
 }
