@@ -1,7 +1,8 @@
 //! `learner export --onnx`'s graph, run in ONNX Runtime (the library `make setup` installs
 //! for perception), matches the learner's tch network and rt-core's kernel within 1e-5 on
-//! 1 000 observations, for both bundled policies; and each bundled policy's export beside
-//! its blob is the one its blob gives today (the library keeps it current).
+//! 1 000 observations, for each bundled policy (the joint-step one too); and each bundled
+//! policy's export beside its blob is the one its blob gives today (the library keeps it
+//! current).
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -189,4 +190,24 @@ fn the_generalists_onnx_export_matches_tch_and_rt_core_within_1e_5() {
 #[test]
 fn the_distilled_policys_onnx_export_matches_tch_and_rt_core_within_1e_5() {
     parity("policy-distilled", 2, "cartesian_step");
+}
+
+#[test]
+fn the_joint_step_policys_onnx_export_matches_tch_and_rt_core_within_1e_5() {
+    parity("policy-joint-distilled", 3, "joint_step");
+    let schema: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(
+            assets()
+                .join("policy-joint-distilled")
+                .join(onnx::SCHEMA_FILE),
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(schema["observation"]["kind"], "joint_v1");
+    assert_eq!(
+        schema["observation"]["layout_version"],
+        shm_schemas::OBS_LAYOUT_JOINT_V1
+    );
+    assert_eq!(schema["action"]["names"][4], "dq5");
 }
