@@ -3,7 +3,9 @@
 //! sampler ([`learner::distil::DistilJob`]). Keeps `best.ckpt` (best success on the fixed
 //! evaluation scenes of the pre-training distribution, ties broken by fewer contacts),
 //! `last.ckpt` and `distil.json` in `--out`, all written atomically; prints the summary as
-//! JSON. Follow with `learner pretrain --out DIR --resume` for PPO fine-tuning.
+//! JSON. Follow with `learner pretrain --out DIR --resume` for PPO fine-tuning. With
+//! `--action-space joint_step` the policy acts in the joint-step space (per-joint steps
+//! toward the goal posture the twin chooses; `learner::distil::joint`).
 
 use std::path::PathBuf;
 

@@ -13,7 +13,9 @@ use serde::Serialize;
 use shm_schemas::ActionSpace;
 use twin::{FeasibilityConfig, Scene};
 
-use super::{DistilConfig, DistilIter, DistilWorlds, LessonCounts, dagger_pairs, distil, lessons};
+use super::{
+    DistilConfig, DistilIter, DistilWorlds, Lesson, LessonCounts, dagger_pairs, distil, lessons,
+};
 use crate::checkpoint::{self, Checkpoint, CheckpointError};
 use crate::env::SceneSampler;
 use crate::net::ActorCritic;
@@ -235,18 +237,7 @@ impl DistilJob {
         }
 
         if self.action_space != ck.meta.action_space() {
-            // A fresh network of another observation layout: its statistics from the
-            // teachers' own episodes (the states the first iteration clones on).
-            let (set, _) = dagger_pairs(
-                &trainer.net,
-                &trainer.obs_normalizer(),
-                &env.env,
-                &lessons,
-                1.0,
-                self.config.noise_std,
-                &mut ChaCha8Rng::seed_from_u64(STATS_SEED ^ self.seed),
-            );
-            trainer.obs_rms.update(&set.obs);
+            self.teachers_statistics(&mut trainer, &env, &lessons);
         }
         let norm = trainer.obs_normalizer();
 
@@ -284,8 +275,7 @@ impl DistilJob {
                 };
                 records.push(record);
                 let is_best = best.is_none_or(|(_, b)| better(&eval, &b));
-                let saved = save(net, &trainer, &ck, hash, &self.out, is_best, eval);
-                if let Err(e) = saved {
+                if let Err(e) = save(net, &trainer, &ck, hash, &self.out, is_best, eval) {
                     save_err = Some(e);
                     return false;
                 }
@@ -315,6 +305,26 @@ impl DistilJob {
         let json = serde_json::to_string_pretty(&summary)?;
         checkpoint::write_atomic(&self.out.join(SUMMARY), json.as_bytes())?;
         Ok(summary)
+    }
+
+    /// A fresh network of another observation layout than the checkpoint's gets its
+    /// statistics from the teachers' own episodes (the states the first iteration clones on).
+    fn teachers_statistics(
+        &self,
+        trainer: &mut Trainer<TwinTask>,
+        env: &TwinTask,
+        lessons: &[Lesson],
+    ) {
+        let (set, _) = dagger_pairs(
+            &trainer.net,
+            &trainer.obs_normalizer(),
+            &env.env,
+            lessons,
+            1.0,
+            self.config.noise_std,
+            &mut ChaCha8Rng::seed_from_u64(STATS_SEED ^ self.seed),
+        );
+        trainer.obs_rms.update(&set.obs);
     }
 
     /// The trainer whose network is distilled into: the checkpoint's, or a fresh one of the

@@ -346,15 +346,7 @@ fn run(args: WorldsArgs, device: tch::Device) -> Result<()> {
         );
     }
     let base = load_checkpoint(serve, &env)?;
-    let space = base.meta.action_space();
-    anyhow::ensure!(
-        space == ActionSpace::CartesianStep || (args.samples.is_empty() && !args.retrain),
-        "--samples and --retrain run Cartesian-step policies only; {} acts in {}",
-        serve.checkpoint.display(),
-        space.name()
-    );
-    env.set_action_space(space);
-    println!("policy action space: {}", space.name());
+    let space = policy_space(&args, &base, &mut env)?;
     let net = base.network(device)?;
     let norm = ObsNormalizer::from_stats(&base.meta.obs_rms.to_rms(), base.meta.ppo.clip_obs);
     let workers = base.meta.ppo.effective_workers();
@@ -430,6 +422,21 @@ fn load_checkpoint(serve: &RetrainFlags, env: &TwinTask) -> Result<Checkpoint> {
         );
     }
     Ok(base)
+}
+
+/// The action space of `base`, which `env` is switched to; refused with `--samples` or
+/// `--retrain` (Cartesian-step policies only) for a joint-step checkpoint.
+fn policy_space(args: &WorldsArgs, base: &Checkpoint, env: &mut TwinTask) -> Result<ActionSpace> {
+    let space = base.meta.action_space();
+    anyhow::ensure!(
+        space == ActionSpace::CartesianStep || (args.samples.is_empty() && !args.retrain),
+        "--samples and --retrain run Cartesian-step policies only; {} acts in {}",
+        args.args.checkpoint.display(),
+        space.name()
+    );
+    env.set_action_space(space);
+    println!("policy action space: {}", space.name());
+    Ok(space)
 }
 
 /// With `--samples`: `base` exported and loaded as rt-core runs it (the sampling settings
