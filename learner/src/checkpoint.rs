@@ -11,6 +11,7 @@ use std::io::{Cursor, Write};
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
+use shm_schemas::ActionSpace;
 use tch::Tensor;
 
 use crate::env::Env;
@@ -83,6 +84,17 @@ pub enum CheckpointError {
     /// The weights do not make a network of the stored shape.
     #[error("checkpoint weights")]
     Network(#[from] NetFromFlatError),
+    /// The action space byte is one this build does not know, or its action length is not
+    /// the network's.
+    #[error(
+        "invalid checkpoint: action space byte {byte} with a network of {act_dim} outputs (known: cartesian_step = 0 with 3, joint_step = 1 with 5)"
+    )]
+    ActionSpace {
+        /// The stored byte.
+        byte: u8,
+        /// The network's action length.
+        act_dim: usize,
+    },
 }
 
 /// Running statistics as stored.
@@ -148,6 +160,24 @@ pub struct CheckpointMeta {
     pub eval: Option<EvalResult>,
     /// Best evaluation of the run so far (the score `best.ckpt` holds).
     pub best_eval: Option<EvalResult>,
+    /// The action space the policy acts in, as `PolicyBlob::action_space` stores it
+    /// ([`ActionSpace`] byte: 0 the paper's Cartesian step, 1 the joint step). Absent from
+    /// every checkpoint written before the joint step existed, and left out of Cartesian
+    /// ones, so that their bytes are what they were.
+    #[serde(default, skip_serializing_if = "is_cartesian")]
+    pub action_space: u8,
+}
+
+fn is_cartesian(byte: &u8) -> bool {
+    *byte == ActionSpace::CartesianStep as u8
+}
+
+impl CheckpointMeta {
+    /// The action space the policy acts in (a checkpoint's byte is checked when it is
+    /// read: [`CheckpointError::ActionSpace`]).
+    pub fn action_space(&self) -> ActionSpace {
+        ActionSpace::try_from(self.action_space).unwrap_or(ActionSpace::CartesianStep)
+    }
 }
 
 /// A checkpoint in memory.
@@ -190,6 +220,7 @@ impl Checkpoint {
                 env_rngs: t.env_rng_states(),
                 eval: None,
                 best_eval: None,
+                action_space: t.template().action_space() as u8,
             },
             theta: t.net.flat(),
             adam_m: to_vec(&t.adam.m),
@@ -289,6 +320,18 @@ impl Checkpoint {
         }
         if ck.meta.obs_rms.mean.len() != ck.meta.spec.obs_dim {
             return Err(CheckpointError::StatsLength);
+        }
+        // A Cartesian byte is what every older checkpoint reads as, whatever its network
+        // (toy tasks have other action lengths); a joint-step one must have five outputs.
+        match ActionSpace::try_from(ck.meta.action_space) {
+            Ok(ActionSpace::CartesianStep) => {}
+            Ok(space) if space.act_dim() == ck.meta.spec.act_dim => {}
+            _ => {
+                return Err(CheckpointError::ActionSpace {
+                    byte: ck.meta.action_space,
+                    act_dim: ck.meta.spec.act_dim,
+                });
+            }
         }
         if ck.theta.iter().any(|x| !x.is_finite()) {
             return Err(CheckpointError::NonFinite);

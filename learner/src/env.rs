@@ -7,6 +7,7 @@
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
+use shm_schemas::ActionSpace;
 
 /// What one step reports besides the observation.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -43,6 +44,12 @@ pub trait Env: Send {
     /// approved.
     fn approve_episode(&mut self) -> bool {
         true
+    }
+
+    /// The action space a policy of this environment acts in, as its checkpoints record it
+    /// (`CheckpointMeta::action_space`). Default: the paper's Cartesian step.
+    fn action_space(&self) -> ActionSpace {
+        ActionSpace::CartesianStep
     }
 }
 

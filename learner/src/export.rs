@@ -50,11 +50,13 @@ pub fn policy_id_for(ck: &Checkpoint) -> u64 {
     h.finish().max(1)
 }
 
-/// A builder holding the checkpoint's actor and normalisation.
+/// A builder holding the checkpoint's actor and normalisation, and its action space (the
+/// blob records the space's observation layout with it).
 pub fn builder(ck: &Checkpoint, policy_id: u64) -> PolicyBlobBuilder {
     let spec = &ck.meta.spec;
     let layout = spec.layout();
     let mut b = PolicyBlobBuilder::new(policy_id, ck.meta.task_hash)
+        .action_space(ck.meta.action_space())
         .activation(Activation::Tanh)
         .output_activation(Activation::Identity);
     for s in &layout.actor {
@@ -191,6 +193,7 @@ mod tests {
                 env_rngs: vec![],
                 eval: None,
                 best_eval: None,
+                action_space: 0,
             },
             theta: vec![0.5, -1.25, 3.0e-7, f32::MIN_POSITIVE, -0.0, 1.0e9],
             adam_m: vec![],

@@ -8,10 +8,11 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use shm_schemas::ActionSpace;
 use twin::approval::{ApprovalSettings, ApprovalSettingsError, EpisodeApproval, PlanRejection};
 use twin::{
-    ACT_DIM, Joints, ObstacleClass, RobotModel, Scene, TaskConfig, TaskConfigError, TwinEnv,
-    UrdfLoadError,
+    ACT_DIM, JOINT_ACT_DIM, Joints, ObstacleClass, RobotModel, Scene, StepOutcome, TaskConfig,
+    TaskConfigError, TwinEnv, UrdfLoadError,
 };
 
 use crate::env::{Env, SceneSampler, StepInfo};
@@ -150,19 +151,46 @@ impl TwinTask {
         verifier.approve(env, scene, episode)
     }
 
+    /// Switches the episodes (and so training, evaluation and the observation layout) to
+    /// `space` ([`TwinEnv::set_action_space`]); a policy acts in the space of its
+    /// checkpoint (`CheckpointMeta::action_space`).
+    pub fn set_action_space(&mut self, space: ActionSpace) {
+        self.env.set_action_space(space);
+    }
+
     /// Hash of the task configuration.
     pub fn task_hash(&self) -> u64 {
         self.env.config().hash()
     }
 }
 
+/// One step of `env` in its action space ([`TwinEnv::action_space`]): `action` holds at
+/// least the space's action length (`ACT_DIM` Cartesian, `JOINT_ACT_DIM` joint values).
+///
+/// # Panics
+/// When `action` is shorter than the space's action length.
+pub fn step_in_space(env: &mut TwinEnv, action: &[f32]) -> StepOutcome {
+    match env.action_space() {
+        ActionSpace::CartesianStep => {
+            let mut a = [0.0f32; ACT_DIM];
+            a.copy_from_slice(&action[..ACT_DIM]);
+            env.step(&a)
+        }
+        ActionSpace::JointStep => {
+            let mut a = [0.0f32; JOINT_ACT_DIM];
+            a.copy_from_slice(&action[..JOINT_ACT_DIM]);
+            env.step_joint(&a)
+        }
+    }
+}
+
 impl Env for TwinTask {
     type Scene = Scene;
     fn obs_dim(&self) -> usize {
-        self.env.config().obs_dim()
+        self.env.obs_dim()
     }
     fn act_dim(&self) -> usize {
-        ACT_DIM
+        self.env.action_space().act_dim()
     }
     fn reset(&mut self, scene: &Scene, obs: &mut [f32]) {
         let full = self.env.reset(scene);
@@ -171,9 +199,7 @@ impl Env for TwinTask {
         self.episode.clear();
     }
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> StepInfo {
-        let mut a = [0.0f32; ACT_DIM];
-        a.copy_from_slice(&action[..ACT_DIM]);
-        let out = self.env.step(&a);
+        let out = step_in_space(&mut self.env, action);
         obs.copy_from_slice(&out.obs[..obs.len()]);
         self.episode.push(out.joints);
         StepInfo {
@@ -183,6 +209,10 @@ impl Env for TwinTask {
             success: out.task_done,
             collision: !out.safe,
         }
+    }
+
+    fn action_space(&self) -> ActionSpace {
+        self.env.action_space()
     }
 
     /// The verification of the episode that has just reached the goal with no contact;

@@ -234,3 +234,167 @@ mod export_equivalence {
         std::fs::remove_dir_all(&dir).ok();
     }
 }
+
+/// The joint-step space (issue 40 item 3): `learner distil --action-space joint_step`'s
+/// teachers and what it keeps.
+mod joint_step_distillation {
+    use std::path::PathBuf;
+
+    use learner::checkpoint::{self, Checkpoint};
+    use learner::distil::joint::{JointPathExpert, joint_step_toward};
+    use learner::distil::{DistilConfig, DistilJob};
+    use learner::normalize::ObsNormalizer;
+    use learner::ppo::bc::BcConfig;
+    use learner::twin_env::TwinTask;
+    use policy::{PolicyExpectation, PolicyLoader};
+    use shm_schemas::scene_file::SceneFile;
+    use shm_schemas::{ActionSpace, JOINT_ACT_DIM, JOINT_OBS_DIM, OBS_LAYOUT_JOINT_V1};
+    use twin::{DOF, Scene};
+
+    fn assets() -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets")
+    }
+
+    #[test]
+    fn the_step_toward_a_target_keeps_its_direction_and_its_largest_joint_at_one() {
+        let scale = [0.03; DOF];
+        let q = [0.0; DOF];
+        let a = joint_step_toward(&q, &[0.3, -0.15, 0.0, 0.0, 0.03], &scale);
+        assert_eq!(a, [1.0, -0.5, 0.0, 0.0, 0.1]);
+        // Within one step: exactly the difference.
+        let b = joint_step_toward(&q, &[0.015, 0.0, 0.0, 0.0, -0.03], &scale);
+        assert!(
+            (b[0] - 0.5).abs() < 1e-6 && (b[4] + 1.0).abs() < 1e-6,
+            "{b:?}"
+        );
+    }
+
+    #[test]
+    fn the_path_expert_follows_its_path_to_the_end_and_restarts() {
+        let scale = [0.03; DOF];
+        let path = [
+            [0.0; DOF],
+            [0.5, 0.0, 0.0, 0.0, 0.0],
+            [0.5, 0.5, 0.0, 0.0, 0.0],
+        ];
+        let mut e = JointPathExpert::new(&path, scale);
+        let first = e.action(&[0.0; DOF]);
+        let mut q = [0.0; DOF];
+        for _ in 0..200 {
+            let a = e.action(&q);
+            for ((q, a), s) in q.iter_mut().zip(a).zip(scale) {
+                *q += f64::from(a) * s;
+            }
+            // Never far from the L-shaped path (the corner cut by less than the lookahead).
+            assert!(q[1] <= 0.01 || q[0] >= 0.45, "{q:?}");
+        }
+        assert!(
+            (q[0] - 0.5).abs() < 1e-6 && (q[1] - 0.5).abs() < 1e-6,
+            "{q:?}"
+        );
+        // At the end it stays; after a restart it starts along the path again.
+        let rest = e.action(&q);
+        assert!(rest.iter().all(|a| a.abs() < 1e-4), "{rest:?}");
+        e.restart();
+        assert_eq!(e.action(&[0.0; DOF]), first);
+    }
+
+    #[test]
+    fn a_joint_step_distillation_keeps_a_blob_that_rt_core_loads_and_the_twin_rolls_out() {
+        tch::set_num_threads(1);
+        let out = std::env::temp_dir().join(format!("learner-distil-joint-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        let job = DistilJob {
+            checkpoint: assets().join("policy"),
+            task: assets().join("task.toml"),
+            worlds: 6,
+            harder_share: 0.5,
+            hidden: None,
+            config: DistilConfig {
+                iterations: 2,
+                bc: BcConfig {
+                    steps: 60,
+                    ..DistilConfig::default().bc
+                },
+                ..DistilConfig::default()
+            },
+            margin_m: 0.02,
+            eval_episodes: 4,
+            seed: 3,
+            threads: 2,
+            out: out.clone(),
+            action_space: ActionSpace::JointStep,
+        };
+        let summary = job
+            .run(tch::Device::Cpu, |_| {})
+            .expect("joint distillation");
+        let w = summary.worlds;
+        assert!(w.line + w.planner >= 1, "no joint-step teacher: {w:?}");
+        assert_eq!(w.via, 0, "a via-point route is a Cartesian teacher: {w:?}");
+        assert_eq!(summary.action_space, "joint_step");
+
+        // The checkpoint records its space; its network is the joint layout's.
+        let ck = Checkpoint::load(&out.join(checkpoint::BEST)).expect("best.ckpt");
+        assert_eq!(ck.meta.action_space(), ActionSpace::JointStep);
+        assert_eq!(ck.meta.spec.obs_dim, JOINT_OBS_DIM);
+        assert_eq!(ck.meta.spec.act_dim, JOINT_ACT_DIM);
+
+        // Its blob names the space and the layout, and rt-core's loader takes it.
+        let blob = learner::export::export_blob(&ck, 7).expect("blob");
+        assert!(matches!(
+            ActionSpace::try_from(blob.action_space),
+            Ok(ActionSpace::JointStep)
+        ));
+        assert_eq!(blob.obs_layout, OBS_LAYOUT_JOINT_V1);
+        let mlp = PolicyLoader::new(PolicyExpectation::for_task(ck.meta.task_hash))
+            .prepare(&blob)
+            .expect("rt-core's loader refused the joint-step blob");
+
+        // It rolls out in the twin's joint-step space and moves the arm there, with the
+        // actions the learner's network gives.
+        let task = TwinTask::load(&assets().join("task.toml"), None).expect("task");
+        let file =
+            SceneFile::load(&assets().join("scenes").join("tall_box.toml")).expect("scene file");
+        let scene = Scene::from_file(&file).expect("scene");
+        let mut tw = task.env.clone();
+        let mut first: Option<([f32; twin::OBS_DIM], [f32; JOINT_ACT_DIM])> = None;
+        let ep = twin::rollout_joint(
+            &mut tw,
+            &scene,
+            |o| {
+                let a = mlp.act_joint(o);
+                first.get_or_insert((*o, a));
+                a
+            },
+            None,
+            true,
+        );
+        assert!(ep.steps >= 1);
+        let start = task.env.config().start.joints_rad;
+        assert_ne!(
+            tw.joints(),
+            start,
+            "the joint-step policy did not move the arm"
+        );
+        let (obs, act) = first.expect("one step");
+        let net = ck.network(tch::Device::Cpu).expect("network");
+        let norm = ObsNormalizer::from_stats(&ck.meta.obs_rms.to_rms(), ck.meta.ppo.clip_obs);
+        let mut row = vec![0.0f32; JOINT_OBS_DIM];
+        norm.apply(&obs[..JOINT_OBS_DIM], &mut row);
+        let mean = net.actor_mean(&tch::Tensor::from_slice(&row).view([1, -1]));
+        let mut want = [0.0f32; JOINT_ACT_DIM];
+        mean.view([-1]).copy_data(&mut want, JOINT_ACT_DIM);
+        for (a, b) in act.iter().zip(want) {
+            assert!((a - b.clamp(-1.0, 1.0)).abs() < 1e-4, "{act:?} vs {want:?}");
+        }
+
+        // A Cartesian checkpoint's metadata has no action-space field (its bytes are what
+        // they were before the joint step existed).
+        let cartesian =
+            Checkpoint::load(&assets().join("policy-distilled/best.ckpt")).expect("bundled policy");
+        assert_eq!(cartesian.meta.action_space(), ActionSpace::CartesianStep);
+        let meta = serde_json::to_string(&cartesian.meta).expect("meta");
+        assert!(!meta.contains("action_space"), "{meta}");
+        let _ = std::fs::remove_dir_all(&out);
+    }
+}

@@ -1,7 +1,8 @@
 //! `learner export --onnx`'s graph, run in ONNX Runtime (the library `make setup` installs
 //! for perception), matches the learner's tch network and rt-core's kernel within 1e-5 on
-//! 1 000 observations, for both bundled policies; and each bundled policy's export beside
-//! its blob is the one its blob gives today (the library keeps it current).
+//! 1 000 observations, for each bundled policy (the joint-step one too); and each bundled
+//! policy's export beside its blob is the one its blob gives today (the library keeps it
+//! current).
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -78,12 +79,12 @@ fn observations(blob: &PolicyBlob, seed: u64) -> Vec<f32> {
     obs
 }
 
-fn run_onnx(model: &[u8], obs: &[f32], obs_dim: usize) -> Vec<f32> {
+fn run_onnx(model: &[u8], obs: &[f32], obs_dim: usize, act_dim: usize) -> Vec<f32> {
     let mut s = session(model);
     let input = TensorRef::from_array_view(([OBSERVATIONS, obs_dim], obs)).unwrap();
     let outputs = s.run(ort::inputs![onnx::INPUT => input]).unwrap();
     let (shape, values) = outputs[onnx::OUTPUT].try_extract_tensor::<f32>().unwrap();
-    assert_eq!(shape.to_vec(), vec![OBSERVATIONS as i64, 3]);
+    assert_eq!(shape.to_vec(), vec![OBSERVATIONS as i64, act_dim as i64]);
     values.to_vec()
 }
 
@@ -91,6 +92,7 @@ fn run_onnx(model: &[u8], obs: &[f32], obs_dim: usize) -> Vec<f32> {
 /// the actor's mean, clipped to the blob's action clip.
 fn run_tch(ck: &Checkpoint, blob: &PolicyBlob, obs: &[f32]) -> Vec<f32> {
     let n = blob.obs_dim as usize;
+    let a = blob.act_dim as usize;
     let norm = blob_normalizer(blob);
     let mut x = vec![0.0f32; obs.len()];
     for (raw, out) in obs.chunks(n).zip(x.chunks_mut(n)) {
@@ -101,8 +103,8 @@ fn run_tch(ck: &Checkpoint, blob: &PolicyBlob, obs: &[f32]) -> Vec<f32> {
         .actor_mean(&Tensor::from_slice(&x).view([OBSERVATIONS as i64, n as i64]))
         .clamp(-f64::from(blob.action_clip), f64::from(blob.action_clip))
         .contiguous();
-    let mut out = vec![0.0f32; OBSERVATIONS * 3];
-    mean.copy_data(&mut out, OBSERVATIONS * 3);
+    let mut out = vec![0.0f32; OBSERVATIONS * a];
+    mean.copy_data(&mut out, OBSERVATIONS * a);
     out
 }
 
@@ -114,7 +116,9 @@ fn worst(a: &[f32], b: &[f32]) -> f32 {
         .fold(0.0, f32::max)
 }
 
-fn parity(folder: &str, seed: u64) {
+/// `folder`'s blob, exported to ONNX, against tch and rt-core's kernel; its action space
+/// is `space` (`cartesian_step`, `joint_step`).
+fn parity(folder: &str, seed: u64, space: &str) {
     let dir = assets().join(folder);
     let ck = Checkpoint::load(&dir.join("best.ckpt")).unwrap();
     let blob = read_blob(&dir.join("policy.blob")).unwrap();
@@ -125,20 +129,21 @@ fn parity(folder: &str, seed: u64) {
     );
     let model = onnx::policy_onnx(&blob).unwrap();
     let n = blob.obs_dim as usize;
+    let a = blob.act_dim as usize;
     let obs = observations(&blob, seed);
-    let from_onnx = run_onnx(&model, &obs, n);
+    let from_onnx = run_onnx(&model, &obs, n, a);
     assert!(from_onnx.iter().all(|v| v.is_finite()));
     let from_tch = run_tch(&ck, &blob, &obs);
     let rt_core = PolicyLoader::new(PolicyExpectation {
         task_config_hash: blob.task_config_hash,
         obs_dim: n,
-        act_dim: 3,
+        act_dim: a,
     })
     .prepare(&blob)
     .unwrap();
-    let mut from_kernel = vec![0.0f32; OBSERVATIONS * 3];
-    for (o, a) in obs.chunks(n).zip(from_kernel.chunks_mut(3)) {
-        rt_core.evaluate(o, a).unwrap();
+    let mut from_kernel = vec![0.0f32; OBSERVATIONS * a];
+    for (o, out) in obs.chunks(n).zip(from_kernel.chunks_mut(a)) {
+        rt_core.evaluate(o, out).unwrap();
     }
     let (vs_tch, vs_kernel) = (
         worst(&from_onnx, &from_tch),
@@ -154,7 +159,7 @@ fn parity(folder: &str, seed: u64) {
         "{folder}: ONNX vs rt-core differs by {vs_kernel}"
     );
     // The outputs move with the input (not a constant graph) and reach the clip.
-    let spread = worst(&from_onnx[..3], &from_onnx[3..6]);
+    let spread = worst(&from_onnx[..a], &from_onnx[a..2 * a]);
     assert!(
         spread > 1e-3,
         "{folder}: different observations, different actions"
@@ -173,15 +178,36 @@ fn parity(folder: &str, seed: u64) {
             .unwrap();
     assert_eq!(schema["policy"]["policy_id"], blob.policy_id);
     assert_eq!(schema["observation"]["dim"], n);
-    assert_eq!(schema["action"]["space"], "cartesian_step");
+    assert_eq!(schema["action"]["space"], space);
+    assert_eq!(schema["action"]["dim"], a);
 }
 
 #[test]
 fn the_generalists_onnx_export_matches_tch_and_rt_core_within_1e_5() {
-    parity("policy", 1);
+    parity("policy", 1, "cartesian_step");
 }
 
 #[test]
 fn the_distilled_policys_onnx_export_matches_tch_and_rt_core_within_1e_5() {
-    parity("policy-distilled", 2);
+    parity("policy-distilled", 2, "cartesian_step");
+}
+
+#[test]
+fn the_joint_step_policys_onnx_export_matches_tch_and_rt_core_within_1e_5() {
+    parity("policy-joint-distilled", 3, "joint_step");
+    let schema: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(
+            assets()
+                .join("policy-joint-distilled")
+                .join(onnx::SCHEMA_FILE),
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(schema["observation"]["kind"], "joint_v1");
+    assert_eq!(
+        schema["observation"]["layout_version"],
+        shm_schemas::OBS_LAYOUT_JOINT_V1
+    );
+    assert_eq!(schema["action"]["names"][4], "dq5");
 }

@@ -3,7 +3,9 @@
 //! sampler ([`learner::distil::DistilJob`]). Keeps `best.ckpt` (best success on the fixed
 //! evaluation scenes of the pre-training distribution, ties broken by fewer contacts),
 //! `last.ckpt` and `distil.json` in `--out`, all written atomically; prints the summary as
-//! JSON. Follow with `learner pretrain --out DIR --resume` for PPO fine-tuning.
+//! JSON. Follow with `learner pretrain --out DIR --resume` for PPO fine-tuning. With
+//! `--action-space joint_step` the policy acts in the joint-step space (per-joint steps
+//! toward the goal posture the twin chooses; `learner::distil::joint`).
 
 use std::path::PathBuf;
 
@@ -11,6 +13,7 @@ use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use learner::distil::{DistilConfig, DistilEvent, DistilJob};
 use learner::ppo::bc::BcConfig;
+use shm_schemas::ActionSpace;
 
 /// Arguments of `learner distil`.
 #[derive(clap::Args)]
@@ -69,6 +72,31 @@ pub struct DistilArgs {
     /// Output directory.
     #[arg(long)]
     out: PathBuf,
+    /// The action space of the distilled policy: `cartesian_step` (the paper's, the
+    /// checkpoint's network) or `joint_step` (per-joint steps toward the goal posture the
+    /// twin chooses; a fresh network of the checkpoint's or `--hidden` shape, the teachers
+    /// the joint straight line and the planner's joint path to that posture).
+    #[arg(long, value_enum, default_value_t = SpaceArg::CartesianStep)]
+    action_space: SpaceArg,
+}
+
+/// `--action-space` (`shm_schemas::ActionSpace` by its schema name).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[clap(rename_all = "snake_case")]
+pub enum SpaceArg {
+    /// The paper's Cartesian TCP step.
+    CartesianStep,
+    /// Per-joint steps toward a goal posture.
+    JointStep,
+}
+
+impl From<SpaceArg> for ActionSpace {
+    fn from(a: SpaceArg) -> Self {
+        match a {
+            SpaceArg::CartesianStep => Self::CartesianStep,
+            SpaceArg::JointStep => Self::JointStep,
+        }
+    }
 }
 
 /// Runs `learner distil`.
@@ -99,6 +127,7 @@ pub fn run(args: DistilArgs, device: tch::Device) -> Result<()> {
         seed: args.seed,
         threads: args.threads,
         out: args.out,
+        action_space: args.action_space.into(),
     };
     let iterations = job.config.iterations as u64;
     let spinner = ProgressBar::new_spinner();

@@ -39,8 +39,9 @@ pub struct EvalArgs {
 /// # Errors
 /// Task, checkpoint, scene or export failures.
 pub fn run(args: EvalArgs, device: tch::Device) -> Result<()> {
-    let env = TwinTask::load(&args.task, None)?;
+    let mut env = TwinTask::load(&args.task, None)?;
     let ck = Checkpoint::load(&args.checkpoint)?;
+    env.set_action_space(ck.meta.action_space());
     if ck.meta.task_hash != env.task_hash() {
         tracing::warn!(
             "checkpoint task hash {:#x} differs from {}'s {:#x}",

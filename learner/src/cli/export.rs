@@ -63,17 +63,20 @@ pub fn run(args: ExportArgs) -> Result<()> {
     }
     if let Some(dir) = &args.onnx {
         let scale_m = match TaskConfig::load(&args.task) {
-            Ok(task) if task.hash() == blob.task_config_hash => Some(task.action.scale_m),
+            Ok(task) if task.hash() == blob.task_config_hash => Some(onnx::ActionScales {
+                scale_m: task.action.scale_m,
+                joint_scale_rad: task.action.joint_scale_rad(),
+            }),
             Ok(_) => {
                 eprintln!(
-                    "learner export: {} is not the policy's task (hash differs): the schema's action_scale_m is null",
+                    "learner export: {} is not the policy's task (hash differs): the schema's action scale is null",
                     args.task.display()
                 );
                 None
             }
             Err(e) => {
                 eprintln!(
-                    "learner export: {}: {e}; the schema's action_scale_m is null",
+                    "learner export: {}: {e}; the schema's action scale is null",
                     args.task.display()
                 );
                 None

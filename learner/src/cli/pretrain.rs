@@ -107,7 +107,8 @@ fn resumed(args: &PretrainArgs, hash: u64, device: tch::Device) -> Result<Traine
             args.task.display()
         );
     }
-    let env = TwinTask::load(&args.task, None)?;
+    let mut env = TwinTask::load(&args.task, None)?;
+    env.set_action_space(ck.meta.action_space());
     let mut trainer = Trainer::new(ck.meta.ppo.clone(), env, ck.meta.seed, device)?;
     ck.restore(&mut trainer)?;
     tracing::info!(steps = trainer.steps, "resumed");

@@ -10,9 +10,12 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
+use shm_schemas::ActionSpace;
 use twin::{FeasibilityConfig, Scene};
 
-use super::{DistilConfig, DistilIter, DistilWorlds, LessonCounts, distil, lessons};
+use super::{
+    DistilConfig, DistilIter, DistilWorlds, Lesson, LessonCounts, dagger_pairs, distil, lessons,
+};
 use crate::checkpoint::{self, Checkpoint, CheckpointError};
 use crate::env::SceneSampler;
 use crate::net::ActorCritic;
@@ -23,6 +26,10 @@ use crate::twin_env::{CurriculumSampler, EVAL_SEED, TaskLoadError, TwinTask, fix
 /// Seed family of the distillation worlds (distinct from the evaluation scenes' and from every
 /// benchmark generator's).
 const WORLD_SEED_BASE: u64 = 0xD157_0000;
+
+/// Seed family of the joint-step network's observation statistics (the teachers' episodes
+/// before the first iteration).
+const STATS_SEED: u64 = 0x5747_0000;
 
 /// The summary file written beside the checkpoints.
 pub const SUMMARY: &str = "distil.json";
@@ -55,6 +62,12 @@ pub struct DistilJob {
     pub threads: usize,
     /// Output directory.
     pub out: PathBuf,
+    /// The action space the distilled policy acts in. The paper's Cartesian step keeps the
+    /// checkpoint's network; the joint step (another network: 29 observations, 5 actions)
+    /// starts from fresh weights of the checkpoint's (or `hidden`) shape, its observation
+    /// statistics taken from the teachers' own episodes, and records the space in its
+    /// checkpoints (and so in its blob).
+    pub action_space: ActionSpace,
 }
 
 /// What a distillation reports while it runs (for a progress display).
@@ -91,6 +104,8 @@ pub struct DistilRecord {
 pub struct DistilSummary {
     /// The checkpoint started from.
     pub checkpoint: PathBuf,
+    /// The distilled policy's action space (`cartesian_step`, `joint_step`).
+    pub action_space: &'static str,
     /// Worlds with and without a teacher.
     pub worlds: LessonCounts,
     /// The DAgger configuration.
@@ -177,7 +192,8 @@ impl DistilJob {
         mut on_event: impl FnMut(DistilEvent<'_>),
     ) -> Result<DistilSummary, DistilJobError> {
         let t0 = Instant::now();
-        let env = TwinTask::load(&self.task, None)?;
+        let mut env = TwinTask::load(&self.task, None)?;
+        env.set_action_space(self.action_space);
         let hash = env.task_hash();
         let path = checkpoint::resolve(&self.checkpoint);
         let ck = Checkpoint::load(&path).map_err(|source| DistilJobError::Load {
@@ -193,7 +209,6 @@ impl DistilJob {
             });
         }
         let mut trainer = self.trainer(&ck, &env, device)?;
-        let norm = trainer.obs_normalizer();
         let sampler = CurriculumSampler::pretraining(&env);
         let eval_scenes = fixed_scenes(&sampler, self.eval_episodes, EVAL_SEED);
         let before = trainer.evaluate(&eval_scenes);
@@ -220,6 +235,11 @@ impl DistilJob {
                 worlds: self.worlds,
             });
         }
+
+        if self.action_space != ck.meta.action_space() {
+            self.teachers_statistics(&mut trainer, &env, &lessons);
+        }
+        let norm = trainer.obs_normalizer();
 
         std::fs::create_dir_all(&self.out).map_err(|source| DistilJobError::Output {
             path: self.out.clone(),
@@ -272,6 +292,7 @@ impl DistilJob {
         }
         let summary = DistilSummary {
             checkpoint: path,
+            action_space: self.action_space.name(),
             worlds: counts,
             config: self.config,
             before,
@@ -286,14 +307,42 @@ impl DistilJob {
         Ok(summary)
     }
 
+    /// A fresh network of another observation layout than the checkpoint's gets its
+    /// statistics from the teachers' own episodes (the states the first iteration clones on).
+    fn teachers_statistics(
+        &self,
+        trainer: &mut Trainer<TwinTask>,
+        env: &TwinTask,
+        lessons: &[Lesson],
+    ) {
+        let (set, _) = dagger_pairs(
+            &trainer.net,
+            &trainer.obs_normalizer(),
+            &env.env,
+            lessons,
+            1.0,
+            self.config.noise_std,
+            &mut ChaCha8Rng::seed_from_u64(STATS_SEED ^ self.seed),
+        );
+        trainer.obs_rms.update(&set.obs);
+    }
+
     /// The trainer whose network is distilled into: the checkpoint's, or a fresh one of the
-    /// asked shape with the checkpoint's statistics.
+    /// asked shape with the checkpoint's statistics, or in the joint-step space a fresh one
+    /// of the asked (or the checkpoint's) shape with fresh statistics.
     fn trainer(
         &self,
         ck: &Checkpoint,
         env: &TwinTask,
         device: tch::Device,
     ) -> Result<Trainer<TwinTask>, DistilJobError> {
+        if self.action_space != ck.meta.action_space() {
+            let mut cfg = ck.meta.ppo.clone();
+            if let Some(h) = &self.hidden {
+                cfg.hidden.clone_from(h);
+            }
+            return Ok(Trainer::new(cfg, env.clone(), self.seed, device)?);
+        }
         Ok(match &self.hidden {
             Some(h) if *h != ck.meta.spec.hidden => {
                 let mut cfg = ck.meta.ppo.clone();
@@ -313,7 +362,7 @@ impl DistilJob {
 }
 
 /// Writes `last.ckpt` (and `best.ckpt` when `is_best`) for the network `net` with the base
-/// checkpoint's trainer state.
+/// checkpoint's trainer state (and the trainer's action space: [`Checkpoint::capture`]).
 fn save(
     net: &ActorCritic,
     trainer: &Trainer<TwinTask>,
@@ -362,6 +411,7 @@ mod tests {
             seed: 3,
             threads: 2,
             out: out.to_path_buf(),
+            action_space: ActionSpace::CartesianStep,
         }
     }
 

@@ -24,22 +24,28 @@
 //! `tests/`: `unseen-worlds --generator all`); figures in the README ("Independent world
 //! generators").
 //!
+//! In the joint-step space (`--action-space joint_step`, issue 40 item 3) the teachers are
+//! the joint straight line and pure pursuit along the planner's joint path to the goal
+//! posture the twin chooses ([`joint`]); the rest is the same.
+//!
 //! [`DistilJob`] is one whole run (`learner distil`): teachers, DAgger, evaluation and the
 //! checkpoints.
 //!
 //! Training code: it allocates and is not for the real-time cycle.
 
 mod job;
+pub mod joint;
 
 pub use job::{DistilEvent, DistilJob, DistilJobError, DistilRecord, DistilSummary, SUMMARY};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
+use shm_schemas::ActionSpace;
 use tch::Tensor;
 use twin::{
-    ACT_DIM, FeasibilityConfig, OBS_DIM, Scene, StraightLinePolicy, TwinEnv, check_feasibility,
-    rollout,
+    FeasibilityConfig, JOINT_ACT_DIM, JointLinePolicy, OBS_DIM, Scene, StraightLinePolicy, TwinEnv,
+    check_feasibility, rollout,
 };
 
 use crate::demonstrations::{PathExpert, demonstrate, via_point_route};
@@ -48,7 +54,8 @@ use crate::net::ActorCritic;
 use crate::normalize::ObsNormalizer;
 use crate::ppo::bc::{BcConfig, BcReport, BcSet, ClearanceHinge, behaviour_clone};
 use crate::random::randn;
-use crate::twin_env::{CurriculumSampler, TwinTask};
+use crate::twin_env::{CurriculumSampler, TwinTask, step_in_space};
+use joint::JointPathExpert;
 use twin::approval::ApprovalSettings;
 
 /// Planner paths tried per world before it is skipped ([`demonstrate`]).
@@ -67,20 +74,38 @@ pub enum Teacher {
     Via(PathExpert),
     /// Pure pursuit along a planner path that re-tracks to the goal with no contact.
     Path(PathExpert),
+    /// Joint-step space: the joint straight line to the goal posture (it reaches this
+    /// world's goal with no contact).
+    JointLine(JointLinePolicy),
+    /// Joint-step space: pure pursuit along the planner's joint path to the goal posture.
+    JointPath(JointPathExpert),
 }
 
 impl Teacher {
-    /// The teacher's action for the observation `obs` (raw, full length) at TCP `tcp_m`.
-    pub fn action(&mut self, obs: &[f32; OBS_DIM], tcp_m: &[f64; 3]) -> [f32; ACT_DIM] {
+    /// The teacher's action in `env`'s current state, whose observation is `obs` (raw, full
+    /// length), into `out` (the teacher's space's action length: 3 Cartesian, 5 joint).
+    ///
+    /// # Panics
+    /// When `out` is shorter than that.
+    pub fn action_into(&mut self, env: &TwinEnv, obs: &[f32; OBS_DIM], out: &mut [f32]) {
         match self {
-            Self::Line(line) => line.act(obs),
-            Self::Via(expert) | Self::Path(expert) => expert.action(tcp_m),
+            Self::Line(line) => out[..3].copy_from_slice(&line.act(obs)),
+            Self::Via(expert) | Self::Path(expert) => {
+                let t = env.tcp_m();
+                out[..3].copy_from_slice(&expert.action(&[t.x, t.y, t.z]));
+            }
+            Self::JointLine(line) => out[..JOINT_ACT_DIM].copy_from_slice(&line.act(obs)),
+            Self::JointPath(expert) => {
+                out[..JOINT_ACT_DIM].copy_from_slice(&expert.action(&env.joints()));
+            }
         }
     }
 
     fn restart(&mut self) {
-        if let Self::Via(expert) | Self::Path(expert) = self {
-            expert.restart();
+        match self {
+            Self::Via(expert) | Self::Path(expert) => expert.restart(),
+            Self::JointPath(expert) => expert.restart(),
+            Self::Line(_) | Self::JointLine(_) => {}
         }
     }
 }
@@ -209,7 +234,7 @@ enum Untaught {
     NoCleanPath,
 }
 
-/// The teacher of `scene`, planned with the boxes grown by `margin_m` (so that a student a
+/// The teacher of `scene` (in `env`'s action space), planned with the boxes grown by `margin_m` (so that a student a
 /// little off the teacher's way is still clear), or without the margin when the grown world
 /// has no teacher; whether the margin was kept.
 fn lesson(
@@ -226,7 +251,11 @@ fn lesson(
         if !with_margin && margin_m == 0.0 {
             break;
         }
-        match teacher(env, approval, plan_in, cfg, obs_dim) {
+        let found = match env.action_space() {
+            ActionSpace::CartesianStep => teacher(env, approval, plan_in, cfg, obs_dim),
+            ActionSpace::JointStep => joint::joint_teacher(env, approval, scene, plan_in, cfg),
+        };
+        match found {
             Ok(teacher) => {
                 return Ok((
                     Lesson {
@@ -296,7 +325,7 @@ pub fn lessons(
     margin_m: f64,
     threads: usize,
 ) -> (Vec<Lesson>, LessonCounts) {
-    let obs_dim = env.config().obs_dim();
+    let obs_dim = env.obs_dim();
     let threads = threads.max(1);
     let chunk = scenes.len().div_ceil(threads).max(1);
     let results: Vec<Vec<Result<(Lesson, bool), Untaught>>> = std::thread::scope(|s| {
@@ -325,9 +354,9 @@ pub fn lessons(
             Ok((l, with_margin)) => {
                 counts.with_margin += usize::from(with_margin);
                 match l.teacher {
-                    Teacher::Line(_) => counts.line += 1,
+                    Teacher::Line(_) | Teacher::JointLine(_) => counts.line += 1,
                     Teacher::Via(_) => counts.via += 1,
-                    Teacher::Path(_) => counts.planner += 1,
+                    Teacher::Path(_) | Teacher::JointPath(_) => counts.planner += 1,
                 }
                 out.push(l);
             }
@@ -392,10 +421,12 @@ const OBS_OBSTACLE_POINT: usize = 14;
 
 impl DistilConfig {
     /// The cloning settings with the collision hinge for `env` (its action scale), when the
-    /// hinge weight is positive.
+    /// hinge weight is positive and `env` is in the Cartesian space (the hinge predicts the
+    /// clearance after a TCP step; the joint-step space has none).
     pub fn bc_for(&self, env: &TwinEnv) -> BcConfig {
+        let cartesian = env.action_space() == ActionSpace::CartesianStep;
         BcConfig {
-            hinge: (self.hinge_weight > 0.0).then(|| ClearanceHinge {
+            hinge: (self.hinge_weight > 0.0 && cartesian).then(|| ClearanceHinge {
                 weight: self.hinge_weight,
                 margin_m: self.hinge_margin_m,
                 action_scale_m: env.config().action.scale_m,
@@ -443,7 +474,8 @@ pub fn dagger_pairs(
     noise_std: f32,
     rng: &mut ChaCha8Rng,
 ) -> (BcSet, EpisodeCounts) {
-    let d = env.config().obs_dim();
+    let d = env.obs_dim();
+    let a_dim = env.action_space().act_dim();
     let mut set = BcSet::default();
     let mut counts = EpisodeCounts::default();
     let dev = net.device();
@@ -457,8 +489,10 @@ pub fn dagger_pairs(
         }
         let mut alive: Vec<usize> = (0..group.len()).collect();
         let mut x = Vec::with_capacity(group.len() * d);
-        let mut means = vec![0.0f32; group.len() * ACT_DIM];
+        let mut means = vec![0.0f32; group.len() * a_dim];
         let mut row = vec![0.0f32; d];
+        let mut label = vec![0.0f32; a_dim];
+        let mut act = vec![0.0f32; a_dim];
         while !alive.is_empty() {
             x.clear();
             for &i in &alive {
@@ -474,25 +508,20 @@ pub fn dagger_pairs(
                 )
                 .to_device(tch::Device::Cpu)
             });
-            out.view([-1])
-                .copy_data(&mut means[..m * ACT_DIM], m * ACT_DIM);
+            out.view([-1]).copy_data(&mut means[..m * a_dim], m * a_dim);
             let mut next = Vec::with_capacity(m);
             for (k, &i) in alive.iter().enumerate() {
-                let tcp = {
-                    let t = envs[i].tcp_m();
-                    [t.x, t.y, t.z]
-                };
-                let label = teachers[i].action(&obs[i], &tcp);
+                teachers[i].action_into(&envs[i], &obs[i], &mut label);
                 set.extend(&obs[i][..d], &label);
-                let mut act = if rng.random::<f64>() < beta {
-                    label
+                if rng.random::<f64>() < beta {
+                    act.copy_from_slice(&label);
                 } else {
-                    std::array::from_fn(|c| means[k * ACT_DIM + c])
-                };
+                    act.copy_from_slice(&means[k * a_dim..(k + 1) * a_dim]);
+                }
                 for v in &mut act {
                     *v = (*v + noise_std * randn(rng)).clamp(-1.0, 1.0);
                 }
-                let step = envs[i].step(&act);
+                let step = step_in_space(&mut envs[i], &act);
                 obs[i] = step.obs;
                 if step.terminated || step.truncated {
                     counts.episodes += 1;
@@ -550,7 +579,7 @@ pub fn distil(
             iteration: it,
             beta,
             episodes,
-            total_pairs: data.len(env.config().obs_dim()),
+            total_pairs: data.len(env.obs_dim()),
             bc,
         };
         tracing::info!(
@@ -598,9 +627,10 @@ mod tests {
         let mut t = teacher.clone();
         t.restart();
         let mut obs = tw.reset(scene);
+        let mut action = vec![0.0f32; env.action_space().act_dim()];
         for k in 0..env.config().episode.max_steps as usize {
-            let tcp = tw.tcp_m();
-            let out = tw.step(&t.action(&obs, &[tcp.x, tcp.y, tcp.z]));
+            t.action_into(&tw, &obs, &mut action);
+            let out = step_in_space(&mut tw, &action);
             obs = out.obs;
             if out.terminated || out.truncated {
                 return (out.task_done && out.safe, k + 1);
@@ -710,7 +740,7 @@ mod tests {
         assert_eq!(counts.pairs, steps);
         let d = t.env.config().obs_dim();
         assert_eq!(set.len(d), steps);
-        assert_eq!(set.actions.len(), steps * ACT_DIM);
+        assert_eq!(set.actions.len(), steps * twin::ACT_DIM);
         // beta 0: the bundled policy drives (it runs into the tall box) and is still
         // labelled with the teacher's actions, which differ from its own.
         let (set0, counts0) = dagger_pairs(&net, &norm, &t.env, &lessons, 0.0, 0.0, &mut rng);

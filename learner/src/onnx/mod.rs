@@ -23,7 +23,10 @@ pub mod proto;
 
 use std::path::{Path, PathBuf};
 
-use shm_schemas::{ActionSpace, Activation, PAPER_OBS_DIM, POLICY_FORMAT_VERSION, PolicyBlob};
+use shm_schemas::{
+    ActionSpace, Activation, JOINT_ACT_DIM, JOINT_OBS_DIM, PAPER_OBS_DIM, POLICY_FORMAT_VERSION,
+    PolicyBlob,
+};
 
 use crate::checkpoint::{CheckpointError, write_atomic};
 use proto::{Dim, Msg};
@@ -57,7 +60,7 @@ pub enum OnnxExportError {
     /// The blob's action space is not one this exporter knows, or its length is not the
     /// space's.
     #[error(
-        "the policy's action space (action_space {space}, act_dim {act_dim}) is not one this exporter knows (action_space 0, act_dim 3: the Cartesian step [dx, dy, dz])"
+        "the policy's action space (action_space {space}, act_dim {act_dim}) is not one this exporter knows (action_space 0, act_dim 3: the Cartesian step [dx, dy, dz]; action_space 1, act_dim 5, obs_dim 29: the joint step)"
     )]
     UnknownActionSpace {
         /// `PolicyBlob::action_space`.
@@ -126,7 +129,58 @@ pub fn observation_layout(
     Ok((kind, layout))
 }
 
-/// The blob's action space, when this exporter knows it and the length is the space's.
+/// The joint-step space's observation layout (version 1, `OBS_LAYOUT_JOINT_V1`: the `twin`
+/// crate's joint table), one entry per index.
+pub fn joint_observation_layout() -> Vec<serde_json::Value> {
+    let mut layout = Vec::with_capacity(JOINT_OBS_DIM);
+    let mut put = |name: String, unit: &str| {
+        let index = layout.len();
+        layout.push(serde_json::json!({"index": index, "name": name, "unit": unit}));
+    };
+    put("t (step index / max_steps)".into(), "1");
+    for j in 1..=JOINT_ACT_DIM {
+        put(format!("joint {j} error (goal posture - joints)"), "rad");
+    }
+    for j in 1..=JOINT_ACT_DIM {
+        put(format!("goal posture joint {j}"), "rad");
+    }
+    for a in ["x", "y", "z"] {
+        put(format!("tcp position {a}"), "m");
+    }
+    for a in ["x", "y", "z"] {
+        put(format!("goal target point {a}"), "m");
+    }
+    put("nearest box height".into(), "m");
+    put("nearest box width".into(), "m");
+    for a in ["x", "y", "z"] {
+        put(format!("closest robot point to the nearest box {a}"), "m");
+    }
+    for a in ["x", "y", "z"] {
+        put(format!("closest point of the nearest box {a}"), "m");
+    }
+    put("nearest box robot distance (capped at 1)".into(), "m");
+    put("box 2 robot distance (capped at 1; 1 if none)".into(), "m");
+    put("box 3 robot distance (capped at 1; 1 if none)".into(), "m");
+    put(
+        "table robot distance (links 2-5 and the tool, capped at 1)".into(),
+        "m",
+    );
+    layout
+}
+
+/// The observation layout of `blob`: its space's (the joint table for a joint-step blob, the
+/// Cartesian table of its `obs_dim` otherwise).
+fn blob_observation_layout(
+    blob: &PolicyBlob,
+    space: ActionSpace,
+) -> Result<(&'static str, Vec<serde_json::Value>), OnnxExportError> {
+    match space {
+        ActionSpace::CartesianStep => observation_layout(blob.obs_dim as usize),
+        ActionSpace::JointStep => Ok(("joint_v1", joint_observation_layout())),
+    }
+}
+
+/// The blob's action space, when this exporter knows it and the lengths are the space's.
 fn action_space(blob: &PolicyBlob) -> Result<ActionSpace, OnnxExportError> {
     let unknown = OnnxExportError::UnknownActionSpace {
         space: blob.action_space,
@@ -134,6 +188,11 @@ fn action_space(blob: &PolicyBlob) -> Result<ActionSpace, OnnxExportError> {
     };
     match ActionSpace::try_from(blob.action_space) {
         Ok(space @ ActionSpace::CartesianStep) if blob.act_dim as usize == shm_schemas::ACT_DIM => {
+            Ok(space)
+        }
+        Ok(space @ ActionSpace::JointStep)
+            if blob.act_dim as usize == JOINT_ACT_DIM && blob.obs_dim as usize == JOINT_OBS_DIM =>
+        {
             Ok(space)
         }
         _ => Err(unknown),
@@ -162,8 +221,7 @@ fn activation_name(a: Activation) -> &'static str {
 pub fn policy_onnx(blob: &PolicyBlob) -> Result<Vec<u8>, OnnxExportError> {
     let obs_dim = blob.obs_dim as usize;
     let act_dim = blob.act_dim as usize;
-    observation_layout(obs_dim)?;
-    action_space(blob)?;
+    blob_observation_layout(blob, action_space(blob)?)?;
     let mut inits = vec![
         proto::tensor("obs_mean", &[obs_dim as i64], &blob.obs_mean[..obs_dim]),
         proto::tensor("obs_std", &[obs_dim as i64], &blob.obs_std[..obs_dim]),
@@ -318,22 +376,65 @@ fn model(blob: &PolicyBlob, graph: &Msg) -> Vec<u8> {
         .into_bytes()
 }
 
-/// The contents of `policy.schema.json` for `blob`; `action_scale_m` is the task's
-/// `action.scale_m` when the task that trained the policy is known (its hash matches).
+/// The task's action scales a schema states (`action.scale_m`, `action.joint_scale_rad`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ActionScales {
+    /// The Cartesian step's scale (m).
+    pub scale_m: f64,
+    /// The joint step's per-joint scale (rad), joint 1 first.
+    pub joint_scale_rad: [f64; JOINT_ACT_DIM],
+}
+
+/// The schema's `action` entry of `space`.
+fn action_entry(
+    blob: &PolicyBlob,
+    space: ActionSpace,
+    scales: Option<ActionScales>,
+) -> serde_json::Value {
+    let act_dim = blob.act_dim as usize;
+    let mut entry = serde_json::json!({
+        "space": space.name(),
+        "dim": act_dim,
+        "limits": [-blob.action_clip, blob.action_clip],
+        "scale": &blob.action_scale[..act_dim],
+    });
+    let (names, unit, scale_key, scale): (Vec<String>, &str, &str, serde_json::Value) = match space
+    {
+        ActionSpace::CartesianStep => (
+            ["dx", "dy", "dz"].map(String::from).to_vec(),
+            "a fraction of action.scale_m: the TCP displacement asked for one step is action × action.scale_m (m); IK turns it into joints",
+            "action_scale_m",
+            serde_json::json!(scales.map(|s| s.scale_m)),
+        ),
+        ActionSpace::JointStep => (
+            (1..=JOINT_ACT_DIM).map(|j| format!("dq{j}")).collect(),
+            "a fraction of action.joint_scale_rad: joint i is asked to move by action[i] × action.joint_scale_rad[i] (rad) in one step, toward the goal posture the observation carries",
+            "joint_scale_rad",
+            serde_json::json!(scales.map(|s| s.joint_scale_rad)),
+        ),
+    };
+    entry["names"] = serde_json::json!(names);
+    entry["unit"] = serde_json::json!(unit);
+    entry[scale_key] = scale;
+    entry
+}
+
+/// The contents of `policy.schema.json` for `blob`; `scales` are the task's action scales
+/// when the task that trained the policy is known (its hash matches).
 ///
 /// # Errors
 /// [`OnnxExportError`] for an observation or action layout this exporter does not know.
 pub fn policy_schema(
     blob: &PolicyBlob,
-    action_scale_m: Option<f64>,
+    scales: Option<ActionScales>,
 ) -> Result<serde_json::Value, OnnxExportError> {
     let obs_dim = blob.obs_dim as usize;
     let act_dim = blob.act_dim as usize;
-    let (kind, layout) = observation_layout(obs_dim)?;
     let space = action_space(blob)?;
+    let (kind, layout) = blob_observation_layout(blob, space)?;
     let hidden: Vec<u32> = blob.hidden_sizes[..blob.n_hidden as usize].to_vec();
     let act = |b: u8| Activation::try_from(b).map_or("unknown", activation_name);
-    Ok(serde_json::json!({
+    let mut schema = serde_json::json!({
         "schema_version": SCHEMA_VERSION,
         "policy": {
             "policy_id": blob.policy_id,
@@ -356,21 +457,19 @@ pub fn policy_schema(
             "layout": layout,
             "obs_clip": blob.obs_clip,
         },
-        "action": {
-            "space": space.name(),
-            "dim": act_dim,
-            "names": ["dx", "dy", "dz"],
-            "limits": [-blob.action_clip, blob.action_clip],
-            "scale": &blob.action_scale[..act_dim],
-            "unit": "a fraction of action.scale_m: the TCP displacement asked for one step is action × action.scale_m (m); IK turns it into joints",
-            "action_scale_m": action_scale_m,
-        },
+        "action": action_entry(blob, space, scales),
         "network": {
             "hidden": hidden,
             "activation": act(blob.activation),
             "output_activation": act(blob.output_activation),
         },
-    }))
+    });
+    // The joint table is versioned (`PolicyBlob::obs_layout`); the Cartesian one is fixed by
+    // its length, and its schema stays as it was written before the joint step existed.
+    if space == ActionSpace::JointStep {
+        schema["observation"]["layout_version"] = serde_json::json!(blob.obs_layout);
+    }
+    Ok(schema)
 }
 
 /// Writes `policy.onnx` and `policy.schema.json` into `dir` (made if missing), each
@@ -381,10 +480,10 @@ pub fn policy_schema(
 pub fn write_export(
     dir: &Path,
     blob: &PolicyBlob,
-    action_scale_m: Option<f64>,
+    scales: Option<ActionScales>,
 ) -> Result<(PathBuf, PathBuf), OnnxExportError> {
     let onnx = policy_onnx(blob)?;
-    let schema = policy_schema(blob, action_scale_m)?;
+    let schema = policy_schema(blob, scales)?;
     std::fs::create_dir_all(dir).map_err(|source| OnnxExportError::Folder {
         path: dir.to_path_buf(),
         source,

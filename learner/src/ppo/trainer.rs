@@ -174,6 +174,11 @@ impl<E: Env + Clone> Trainer<E> {
         }
     }
 
+    /// The environment the episodes are cloned from.
+    pub fn template(&self) -> &E {
+        &self.template
+    }
+
     /// The frozen observation normaliser in force.
     pub fn obs_normalizer(&self) -> ObsNormalizer {
         if self.cfg.norm_obs {

@@ -13,7 +13,9 @@
 //! proven feasible by the twin's planner and reports the infeasible draws it skipped.
 //! `all` runs the four.
 //!
-//! For each world: the scripted straight line, the policy zero-shot (success, contact or
+//! For each world: the scripted straight line (Cartesian), the joint straight line (the
+//! joint-step space's baseline: `twin::JointLinePolicy` toward the goal posture the twin
+//! chooses), the policy zero-shot in its checkpoint's action space (success, contact or
 //! timeout), the planner — the feasibility proof's joint path re-tracked in the twin
 //! (`worldgen::track_path`): 100 % of feasible worlds by construction, the ceiling of the
 //! planner fallback, not a learned skill — and, with `--retrain`, for each feasible world
@@ -53,6 +55,7 @@ use learner::twin_env::{CurriculumSampler, EVAL_SEED, TwinTask, fixed_scenes};
 use policy::{MlpPolicy, PolicyExpectation, PolicyLoader};
 use rand::SeedableRng;
 use serde::Serialize;
+use shm_schemas::ActionSpace;
 use twin::{
     Feasibility, InfeasibleReason, Joints, Sampler, SamplingSettings, Scene, check_feasibility,
 };
@@ -171,6 +174,9 @@ struct WorldRow {
     infeasible_reason: Option<String>,
     feasibility_s: f64,
     straight_line: bool,
+    /// The joint straight line to the goal posture the twin chooses reached the goal with no
+    /// contact (the joint-step space's counterpart of `straight_line`).
+    joint_line: bool,
     zero_shot: bool,
     zero_shot_contact: bool,
     zero_shot_timeout: bool,
@@ -237,11 +243,13 @@ struct Aggregate {
     feasible: usize,
     infeasible: usize,
     straight_line: usize,
+    joint_line: usize,
     zero_shot: usize,
     zero_shot_contact: usize,
     zero_shot_timeout: usize,
     planner: usize,
     straight_line_rate: f64,
+    joint_line_rate: f64,
     zero_shot_rate: f64,
     zero_shot_contact_rate: f64,
     planner_rate: f64,
@@ -329,7 +337,7 @@ fn run(args: WorldsArgs, device: tch::Device) -> Result<()> {
     );
     let out = serve.out.clone().context("unseen-worlds needs --out DIR")?;
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    let env = TwinTask::load(&serve.task, None)?;
+    let mut env = TwinTask::load(&serve.task, None)?;
     let sources = args.generator.sources();
     if sources.contains(&Source::Task) && env.env.config().world.is_none() {
         anyhow::bail!(
@@ -338,6 +346,7 @@ fn run(args: WorldsArgs, device: tch::Device) -> Result<()> {
         );
     }
     let base = load_checkpoint(serve, &env)?;
+    let space = policy_space(&args, &base, &mut env)?;
     let net = base.network(device)?;
     let norm = ObsNormalizer::from_stats(&base.meta.obs_rms.to_rms(), base.meta.ppo.clip_obs);
     let workers = base.meta.ppo.effective_workers();
@@ -383,6 +392,7 @@ fn run(args: WorldsArgs, device: tch::Device) -> Result<()> {
         &out.join("worlds.json"),
         &serde_json::to_vec_pretty(&serde_json::json!({
             "seed": args.seed,
+            "action_space": space.name(),
             "base_kept": base_kept,
             "generators": tables,
         }))?,
@@ -414,6 +424,21 @@ fn load_checkpoint(serve: &RetrainFlags, env: &TwinTask) -> Result<Checkpoint> {
     Ok(base)
 }
 
+/// The action space of `base`, which `env` is switched to; refused with `--samples` or
+/// `--retrain` (Cartesian-step policies only) for a joint-step checkpoint.
+fn policy_space(args: &WorldsArgs, base: &Checkpoint, env: &mut TwinTask) -> Result<ActionSpace> {
+    let space = base.meta.action_space();
+    anyhow::ensure!(
+        space == ActionSpace::CartesianStep || (args.samples.is_empty() && !args.retrain),
+        "--samples and --retrain run Cartesian-step policies only; {} acts in {}",
+        args.args.checkpoint.display(),
+        space.name()
+    );
+    env.set_action_space(space);
+    println!("policy action space: {}", space.name());
+    Ok(space)
+}
+
 /// With `--samples`: `base` exported and loaded as rt-core runs it (the sampling settings
 /// checked first); without: `None`.
 fn exported_policy(
@@ -430,7 +455,7 @@ fn exported_policy(
     let blob = learner::export::export_blob(base, 1)?;
     let loader = PolicyLoader::new(PolicyExpectation::for_task_obs(
         env.task_hash(),
-        env.env.config().obs_dim(),
+        env.env.obs_dim(),
     ));
     Ok(Some(loader.prepare(&blob).map_err(|e| {
         anyhow::anyhow!("the exported blob is refused: {e:?}")
@@ -544,13 +569,14 @@ impl Bench<'_> {
             skipped.len()
         );
         println!(
-            "{:>3} {:<20} {:>5} {:>7} {:>9} {:>8} {:>9} {:>7} {:>10}  note",
+            "{:>3} {:<20} {:>5} {:>7} {:>9} {:>8} {:>10} {:>9} {:>7} {:>10}  note",
             "#",
             "kind",
             "boxes",
             "tallest",
             "feasible",
             "straight",
+            "joint line",
             "zero-shot",
             "planner",
             "retrained"
@@ -574,9 +600,14 @@ impl Bench<'_> {
     fn row(&self, source: Source, index: usize, c: Candidate) -> Result<WorldRow> {
         let env = self.env;
         let scene = &c.scene;
-        let mut tw = env.env.clone();
+        let mut tw = env
+            .env
+            .clone()
+            .with_action_space(ActionSpace::CartesianStep);
         let line = tw.straight_line_policy();
         let straight = twin::rollout(&mut tw, scene, |o| line.act(o), None);
+        let joint_line = tw.joint_line_policy();
+        let joint = twin::rollout_joint(&mut tw, scene, |o| joint_line.act(o), None, true);
         let zs = evaluate(self.net, self.norm, env, std::slice::from_ref(scene), 1);
         let zero_shot = zs.success_rate > 0.5;
         let zero_shot_contact = zs.collision_rate > 0.0;
@@ -614,6 +645,7 @@ impl Bench<'_> {
                 .map(|r| r.display_with(&scene.obstacles).to_string()),
             feasibility_s: c.feasibility_s,
             straight_line: straight.success && straight.safe,
+            joint_line: joint.success && joint.safe,
             zero_shot,
             zero_shot_contact,
             zero_shot_timeout: !zero_shot && !zero_shot_contact,

@@ -34,13 +34,14 @@ pub(crate) fn print_row(r: &WorldRow) {
         })
         .collect();
     println!(
-        "{:>3} {:<20} {:>5} {:>6.2}m {:>9} {:>8} {:>9} {:>7} {:>10}  {}{sampled}",
+        "{:>3} {:<20} {:>5} {:>6.2}m {:>9} {:>8} {:>10} {:>9} {:>7} {:>10}  {}{sampled}",
         r.index,
         r.kind,
         r.boxes,
         r.tallest_box_m,
         yes(r.feasible),
         yes(r.straight_line),
+        yes(r.joint_line),
         zero_shot_word(r),
         r.planner.map_or("-", yes),
         r.retrained.as_ref().map_or("-".to_string(), |t| format!(
@@ -62,6 +63,7 @@ pub(crate) fn aggregate(rows: &[WorldRow]) -> Aggregate {
     let mut kept: Vec<f64> = re.iter().map(|r| r.kept.success_rate).collect();
     let mut library: Vec<f64> = re.iter().map(|r| r.library_kept).collect();
     let straight_line = count(&|r| r.straight_line);
+    let joint_line = count(&|r| r.joint_line);
     let zero_shot = count(&|r| r.zero_shot);
     let zero_shot_contact = count(&|r| r.zero_shot_contact);
     let planner = count(&|r| r.planner == Some(true));
@@ -94,11 +96,13 @@ pub(crate) fn aggregate(rows: &[WorldRow]) -> Aggregate {
         feasible: feasible.len(),
         infeasible: rows.len() - feasible.len(),
         straight_line,
+        joint_line,
         zero_shot,
         zero_shot_contact,
         zero_shot_timeout: count(&|r| r.zero_shot_timeout),
         planner,
         straight_line_rate: straight_line as f64 / nf,
+        joint_line_rate: joint_line as f64 / nf,
         zero_shot_rate: zero_shot as f64 / nf,
         zero_shot_contact_rate: zero_shot_contact as f64 / nf,
         planner_rate: planner as f64 / nf,
@@ -136,8 +140,8 @@ fn opt_pct(v: Option<f64>) -> String {
 /// The per-generator table (Markdown).
 pub(crate) fn summary_table(tables: &[GeneratorTable]) -> String {
     let mut s = String::from(
-        "| generator | feasible worlds | infeasible skipped | policy zero-shot | contact | timeout | straight line | line, not policy | planner (path re-tracked) | retrained: learned | retraining median / max (s) | kept in library (min) |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| generator | feasible worlds | infeasible skipped | policy zero-shot | contact | timeout | straight line | joint straight line | line, not policy | planner (path re-tracked) | retrained: learned | retraining median / max (s) | kept in library (min) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for t in tables {
         let a = &t.aggregate;
@@ -148,7 +152,7 @@ pub(crate) fn summary_table(tables: &[GeneratorTable]) -> String {
         };
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} | {} |",
             t.generator,
             a.feasible,
             skipped,
@@ -156,6 +160,7 @@ pub(crate) fn summary_table(tables: &[GeneratorTable]) -> String {
             a.zero_shot_contact,
             a.zero_shot_timeout,
             of(a.straight_line, a.feasible),
+            of(a.joint_line, a.feasible),
             a.line_not_policy,
             of(a.planner, a.feasible),
             if a.retrain_failed_undemonstrated > 0 {
